@@ -1,0 +1,1 @@
+"""fleetgate gateway: planning, execution core, server and operator GUI."""

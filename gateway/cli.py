@@ -1,0 +1,76 @@
+"""The ``fleetgate`` command.
+
+Gateway subcommands live in :mod:`gateway.commands`; packages the gateway must not import
+(``sim_clients``) contribute theirs through the ``fleetgate.commands`` entry-point group.
+Exit codes: 0 success, 2 bad input (one-line reason on stderr), 3 no solution within the limit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+from importlib.metadata import entry_points
+
+GATEWAY_COMMANDS: tuple[str, ...] = (
+    "gateway.commands.plan",
+    "gateway.commands.maps",
+    "gateway.commands.serve",
+    "gateway.commands.protocol",
+)
+"""Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 2
+EXIT_NO_SOLUTION = 3
+
+
+class UsageError(Exception):
+    """Bad input: the CLI prints ``fleetgate: <message>`` and exits with code 2."""
+
+
+Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
+
+
+def _registrars() -> list[Register]:
+    found: list[Register] = []
+    for name in GATEWAY_COMMANDS:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        found.append(module.register)
+    for ep in sorted(entry_points(group="fleetgate.commands"), key=lambda e: e.name):
+        found.append(ep.load())
+    return found
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser, with every registered subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="fleetgate",
+        description="Execute multi-robot plans safely, monitor delays, replan when it pays off.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for register in _registrars():
+        register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script; returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        code: int = args.func(args)
+    except UsageError as exc:
+        print(f"fleetgate: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,77 @@
+"""What the executor hands its driver through ``Executor.drain()``.
+
+A driver (asyncio server, in-memory server, discrete-event loop) turns these into I/O: a
+``Dispatch`` becomes a message to a robot, a ``SolveRequest`` a call to the planner, and so on.
+Times are milliseconds since the start of execution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gateway.planning.grid import Cell
+from gateway.planning.plan import Plan
+
+
+@dataclass(frozen=True, slots=True)
+class Dispatch:
+    """Robot ``robot`` may now execute action ``action`` (index i of a_i^k) of plan ``plan``."""
+
+    plan: int
+    robot: int
+    action: int
+    src: Cell
+    dst: Cell
+    duration_ms: float
+
+
+@dataclass(frozen=True, slots=True)
+class Cancel:
+    """A replan cancels this blocked, not yet moving action; the robot stays on ``src``.
+
+    The driver answers with ``Executor.cancelled`` (or, if the robot had already started to
+    move, with ``started``/``finished`` as usual).
+    """
+
+    plan: int
+    robot: int
+    action: int
+
+
+@dataclass(frozen=True, slots=True)
+class Trigger:
+    """A replan was decided by ``policy`` ("slack", "random" or "operator")."""
+
+    policy: str
+    fleet_slack_ms: float
+
+
+@dataclass(frozen=True, slots=True)
+class SolveRequest:
+    """All robots are idle after a trigger: plan from ``starts`` to ``goals``.
+
+    The driver solves (charging the solver's time as it is configured to) and then calls
+    ``Executor.adopt_plan`` or, if no plan was found, ``Executor.abandon_replan``.
+    """
+
+    starts: tuple[Cell, ...]
+    goals: tuple[Cell, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class PlanAdopted:
+    """Plan number ``plan`` (0 for the first) is now being executed."""
+
+    plan: int
+    paths: Plan
+
+
+@dataclass(frozen=True, slots=True)
+class Completed:
+    """Every robot has finished its last action."""
+
+    soc_ms: float
+    makespan_ms: float
+
+
+Command = Dispatch | Cancel | Trigger | SolveRequest | PlanAdopted | Completed

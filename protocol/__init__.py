@@ -1,0 +1,1 @@
+"""fleetgate wire protocol (v1): pydantic models for robot, gateway and operator messages."""

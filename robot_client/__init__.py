@@ -1,0 +1,1 @@
+"""Real-robot client: Kobuki driver, AprilTag + odometry localisation, action runner."""

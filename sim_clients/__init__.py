@@ -1,0 +1,1 @@
+"""Simulated robots, world occupancy, intruder, virtual-time runner and experiment campaigns."""

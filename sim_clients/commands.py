@@ -1,0 +1,25 @@
+"""``fleetgate`` subcommands contributed by sim_clients (via the ``fleetgate.commands`` entry point)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+SIM_COMMANDS: tuple[str, ...] = (
+    "sim_clients.cmd_simulate",
+    "sim_clients.cmd_sim",
+    "sim_clients.cmd_demo",
+    "sim_clients.cmd_experiment",
+)
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add every sim_clients subcommand that exists to the ``fleetgate`` parser."""
+    for name in SIM_COMMANDS:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        module.register(sub)
