@@ -1,4 +1,4 @@
-"""``fleetgate`` subcommands contributed by sim_clients (via the ``fleetgate.commands`` entry point)."""
+"""``fleetgate`` subcommands of sim_clients, found via the ``fleetgate.commands`` entry point."""
 
 from __future__ import annotations
 

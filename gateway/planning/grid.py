@@ -92,8 +92,7 @@ class Grid:
     def free_cells(self) -> Iterator[Cell]:
         """All free cells, row by row."""
         ys, xs = np.nonzero(self.free)
-        for x, y in zip(xs.tolist(), ys.tolist(), strict=True):
-            yield (x, y)
+        yield from zip(xs.tolist(), ys.tolist(), strict=True)
 
     def __repr__(self) -> str:
         return f"Grid({self.name!r}, {self.width}x{self.height})"
