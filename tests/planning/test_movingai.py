@@ -65,6 +65,7 @@ def test_scen_round_trip(tmp_path_factory: pytest.TempPathFactory,
 def test_scen_accepts_space_separated_and_crlf_lines() -> None:
     parsed = parse_scen("version 1\r\n0 a.map 4 4 1 2 3 0 2.0\r\n\r\n", "s.scen")
     (entry,) = parsed.agents
+    assert isinstance(entry, ScenEntry)
     assert (entry.start, entry.goal, entry.line, entry.map_name) == ((1, 2), (3, 0), 2, "a.map")
 
 
