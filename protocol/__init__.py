@@ -1,1 +1,110 @@
-"""fleetgate wire protocol (v1): pydantic models for robot, gateway and operator messages."""
+"""fleetgate wire protocol v1: pydantic models for robot, gateway and operator messages.
+
+One JSON object per websocket text frame, discriminated on ``type``; every message has ``v``
+(= :data:`PROTOCOL_VERSION`), a unique ``msg_id`` and a per-sender ``seq``; unknown fields are
+refused; at most :data:`MAX_MESSAGE_BYTES`. Decode with :func:`decode` (raises
+:class:`ProtocolError` carrying an :class:`ErrorCode`), encode with :func:`encode`.
+
+Roles are fixed at the websocket handshake by the token (``Authorization: Bearer <token>`` or
+``?token=``): a robot token is bound to one ``robot_id``; operator and world tokens have their
+own role. A message that its sender's role may not send is refused with ``forbidden``.
+
+Robot session (borrowed from VDA 5050: release only what may be driven now, explicit
+cancel/pause/resume, state snapshots that make reconnecting simple, coded rejections)::
+
+    robot                                   gateway
+      hello(robot_id, pose, acked, finished, current) -->
+                                          <-- welcome(start pose, plan, resend[actions], paused)
+                                          <-- action(action_id "plan.robot.i", src, dst,
+                                                     duration_ms, sequence=i)
+      ack(action_id)                        -->   (robot drops a duplicate action_id silently)
+      blocked(action_id, pose)              -->   target cell taken; re-check ...
+      unblocked(action_id, pose)            -->
+      started(action_id, pose)              -->   begins to move
+      finished(action_id, pose)             -->   arrived; applied once per action_id
+                                          <-- action(...)  next one, once its ADG deps are done
+                                          <-- cancel(action_id)   replan: drop it if not moving
+      cancelled(action_id, pose)            -->   (or finished, if it was already moving)
+                                          <-- pause / resume
+      state(robot_id, pose, activity, current) every welcome.state_period_ms
+                                          <-- error(code, ref=offending msg_id, detail)
+
+An action is sent only when its ADG dependencies are done; the gateway resends, in
+``welcome.resend``, every dispatched action it has no ``finished`` for. On link loss a robot
+finishes its current move and stops; the gateway holds that robot's ADG steps until it is back.
+A ``finished`` for an action already applied gets ``error(duplicate)`` and changes nothing;
+``hello.finished`` lets a robot report finishes whose messages were lost.
+
+Operator session::
+
+    operator                                gateway
+                                          <-- snapshot (whole fleet), then a stream of event
+      load_instance | load_plan | start | pause | resume | replan_now | set_policy
+      | set_threshold | set_speed | place_intruder | get_snapshot -->
+                                          <-- ok(ref) or error(code, ref)
+
+World session (the simulated world of a demo): the gateway forwards ``place_intruder`` and
+``set_speed`` to it; it reports ``intruder(cell, on|off)``, which the gateway relays to
+operators as ``event(intruder)``. The executor never learns where the intruder is.
+"""
+
+from protocol.codec import MESSAGE_ADAPTER, MESSAGE_TYPES, ProtocolError, decode, encode
+from protocol.messages import (
+    MAX_MESSAGE_BYTES,
+    PROTOCOL_VERSION,
+    Ack,
+    Action,
+    ActionCounts,
+    Activity,
+    AnyMessage,
+    Blocked,
+    CancelAction,
+    Cancelled,
+    Error,
+    ErrorCode,
+    Event,
+    Finished,
+    GenerateParams,
+    GetSnapshot,
+    Hello,
+    IntruderReport,
+    LoadInstance,
+    LoadPlan,
+    Message,
+    Ok,
+    OperatorCommand,
+    Pause,
+    PlaceIntruder,
+    Pose,
+    ReplanNow,
+    Resume,
+    RobotMessage,
+    RobotView,
+    SetPolicy,
+    SetSpeed,
+    SetThreshold,
+    Snapshot,
+    Start,
+    Started,
+    State,
+    ToOperatorMessage,
+    ToRobotMessage,
+    Unblocked,
+    WaitEdge,
+    Welcome,
+    WorldMessage,
+    action_id,
+    parse_action_id,
+)
+from protocol.schema import json_schema
+
+__all__ = [
+    "MAX_MESSAGE_BYTES", "MESSAGE_ADAPTER", "MESSAGE_TYPES", "PROTOCOL_VERSION", "Ack",
+    "Action", "ActionCounts", "Activity", "AnyMessage", "Blocked", "CancelAction", "Cancelled",
+    "Error", "ErrorCode", "Event", "Finished", "GenerateParams", "GetSnapshot", "Hello",
+    "IntruderReport", "LoadInstance", "LoadPlan", "Message", "Ok", "OperatorCommand", "Pause",
+    "PlaceIntruder", "Pose", "ProtocolError", "ReplanNow", "Resume", "RobotMessage",
+    "RobotView", "SetPolicy", "SetSpeed", "SetThreshold", "Snapshot", "Start", "Started",
+    "State", "ToOperatorMessage", "ToRobotMessage", "Unblocked", "WaitEdge", "Welcome",
+    "WorldMessage", "action_id", "decode", "encode", "json_schema", "parse_action_id",
+]

@@ -1,0 +1,35 @@
+"""``fleetgate protocol schema``: write the JSON Schema of the wire protocol."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from gateway.cli import EXIT_OK, UsageError
+from protocol import json_schema
+
+
+def _schema(args: argparse.Namespace) -> int:
+    text = json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
+    if args.output is None:
+        sys.stdout.write(text)
+        return EXIT_OK
+    try:
+        Path(args.output).write_text(text)
+    except OSError as exc:
+        raise UsageError(f"cannot write {args.output}: {exc.strerror}") from None
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``fleetgate protocol`` (with its ``schema`` subcommand)."""
+    parser = sub.add_parser("protocol", help="the robot/operator wire protocol",
+                            description="Tools for the fleetgate wire protocol (v1).")
+    inner = parser.add_subparsers(dest="protocol_command", required=True, metavar="SUBCOMMAND")
+    schema = inner.add_parser("schema", help="write the JSON Schema of every message",
+                              description="Write the JSON Schema (draft 2020-12) of protocol "
+                                          "v1 to FILE or standard output.")
+    schema.add_argument("-o", "--output", metavar="FILE", help="write here instead of stdout")
+    schema.set_defaults(func=_schema)

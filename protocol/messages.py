@@ -1,0 +1,489 @@
+"""The message models of protocol v1 (see :mod:`protocol` for the message flow).
+
+Every message carries ``type`` (the discriminator), ``v`` (protocol version), ``msg_id`` (unique
+per sender) and ``seq`` (per-sender counter, +1 per message on a connection). Unknown fields are
+rejected (``extra="forbid"``). Cells are ``[x, y]`` (x the column, y the row), times are
+milliseconds.
+"""
+
+from __future__ import annotations
+
+import re
+from enum import StrEnum
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+PROTOCOL_VERSION: Literal[1] = 1
+"""The version every message of this module carries in ``v``."""
+
+MAX_MESSAGE_BYTES = 64 * 1024
+"""Largest message (encoded JSON) a peer must accept; larger ones are refused."""
+
+Cell = tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=0)]]
+"""A grid cell ``[x, y]``."""
+
+Heading = Literal["E", "N", "W", "S"]
+"""Compass heading of a robot (only meaningful for the ``turning`` motion model)."""
+
+RobotId = Annotated[int, Field(ge=0)]
+"""A robot is the agent with this index in the instance."""
+
+MsgId = Annotated[str, Field(min_length=1, max_length=64)]
+
+_ACTION_ID = re.compile(r"^(\d+)\.(\d+)\.(\d+)$")
+ActionId = Annotated[str, Field(pattern=_ACTION_ID.pattern, max_length=40)]
+"""``"<plan>.<robot>.<index>"``: action ``index`` (a_index^robot) of plan number ``plan``."""
+
+
+def action_id(plan: int, robot: int, index: int) -> str:
+    """The action id of action ``index`` of ``robot`` in plan ``plan``."""
+    return f"{plan}.{robot}.{index}"
+
+
+def parse_action_id(value: str) -> tuple[int, int, int]:
+    """``(plan, robot, index)`` of an action id; ValueError if it is not one."""
+    m = _ACTION_ID.match(value)
+    if m is None:
+        raise ValueError(f"not an action id (expected '<plan>.<robot>.<index>'): {value!r}")
+    return int(m[1]), int(m[2]), int(m[3])
+
+
+class _Model(BaseModel):
+    """Strict base of every nested structure."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _require_version(schema: dict[str, Any]) -> None:
+    """On the wire ``v`` and ``type`` are mandatory even though the models fill them in."""
+    required = schema.setdefault("required", [])
+    if isinstance(required, list):
+        required[:0] = [k for k in ("v", "type") if k not in required]
+
+
+class Envelope(_Model):
+    """Fields common to every message; ``v`` and ``type`` must be present on the wire."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_require_version)
+
+    v: Literal[1] = PROTOCOL_VERSION
+    msg_id: MsgId
+    seq: Annotated[int, Field(ge=0)]
+
+
+class Pose(_Model):
+    """Where a robot is: its cell, and its heading if the motion model has one."""
+
+    cell: Cell
+    heading: Heading | None = None
+
+
+RobotActivity = Literal["idle", "received", "running", "blocked", "paused", "disconnected"]
+"""What a robot is doing: ``received`` = holds an action it has not started yet."""
+
+
+class Activity(_Model):
+    """The action a robot currently holds and what it does with it."""
+
+    action_id: ActionId
+    state: Literal["received", "running", "blocked"]
+
+
+# --------------------------------------------------------------------------------------------
+# robot -> gateway
+
+
+class Hello(Envelope):
+    """First message of a robot connection: who it is and a snapshot of what it is doing.
+
+    ``acked`` are ids of actions it holds (received, not finished); ``finished`` ids of actions
+    it finished (at least those whose ``finished`` report may have been lost). The gateway
+    applies missing finishes and answers with ``welcome``.
+    """
+
+    type: Literal["hello"] = "hello"
+    robot_id: RobotId
+    pose: Pose | None = None
+    acked: list[ActionId] = Field(default_factory=list, max_length=256)
+    finished: list[ActionId] = Field(default_factory=list, max_length=256)
+    current: Activity | None = None
+
+
+class Ack(Envelope):
+    """The robot received action ``action_id`` (and will drop any duplicate of it)."""
+
+    type: Literal["ack"] = "ack"
+    action_id: ActionId
+
+
+class _ActionReport(Envelope):
+    """A report about one of the sender's own actions, with its pose at that moment."""
+
+    action_id: ActionId
+    pose: Pose | None = None
+
+
+class Started(_ActionReport):
+    """The robot began to move (its target cell was free)."""
+
+    type: Literal["started"] = "started"
+
+
+class Finished(_ActionReport):
+    """The robot arrived at the action's target."""
+
+    type: Literal["finished"] = "finished"
+
+
+class Blocked(_ActionReport):
+    """The action's target cell is taken; the robot waits and re-checks."""
+
+    type: Literal["blocked"] = "blocked"
+
+
+class Unblocked(_ActionReport):
+    """The target cell became free again (a ``started`` follows)."""
+
+    type: Literal["unblocked"] = "unblocked"
+
+
+class Cancelled(_ActionReport):
+    """The robot confirms a ``cancel``: it dropped the action and stays where it is."""
+
+    type: Literal["cancelled"] = "cancelled"
+
+
+class State(Envelope):
+    """Periodic snapshot of the robot (every few seconds, VDA 5050 style)."""
+
+    type: Literal["state"] = "state"
+    robot_id: RobotId
+    pose: Pose | None = None
+    activity: RobotActivity = "idle"
+    current: Activity | None = None
+    battery: Annotated[float, Field(ge=0, le=1)] | None = None
+
+
+# --------------------------------------------------------------------------------------------
+# gateway -> robot
+
+
+class Action(Envelope):
+    """Execute this action now: all its ADG dependencies are done (VDA 5050 "released").
+
+    ``sequence`` is the action's index i in the robot's plan; it matches ``action_id``.
+    """
+
+    type: Literal["action"] = "action"
+    action_id: ActionId
+    sequence: Annotated[int, Field(ge=0)]
+    src: Pose
+    dst: Pose
+    duration_ms: Annotated[float, Field(gt=0)]
+
+    @model_validator(mode="after")
+    def _sequence_matches_id(self) -> Action:
+        if parse_action_id(self.action_id)[2] != self.sequence:
+            raise ValueError(f"sequence {self.sequence} does not match {self.action_id}")
+        return self
+
+
+class Welcome(Envelope):
+    """Answer to ``hello``: the robot's assigned start and the actions it must (re)execute.
+
+    ``resend`` holds every dispatched action the gateway has no ``finished`` for, in order.
+    """
+
+    type: Literal["welcome"] = "welcome"
+    robot_id: RobotId
+    start: Pose | None = None
+    plan: Annotated[int, Field(ge=0)] | None = None
+    resend: list[Action] = Field(default_factory=list)
+    state_period_ms: Annotated[float, Field(gt=0)] = 5000.0
+    paused: bool = False
+
+
+class CancelAction(Envelope):
+    """Drop this action if it has not started to move; answer ``cancelled`` (or, if already
+    moving, finish it and answer ``finished``)."""
+
+    type: Literal["cancel"] = "cancel"
+    action_id: ActionId
+
+
+class Pause(Envelope):
+    """Start no new move until ``resume`` (a running move completes).
+
+    Sent by an operator it pauses the whole fleet: the gateway stops dispatching and sends
+    ``pause`` to every robot.
+    """
+
+    type: Literal["pause"] = "pause"
+    reason: str = ""
+
+
+class Resume(Envelope):
+    """Continue after ``pause`` (from an operator: resume the fleet and dispatching)."""
+
+    type: Literal["resume"] = "resume"
+
+
+class ErrorCode(StrEnum):
+    """Why the gateway refused a message (VDA 5050 style explicit rejection)."""
+
+    MALFORMED = "malformed"  # not JSON, or not a JSON object
+    TOO_LARGE = "too_large"  # over MAX_MESSAGE_BYTES
+    UNSUPPORTED_VERSION = "unsupported_version"
+    UNKNOWN_TYPE = "unknown_type"
+    INVALID = "invalid"  # a known type whose fields do not validate
+    FORBIDDEN = "forbidden"  # this role may not send this type
+    NOT_YOURSELF = "not_yourself"  # a robot reporting about another robot
+    UNKNOWN_ACTION = "unknown_action"  # never dispatched to this robot
+    DUPLICATE = "duplicate"  # already applied (e.g. a second finish); ignored
+    REJECTED = "rejected"  # the executor refused the event (out of order, ...)
+    BAD_STATE = "bad_state"  # command not possible now (e.g. start with nothing loaded)
+    BAD_REQUEST = "bad_request"  # command arguments wrong (unknown map, ...)
+    RATE_LIMITED = "rate_limited"
+    INTERNAL = "internal"
+
+
+class Error(Envelope):
+    """A message was refused; ``ref`` is its ``msg_id`` when it could be read."""
+
+    type: Literal["error"] = "error"
+    code: ErrorCode
+    ref: str | None = None
+    detail: str = ""
+
+
+class Ok(Envelope):
+    """An operator command ``ref`` was accepted."""
+
+    type: Literal["ok"] = "ok"
+    ref: str
+    detail: str = ""
+
+
+# --------------------------------------------------------------------------------------------
+# operator -> gateway (commands)
+
+
+class GenerateParams(_Model):
+    """Ask the gateway to generate a scenario on the map instead of naming one."""
+
+    seed: int = 0
+    kind: Literal["random"] = "random"
+
+
+class LoadInstance(Envelope):
+    """Load map + scenario (or generate starts/goals) with the first ``agents`` agents, plan."""
+
+    type: Literal["load_instance"] = "load_instance"
+    map: Annotated[str, Field(min_length=1, max_length=200)]
+    scen: Annotated[str, Field(min_length=1, max_length=200)] | None = None
+    generate: GenerateParams | None = None
+    agents: Annotated[int, Field(ge=1, le=10000)]
+
+
+class LoadPlan(Envelope):
+    """Execute these paths (one per robot, ``path[t]`` its cell at step t) on map ``map``."""
+
+    type: Literal["load_plan"] = "load_plan"
+    map: Annotated[str, Field(min_length=1, max_length=200)]
+    paths: list[list[Cell]] = Field(min_length=1)
+
+
+class Start(Envelope):
+    """Start executing the loaded plan."""
+
+    type: Literal["start"] = "start"
+
+
+class ReplanNow(Envelope):
+    """Trigger a replan immediately (policy "operator")."""
+
+    type: Literal["replan_now"] = "replan_now"
+
+
+PolicyName = Literal["none", "random", "slack", "operator"]
+
+
+class SetPolicy(Envelope):
+    """Choose the replanning policy (``seed`` for "random")."""
+
+    type: Literal["set_policy"] = "set_policy"
+    policy: PolicyName
+    seed: int = 0
+
+
+class SetThreshold(Envelope):
+    """Set Δ̄T, the fleet-slack threshold of the "slack" policy."""
+
+    type: Literal["set_threshold"] = "set_threshold"
+    threshold_ms: Annotated[float, Field(ge=0)]
+
+
+class SetSpeed(Envelope):
+    """Demo aid: the simulated world runs ``speed`` times faster than plan time."""
+
+    type: Literal["set_speed"] = "set_speed"
+    speed: Annotated[float, Field(gt=0, le=100)]
+
+
+class PlaceIntruder(Envelope):
+    """Demo aid: the world connection puts an intruder on ``cell`` for ``duration_ms``.
+
+    The gateway forwards it to "world" connections; the executor never sees it.
+    """
+
+    type: Literal["place_intruder"] = "place_intruder"
+    cell: Cell
+    duration_ms: Annotated[float, Field(gt=0)]
+
+
+class GetSnapshot(Envelope):
+    """Ask for a fresh ``snapshot``."""
+
+    type: Literal["get_snapshot"] = "get_snapshot"
+
+
+# --------------------------------------------------------------------------------------------
+# world -> gateway
+
+
+class IntruderReport(Envelope):
+    """The world reports an intruder appearing on (``on``) or leaving (``off``) ``cell``."""
+
+    type: Literal["intruder"] = "intruder"
+    cell: Cell
+    state: Literal["on", "off"]
+
+
+# --------------------------------------------------------------------------------------------
+# gateway -> operator
+
+
+class RobotView(_Model):
+    """One robot in a snapshot."""
+
+    robot_id: RobotId
+    connected: bool
+    cell: Cell
+    heading: Heading | None = None
+    activity: RobotActivity
+    action_id: ActionId | None = None
+    goal: Cell
+    remaining: list[Cell] = Field(default_factory=list)
+    slack_ms: float = 0.0
+
+
+class ActionCounts(_Model):
+    """How many actions of the current plan are in each state."""
+
+    pending: int = 0
+    dispatched: int = 0
+    running: int = 0
+    blocked: int = 0
+    finished: int = 0
+
+
+class WaitEdge(_Model):
+    """Robot ``robot`` waits, before its action ``action``, for ``for_robot``'s ``for_action``."""
+
+    robot: RobotId
+    action: int
+    for_robot: RobotId
+    for_action: int
+
+
+GatewayStatus = Literal["empty", "loaded", "running", "paused", "replanning", "done"]
+
+
+class Snapshot(Envelope):
+    """The whole fleet as the gateway sees it (on connect, on ``get_snapshot``)."""
+
+    type: Literal["snapshot"] = "snapshot"
+    t_ms: float
+    status: GatewayStatus
+    map_name: str = ""
+    rows: list[str] = Field(default_factory=list)
+    plan: int | None = None
+    paths: list[list[Cell]] = Field(default_factory=list)
+    robots: list[RobotView] = Field(default_factory=list)
+    actions: ActionCounts = Field(default_factory=ActionCounts)
+    fleet_slack: list[tuple[float, float]] = Field(default_factory=list)
+    threshold_ms: float
+    policy: PolicyName
+    speed: float = 1.0
+    soc_ms: float = 0.0
+    makespan_ms: float = 0.0
+    est_soc_ms: float = 0.0
+    est_makespan_ms: float = 0.0
+    waits: list[WaitEdge] = Field(default_factory=list)
+    intruders: list[Cell] = Field(default_factory=list)
+    replans: int = 0
+
+
+EventKind = Literal[
+    "dispatch", "start", "finish", "blocked", "unblocked", "cancel", "plan", "trigger",
+    "slack", "intruder", "summary", "status", "connection",
+]
+
+
+class Event(Envelope):
+    """One entry of the operator event stream; mirrors the trace records of DESIGN section 3.
+
+    Fields beyond ``event`` and ``t_ms`` are set as the kind needs: dispatch..cancel use
+    plan/robot/action; plan uses plan/paths; trigger policy/fleet_slack_ms; slack
+    fleet_slack_ms; intruder cell/state; summary soc_ms/makespan_ms; status status;
+    connection robot/state ("on"/"off").
+    """
+
+    type: Literal["event"] = "event"
+    event: EventKind
+    t_ms: float
+    plan: int | None = None
+    robot: RobotId | None = None
+    action: int | None = None
+    paths: list[list[Cell]] | None = None
+    policy: str | None = None
+    fleet_slack_ms: float | None = None
+    cell: Cell | None = None
+    state: Literal["on", "off"] | None = None
+    soc_ms: float | None = None
+    makespan_ms: float | None = None
+    status: GatewayStatus | None = None
+
+
+# --------------------------------------------------------------------------------------------
+# unions
+
+RobotMessage = Hello | Ack | Started | Finished | Blocked | Unblocked | Cancelled | State
+"""What a robot may send."""
+
+ToRobotMessage = Welcome | Action | CancelAction | Pause | Resume | Error
+"""What the gateway sends a robot."""
+
+OperatorCommand = (
+    LoadInstance | LoadPlan | Start | Pause | Resume | ReplanNow | SetPolicy
+    | SetThreshold | SetSpeed | PlaceIntruder | GetSnapshot
+)
+"""What an operator may send."""
+
+ToOperatorMessage = Snapshot | Event | Ok | Error
+"""What the gateway sends an operator."""
+
+WorldMessage = IntruderReport
+"""What the "world" connection may send (it receives ``place_intruder`` and ``set_speed``)."""
+
+AnyMessage = (
+    Hello | Ack | Started | Finished | Blocked | Unblocked | Cancelled | State
+    | Welcome | Action | CancelAction | Pause | Resume | Error | Ok
+    | LoadInstance | LoadPlan | Start | Pause | Resume | ReplanNow | SetPolicy
+    | SetThreshold | SetSpeed | PlaceIntruder | GetSnapshot
+    | IntruderReport | Snapshot | Event
+)
+
+Message = Annotated[AnyMessage, Field(discriminator="type")]
+"""Every message of protocol v1, discriminated on ``type``."""
