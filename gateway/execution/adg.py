@@ -1,0 +1,150 @@
+"""The Action Dependency Graph (DESIGN section 2) in compact, flat arrays.
+
+Vertices are numbered robot by robot: robot ``k`` owns the ids ``first[k] .. first[k+1]-1`` in
+the order of its path, so its Type 1 predecessor of ``v`` is ``v - 1`` (when ``v > first[k]``).
+Type 2 edges are stored twice, CSR-style: ``t2_pred[t2_pred_ptr[v]:t2_pred_ptr[v+1]]`` are the
+tails of the Type 2 edges into ``v`` and ``t2_succ[...]`` the heads of those out of ``v``.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from collections.abc import Iterator
+
+from gateway.execution.errors import ExecutionError
+from gateway.planning.grid import Cell
+from gateway.planning.plan import Plan
+
+
+def _csr(n: int, pairs: list[tuple[int, int]]) -> tuple[list[int], list[int]]:
+    """Pointer and index lists of ``pairs`` (key, value) grouped by key, values sorted."""
+    pairs.sort()
+    ptr = [0] * (n + 1)
+    for key, _ in pairs:
+        ptr[key + 1] += 1
+    for i in range(n):
+        ptr[i + 1] += ptr[i]
+    return ptr, [value for _, value in pairs]
+
+
+class ADG:
+    """Action Dependency Graph of a plan: one vertex per action, Type 1 and Type 2 edges.
+
+    With ``drop_waits`` the wait actions get no vertex (Hönig's original graph); the action
+    numbers seen from outside stay the path indices ``i`` of ``a_i^k`` either way.
+    """
+
+    def __init__(self, plan: Plan, *, drop_waits: bool = False) -> None:
+        paths = plan.paths
+        self.n_robots = len(paths)
+        self.drop_waits = drop_waits
+        self.first: list[int] = [0]
+        self.robot_of: list[int] = []
+        self.step_of: list[int] = []
+        self.src: list[Cell] = []
+        self.dst: list[Cell] = []
+        # flat lookup (robot, path index) -> vertex or -1, with per-robot offsets
+        self._action_first: list[int] = [0]
+        self._vertex_at: list[int] = []
+        for k, path in enumerate(paths):
+            if not path:
+                raise ExecutionError(f"robot {k} has an empty path")
+            for i in range(len(path) - 1):
+                (x0, y0), (x1, y1) = path[i], path[i + 1]
+                if abs(x1 - x0) + abs(y1 - y0) > 1:
+                    raise ExecutionError(
+                        f"robot {k} jumps from {path[i]} to {path[i + 1]} at step {i}: "
+                        "only waits and 4-neighbour moves are actions"
+                    )
+                if drop_waits and path[i] == path[i + 1]:
+                    self._vertex_at.append(-1)
+                    continue
+                self._vertex_at.append(len(self.robot_of))
+                self.robot_of.append(k)
+                self.step_of.append(i)
+                self.src.append(path[i])
+                self.dst.append(path[i + 1])
+            self.first.append(len(self.robot_of))
+            self._action_first.append(len(self._vertex_at))
+        self.n_vertices = len(self.robot_of)
+        edges = self._type2_edges()
+        self.t2_pred_ptr, self.t2_pred = _csr(self.n_vertices, [(h, t) for t, h in edges])
+        self.t2_succ_ptr, self.t2_succ = _csr(self.n_vertices, [(t, h) for t, h in edges])
+        # Every edge goes from path index i to a larger one, so (i, robot) is a topological order.
+        self.order: list[int] = sorted(
+            range(self.n_vertices), key=lambda v: (self.step_of[v], self.robot_of[v])
+        )
+        self.topo: list[int] = [0] * self.n_vertices
+        for rank, v in enumerate(self.order):
+            self.topo[v] = rank
+
+    def _type2_edges(self) -> list[tuple[int, int]]:
+        """(tail, head) for every move leaving u and the first later entry of each other robot.
+
+        Per cell, each robot's entering actions are kept sorted by path index (they are built
+        in path order), so each lookup is a bisection: O(actions x robots-per-cell x log).
+        """
+        entering: dict[Cell, dict[int, tuple[list[int], list[int]]]] = {}
+        for v in range(self.n_vertices):
+            if self.src[v] != self.dst[v]:
+                per_robot = entering.setdefault(self.dst[v], {})
+                steps, vertices = per_robot.setdefault(self.robot_of[v], ([], []))
+                steps.append(self.step_of[v])
+                vertices.append(v)
+        edges: list[tuple[int, int]] = []
+        for v in range(self.n_vertices):
+            u = self.src[v]
+            if u == self.dst[v] or u not in entering:
+                continue
+            k, i = self.robot_of[v], self.step_of[v]
+            for k2, (steps, vertices) in entering[u].items():
+                if k2 != k:
+                    pos = bisect_right(steps, i)
+                    if pos < len(steps):
+                        edges.append((v, vertices[pos]))
+        return edges
+
+    def n_actions(self, robot: int) -> int:
+        """Number of actions in the robot's path (waits included even if dropped)."""
+        return self._action_first[robot + 1] - self._action_first[robot]
+
+    def vertex(self, robot: int, action: int) -> int:
+        """Vertex id of ``a_action^robot``; ExecutionError if it does not exist."""
+        if not 0 <= robot < self.n_robots:
+            raise ExecutionError(f"unknown robot {robot} (the plan has {self.n_robots} robots)")
+        n = self.n_actions(robot)
+        if not 0 <= action < n:
+            raise ExecutionError(
+                f"robot {robot} has no action {action} (its actions are 0..{n - 1})"
+                if n else f"robot {robot} has no action {action} (its path has no actions)"
+            )
+        v = self._vertex_at[self._action_first[robot] + action]
+        if v < 0:
+            raise ExecutionError(f"action {action} of robot {robot} is a wait (waits dropped)")
+        return v
+
+    def t1_pred(self, v: int) -> int:
+        """The robot's previous action's vertex, or -1 for its first action."""
+        return v - 1 if v > self.first[self.robot_of[v]] else -1
+
+    def t1_succ(self, v: int) -> int:
+        """The robot's next action's vertex, or -1 for its last action."""
+        return v + 1 if v + 1 < self.first[self.robot_of[v] + 1] else -1
+
+    def predecessors(self, v: int) -> list[int]:
+        """All vertices with an edge into ``v`` (Type 1 first)."""
+        p = self.t1_pred(v)
+        t2 = self.t2_pred[self.t2_pred_ptr[v] : self.t2_pred_ptr[v + 1]]
+        return [p, *t2] if p >= 0 else t2
+
+    def successors(self, v: int) -> list[int]:
+        """All vertices with an edge out of ``v`` (Type 1 first)."""
+        s = self.t1_succ(v)
+        t2 = self.t2_succ[self.t2_succ_ptr[v] : self.t2_succ_ptr[v + 1]]
+        return [s, *t2] if s >= 0 else t2
+
+    def type2_edges(self) -> Iterator[tuple[int, int, int, int]]:
+        """Type 2 edges as ``(robot, action, robot2, action2)``, tail first."""
+        for v in range(self.n_vertices):
+            for w in self.t2_succ[self.t2_succ_ptr[v] : self.t2_succ_ptr[v + 1]]:
+                yield self.robot_of[v], self.step_of[v], self.robot_of[w], self.step_of[w]

@@ -1,0 +1,368 @@
+"""The retiming executor and its replanning state machine (DESIGN section 2), sans-I/O.
+
+Drivers feed robot events with the current time and take commands from :meth:`Executor.drain`.
+An action is dispatched only when all its incoming ADG edges are done. A replan goes
+RUNNING -> STOPPING (no new dispatches; running actions finish; dispatched, unstarted ones are
+cancelled) -> SOLVING (``SolveRequest`` emitted once every robot is idle) -> RUNNING (after
+``adopt_plan`` with plan id + 1, or ``abandon_replan`` which resumes the old plan).
+
+Replan budget: every decided replan counts against ``max_replans``, whoever decided it (policy or
+operator) and whether or not a plan was then adopted.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable
+
+from gateway.execution.adg import ADG
+from gateway.execution.commands import (
+    Cancel,
+    Command,
+    Completed,
+    Dispatch,
+    PlanAdopted,
+    SolveRequest,
+    Trigger,
+)
+from gateway.execution.errors import ExecutionError
+from gateway.execution.monitor import Monitor
+from gateway.execution.policies import NoReplan, ReplanPolicy
+from gateway.planning.grid import Cell
+from gateway.planning.plan import Plan
+
+__all__ = ["MONITOR_PERIOD_MS", "ExecutionError", "Executor", "Mode"]
+
+MONITOR_PERIOD_MS = 100
+"""Drivers call ``tick()`` at every multiple of this while running."""
+
+Record = Callable[[dict[str, object]], None]
+
+_PENDING, _DISPATCHED, _STARTED, _DONE = 0, 1, 2, 3
+
+
+class Mode(enum.Enum):
+    """Where the executor is in its life and in the replanning state machine."""
+
+    NEW = "new"  # before start()
+    RUNNING = "running"
+    STOPPING = "stopping"  # replan decided, waiting for robots to become idle
+    SOLVING = "solving"  # SolveRequest emitted, waiting for adopt_plan / abandon_replan
+    DONE = "done"
+
+
+class Executor:
+    """Executes a plan on a fleet through its ADG: retiming, monitoring, replanning."""
+
+    def __init__(self, plan: Plan, *, policy: ReplanPolicy | None = None,
+                 action_ms: float = 1000.0, drop_waits: bool = False,
+                 max_replans: int = 1, record: Record | None = None) -> None:
+        if not (math.isfinite(action_ms) and action_ms > 0):
+            raise ExecutionError(f"action_ms must be a positive number, got {action_ms}")
+        if max_replans < 0:
+            raise ExecutionError(f"max_replans must be >= 0, got {max_replans}")
+        self.policy: ReplanPolicy = policy if policy is not None else NoReplan()
+        self.action_ms = float(action_ms)
+        self.drop_waits = drop_waits
+        self.max_replans = max_replans
+        self.replans = 0
+        self.mode = Mode.NEW
+        self._record = record
+        self._out: list[Command] = []
+        self._now = 0.0
+        adg = ADG(plan, drop_waits=drop_waits)
+        self._goals: tuple[Cell, ...] = tuple(p[-1] for p in plan.paths)
+        self._cells: list[Cell] = [p[0] for p in plan.paths]
+        self._completion = [0.0] * adg.n_robots
+        self._install(plan, adg, 0, 0.0)
+
+    def _install(self, plan: Plan, adg: ADG, plan_id: int, now_ms: float) -> None:
+        """Make ``plan`` the current one (nothing dispatched yet)."""
+        self.plan, self.plan_id, self.adg = plan, plan_id, adg
+        self.monitor = Monitor(adg, now_ms=now_ms, action_ms=self.action_ms,
+                               base_completion_ms=self._completion)
+        self._status = bytearray(adg.n_vertices)
+        self._blocked = bytearray(adg.n_vertices)
+        self._cancelling = bytearray(adg.n_vertices)
+        self._current = [-1] * adg.n_robots  # dispatched or started vertex per robot
+        self._busy = 0
+        self._left = adg.n_vertices
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def done(self) -> bool:
+        """True once every robot has finished its last action."""
+        return self.mode is Mode.DONE
+
+    @property
+    def soc_ms(self) -> float:
+        """Sum over robots of their last completion time so far (final when done)."""
+        return sum(self._completion)
+
+    @property
+    def makespan_ms(self) -> float:
+        """Largest completion time so far (final when done)."""
+        return max(self._completion, default=0.0)
+
+    @property
+    def now_ms(self) -> float:
+        """Time of the latest accepted input."""
+        return self._now
+
+    def robot_cell(self, robot: int) -> Cell:
+        """The cell the robot stands on (until a running move finishes), its goal at the end."""
+        self._check_robot(robot)
+        return self._cells[robot]
+
+    def completion_ms(self, robot: int) -> float:
+        """Finish time of the robot's latest action (0 if it has none)."""
+        self._check_robot(robot)
+        return self._completion[robot]
+
+    def next_wakeup_ms(self) -> float | None:
+        """Earliest time a time-based policy wants ``tick()`` (None if none)."""
+        if self.mode is Mode.RUNNING and self.replans < self.max_replans:
+            return self.policy.next_wakeup_ms()
+        return None
+
+    def drain(self) -> list[Command]:
+        """The commands emitted since the last call, in order."""
+        out, self._out = self._out, []
+        return out
+
+    # ------------------------------------------------------------------ checks
+    def _check_time(self, now_ms: float) -> None:
+        if self.mode is Mode.NEW:
+            raise ExecutionError("execution has not started: call start() first")
+        if not now_ms >= self._now:  # also rejects NaN
+            raise ExecutionError(f"time went backwards: {now_ms} ms < last input at {self._now} ms")
+        if math.isinf(now_ms):
+            raise ExecutionError(f"time must be finite, got {now_ms}")
+
+    def _check_robot(self, robot: int) -> None:
+        if not 0 <= robot < self.adg.n_robots:
+            raise ExecutionError(f"unknown robot {robot} (the fleet has {self.adg.n_robots})")
+
+    def _event_vertex(self, kind: str, robot: int, plan: int, action: int, now_ms: float) -> int:
+        """Validate the common part of a robot event; return the action's vertex."""
+        self._check_time(now_ms)
+        self._check_robot(robot)
+        if plan != self.plan_id:
+            raise ExecutionError(
+                f"{kind} of robot {robot} action {action} refers to plan {plan}, "
+                f"but plan {self.plan_id} is being executed"
+            )
+        v = self.adg.vertex(robot, action)
+        if self._current[robot] != v:
+            state = ("finished" if self._status[v] == _DONE else "not dispatched")
+            raise ExecutionError(
+                f"{kind} of robot {robot} action {action} (plan {plan}): that action is {state}"
+            )
+        return v
+
+    def _expect(self, ok: bool, kind: str, robot: int, action: int, why: str) -> None:
+        if not ok:
+            raise ExecutionError(f"{kind} of robot {robot} action {action}: {why}")
+
+    # ------------------------------------------------------------------ robot events
+    def start(self, now_ms: float) -> None:
+        """Begin execution: emit ``PlanAdopted(0, plan)`` and the first dispatches."""
+        if self.mode is not Mode.NEW:
+            raise ExecutionError("start() was already called")
+        if not (math.isfinite(now_ms) and now_ms >= 0):
+            raise ExecutionError(f"start time must be a finite number >= 0, got {now_ms}")
+        self.mode = Mode.RUNNING
+        self._now = float(now_ms)
+        if now_ms != 0.0:
+            self._install(self.plan, self.adg, 0, self._now)
+        self._adopted()
+
+    def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """The robot began to move (after any wait for its target cell)."""
+        v = self._event_vertex("start", robot, plan, action, now_ms)
+        self._expect(self._status[v] == _DISPATCHED, "start", robot, action, "already started")
+        self._advance(now_ms)
+        self._status[v] = _STARTED
+        self._blocked[v] = self._cancelling[v] = 0
+        self.monitor.action_started(v, now_ms)
+        self._trace("start", robot, action)
+
+    def finished(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """The robot arrived at the action's target cell."""
+        v = self._event_vertex("finish", robot, plan, action, now_ms)
+        self._expect(self._status[v] == _STARTED, "finish", robot, action,
+                     "it has not started (no start reported)")
+        self._advance(now_ms)
+        self._status[v] = _DONE
+        self._current[robot] = -1
+        self._busy -= 1
+        self._left -= 1
+        self._cells[robot] = self.adg.dst[v]
+        self._completion[robot] = self._now
+        ready = self.monitor.action_finished(v, now_ms)
+        self._trace("finish", robot, action)
+        if self.mode is Mode.RUNNING:
+            self._dispatch(sorted(ready, key=self.adg.robot_of.__getitem__))
+            if self._left == 0:
+                self._complete()
+        elif self.mode is Mode.STOPPING:
+            self._maybe_solve()
+
+    def blocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """The robot found the action's target cell taken and waits."""
+        v = self._event_vertex("blocked", robot, plan, action, now_ms)
+        self._expect(self._status[v] == _DISPATCHED, "blocked", robot, action,
+                     "it has already started")
+        self._expect(not self._blocked[v], "blocked", robot, action, "it is already blocked")
+        self._advance(now_ms)
+        self._blocked[v] = 1
+        self._trace("blocked", robot, action)
+
+    def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """The action's target cell became free again."""
+        v = self._event_vertex("unblocked", robot, plan, action, now_ms)
+        self._expect(self._status[v] == _DISPATCHED and bool(self._blocked[v]), "unblocked",
+                     robot, action, "it is not blocked")
+        self._advance(now_ms)
+        self._blocked[v] = 0
+        self._trace("unblocked", robot, action)
+
+    def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """The robot confirms a ``Cancel``: it did not move and stays on the action's source."""
+        v = self._event_vertex("cancelled", robot, plan, action, now_ms)
+        self._expect(self._status[v] == _DISPATCHED and bool(self._cancelling[v]), "cancelled",
+                     robot, action, "no Cancel is outstanding for it")
+        self._advance(now_ms)
+        self._status[v] = _PENDING
+        self._blocked[v] = self._cancelling[v] = 0
+        self._current[robot] = -1
+        self._busy -= 1
+        self._trace("cancel", robot, action)
+        self._maybe_solve()
+
+    # ------------------------------------------------------------------ time and replanning
+    def tick(self, now_ms: float) -> None:
+        """The present moved on: update the monitor's clamping and ask the policy."""
+        self._check_time(now_ms)
+        self._advance(now_ms)
+        if (self.mode is Mode.RUNNING and self.replans < self.max_replans
+                and self.policy.should_replan(self._now, self.monitor)):
+            self._trigger(self.policy.name)
+
+    def request_replan(self, now_ms: float) -> None:
+        """The operator's "replan now" (allowed with any policy, within ``max_replans``)."""
+        self._check_time(now_ms)
+        if self.mode is not Mode.RUNNING:
+            raise ExecutionError(f"cannot replan now: the executor is {self.mode.value}")
+        if self.replans >= self.max_replans:
+            raise ExecutionError(
+                f"cannot replan now: the budget of {self.max_replans} replan(s) is used up"
+            )
+        self._advance(now_ms)
+        self._trigger("operator")
+
+    def adopt_plan(self, plan: Plan, now_ms: float) -> None:
+        """Answer to ``SolveRequest``: execute ``plan`` (from the robots' cells to the goals)."""
+        self._check_time(now_ms)
+        if self.mode is not Mode.SOLVING:
+            raise ExecutionError(f"no plan was requested: the executor is {self.mode.value}")
+        n = self.adg.n_robots
+        if len(plan.paths) != n:
+            raise ExecutionError(f"the new plan has {len(plan.paths)} paths for {n} robots")
+        for r, path in enumerate(plan.paths):
+            if not path or path[0] != self._cells[r]:
+                first = path[0] if path else None
+                raise ExecutionError(
+                    f"robot {r}: the new path starts at {first}, "
+                    f"but the robot is at {self._cells[r]}"
+                )
+            if path[-1] != self._goals[r]:
+                raise ExecutionError(
+                    f"robot {r}: the new path ends at {path[-1]} but its goal is {self._goals[r]}"
+                )
+        adg = ADG(plan, drop_waits=self.drop_waits)
+        self._advance(now_ms)
+        self._install(plan, adg, self.plan_id + 1, self._now)
+        self.mode = Mode.RUNNING
+        self._adopted()
+
+    def abandon_replan(self, now_ms: float) -> None:
+        """The solver found no plan: resume the current one."""
+        self._check_time(now_ms)
+        if self.mode is not Mode.SOLVING:
+            raise ExecutionError(f"no plan was requested: the executor is {self.mode.value}")
+        self._advance(now_ms)
+        self.mode = Mode.RUNNING
+        self._dispatch_ready()
+
+    # ------------------------------------------------------------------ internals
+    def _advance(self, now_ms: float) -> None:
+        self._now = float(now_ms)
+        self.monitor.advance(self._now)
+
+    def _trace(self, kind: str, robot: int, action: int) -> None:
+        if self._record is not None:
+            self._record({"t_ms": self._now, "type": kind, "plan": self.plan_id,
+                          "robot": robot, "action": action})
+
+    def _adopted(self) -> None:
+        """Announce the current plan and dispatch what is ready."""
+        self._out.append(PlanAdopted(self.plan_id, self.plan))
+        if self._record is not None:
+            self._record({"t_ms": self._now, "type": "plan", "plan": self.plan_id,
+                          "agents": [{"path": [[x, y] for x, y in p]} for p in self.plan.paths]})
+        self._dispatch_ready()
+
+    def _dispatch_ready(self) -> None:
+        """Dispatch every robot's next action if it is ready (robot order)."""
+        adg, ready = self.adg, []
+        for r in range(adg.n_robots):
+            if self._current[r] < 0:
+                v = self.monitor.next_vertex(r)
+                if v >= 0 and self.monitor.is_ready(v):
+                    ready.append(v)
+        self._dispatch(ready)
+        if self._left == 0:
+            self._complete()
+
+    def _dispatch(self, vertices: list[int]) -> None:
+        adg = self.adg
+        for v in vertices:
+            robot = adg.robot_of[v]
+            self._status[v] = _DISPATCHED
+            self._current[robot] = v
+            self._busy += 1
+            self._out.append(Dispatch(self.plan_id, robot, adg.step_of[v], adg.src[v],
+                                      adg.dst[v], self.action_ms))
+            self._trace("dispatch", robot, adg.step_of[v])
+
+    def _complete(self) -> None:
+        self.mode = Mode.DONE
+        self._out.append(Completed(self.soc_ms, self.makespan_ms))
+
+    def _trigger(self, policy: str) -> None:
+        self.replans += 1
+        self.mode = Mode.STOPPING
+        slack = self.monitor.fleet_slack()
+        self._out.append(Trigger(policy, slack))
+        if self._record is not None:
+            self._record({"t_ms": self._now, "type": "trigger", "policy": policy,
+                          "fleet_slack_ms": slack})
+        adg = self.adg
+        for r in range(adg.n_robots):
+            v = self._current[r]
+            if v >= 0 and self._status[v] == _DISPATCHED:
+                self._cancelling[v] = 1
+                self._out.append(Cancel(self.plan_id, r, adg.step_of[v]))
+        self._maybe_solve()
+
+    def _maybe_solve(self) -> None:
+        """In STOPPING, once every robot is idle: request a plan (or finish if nothing is left)."""
+        if self.mode is not Mode.STOPPING or self._busy:
+            return
+        if self._left == 0:
+            self._complete()
+            return
+        self.mode = Mode.SOLVING
+        self._out.append(SolveRequest(tuple(self._cells), self._goals))

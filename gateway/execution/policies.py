@@ -1,0 +1,109 @@
+"""When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request.
+
+Every policy answers ``should_replan(now_ms, monitor)`` at the executor's ticks; a time-based
+policy also says when it next wants a tick (``next_wakeup_ms``) so event-driven drivers need not
+poll. The executor enforces the replan budget (``max_replans``); an operator's "replan now" is
+``Executor.request_replan`` and works whatever the policy.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Protocol
+
+from gateway.execution.monitor import Monitor
+
+
+class ReplanPolicy(Protocol):
+    """The interface the executor uses to decide a replan."""
+
+    name: str
+
+    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
+        """True if a replan should start now."""
+        ...
+
+    def next_wakeup_ms(self) -> float | None:
+        """The earliest time at which :meth:`should_replan` may turn True, if time-based."""
+        ...
+
+
+class NoReplan:
+    """Never replan: pure retiming."""
+
+    name = "none"
+
+    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
+        """Always False."""
+        return False
+
+    def next_wakeup_ms(self) -> float | None:
+        """No wakeups."""
+        return None
+
+
+class OperatorOnly(NoReplan):
+    """Replan only when the operator asks (``Executor.request_replan``)."""
+
+    name = "operator"
+
+
+class RandomReplan:
+    """Replan once at a uniformly random integral time in ``[T_a, makespan_lb - margin]``.
+
+    ``T_a`` is the intruder's appearance time; if the interval is empty the replan is at
+    ``T_a`` (DESIGN section 2, experiment (iii)). The time is drawn from ``random.Random(seed)``
+    when the policy is built, so it is reproducible.
+    """
+
+    name = "random"
+
+    def __init__(self, seed: int, *, intruder_appear_ms: float = 3000.0,
+                 makespan_lb_ms: float, margin_ms: float = 3000.0) -> None:
+        lo, hi = float(intruder_appear_ms), float(makespan_lb_ms) - float(margin_ms)
+        rng = random.Random(seed)
+        self.replan_at_ms: float = float(rng.randint(int(lo), int(hi))) if hi > lo else lo
+        self._fired = False
+
+    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
+        """True once, at the first call at or after the drawn time."""
+        if self._fired or now_ms < self.replan_at_ms:
+            return False
+        self._fired = True
+        return True
+
+    def next_wakeup_ms(self) -> float | None:
+        """The drawn time until it has fired."""
+        return None if self._fired else self.replan_at_ms
+
+
+class SlackReplan:
+    """Replan when the fleet slack exceeds a threshold: ``Δ̄F > Δ̄T``."""
+
+    name = "slack"
+
+    def __init__(self, threshold_ms: float = 2000.0) -> None:
+        self.threshold_ms = float(threshold_ms)
+
+    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
+        """True while Δ̄F is above the threshold."""
+        return monitor.fleet_slack() > self.threshold_ms
+
+    def next_wakeup_ms(self) -> float | None:
+        """Slack is checked at the regular ticks only."""
+        return None
+
+
+def make_policy(name: str, *, seed: int = 0, threshold_ms: float = 2000.0,
+                makespan_lb_ms: float = 0.0, intruder_appear_ms: float = 3000.0) -> ReplanPolicy:
+    """A policy by its name ("none", "random", "slack" or "operator")."""
+    if name == "none":
+        return NoReplan()
+    if name == "operator":
+        return OperatorOnly()
+    if name == "slack":
+        return SlackReplan(threshold_ms)
+    if name == "random":
+        return RandomReplan(seed, intruder_appear_ms=intruder_appear_ms,
+                            makespan_lb_ms=makespan_lb_ms)
+    raise ValueError(f"unknown replanning policy {name!r} (none, random, slack, operator)")
