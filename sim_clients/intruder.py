@@ -1,0 +1,141 @@
+"""The intruder (DESIGN section 2; paper section 4.3): an unplanned occupant of one cell.
+
+It appears at ``appear_ms`` (T_a), picks a random robot that still has a move ahead, and
+targets the first cell that robot is estimated to begin entering at or after
+``appear_ms + lead_ms`` (else the cell of its last move). It waits until that cell is free
+(looking every 100 ms), holds it, and leaves at ``leave_ms`` (T_d), also through a replan. If
+the cell never became free by then, it never entered. The gateway knows none of this.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+from gateway.planning.grid import Cell
+from gateway.planning.plan import Path
+from sim_clients.world import INTRUDER, World
+
+StartEstimate = Callable[[int, int], float]
+"""``(robot, action) -> estimated start time in ms`` (``Monitor.start_ms``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class IntruderConfig:
+    """When the intruder comes and goes; the defaults are the paper's."""
+
+    appear_ms: float = 3000.0
+    leave_ms: float = 10000.0
+    lead_ms: float = 2000.0
+    recheck_ms: float = 100.0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.appear_ms < self.leave_ms:
+            raise ValueError(f"need 0 <= appear_ms < leave_ms, got {self.appear_ms} and "
+                             f"{self.leave_ms}")
+        if self.lead_ms < 0 or self.recheck_ms <= 0:
+            raise ValueError("lead_ms must be >= 0 and recheck_ms > 0")
+
+
+@dataclass(frozen=True, slots=True)
+class IntruderEvent:
+    """The intruder entered (``state="on"``) or left (``"off"``) ``cell`` at ``t_ms``."""
+
+    t_ms: float
+    cell: Cell
+    state: str
+
+
+def pick_target(rng: random.Random, paths: Sequence[Path], next_action: Sequence[int],
+                start_ms: StartEstimate, not_before_ms: float) -> tuple[int, Cell] | None:
+    """The robot and cell the intruder goes for, or None if no robot has a move ahead.
+
+    ``next_action[k]`` is the index of robot k's first action that has not started. A move
+    is an action whose two cells differ. The robot is drawn uniformly from those with a move
+    ahead (in id order); the cell is the target of its first move not started whose estimated
+    start is at or after ``not_before_ms``, else the target of its last move.
+    """
+    candidates = [k for k, path in enumerate(paths)
+                  if any(path[i] != path[i + 1] for i in range(next_action[k], len(path) - 1))]
+    if not candidates:
+        return None
+    robot = rng.choice(candidates)
+    path = paths[robot]
+    moves = [i for i in range(next_action[robot], len(path) - 1) if path[i] != path[i + 1]]
+    for i in moves:
+        if start_ms(robot, i) >= not_before_ms:
+            return robot, path[i + 1]
+    return robot, path[moves[-1] + 1]
+
+
+class IntruderState(Enum):
+    """Where the intruder is in its life."""
+
+    ABSENT = "absent"
+    WAITING = "waiting"
+    PRESENT = "present"
+    GONE = "gone"
+
+
+class Intruder:
+    """The intruder's state machine on a :class:`World` (sans-I/O, driven with times).
+
+    The driver calls :meth:`appear` at ``config.appear_ms`` with the chosen target (see
+    :func:`pick_target`), then :meth:`wake` at every :meth:`next_wakeup_ms`.
+    """
+
+    def __init__(self, world: World, config: IntruderConfig | None = None) -> None:
+        self.world = world
+        self.config = config or IntruderConfig()
+        self.state = IntruderState.ABSENT
+        self.robot: int | None = None
+        """The robot it went for (None if it never picked one)."""
+        self.cell: Cell | None = None
+        self.entered_ms: float | None = None
+        self._wake: float | None = self.config.appear_ms
+
+    def next_wakeup_ms(self) -> float | None:
+        """When :meth:`appear` or :meth:`wake` is due next; None once gone."""
+        return self._wake
+
+    def appear(self, now_ms: float, target: tuple[int, Cell] | None) -> list[IntruderEvent]:
+        """Arrive at ``now_ms`` going for ``target`` (``(robot, cell)``; None: stay away)."""
+        if self.state is not IntruderState.ABSENT:
+            raise ValueError(f"the intruder already appeared (it is {self.state.value})")
+        if target is None:
+            self.state = IntruderState.GONE
+            self._wake = None
+            return []
+        self.robot, self.cell = target
+        self.state = IntruderState.WAITING
+        return self._try_enter(now_ms)
+
+    def wake(self, now_ms: float) -> list[IntruderEvent]:
+        """Leave at ``leave_ms``, or look at the cell again while waiting for it."""
+        if self._wake is None or now_ms < self._wake or self.state is IntruderState.ABSENT:
+            return []
+        cell = self.cell
+        assert cell is not None
+        if now_ms >= self.config.leave_ms:
+            was_present = self.state is IntruderState.PRESENT
+            self.state = IntruderState.GONE
+            self._wake = None
+            if not was_present:
+                return []
+            self.world.release(cell, INTRUDER)
+            return [IntruderEvent(now_ms, cell, "off")]
+        return self._try_enter(now_ms)
+
+    def _try_enter(self, now_ms: float) -> list[IntruderEvent]:
+        cell = self.cell
+        assert cell is not None
+        if self.world.is_free(cell):
+            self.world.occupy(cell, INTRUDER, now_ms)
+            self.state = IntruderState.PRESENT
+            self.entered_ms = now_ms
+            self._wake = self.config.leave_ms
+            return [IntruderEvent(now_ms, cell, "on")]
+        self._wake = min(now_ms + self.config.recheck_ms, self.config.leave_ms)
+        return []

@@ -1,0 +1,153 @@
+"""A simulated robot as a sans-I/O state machine (the paper's simulator, section 4.2).
+
+The driver hands it a :class:`~gateway.execution.commands.Dispatch` or a ``Cancel`` with the
+current time, calls :meth:`SimRobot.wake` at :meth:`SimRobot.next_wakeup_ms`, and forwards the
+:class:`RobotEvent` values it gets back to the executor (or over a websocket). A move first
+checks the :class:`~sim_clients.world.World`: if the target is free the robot starts at once and
+holds both cells until it arrives ``duration`` later; if not, it reports ``blocked`` and looks
+again every 100 ms, then reports ``unblocked`` and ``started`` together. A wait (target equal to
+source) needs no check. While blocked, a matching ``Cancel`` returns it to idle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+from gateway.execution.commands import Dispatch
+from gateway.planning.grid import Cell
+from sim_clients.world import World
+
+RECHECK_MS = 100.0
+"""How often a blocked robot looks at its target cell again."""
+
+
+class RobotState(Enum):
+    """What a simulated robot is doing."""
+
+    IDLE = "idle"
+    BLOCKED = "blocked"
+    MOVING = "moving"
+
+
+@dataclass(frozen=True, slots=True)
+class RobotEvent:
+    """A report of robot ``robot`` about action ``action`` of plan ``plan`` at ``t_ms``.
+
+    ``kind`` is one of "started", "finished", "blocked", "unblocked", "cancelled": the names
+    of the matching ``Executor`` methods.
+    """
+
+    kind: str
+    robot: int
+    plan: int
+    action: int
+    t_ms: float
+
+
+class SimRobotError(ValueError):
+    """A command the robot cannot follow (wrong robot, wrong source cell, busy)."""
+
+
+class SimRobot:
+    """One simulated robot on a :class:`World`."""
+
+    def __init__(self, robot: int, world: World, cell: Cell, *,
+                 recheck_ms: float = RECHECK_MS) -> None:
+        if recheck_ms <= 0:
+            raise ValueError(f"recheck_ms must be positive, got {recheck_ms}")
+        self.robot = robot
+        self.world = world
+        self.cell = cell
+        """Where the robot stands; while moving, the cell it is leaving."""
+        self.state = RobotState.IDLE
+        self.recheck_ms = recheck_ms
+        self._current: Dispatch | None = None
+        self._duration = 0.0
+        self._wake: float | None = None
+        self._last: tuple[int, int] | None = None
+
+    @property
+    def current(self) -> Dispatch | None:
+        """The action being executed or waited for, None when idle."""
+        return self._current
+
+    def next_wakeup_ms(self) -> float | None:
+        """When :meth:`wake` has something to do: arrival, or the next look at a taken cell."""
+        return self._wake
+
+    def dispatch(self, d: Dispatch, now_ms: float, extra_ms: float = 0.0) -> list[RobotEvent]:
+        """Begin ``d`` at ``now_ms``; it lasts ``d.duration_ms + extra_ms`` once it starts.
+
+        A repeat of the current or the last action is ignored (the protocol resends after a
+        reconnect). Raises :class:`SimRobotError` for another robot's action, a source cell that
+        is not where the robot stands, or a new action while busy.
+        """
+        key = (d.plan, d.action)
+        if self._current is not None and key == (self._current.plan, self._current.action):
+            return []
+        if key == self._last and self._current is None:
+            return []
+        if d.robot != self.robot:
+            raise SimRobotError(f"robot {self.robot} got a dispatch for robot {d.robot}")
+        if self.state is not RobotState.IDLE:
+            raise SimRobotError(f"robot {self.robot} is {self.state.value} with action "
+                                f"{self._current}, got {d}")
+        if d.src != self.cell:
+            raise SimRobotError(f"robot {self.robot} is on {self.cell}, dispatch starts at {d.src}")
+        duration = d.duration_ms + extra_ms
+        if duration < 0:
+            raise SimRobotError(f"action duration {duration} ms is negative")
+        self._current = d
+        self._duration = duration
+        if d.dst == d.src or self.world.is_free(d.dst):
+            return [self._start(now_ms)]
+        self.state = RobotState.BLOCKED
+        self._wake = now_ms + self.recheck_ms
+        return [RobotEvent("blocked", self.robot, d.plan, d.action, now_ms)]
+
+    def cancel(self, plan: int, action: int, now_ms: float) -> list[RobotEvent]:
+        """Drop action ``action`` of ``plan`` if the robot is still waiting for its cell.
+
+        A moving robot finishes its action as usual; a cancel for anything else is stale and
+        ignored.
+        """
+        d = self._current
+        if self.state is not RobotState.BLOCKED or d is None or (d.plan, d.action) != (
+                plan, action):
+            return []
+        self.state = RobotState.IDLE
+        self._current = None
+        self._wake = None
+        self._last = (plan, action)
+        return [RobotEvent("cancelled", self.robot, plan, action, now_ms)]
+
+    def wake(self, now_ms: float) -> list[RobotEvent]:
+        """Arrive, or look at the taken cell again; nothing if called before it is due."""
+        if self._wake is None or now_ms < self._wake:
+            return []
+        d = self._current
+        assert d is not None
+        if self.state is RobotState.MOVING:
+            if d.dst != d.src:
+                self.world.release(d.src, self.robot)
+            self.cell = d.dst
+            self.state = RobotState.IDLE
+            self._current = None
+            self._wake = None
+            self._last = (d.plan, d.action)
+            return [RobotEvent("finished", self.robot, d.plan, d.action, now_ms)]
+        if not self.world.is_free(d.dst):
+            self._wake = now_ms + self.recheck_ms
+            return []
+        return [RobotEvent("unblocked", self.robot, d.plan, d.action, now_ms),
+                self._start(now_ms)]
+
+    def _start(self, now_ms: float) -> RobotEvent:
+        d = self._current
+        assert d is not None
+        if d.dst != d.src:
+            self.world.occupy(d.dst, self.robot, now_ms)
+        self.state = RobotState.MOVING
+        self._wake = now_ms + self._duration
+        return RobotEvent("started", self.robot, d.plan, d.action, now_ms)

@@ -1,0 +1,99 @@
+"""Execution traces as JSON lines (DESIGN section 3).
+
+The executor produces the ``plan``, ``dispatch``, ``start``, ``finish``, ``blocked``,
+``unblocked``, ``cancel`` and ``trigger`` records through its ``record`` callback; the driver
+adds ``intruder`` records and the closing ``summary``. A sink is any callable taking one record;
+:class:`JsonlWriter` writes them to a file, a plain ``list.append`` keeps them in memory.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
+
+from gateway.planning.grid import Cell
+
+Record = dict[str, Any]
+TraceSink = Callable[[Record], None]
+
+EVENT_TYPES = ("dispatch", "start", "finish", "blocked", "unblocked", "cancel")
+"""Record types about one action of one robot."""
+
+
+def plan_record(t_ms: float, plan: int, paths: Sequence[Sequence[Cell]]) -> Record:
+    """``{"t_ms", "type": "plan", "plan", "agents": [{"path": [[x, y], ...]}]}``."""
+    return {"t_ms": t_ms, "type": "plan", "plan": plan,
+            "agents": [{"path": [[x, y] for x, y in path]} for path in paths]}
+
+
+def event_record(t_ms: float, kind: str, plan: int, robot: int, action: int) -> Record:
+    """``{"t_ms", "type": kind, "plan", "robot", "action"}`` for a kind of :data:`EVENT_TYPES`."""
+    if kind not in EVENT_TYPES:
+        raise ValueError(f"unknown event type {kind!r}; expected one of {EVENT_TYPES}")
+    return {"t_ms": t_ms, "type": kind, "plan": plan, "robot": robot, "action": action}
+
+
+def intruder_record(t_ms: float, cell: Cell, state: str) -> Record:
+    """``{"t_ms", "type": "intruder", "cell": [x, y], "state": "on"|"off"}``."""
+    if state not in ("on", "off"):
+        raise ValueError(f"intruder state must be 'on' or 'off', got {state!r}")
+    return {"t_ms": t_ms, "type": "intruder", "cell": [cell[0], cell[1]], "state": state}
+
+
+def summary_record(soc_ms: float, makespan_ms: float) -> Record:
+    """The last line: ``{"type": "summary", "soc_ms", "makespan_ms"}``."""
+    return {"type": "summary", "soc_ms": soc_ms, "makespan_ms": makespan_ms}
+
+
+class JsonlWriter:
+    """A trace sink writing one compact JSON object per line to ``path`` (or an open file)."""
+
+    def __init__(self, target: str | Path | IO[str]) -> None:
+        if isinstance(target, (str, Path)):
+            self._file: IO[str] = open(target, "w", encoding="utf-8")  # noqa: SIM115
+            self._owned = True
+        else:
+            self._file = target
+            self._owned = False
+
+    def __call__(self, record: Record) -> None:
+        """Append one record."""
+        self._file.write(json.dumps(record, separators=(",", ":")))
+        self._file.write("\n")
+
+    def close(self) -> None:
+        """Flush, and close the file if this writer opened it."""
+        if self._owned:
+            self._file.close()
+        else:
+            self._file.flush()
+
+    def __enter__(self) -> JsonlWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def iter_trace(path: str | Path) -> Iterator[Record]:
+    """The records of a JSON-lines trace file; ValueError names the line of a bad one."""
+    with open(path, encoding="utf-8") as f:
+        for lineno, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"{path}:{lineno}: not JSON: {exc.msg}") from None
+            if not isinstance(record, dict):
+                raise ValueError(f"{path}:{lineno}: a trace line must be a JSON object")
+            yield record
+
+
+def read_trace(path: str | Path) -> list[Record]:
+    """All records of a JSON-lines trace file."""
+    return list(iter_trace(path))

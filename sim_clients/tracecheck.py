@@ -1,0 +1,385 @@
+"""An independent checker of execution traces (DESIGN section 3).
+
+It uses nothing of the executor, the monitor or the simulated world: from the records alone it
+re-derives each adopted plan's action dependency graph (Type 1 and Type 2 edges as DESIGN
+section 2 defines them), replays the events in order and reports
+
+* an action that started before all its ADG predecessors had finished (or without dispatch),
+* two robots, or a robot and the intruder, on one cell at once (a moving robot holds both
+  its cells),
+* an action of the final plan that did not run exactly once, or any started action that never
+  finished, and a new plan that does not start where the robots stand,
+* a summary whose SOC or makespan differs from the finish times in the trace,
+
+and it recomputes the fleet slack (Algorithm 1 plus DESIGN's slack definitions) at any moment,
+in particular at every ``trigger`` record. Run it as ``python -m sim_clients.tracecheck FILE``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from bisect import bisect_right
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sim_clients.trace import read_trace
+
+Pos = tuple[int, int]
+Act = tuple[int, int]
+"""``(robot, action index)``."""
+
+ACTION_MS = 1000.0
+TOLERANCE_MS = 1e-6
+
+
+@dataclass(frozen=True, slots=True)
+class SeenCollision:
+    """At ``t_ms`` ``who`` (a robot id or "intruder") entered ``cell`` held by ``holders``."""
+
+    t_ms: float
+    cell: Pos
+    who: str
+    holders: tuple[str, ...]
+
+
+@dataclass
+class PlanGraph:
+    """One adopted plan: its paths, release time and re-derived ADG."""
+
+    plan: int
+    release_ms: float
+    paths: list[list[Pos]]
+    preds: dict[Act, list[Act]]
+    type2_in: dict[Act, list[Act]]
+
+    def actions(self) -> Iterable[Act]:
+        """Every action, ordered by index then robot (a topological order of the ADG)."""
+        longest = max((len(p) for p in self.paths), default=1)
+        for i in range(longest - 1):
+            for k, path in enumerate(self.paths):
+                if i < len(path) - 1:
+                    yield k, i
+
+
+def build_graph(plan: int, release_ms: float, paths: Sequence[Sequence[Pos]]) -> PlanGraph:
+    """The ADG of ``paths``: a_i^k -> a_{i+1}^k, and from every action leaving a cell u to
+    each other robot's first later action (j > i) entering u."""
+    plist = [list(p) for p in paths]
+    preds: dict[Act, list[Act]] = {}
+    type2_in: dict[Act, list[Act]] = {}
+    enters: dict[Pos, dict[int, list[int]]] = {}
+    for k, path in enumerate(plist):
+        for i in range(len(path) - 1):
+            preds[(k, i)] = [(k, i - 1)] if i > 0 else []
+            type2_in[(k, i)] = []
+            if path[i] != path[i + 1]:
+                enters.setdefault(path[i + 1], {}).setdefault(k, []).append(i)
+    for k, path in enumerate(plist):
+        for i in range(len(path) - 1):
+            u = path[i]
+            if u == path[i + 1]:
+                continue
+            for k2, js in enters.get(u, {}).items():
+                if k2 == k:
+                    continue
+                pos = bisect_right(js, i)
+                if pos < len(js):
+                    head = (k2, js[pos])
+                    preds[head].append((k, i))
+                    type2_in[head].append((k, i))
+    return PlanGraph(plan, release_ms, plist, preds, type2_in)
+
+
+@dataclass
+class ExecState:
+    """What happened to one plan's actions so far (real start and finish times)."""
+
+    graph: PlanGraph
+    dispatched: set[Act] = field(default_factory=set)
+    started: dict[Act, float] = field(default_factory=dict)
+    finished: dict[Act, float] = field(default_factory=dict)
+
+
+def estimates(state: ExecState, now_ms: float | None,
+              action_ms: float = ACTION_MS) -> tuple[dict[Act, float], dict[Act, float]]:
+    """Algorithm 1 with real times and the present as a lower bound (``now_ms`` None: the
+    initial estimate). Returns ``(t_s, t_c)``."""
+    g = state.graph
+    ts: dict[Act, float] = {}
+    tc: dict[Act, float] = {}
+    for a in g.actions():
+        if a in state.finished:
+            ts[a] = state.started[a]
+            tc[a] = state.finished[a]
+        elif a in state.started:
+            ts[a] = state.started[a]
+            tc[a] = ts[a] + action_ms if now_ms is None else max(ts[a] + action_ms, now_ms)
+        else:
+            preds = g.preds[a]
+            start = max((tc[p] for p in preds), default=g.release_ms)
+            if now_ms is not None and all(p in state.finished for p in preds):
+                start = max(start, now_ms)
+            ts[a] = start
+            tc[a] = start + action_ms
+    return ts, tc
+
+
+def action_slacks(graph: PlanGraph, tc: Mapping[Act, float]) -> dict[Act, float]:
+    """Δ(a) = max(0, max over incoming Type 2 edges of t_c(tail) - t_c(a_{j-1}))."""
+    out: dict[Act, float] = {}
+    for (k, j), tails in graph.type2_in.items():
+        before = tc[(k, j - 1)] if j > 0 else graph.release_ms
+        out[(k, j)] = max([0.0, *(tc[t] - before for t in tails)])
+    return out
+
+
+def fleet_slack(state: ExecState, now_ms: float, action_ms: float = ACTION_MS) -> float:
+    """Δ̄F at ``now_ms``: the largest growth of Δ over the initial estimate among the actions
+    not started yet (0 if every action started)."""
+    g = state.graph
+    initial = action_slacks(g, estimates(ExecState(g), None, action_ms)[1])
+    current = action_slacks(g, estimates(state, now_ms, action_ms)[1])
+    return max((current[a] - initial[a] for a in current if a not in state.started), default=0.0)
+
+
+@dataclass
+class TraceReport:
+    """The checker's findings; :attr:`ok` is True when there is nothing to complain about."""
+
+    errors: list[str] = field(default_factory=list)
+    collisions: list[SeenCollision] = field(default_factory=list)
+    plans: int = 0
+    actions_run: int = 0
+    soc_ms: float = 0.0
+    makespan_ms: float = 0.0
+    triggers: list[tuple[float, float, float]] = field(default_factory=list)
+    """``(t_ms, fleet_slack_ms recorded, fleet slack recomputed)`` per trigger."""
+
+    @property
+    def ok(self) -> bool:
+        """No error and no collision."""
+        return not self.errors and not self.collisions
+
+
+def _who(occupant: int | str) -> str:
+    return occupant if isinstance(occupant, str) else f"robot {occupant}"
+
+
+class _Replay:
+    """Replays records in order, keeping occupancy and per-plan execution state."""
+
+    def __init__(self, action_ms: float) -> None:
+        self.action_ms = action_ms
+        self.report = TraceReport()
+        self.states: list[ExecState] = []
+        self.cells: dict[Pos, list[int | str]] = {}
+        self.pos: list[Pos] = []
+        self.running: dict[int, Act] = {}
+        self.last_finish: dict[int, float] = {}
+        self.intruder: Pos | None = None
+        self.now = 0.0
+        self.summary: Mapping[str, Any] | None = None
+
+    def error(self, where: str, msg: str) -> None:
+        self.report.errors.append(f"{where}: {msg}")
+
+    def enter(self, cell: Pos, who: int | str, t: float) -> None:
+        holders = self.cells.setdefault(cell, [])
+        if holders:
+            self.report.collisions.append(
+                SeenCollision(t, cell, _who(who), tuple(_who(h) for h in holders)))
+        holders.append(who)
+
+    def leave(self, cell: Pos, who: int | str) -> None:
+        holders = self.cells.get(cell, [])
+        if who in holders:
+            holders.remove(who)
+        if not holders:
+            self.cells.pop(cell, None)
+
+    def record(self, n: int, rec: Mapping[str, Any]) -> None:
+        where = f"record {n}"
+        kind = rec.get("type")
+        if self.summary is not None:
+            self.error(where, "record after the summary")
+        if kind == "summary":
+            self.summary = rec
+            return
+        t = float(rec["t_ms"])
+        if t < self.now - TOLERANCE_MS:
+            self.error(where, f"time goes back from {self.now} to {t}")
+        self.now = max(self.now, t)
+        if kind == "plan":
+            self.plan(where, t, rec)
+        elif kind in ("dispatch", "start", "finish", "blocked", "unblocked", "cancel"):
+            self.event(where, t, str(kind), rec)
+        elif kind == "intruder":
+            cell = (int(rec["cell"][0]), int(rec["cell"][1]))
+            if rec["state"] == "on":
+                if self.intruder is not None:
+                    self.error(where, "the intruder entered a second cell")
+                self.intruder = cell
+                self.enter(cell, "intruder", t)
+            else:
+                if self.intruder != cell:
+                    self.error(where, f"the intruder left {cell} where it was not")
+                self.intruder = None
+                self.leave(cell, "intruder")
+        elif kind == "trigger":
+            recomputed = fleet_slack(self.states[-1], t, self.action_ms) if self.states else 0.0
+            self.report.triggers.append((t, float(rec["fleet_slack_ms"]), recomputed))
+        else:
+            self.error(where, f"unknown record type {kind!r}")
+
+    def plan(self, where: str, t: float, rec: Mapping[str, Any]) -> None:
+        number = int(rec["plan"])
+        if number != len(self.states):
+            self.error(where, f"plan {number} adopted, expected plan {len(self.states)}")
+        paths = [[(int(c[0]), int(c[1])) for c in a["path"]] for a in rec["agents"]]
+        if self.states:
+            if len(paths) != len(self.pos):
+                self.error(where, f"plan has {len(paths)} robots, the fleet {len(self.pos)}")
+            if self.running:
+                self.error(where, f"plan adopted while robots {sorted(self.running)} move")
+            for k, path in enumerate(paths[: len(self.pos)]):
+                if path and path[0] != self.pos[k]:
+                    self.error(where, f"robot {k} starts at {path[0]} but stands on "
+                               f"{self.pos[k]}")
+        else:
+            self.pos = [p[0] for p in paths]
+            for k, cell in enumerate(self.pos):
+                self.enter(cell, k, t)
+        self.states.append(ExecState(build_graph(number, t, paths)))
+
+    def event(self, where: str, t: float, kind: str, rec: Mapping[str, Any]) -> None:
+        k, i, number = int(rec["robot"]), int(rec["action"]), int(rec["plan"])
+        if not self.states or number != len(self.states) - 1:
+            self.error(where, f"{kind} for plan {number}, the current plan is "
+                       f"{len(self.states) - 1}")
+            return
+        st = self.states[-1]
+        a = (k, i)
+        if a not in st.graph.preds:
+            self.error(where, f"plan {number} has no action {i} for robot {k}")
+            return
+        src, dst = st.graph.paths[k][i], st.graph.paths[k][i + 1]
+        if kind == "dispatch":
+            if a in st.dispatched:
+                self.error(where, f"action {a} dispatched twice")
+            missing = [p for p in st.graph.preds[a] if p not in st.finished]
+            if missing:
+                self.error(where, f"action {a} dispatched before {missing} finished")
+            st.dispatched.add(a)
+        elif kind in ("blocked", "unblocked"):
+            if a not in st.dispatched or a in st.started:
+                self.error(where, f"{kind} of action {a} that is not waiting to start")
+        elif kind == "cancel":
+            # a robot may already be moving when the cancel goes out; it then finishes
+            if a not in st.dispatched:
+                self.error(where, f"cancel of action {a} that was never dispatched")
+        elif kind == "start":
+            if a not in st.dispatched:
+                self.error(where, f"action {a} started without dispatch")
+            if a in st.started:
+                self.error(where, f"action {a} started twice")
+                return
+            missing = [p for p in st.graph.preds[a] if p not in st.finished]
+            if missing:
+                self.error(where, f"action {a} started before its predecessors {missing} "
+                           "finished")
+            if k in self.running:
+                self.error(where, f"robot {k} starts {a} while running {self.running[k]}")
+            if self.pos[k] != src:
+                self.error(where, f"robot {k} starts {a} from {src} but stands on "
+                           f"{self.pos[k]}")
+            st.started[a] = t
+            self.running[k] = a
+            if dst != src:
+                self.enter(dst, k, t)
+        else:  # finish
+            if a not in st.started or a in st.finished or self.running.get(k) != a:
+                self.error(where, f"finish of action {a} that is not running")
+                return
+            st.finished[a] = t
+            del self.running[k]
+            if dst != src:
+                self.leave(src, k)
+            self.pos[k] = dst
+            self.last_finish[k] = t
+            self.report.actions_run += 1
+
+    def close(self) -> TraceReport:
+        r = self.report
+        r.plans = len(self.states)
+        if not self.states:
+            r.errors.append("the trace adopts no plan")
+            return r
+        if self.running:
+            r.errors.append(f"robots {sorted(self.running)} never finished "
+                            f"{sorted(self.running.values())}")
+        final = self.states[-1]
+        never = [a for a in final.graph.preds if a not in final.finished]
+        if never:
+            r.errors.append(f"plan {final.graph.plan}: actions {never[:10]} never ran "
+                            f"({len(never)} in all)")
+        finishes = [self.last_finish.get(k, 0.0) for k in range(len(self.pos))]
+        r.soc_ms = sum(finishes)
+        r.makespan_ms = max(finishes, default=0.0)
+        if self.summary is None:
+            r.errors.append("no summary record")
+        else:
+            for key, value in (("soc_ms", r.soc_ms), ("makespan_ms", r.makespan_ms)):
+                if abs(float(self.summary[key]) - value) > TOLERANCE_MS:
+                    r.errors.append(f"summary {key} {self.summary[key]} but the finishes "
+                                    f"give {value}")
+        return r
+
+
+def check_trace(records: Iterable[Mapping[str, Any]], action_ms: float = ACTION_MS) -> TraceReport:
+    """Check a whole trace, given as its records in order."""
+    replay = _Replay(action_ms)
+    for n, rec in enumerate(records, 1):
+        try:
+            replay.record(n, rec)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            replay.error(f"record {n}", f"malformed {rec.get('type')!r} record: {exc!r}")
+    return replay.close()
+
+
+def slack_series(records: Sequence[Mapping[str, Any]], times_ms: Iterable[float],
+                 action_ms: float = ACTION_MS) -> list[float]:
+    """Δ̄F of the plan in force at each of ``times_ms`` (ascending), from the trace alone."""
+    out: list[float] = []
+    replay = _Replay(action_ms)
+    n = 0
+    for t in times_ms:
+        while n < len(records) and records[n].get("type") != "summary" and \
+                float(records[n]["t_ms"]) <= t:
+            replay.record(n + 1, records[n])
+            n += 1
+        out.append(fleet_slack(replay.states[-1], t, action_ms) if replay.states else 0.0)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m sim_clients.tracecheck FILE``: print the findings; exit 1 if any."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("trace", type=Path, help="JSON-lines trace file")
+    args = parser.parse_args(argv)
+    report = check_trace(read_trace(args.trace))
+    for err in report.errors:
+        print(f"error: {err}")
+    for c in report.collisions:
+        print(f"collision: t={c.t_ms} ms {c.who} entered {c.cell} held by {', '.join(c.holders)}")
+    for t, rec, mine in report.triggers:
+        print(f"trigger at {t} ms: fleet slack recorded {rec} ms, recomputed {mine} ms")
+    print(f"{report.plans} plan(s), {report.actions_run} actions, SOC {report.soc_ms} ms, "
+          f"makespan {report.makespan_ms} ms: {'OK' if report.ok else 'FAILED'}")
+    return 0 if report.ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,150 @@
+"""The independent trace checker on hand-written traces: it accepts a correct one and catches
+every kind of corruption it promises to (DESIGN section 3)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from sim_clients.trace import (
+    JsonlWriter,
+    event_record,
+    intruder_record,
+    plan_record,
+    read_trace,
+    summary_record,
+)
+from sim_clients.tracecheck import build_graph, check_trace, main, slack_series
+
+# Robot 0 moves right twice; robot 1 waits twice then enters (1,0), which robot 0 leaves in
+# its action 1 (a 1-robust plan). ADG: Type 1 chains plus the Type 2 edge a_1^0 -> a_2^1.
+PATHS = [[(0, 0), (1, 0), (2, 0)], [(1, 1), (1, 1), (1, 1), (1, 0)]]
+
+
+def ev(t: float, kind: str, robot: int, action: int, plan: int = 0) -> dict:
+    return event_record(t, kind, plan, robot, action)
+
+
+def run(robot: int, action: int, t0: float, t1: float, plan: int = 0) -> list[dict]:
+    return [ev(t0, "dispatch", robot, action, plan), ev(t0, "start", robot, action, plan),
+            ev(t1, "finish", robot, action, plan)]
+
+
+def ordered(*records: dict) -> list[dict]:
+    """The records in time order (stable), the summary last."""
+    return sorted(records, key=lambda r: r.get("t_ms", float("inf")))
+
+
+def good_trace() -> list[dict]:
+    # both robots run undelayed: robot 0 ends at 2000, robot 1 at 3000 => SOC 5000
+    return ordered(plan_record(0, 0, PATHS), *run(0, 0, 0, 1000), *run(1, 0, 0, 1000),
+                   *run(0, 1, 1000, 2000), *run(1, 1, 1000, 2000), *run(1, 2, 2000, 3000),
+                   summary_record(5000, 3000))
+
+
+def test_graph_has_the_type2_edge() -> None:
+    g = build_graph(0, 0.0, PATHS)
+    assert g.preds[(1, 2)] == [(1, 1), (0, 1)]
+    assert g.type2_in[(1, 2)] == [(0, 1)]
+    assert all(g.type2_in[a] == [] for a in g.type2_in if a != (1, 2))
+
+
+def test_correct_trace_passes_and_measures() -> None:
+    report = check_trace(good_trace())
+    assert report.ok, report.errors
+    assert (report.plans, report.actions_run, report.soc_ms, report.makespan_ms) == (
+        1, 5, 5000, 3000)
+
+
+def test_action_before_predecessor_and_shared_cell_are_caught() -> None:
+    # robot 0's action 1 is slow (finishes at 2500); robot 1 enters (1,0) at 2000 anyway
+    bad = ordered(plan_record(0, 0, PATHS), *run(0, 0, 0, 1000), *run(1, 0, 0, 1000),
+                  *run(1, 1, 1000, 2000), ev(1000, "dispatch", 0, 1), ev(1000, "start", 0, 1),
+                  ev(2000, "dispatch", 1, 2), ev(2000, "start", 1, 2), ev(2500, "finish", 0, 1),
+                  ev(3000, "finish", 1, 2), summary_record(5500, 3000))
+    report = check_trace(bad)
+    assert not report.ok
+    assert any("started before its predecessors [(0, 1)]" in e for e in report.errors)
+    assert [(c.t_ms, c.cell, c.who, c.holders) for c in report.collisions] == [
+        (2000, (1, 0), "robot 1", ("robot 0",))]
+
+
+def test_two_robots_on_one_cell_without_precedence_error() -> None:
+    # a plan whose two robots both walk into (1,0) at the same time is not 1-robust: no edge
+    # orders them, so only the occupancy replay sees the collision
+    paths = [[(0, 0), (1, 0)], [(2, 0), (1, 0)]]
+    trace = [plan_record(0, 0, paths), ev(0, "dispatch", 0, 0), ev(0, "dispatch", 1, 0),
+             ev(0, "start", 0, 0), ev(0, "start", 1, 0), ev(1000, "finish", 0, 0),
+             ev(1000, "finish", 1, 0), summary_record(2000, 1000)]
+    report = check_trace(trace)
+    assert report.errors == []
+    assert len(report.collisions) == 1 and report.collisions[0].cell == (1, 0)
+
+
+def test_intruder_on_a_robot_is_a_collision() -> None:
+    trace = good_trace()
+    trace.insert(1, intruder_record(0, (1, 1), "on"))
+    trace.insert(-1, intruder_record(3000, (1, 1), "off"))
+    report = check_trace(trace)
+    assert [(c.who, c.holders) for c in report.collisions] == [("intruder", ("robot 1",))]
+
+
+@pytest.mark.parametrize(("mutate", "message"), [
+    (lambda t: t.pop(-2), "never finished"),                       # last finish missing
+    (lambda t: t.insert(-1, ev(3000, "start", 1, 2)), "started twice"),
+    (lambda t: t.__setitem__(-1, summary_record(4000, 3000)), "summary soc_ms"),
+    (lambda t: t.pop(), "no summary"),
+    (lambda t: t.insert(3, ev(500, "finish", 1, 2)), "not running"),
+    (lambda t: t.insert(1, ev(0, "start", 0, 5)), "no action 5"),
+    (lambda t: t.insert(-1, ev(10, "finish", 1, 2)), "time goes back"),
+])
+def test_corruptions_are_reported(mutate, message: str) -> None:  # type: ignore[no-untyped-def]
+    trace = good_trace()
+    mutate(trace)
+    report = check_trace(trace)
+    assert not report.ok
+    assert any(message in e for e in report.errors), report.errors
+
+
+def test_replan_must_start_where_robots_stand() -> None:
+    # robot 0 stops after action 0 (on (1,0)); plan 1 claims it starts at (0,0)
+    trace = ordered(plan_record(0, 0, PATHS), *run(0, 0, 0, 1000), *run(1, 0, 0, 1000),
+                    ev(1000, "dispatch", 1, 1), ev(1000, "cancel", 1, 1),
+                    plan_record(1000, 1, [[(0, 0), (1, 0)], [(1, 1), (1, 2)]]))
+    report = check_trace(trace)
+    assert any("robot 0 starts at (0, 0) but stands on (1, 0)" in e for e in report.errors)
+    ok = trace[:-1] + ordered(plan_record(1000, 1, [[(1, 0), (2, 0)], [(1, 1), (1, 2)]]),
+                              *run(0, 0, 1000, 2000, plan=1), *run(1, 0, 1000, 2000, plan=1),
+                              summary_record(4000, 2000))
+    report = check_trace(ok)
+    assert report.ok, report.errors
+    assert report.plans == 2 and report.soc_ms == 4000
+
+
+def test_slack_over_time() -> None:
+    # robot 0's action 1 starts at 1000 and has not finished at 2600: estimated to finish at
+    # 2600 (clamped by the present), so robot 1's entry into (1,0), planned right after its
+    # own action 1 ends at 2000, waits 600 ms more than planned: fleet slack 600.
+    trace = ordered(plan_record(0, 0, PATHS), *run(0, 0, 0, 1000), *run(1, 0, 0, 1000),
+                    *run(1, 1, 1000, 2000), ev(1000, "dispatch", 0, 1), ev(1000, "start", 0, 1))
+    assert slack_series(trace, [0, 1500, 2000, 2600]) == [0.0, 0.0, 0.0, 600.0]
+
+
+def test_file_round_trip_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "t.jsonl"
+    with JsonlWriter(path) as w:
+        for rec in good_trace():
+            w(rec)
+    assert read_trace(path) == json.loads(json.dumps(good_trace()))
+    assert main([str(path)]) == 0
+    assert "OK" in capsys.readouterr().out
+    bad = [*good_trace()[:-2], summary_record(5000, 3000)]
+    with JsonlWriter(path) as w:
+        for rec in bad:
+            w(rec)
+    assert main([str(path)]) == 1
+    path.write_text('{"t_ms": 0}\nnot json\n')
+    with pytest.raises(ValueError, match=r"t\.jsonl:2: not JSON"):
+        read_trace(path)
