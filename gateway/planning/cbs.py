@@ -1,0 +1,360 @@
+"""Sum-of-costs-optimal 1-robust Conflict-Based Search (CBS).
+
+The high level is best-first on ``SOC + h`` with these improvements, each switchable through
+:class:`CBSOptions` (the benchmark compares against all of them off):
+
+* conflict choice: cardinal first, then semi-cardinal, then earliest, with conflicts classified
+  on the agents' MDDs (multi-valued decision diagrams of their cheapest paths);
+* ``h``: the minimum vertex cover of the cardinal-conflict graph (CG heuristic), admissible
+  because each cardinal edge forces one of its two agents to pay at least one more step;
+* bypassing: a child that keeps the cost and has fewer conflicts replaces the parent's path;
+* target reasoning: a conflict with an agent parked on its goal splits on that agent's arrival
+  time (see :mod:`gateway.planning.cbs_conflicts`);
+* low level: space-time A* on exact distance tables, ties broken towards fewer conflicts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from heapq import heappop, heappush
+
+from gateway.planning.cbs_conflicts import Branch, Conflict, pair_conflicts
+from gateway.planning.constraints import Constraint, ConstraintTable, build_table
+from gateway.planning.grid import Cell, Grid
+from gateway.planning.low_level import (
+    AvoidanceTable,
+    OmniModel,
+    build_mdd,
+    mdd_always_visits,
+    space_time_astar,
+)
+from gateway.planning.plan import Deadline, NoSolution, Plan, Solution
+
+Forbidden = tuple[Cell, int, int]
+"""``(cell, t0, t1)``: no agent may be on the cell at any timestep in ``[t0, t1]``."""
+
+NON_CARDINAL, SEMI_CARDINAL, CARDINAL = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class CBSOptions:
+    """Switches for the CBS improvements (all on by default)."""
+
+    cardinal: bool = True
+    heuristic: bool = True
+    bypass: bool = True
+    target: bool = True
+    avoidance: bool = True
+
+
+class _Node:
+    """A high-level node: constraints (a chain to the root), paths and their conflicts."""
+
+    __slots__ = (
+        "branch", "classes", "conflicts", "costs", "g", "h", "h_done", "mdds", "nconf",
+        "parent", "paths",
+    )
+
+    def __init__(
+        self,
+        parent: _Node | None,
+        branch: Branch | None,
+        paths: list[tuple[int, ...]],
+        conflicts: dict[tuple[int, int], list[Conflict]],
+        mdds: dict[int, list[frozenset[int]]],
+        classes: dict[Conflict, int],
+    ) -> None:
+        self.parent = parent
+        self.branch = branch
+        self.paths = paths
+        self.costs = [len(p) - 1 for p in paths]
+        self.g = sum(self.costs)
+        self.h = 0
+        self.h_done = False
+        self.conflicts = conflicts
+        self.nconf = sum(len(c) for c in conflicts.values())
+        self.mdds = mdds
+        self.classes = classes
+
+
+class _Search:
+    """One CBS run on one instance."""
+
+    def __init__(
+        self,
+        grid: Grid,
+        starts: Sequence[Cell],
+        goals: Sequence[Cell],
+        forbidden: Sequence[Forbidden],
+        deadline: Deadline,
+        options: CBSOptions,
+    ) -> None:
+        _check_instance(grid, starts, goals)
+        self.grid = grid
+        self.model = OmniModel(grid)
+        self.size = grid.size
+        self.starts = [self.model.state(grid.index(c)) for c in starts]
+        self.goals = [grid.index(c) for c in goals]
+        self.h = [self.model.heuristic(g) for g in self.goals]
+        for k, (s, hk) in enumerate(zip(self.starts, self.h, strict=True)):
+            if hk[s] < 0:
+                raise NoSolution(f"agent {k} cannot reach its goal {goals[k]} from {starts[k]}")
+        self.base: list[Constraint] = []
+        for cell, t0, t1 in forbidden:
+            if not grid.is_free(cell):
+                raise ValueError(f"forbidden cell {cell} is not a free cell of {grid!r}")
+            self.base.append((grid.index(cell), int(t0), int(t1)))
+        self.deadline = deadline
+        self.options = options
+        self.expanded = 0
+        self.tie = 0
+
+    # ----- low level -------------------------------------------------------------------------
+
+    def _table(
+        self, node: _Node | None, agent: int, extra: Branch | None = None
+    ) -> ConstraintTable:
+        cons = list(self.base)
+        if extra is not None:
+            cons.append(extra[1:])
+        while node is not None:
+            b = node.branch
+            if b is not None and b[0] == agent:
+                cons.append(b[1:])
+            node = node.parent
+        return build_table(self.size, cons)
+
+    def _avoidance(self, paths: Sequence[tuple[int, ...] | None], agent: int) -> AvoidanceTable:
+        counts: dict[int, int] = {}
+        stays: dict[int, int] = {}
+        size = self.size
+        horizon = 0
+        for j, p in enumerate(paths):
+            if j == agent or p is None:
+                continue
+            end = len(p) - 1
+            horizon = max(horizon, end + 1)
+            for t in range(end):
+                v = p[t]
+                for tt in (t - 1, t, t + 1):
+                    if tt >= 0:
+                        key = tt * size + v
+                        counts[key] = counts.get(key, 0) + 1
+            stays[p[end]] = max(end - 1, 0)
+        return AvoidanceTable(counts, stays, horizon)
+
+    def _plan(
+        self, agent: int, table: ConstraintTable, paths: Sequence[tuple[int, ...] | None]
+    ) -> tuple[int, ...] | None:
+        avoid = self._avoidance(paths, agent) if self.options.avoidance else None
+        states = space_time_astar(
+            self.model, self.starts[agent], self.goals[agent], self.h[agent], table, avoid,
+            self.deadline,
+        )
+        if states is None:
+            return None
+        cells = self.model.cells
+        return tuple(cells[s] for s in states)
+
+    # ----- nodes -----------------------------------------------------------------------------
+
+    def root(self) -> _Node:
+        n = len(self.starts)
+        paths: list[tuple[int, ...] | None] = [None] * n
+        for k in range(n):
+            path = self._plan(k, self._table(None, k), paths)
+            if path is None:
+                raise NoSolution(f"agent {k} has no path under the forbidden windows")
+            paths[k] = path
+        full = [p for p in paths if p is not None]
+        conflicts: dict[tuple[int, int], list[Conflict]] = {}
+        for i in range(n):
+            for j in range(i + 1, n):
+                found = pair_conflicts(i, full[i], j, full[j], self.options.target)
+                if found:
+                    conflicts[i, j] = found
+        return _Node(None, None, full, conflicts, {}, {})
+
+    def child(self, node: _Node, branch: Branch) -> _Node | None:
+        """The node with ``branch`` added and its agent replanned (None if it has no path)."""
+        agent = branch[0]
+        table = self._table(node, agent, branch)
+        path = self._plan(agent, table, node.paths)
+        if path is None:
+            return None
+        paths = list(node.paths)
+        paths[agent] = path
+        target = self.options.target
+        conflicts = {pair: c for pair, c in node.conflicts.items() if agent not in pair}
+        for j in range(len(paths)):
+            if j == agent:
+                continue
+            i, k = (agent, j) if agent < j else (j, agent)
+            found = pair_conflicts(i, paths[i], k, paths[k], target)
+            if found:
+                conflicts[i, k] = found
+        mdds = {a: m for a, m in node.mdds.items() if a != agent}
+        classes = {
+            c: v for c, v in node.classes.items() if c[1][0] != agent and c[2][0] != agent
+        }
+        ch = _Node(node, branch, paths, conflicts, mdds, classes)
+        ch.h = max(0, node.h - (ch.g - node.g))
+        return ch
+
+    def _mdd(self, node: _Node, agent: int) -> list[frozenset[int]]:
+        mdd = node.mdds.get(agent)
+        if mdd is None:
+            table = self._table(node, agent)
+            mdd = build_mdd(
+                self.model, self.starts[agent], self.goals[agent], self.h[agent], table,
+                node.costs[agent],
+            )
+            node.mdds[agent] = mdd
+        return mdd
+
+    def _raises_cost(self, node: _Node, branch: Branch) -> bool:
+        agent, cell, t0, t1 = branch
+        return mdd_always_visits(
+            self.model, self._mdd(node, agent), self.goals[agent], cell, t0, t1
+        )
+
+    def classify(self, node: _Node, conflict: Conflict) -> int:
+        """CARDINAL, SEMI_CARDINAL or NON_CARDINAL (cached on the node)."""
+        kind = node.classes.get(conflict)
+        if kind is None:
+            kind = int(self._raises_cost(node, conflict[1])) + int(
+                self._raises_cost(node, conflict[2])
+            )
+            node.classes[conflict] = kind
+        return kind
+
+    def choose(self, node: _Node) -> Conflict:
+        """The conflict to split: most cardinal, then earliest."""
+        best: Conflict | None = None
+        best_key = (0, 0)
+        classify = self.options.cardinal
+        for found in node.conflicts.values():
+            for c in found:
+                key = (-self.classify(node, c) if classify else 0, c[0])
+                if best is None or key < best_key:
+                    best, best_key = c, key
+        assert best is not None
+        return best
+
+    def heuristic(self, node: _Node) -> int:
+        """Minimum vertex cover of the pairs that have a cardinal conflict."""
+        edges = []
+        for pair, found in node.conflicts.items():
+            if any(self.classify(node, c) == CARDINAL for c in found):
+                edges.append(pair)
+        return min_vertex_cover(edges)
+
+    # ----- high level ------------------------------------------------------------------------
+
+    def push(self, open_list: list[tuple[int, int, int, _Node]], node: _Node) -> None:
+        self.tie += 1
+        heappush(open_list, (node.g + node.h, node.nconf, self.tie, node))
+
+    def run(self) -> Solution:
+        open_list: list[tuple[int, int, int, _Node]] = []
+        self.push(open_list, self.root())
+        opts = self.options
+        while open_list:
+            if self.deadline.expired():
+                raise NoSolution("deadline expired in CBS", timed_out=True)
+            f, _, _, node = heappop(open_list)
+            if node.nconf == 0:
+                return self.solution(node)
+            if opts.heuristic and not node.h_done:
+                node.h_done = True
+                node.h = max(node.h, self.heuristic(node))
+                if node.g + node.h > f:
+                    self.push(open_list, node)
+                    continue
+            self.expanded += 1
+            conflict = self.choose(node)
+            children = []
+            bypassed = False
+            for branch in conflict[1:]:
+                ch = self.child(node, branch)
+                if ch is None:
+                    continue
+                if opts.bypass and ch.g == node.g and ch.nconf < node.nconf:
+                    self.adopt(node, ch, branch[0])
+                    bypassed = True
+                    break
+                children.append(ch)
+            if bypassed:
+                self.push(open_list, node)
+                continue
+            for ch in children:
+                self.push(open_list, ch)
+        raise NoSolution("no 1-robust plan exists")
+
+    def adopt(self, node: _Node, ch: _Node, agent: int) -> None:
+        """Bypass: take the child's path for ``agent`` into ``node`` (same constraints)."""
+        node.paths = ch.paths
+        node.costs = ch.costs
+        node.conflicts = ch.conflicts
+        node.nconf = ch.nconf
+        node.classes = {
+            c: v for c, v in node.classes.items() if c[1][0] != agent and c[2][0] != agent
+        }
+        node.h_done = False
+
+    def solution(self, node: _Node) -> Solution:
+        cell = self.grid.cell
+        plan = Plan.of([[cell(v) for v in p] for p in node.paths])
+        return Solution(plan, optimal=True, expanded_nodes=self.expanded)
+
+
+def min_vertex_cover(edges: Sequence[tuple[int, int]]) -> int:
+    """Size of a minimum vertex cover of a small graph (exact branching on an edge's ends)."""
+    memo: dict[frozenset[tuple[int, int]], int] = {}
+
+    def cover(es: frozenset[tuple[int, int]]) -> int:
+        if not es:
+            return 0
+        got = memo.get(es)
+        if got is not None:
+            return got
+        u, v = min(es)
+        best = 1 + min(
+            cover(frozenset(e for e in es if u not in e)),
+            cover(frozenset(e for e in es if v not in e)),
+        )
+        memo[es] = best
+        return best
+
+    return cover(frozenset(edges))
+
+
+def _check_instance(grid: Grid, starts: Sequence[Cell], goals: Sequence[Cell]) -> None:
+    """Raise ValueError unless starts and goals are free, distinct and as many as each other."""
+    if len(starts) != len(goals):
+        raise ValueError(f"{len(starts)} starts but {len(goals)} goals")
+    for what, cells in (("start", starts), ("goal", goals)):
+        for k, c in enumerate(cells):
+            if not grid.is_free(c):
+                raise ValueError(f"{what} {c} of agent {k} is not a free cell of {grid!r}")
+        if len(set(map(tuple, cells))) != len(cells):
+            raise ValueError(f"two agents share a {what} cell")
+
+
+def solve_cbs(
+    grid: Grid,
+    starts: Sequence[Cell],
+    goals: Sequence[Cell],
+    *,
+    deadline: Deadline,
+    forbidden: Sequence[Forbidden] = (),
+    options: CBSOptions = CBSOptions(),
+) -> Solution:
+    """An SOC-optimal 1-robust plan (DESIGN section 2) found by CBS.
+
+    ``forbidden`` cells are closed to every agent during their time windows. Raises
+    ``NoSolution`` if there is none (``timed_out=True`` if the deadline expired first) and
+    ``ValueError`` on a malformed instance.
+    """
+    return _Search(grid, starts, goals, forbidden, deadline, options).run()

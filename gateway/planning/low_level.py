@@ -1,0 +1,189 @@
+"""Single-agent planning in space-time: motion models, A* under constraints, and MDDs.
+
+The low level works on *states* (ints) produced by a motion model; constraints and conflicts are
+on *cells*. With the ``omni`` model a state is the cell's flat id; a ``turning`` model would
+number ``(cell, heading)`` pairs and map each to its cell through ``cells``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from heapq import heappop, heappush
+
+from gateway.planning.constraints import INF, ConstraintTable
+from gateway.planning.distance import distance_table
+from gateway.planning.grid import Grid
+from gateway.planning.plan import Deadline, NoSolution
+
+DEADLINE_EVERY = 512
+"""The low level asks the deadline once per this many expansions."""
+
+
+@dataclass(frozen=True, eq=False)
+class OmniModel:
+    """The ``omni`` motion model: wait or move to a free 4-neighbour, one timestep each.
+
+    ``succ[s]`` lists the successor states of state ``s`` (waiting first); ``cells[s]`` is the
+    cell of state ``s`` (the identity here).
+    """
+
+    grid: Grid
+    succ: tuple[tuple[int, ...], ...] = field(init=False, repr=False)
+    cells: tuple[int, ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        n = self.grid.size
+        flat = self.grid.free.ravel()
+        succ = tuple((i, *self.grid.neighbour_ids(i)) if flat[i] else () for i in range(n))
+        object.__setattr__(self, "succ", succ)
+        object.__setattr__(self, "cells", tuple(range(n)))
+
+    def state(self, cell: int) -> int:
+        """The state of an agent standing on ``cell`` at the start."""
+        return cell
+
+    def heuristic(self, goal: int) -> list[int]:
+        """Exact moves-to-go from every state to ``goal`` (-1 where unreachable)."""
+        result: list[int] = distance_table(self.grid, self.grid.cell(goal)).tolist()
+        return result
+
+
+@dataclass(slots=True)
+class AvoidanceTable:
+    """Other agents' occupancy, used only to break ties towards fewer conflicts.
+
+    ``counts[t * size + cell]`` is how many other agents a visit of ``cell`` at ``t`` conflicts
+    with; ``stays[cell]`` is the time from which an agent parked on ``cell`` conflicts with a
+    visit; after ``horizon`` nothing changes.
+    """
+
+    counts: dict[int, int]
+    stays: dict[int, int]
+    horizon: int
+
+
+def space_time_astar(
+    model: OmniModel,
+    start: int,
+    goal: int,
+    h: list[int],
+    table: ConstraintTable,
+    avoid: AvoidanceTable | None,
+    deadline: Deadline,
+) -> list[int] | None:
+    """A cheapest path of states from ``start`` that ends on cell ``goal`` and may stay there.
+
+    The path ends at time T with ``T > table.goal_block(goal)``, so staying on the goal after T
+    breaks no constraint. Among cheapest paths it returns one with fewest conflicts counted by
+    ``avoid``. Returns None if no path exists; raises ``NoSolution(timed_out=True)`` when the
+    deadline expires.
+    """
+    size = table.size
+    succ = model.succ
+    cells = model.cells
+    blocked = table.blocked
+    permanent = table.permanent
+    goal_block = table.goal_block(goal)
+    if goal_block >= INF or h[start] < 0 or table.forbids(cells[start], 0):
+        return None
+    counts = avoid.counts if avoid is not None else {}
+    stays = avoid.stays if avoid is not None else {}
+    horizon = max(table.horizon, avoid.horizon if avoid is not None else 0, goal_block + 1)
+    nstates = len(succ)
+    floor = goal_block + 1
+    f0 = max(h[start], floor)
+    open_list: list[tuple[int, int, int, int, int, object]] = [(f0, 0, 0, 0, start, None)]
+    closed: set[int] = set()
+    tie = 0
+    expanded = 0
+    while open_list:
+        entry = heappop(open_list)
+        _, nc, negt, _, s, _ = entry
+        t = -negt
+        key = (t if t < horizon else horizon) * nstates + s
+        if key in closed:
+            continue
+        closed.add(key)
+        if cells[s] == goal and t >= floor:
+            path = []
+            node: object = entry
+            while node is not None:
+                path.append(node[4])  # type: ignore[index]
+                node = node[5]  # type: ignore[index]
+            path.reverse()
+            return path
+        expanded += 1
+        if expanded % DEADLINE_EVERY == 0 and deadline.expired():
+            raise NoSolution("deadline expired in the low-level search", timed_out=True)
+        nt = t + 1
+        tk = nt * size
+        ckey = (nt if nt < horizon else horizon) * nstates
+        for u in succ[s]:
+            hu = h[u]
+            if hu < 0 or ckey + u in closed:
+                continue
+            c = cells[u]
+            if tk + c in blocked:
+                continue
+            if permanent:
+                first = permanent.get(c)
+                if first is not None and nt >= first:
+                    continue
+            fu = nt + hu
+            if fu < floor:
+                fu = floor
+            nu = nc + counts.get(tk + c, 0)
+            if stays:
+                st = stays.get(c)
+                if st is not None and nt >= st:
+                    nu += 1
+            tie += 1
+            heappush(open_list, (fu, nu, -nt, tie, u, entry))
+    return None
+
+
+def build_mdd(
+    model: OmniModel, start: int, goal: int, h: list[int], table: ConstraintTable, cost: int
+) -> list[frozenset[int]]:
+    """Layers of the multi-valued decision diagram: all cost-``cost`` paths under ``table``.
+
+    ``mdd[t]`` holds the states that some such path visits at time t; ``mdd[cost]`` holds goal
+    states only. ``cost`` must be the agent's optimal cost under ``table``.
+    """
+    succ = model.succ
+    cells = model.cells
+    layers: list[set[int]] = [{start}]
+    for t in range(1, cost + 1):
+        budget = cost - t
+        cur: set[int] = set()
+        for s in layers[-1]:
+            for u in succ[s]:
+                if 0 <= h[u] <= budget and not table.forbids(cells[u], t):
+                    cur.add(u)
+        layers.append(cur)
+    layers[cost] = {s for s in layers[cost] if cells[s] == goal}
+    for t in range(cost - 1, -1, -1):
+        nxt = layers[t + 1]
+        layers[t] = {s for s in layers[t] if any(u in nxt for u in succ[s])}
+    return [frozenset(layer) for layer in layers]
+
+
+def mdd_always_visits(
+    model: OmniModel, mdd: list[frozenset[int]], goal: int, cell: int, t0: int, t1: int
+) -> bool:
+    """True if every path of the MDD (staying on ``goal`` after its end) is on ``cell`` at
+    some time in ``[t0, t1]``: a constraint forbidding that range raises the agent's cost."""
+    cost = len(mdd) - 1
+    if cell == goal and t1 >= cost:
+        return True
+    if t0 > cost:
+        return False
+    cells = model.cells
+    succ = model.succ
+    cur = {s for s in mdd[t0] if cells[s] != cell}
+    for t in range(t0 + 1, min(t1, cost) + 1):
+        if not cur:
+            return True
+        layer = mdd[t]
+        cur = {u for s in cur for u in succ[s] if u in layer and cells[u] != cell}
+    return not cur
