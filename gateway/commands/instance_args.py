@@ -1,0 +1,48 @@
+"""The instance options shared by commands: ``--map --scen --agents --instance --maps-dir``."""
+
+from __future__ import annotations
+
+import argparse
+
+from gateway.cli import UsageError
+from gateway.commands import mapstore
+from gateway.planning.instance import Instance, load_instance, load_mapf_ir
+from gateway.planning.movingai import MapFormatError
+
+
+def add_instance_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options that choose an instance (read back with :func:`instance_from_args`)."""
+    group = parser.add_argument_group("instance")
+    group.add_argument("--map", metavar="M", help="map file or name (e.g. random-32-32-20, lab)")
+    group.add_argument("--scen", metavar="S",
+                       help="scenario file or name (e.g. random-32-32-20-random-1)")
+    group.add_argument("--agents", metavar="N", type=int,
+                       help="use the first N agents (default: all)")
+    group.add_argument("--instance", metavar="FILE",
+                       help="a mapf-IR instance file instead of --scen (its map_file is looked "
+                            "for next to it and by name; --map overrides it)")
+    group.add_argument("--maps-dir", metavar="DIR", help="look up map and scenario names here "
+                                                         "first")
+
+
+def instance_from_args(args: argparse.Namespace) -> Instance:
+    """Load and check the instance the options name; bad input raises :class:`UsageError`."""
+    if args.agents is not None and args.agents < 1:
+        raise UsageError(f"--agents must be at least 1, got {args.agents}")
+    if args.instance and args.scen:
+        raise UsageError("give either --scen or --instance, not both")
+    try:
+        if args.instance:
+            map_path = mapstore.resolve(args.map, "map", args.maps_dir) if args.map else None
+            dirs = [d.path for d in mapstore.search_dirs(args.maps_dir)]
+            return load_mapf_ir(args.instance, args.agents, map_path, dirs)
+        if not args.map or not args.scen:
+            raise UsageError("give --map and --scen, or --instance")
+        return load_instance(mapstore.resolve(args.map, "map", args.maps_dir),
+                             mapstore.resolve(args.scen, "scen", args.maps_dir), args.agents)
+    except (mapstore.MapNotFound, MapFormatError) as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"cannot read {exc.filename}: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise UsageError("cannot read the map, scenario or instance: not a text file") from None
