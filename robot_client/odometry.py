@@ -1,9 +1,9 @@
 """Differential-drive odometry from the Kobuki's 16-bit wheel encoder counters.
 
-Frames: the world frame is the floor's (x along the grid's columns, y along its rows, z up, so
-angles grow counter-clockwise seen from above); a pose is ``(x, y, theta)`` in metres and
-radians with theta the robot's heading from the world x axis. The robot frame has x forward and
-y to the robot's left.
+Frames: the world frame is the floor's (:mod:`robot_client.floor`: x along the grid's columns,
+y towards decreasing rows, z up, so angles grow counter-clockwise seen from above); a pose is
+``(x, y, theta)`` in metres and radians with theta the robot's heading from the world x axis.
+The robot frame has x forward and y to the robot's left.
 """
 
 from __future__ import annotations
