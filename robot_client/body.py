@@ -1,0 +1,48 @@
+"""The robot's body: Kobuki base, localiser and action runner glued into one control tick.
+
+No clock and no event loop here: the caller passes the time and calls :meth:`RobotBody.tick`
+every control period (20 ms, the rate the base streams its feedback at) and
+:meth:`RobotBody.on_frame` for every camera frame.
+"""
+
+from __future__ import annotations
+
+from robot_client.apriltag_localiser import Image, Localiser, TagFix
+from robot_client.kobuki import KobukiSerial
+from robot_client.odometry import Pose
+from robot_client.runner import ActionRunner, GridAction, RunnerEvent
+
+
+class RobotBody:
+    """Reads the base, updates the pose, runs the current action, commands the wheels."""
+
+    def __init__(self, base: KobukiSerial, localiser: Localiser, runner: ActionRunner) -> None:
+        self.base = base
+        self.localiser = localiser
+        self.runner = runner
+        self.bumper = False
+
+    @property
+    def pose(self) -> Pose:
+        """The current pose estimate."""
+        return self.localiser.pose
+
+    def start(self, action: GridAction, now_ms: float) -> None:
+        """Begin executing ``action``."""
+        self.runner.start(action, now_ms)
+
+    def tick(self, now_ms: float) -> list[RunnerEvent]:
+        """One control period: feedback in, wheel command out; the runner's new events."""
+        for data in self.base.poll():
+            self.localiser.on_encoders(data.left_encoder, data.right_encoder)
+            self.bumper = data.bumped
+        self.base.drive(*self.runner.step(now_ms, self.localiser.pose, self.bumper))
+        return self.runner.drain()
+
+    def on_frame(self, frame: Image) -> TagFix | None:
+        """Correct the pose with a camera frame."""
+        return self.localiser.on_frame(frame)
+
+    def stop(self) -> None:
+        """Stop the wheels now (the current action, if any, stays where it is)."""
+        self.base.stop()
