@@ -1,4 +1,5 @@
-"""``fleetgate maps list|download``: what map names resolve to, and fetching MovingAI maps."""
+"""``fleetgate maps list|download|generate``: what map names resolve to, fetching MovingAI
+maps, and generating maps with scenarios."""
 
 from __future__ import annotations
 
@@ -7,8 +8,13 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from gateway.cli import EXIT_OK, UsageError
 from gateway.commands import mapstore
+from gateway.planning.generators import random_map, rooms_map, scenario_set, warehouse_map
+from gateway.planning.grid import Grid
+from gateway.planning.movingai import format_map, format_scen
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -43,6 +49,82 @@ def _download(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _generated_map(args: argparse.Namespace) -> Grid:
+    rng = np.random.default_rng(args.seed)
+    name = f"{args.name}.map"
+    if args.kind == "random":
+        return random_map(args.width, args.height, args.obstacles, rng, name)
+    if args.kind == "rooms":
+        return rooms_map(args.rooms_x, args.rooms_y, args.room_size, rng, args.extra_doors, name)
+    return warehouse_map(args.blocks_x, args.blocks_y, args.shelf_length, args.shelf_depth,
+                         args.aisle, args.border, name)
+
+
+def _generate(args: argparse.Namespace) -> int:
+    if "/" in args.name or not args.name:
+        raise UsageError(f"NAME must be a plain file name, got {args.name!r}")
+    if args.scenarios < 0:
+        raise UsageError(f"--scenarios must not be negative, got {args.scenarios}")
+    try:
+        grid = _generated_map(args)
+        texts = {f"{args.name}.map": format_map(grid)}
+        if args.scenarios:
+            for i, entries in enumerate(scenario_set(grid, f"{args.name}.map", args.scenarios,
+                                                     args.agents, args.seed), start=1):
+                texts[f"{args.name}-random-{i}.scen"] = format_scen(entries)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    out = Path(args.out)
+    clash = [n for n in texts if (out / n).exists()]
+    if clash and not args.force:
+        raise UsageError(f"{out / clash[0]} exists (use --force to overwrite)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for file, text in texts.items():
+            (out / file).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise UsageError(f"cannot write into {out}: {exc.strerror}") from None
+    for file in texts:
+        print(out / file)
+    return EXIT_OK
+
+
+def _add_generate(inner: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    gen = inner.add_parser(
+        "generate", help="make a connected random, rooms or warehouse map and scenarios",
+        description="Write OUT/NAME.map and, with --scenarios K, OUT/NAME-random-{1..K}.scen "
+                    "(distinct starts, distinct reachable goals). The same --seed gives the "
+                    "same files.")
+    gen.add_argument("kind", choices=("random", "rooms", "warehouse"))
+    gen.add_argument("name", metavar="NAME", help="file name without .map")
+    gen.add_argument("--out", metavar="DIR", default=".", help="folder to write (default .)")
+    gen.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    gen.add_argument("--scenarios", type=int, default=0, metavar="K",
+                     help="also write K scenario files (default 0)")
+    gen.add_argument("--agents", type=int, default=20, metavar="N",
+                     help="agents per scenario (default 20)")
+    gen.add_argument("--force", action="store_true", help="overwrite existing files")
+    shape = gen.add_argument_group("random map")
+    shape.add_argument("--width", type=int, default=32)
+    shape.add_argument("--height", type=int, default=32)
+    shape.add_argument("--obstacles", type=float, default=0.2, metavar="SHARE",
+                       help="share of blocked cells before pockets are filled (default 0.2)")
+    rooms = gen.add_argument_group("rooms map")
+    rooms.add_argument("--rooms-x", type=int, default=4)
+    rooms.add_argument("--rooms-y", type=int, default=4)
+    rooms.add_argument("--room-size", type=int, default=7)
+    rooms.add_argument("--extra-doors", type=float, default=0.3, metavar="P",
+                       help="chance of a door between rooms beyond a spanning tree")
+    house = gen.add_argument_group("warehouse map")
+    house.add_argument("--blocks-x", type=int, default=3)
+    house.add_argument("--blocks-y", type=int, default=3)
+    house.add_argument("--shelf-length", type=int, default=5)
+    house.add_argument("--shelf-depth", type=int, default=2)
+    house.add_argument("--aisle", type=int, default=2)
+    house.add_argument("--border", type=int, default=2)
+    gen.set_defaults(func=_generate)
+
+
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add ``fleetgate maps`` with its ``list`` and ``download`` subcommands."""
     parser = sub.add_parser("maps", help="list and download maps and scenarios",
@@ -70,3 +152,4 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     fetch.add_argument("--timeout", type=float, default=60.0, metavar="SEC",
                        help="network timeout per archive (default 60)")
     fetch.set_defaults(func=_download)
+    _add_generate(inner)

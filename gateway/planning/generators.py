@@ -113,7 +113,8 @@ def random_instance(grid: Grid, agents: int, rng: np.random.Generator,
     """``agents`` agents with distinct starts and distinct goals, drawn uniformly at random;
     each goal lies in its start's component and differs from it.
 
-    Raises ``ValueError`` when the map has too few free cells for that.
+    Raises ``ValueError`` when the map has too few free cells for that (an agent alone in a
+    one-cell component).
     """
     if agents < 1:
         raise ValueError(f"the number of agents must be at least 1, got {agents}")
@@ -125,12 +126,21 @@ def random_instance(grid: Grid, agents: int, rng: np.random.Generator,
     starts = rng.choice(free_ids, size=agents, replace=False)
     goal_taken = np.zeros(labels.size, dtype=bool)
     goals: list[int] = []
-    for s in starts.tolist():
+    start_list = [int(s) for s in starts]
+    for k, s in enumerate(start_list):
         options = np.flatnonzero((labels == labels[s]) & ~goal_taken)
         options = options[options != s]
-        if options.size == 0:
-            raise ValueError(f"no free goal left in the component of start {grid.cell(s)}")
-        g = int(rng.choice(options))
+        if options.size:
+            g = int(rng.choice(options))
+        else:
+            # Only s itself is left in its component: an earlier agent there takes s as its
+            # goal and hands its own goal over.
+            j = next((j for j in range(k) if labels[start_list[j]] == labels[s]), None)
+            if j is None:
+                raise ValueError(f"no goal other than its start for the agent at "
+                                 f"{grid.cell(s)}")
+            g, goals[j] = goals[j], s
+            goal_taken[s] = True
         goal_taken[g] = True
         goals.append(g)
     return Instance(grid, tuple(grid.cell(int(s)) for s in starts),
@@ -149,3 +159,11 @@ def scenario_entries(instance: Instance, map_name: str, bucket: int = 0) -> list
                              optimal_length=float(dist[instance.grid.index(start)])))
     return out
 
+
+
+def scenario_set(grid: Grid, map_name: str, count: int, agents: int,
+                 seed: int) -> list[list[ScenEntry]]:
+    """``count`` scenarios of ``agents`` random agents each; scenario i (1-based) draws from
+    ``numpy.random.default_rng([seed, i])``, so each is reproducible on its own."""
+    return [scenario_entries(random_instance(grid, agents, np.random.default_rng([seed, i])),
+                             map_name) for i in range(1, count + 1)]

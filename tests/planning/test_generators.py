@@ -15,14 +15,20 @@ from gateway.planning.generators import (
     random_instance,
     random_map,
     rooms_map,
-    scenario_entries,
+    scenario_set,
     warehouse_map,
 )
 from gateway.planning.grid import Grid
 from gateway.planning.instance import load_instance
-from gateway.planning.movingai import format_map, format_scen
+from tests.planning.fleetgate_cli import run
 
 SHIPPED = Path(__file__).resolve().parents[2] / "gateway" / "planning" / "maps"
+LAB_RECIPE = ["warehouse", "lab", "--blocks-x", "3", "--blocks-y", "2", "--shelf-length", "2",
+              "--shelf-depth", "2", "--aisle", "2", "--border", "2", "--scenarios", "5",
+              "--agents", "20"]
+WAREHOUSE_RECIPE = ["warehouse", "warehouse-small", "--blocks-x", "3", "--blocks-y", "3",
+                    "--shelf-length", "5", "--shelf-depth", "2", "--aisle", "2", "--border",
+                    "2", "--scenarios", "5", "--agents", "30"]
 FAST = settings(max_examples=40, deadline=None)
 
 
@@ -82,7 +88,7 @@ def test_random_instance_is_valid_and_seeded(width: int, height: int, share: flo
                                              agents: int, seed: int) -> None:
     grid = random_map(width, height, share, np.random.default_rng(seed))
     free = int(grid.free.sum())
-    if free < agents + 1:
+    if free < max(agents, 2):
         with pytest.raises(ValueError):
             random_instance(grid, agents, np.random.default_rng(seed))
         return
@@ -101,6 +107,16 @@ def test_random_instance_keeps_goals_in_the_start_component() -> None:
         _check_instance(grid, inst.starts, inst.goals)
 
 
+def test_random_instance_fills_every_free_cell() -> None:
+    # Two cells, two agents: the only valid instance swaps them, whatever the draw.
+    grid = Grid(np.array([[True, True]]))
+    for seed in range(10):
+        inst = random_instance(grid, 2, np.random.default_rng(seed))
+        assert inst.goals == (inst.starts[1], inst.starts[0])
+    with pytest.raises(ValueError, match="no goal other than its start"):
+        random_instance(Grid(np.array([[True]])), 1, np.random.default_rng(0))
+
+
 def test_generators_reject_bad_parameters() -> None:
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="obstacle share"):
@@ -111,22 +127,56 @@ def test_generators_reject_bad_parameters() -> None:
         random_instance(Grid(np.array([[True, True]])), 3, rng)
 
 
-@pytest.mark.parametrize(("name", "grid", "agents"), [
-    ("lab", warehouse_map(3, 2, 2, 2, aisle=2, border=2, name="lab.map"), 20),
-    ("warehouse-small", warehouse_map(3, 3, 5, 2, aisle=2, border=2,
-                                      name="warehouse-small.map"), 30),
-])
-def test_shipped_maps_are_what_the_generators_make(name: str, grid: Grid, agents: int) -> None:
-    """The recipe in gateway/planning/maps/README.md, byte for byte."""
-    assert (SHIPPED / f"{name}.map").read_text() == format_map(grid)
-    for seed in range(1, 6):
-        inst = random_instance(grid, agents, np.random.default_rng(seed))
-        scen = SHIPPED / f"{name}-random-{seed}.scen"
-        assert scen.read_text() == format_scen(scenario_entries(inst, f"{name}.map"))
-        loaded = load_instance(SHIPPED / f"{name}.map", scen)
-        assert (loaded.starts, loaded.goals) == (inst.starts, inst.goals)
+def test_scenario_set_is_seeded_per_scenario() -> None:
+    grid = warehouse_map(2, 2, 3)
+    sets = scenario_set(grid, "w.map", 3, 5, seed=7)
+    assert scenario_set(grid, "w.map", 3, 5, seed=7) == sets
+    assert scenario_set(grid, "w.map", 2, 5, seed=7) == sets[:2]
+    assert sets[0] != sets[1]
+    for entries in sets:
+        _check_instance(grid, tuple(e.start for e in entries), tuple(e.goal for e in entries))
+        # optimal_length is the BFS distance here (4-connected)
+        assert all(e.optimal_length == distance_table(grid, e.goal)[grid.index(e.start)]
+                   for e in entries)
 
 
 def test_lab_map_matches_its_description() -> None:
     lab = load_instance(SHIPPED / "lab.map", SHIPPED / "lab-random-1.scen", 15).grid
     assert (lab.width, lab.height, int(lab.free.sum())) == (14, 10, 116)
+
+
+@pytest.mark.parametrize("recipe", [LAB_RECIPE, WAREHOUSE_RECIPE], ids=["lab", "warehouse"])
+def test_shipped_maps_are_what_maps_generate_writes(tmp_path: Path, recipe: list[str]) -> None:
+    """The recipes in gateway/planning/maps/README.md give the shipped files byte for byte."""
+    done = run("maps", "generate", *recipe, "--out", str(tmp_path))
+    assert done.returncode == 0, done.stderr
+    written = sorted(p.name for p in tmp_path.iterdir())
+    assert len(written) == 6
+    for name in written:
+        assert (tmp_path / name).read_bytes() == (SHIPPED / name).read_bytes(), name
+
+
+def test_maps_generate_random_and_rooms(tmp_path: Path) -> None:
+    for kind in ("random", "rooms"):
+        args = ["maps", "generate", kind, f"g-{kind}", "--out", str(tmp_path), "--seed", "3",
+                "--scenarios", "2", "--agents", "10"]
+        assert run(*args).returncode == 0
+        inst = load_instance(tmp_path / f"g-{kind}.map", tmp_path / f"g-{kind}-random-2.scen")
+        assert is_connected(inst.grid.free)
+        _check_instance(inst.grid, inst.starts, inst.goals)
+        again = run(*args)  # the files exist now: refused without --force, nothing changed
+        assert again.returncode == 2
+        assert "exists (use --force to overwrite)" in again.stderr
+
+
+@pytest.mark.parametrize(("args", "reason"), [
+    (["random", "x", "--obstacles", "1"], "obstacle share must be in [0, 1)"),
+    (["warehouse", "x", "--aisle", "0"], "every warehouse dimension must be at least 1"),
+    (["random", "x", "--width", "2", "--height", "2", "--obstacles", "0", "--scenarios", "1",
+      "--agents", "5"], "5 agents need 5 free cells"),
+])
+def test_maps_generate_bad_parameters(tmp_path: Path, args: list[str], reason: str) -> None:
+    done = run("maps", "generate", *args, "--out", str(tmp_path))
+    assert done.returncode == 2
+    assert reason in done.stderr
+    assert list(tmp_path.iterdir()) == []
