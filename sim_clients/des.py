@@ -1,0 +1,334 @@
+"""Driver 3 of DESIGN section 1: a discrete-event simulation in virtual time.
+
+:func:`run_simulation` executes one plan with the real :class:`~gateway.execution.executor.
+Executor`, simulated robots (:mod:`sim_clients.robot`) on a :class:`~sim_clients.world.World`
+and optionally the intruder (:mod:`sim_clients.intruder`). Time jumps from event to event on a
+heap; the executor is ticked at every multiple of ``MONITOR_PERIOD_MS``. Events at one instant
+run in a fixed order (arrivals, then blocked robots looking again, the intruder, a finished
+solver, a policy wake-up, the monitor tick), so a run is a function of its configuration and
+seed, except for the solver's wall time when ``solver_time="measured"``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import random
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+from gateway.commands.deadline import WallDeadline
+from gateway.execution.commands import (
+    Cancel,
+    Completed,
+    Dispatch,
+    PlanAdopted,
+    SolveRequest,
+    Trigger,
+)
+from gateway.execution.executor import MONITOR_PERIOD_MS, Executor
+from gateway.execution.policies import ReplanPolicy, make_policy
+from gateway.planning.grid import Cell, Grid
+from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.solver import solve
+from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
+from sim_clients.robot import RobotEvent, RobotState, SimRobot
+from sim_clients.trace import TraceSink, intruder_record, summary_record
+from sim_clients.world import INTRUDER, World
+
+PolicyName = Literal["none", "random", "slack"]
+POLICIES: tuple[str, ...] = ("none", "random", "slack")
+SolverTime = Literal["measured", "zero"] | float
+"""How a replan's solver time is charged in virtual time: its wall time, nothing, or fixed ms."""
+ExtraDelay = Callable[[int, int, int], float]
+"""``(plan, robot, action) -> extra ms`` added to an action's duration (delay injection)."""
+
+# Order of events at one instant (lower first).
+_ARRIVE, _RECHECK, _INTRUDER, _SOLVED, _POLICY = range(5)
+
+
+class SimulationError(RuntimeError):
+    """The simulation made no progress within its time bound (a deadlock)."""
+
+
+def parse_solver_time(text: str) -> SolverTime:
+    """``"measured"``, ``"zero"`` or a non-negative number of ms; ValueError otherwise."""
+    if text == "measured":
+        return "measured"
+    if text == "zero":
+        return "zero"
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"solver time must be 'measured', 'zero' or ms, got {text!r}") from None
+    if not value >= 0 or value == float("inf"):
+        raise ValueError(f"solver time must be a finite number of ms >= 0, got {text!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """One simulated execution of ``plan`` on ``grid`` (replans solve on ``grid`` too)."""
+
+    grid: Grid
+    plan: Plan
+    seed: int = 0
+    intruder: bool = True
+    policy: PolicyName = "none"
+    threshold_ms: float = 2000.0
+    solver_time: SolverTime = "measured"
+    solver_time_limit_s: float = 30.0
+    trace: TraceSink | None = None
+    intruder_config: IntruderConfig = field(default_factory=IntruderConfig)
+    action_ms: float = 1000.0
+    extra_delay: ExtraDelay | None = None
+    max_replans: int = 1
+    stall_ms: float = 600_000.0
+    """Give up (SimulationError) this long after the last robot finished or started an action."""
+
+    def __post_init__(self) -> None:
+        if self.policy not in POLICIES:
+            raise ValueError(f"policy must be one of {POLICIES}, got {self.policy!r}")
+        if isinstance(self.solver_time, str):
+            parse_solver_time(self.solver_time)
+        elif not 0 <= self.solver_time < float("inf"):
+            raise ValueError(f"solver_time must be finite and >= 0 ms, got {self.solver_time}")
+        if self.threshold_ms < 0 or self.action_ms <= 0 or self.stall_ms <= 0:
+            raise ValueError("threshold_ms must be >= 0, action_ms and stall_ms > 0")
+        if len(self.plan.paths) == 0:
+            raise ValueError("the plan has no robots")
+        for k, path in enumerate(self.plan.paths):
+            bad = next((c for c in path if not self.grid.is_free(c)), None)
+            if bad is not None:
+                raise ValueError(f"robot {k}'s path visits {bad}, not a free cell of "
+                                 f"{self.grid!r}")
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """What one simulated execution measured (times in ms of virtual time)."""
+
+    soc_ms: float
+    makespan_ms: float
+    plan_soc: int
+    plan_makespan: int
+    replans: int
+    replan_at_ms: float | None
+    """When the (first) replan was triggered; None if none was."""
+    solver_ms: float
+    """Solver time charged for replans."""
+    collisions: int
+    robot_blocks: int
+    """Times a robot found its next cell held by another robot (the ADG should prevent it)."""
+    intruder_cell: Cell | None
+    intruder_on_ms: float | None
+    """When the intruder entered its cell; None if it never did."""
+    end_ms: float
+
+    def summary(self) -> dict[str, object]:
+        """The ``fleetgate simulate --json`` object (DESIGN section 3)."""
+        return {"soc_ms": self.soc_ms, "makespan_ms": self.makespan_ms,
+                "plan_soc": self.plan_soc, "replans": self.replans,
+                "replan_at_ms": self.replan_at_ms, "solver_ms": self.solver_ms,
+                "collisions": self.collisions}
+
+
+def derive_seed(seed: int, purpose: str) -> int:
+    """An independent 64-bit seed for one consumer of randomness in a run."""
+    return random.Random(f"{purpose}/{seed}").getrandbits(64)
+
+
+def policy_for(config: SimConfig) -> ReplanPolicy:
+    """The executor's replanning policy for ``config`` (its own seed, derived from the run's)."""
+    return make_policy(config.policy, seed=derive_seed(config.seed, "replan"),
+                       threshold_ms=config.threshold_ms,
+                       makespan_lb_ms=config.plan.makespan * config.action_ms,
+                       intruder_appear_ms=config.intruder_config.appear_ms)
+
+
+def run_simulation(config: SimConfig) -> SimResult:
+    """Execute ``config.plan`` in virtual time and return the measurements."""
+    return _Simulation(config).run()
+
+
+class _Simulation:
+    """State of one run; :meth:`run` is the event loop."""
+
+    def __init__(self, config: SimConfig) -> None:
+        self.cfg = config
+        starts = [p[0] for p in config.plan.paths]
+        self.world = World(starts)
+        self.robots = [SimRobot(k, self.world, cell) for k, cell in enumerate(starts)]
+        self.executor = Executor(config.plan, policy=policy_for(config),
+                                 action_ms=config.action_ms, max_replans=config.max_replans,
+                                 record=config.trace)
+        self.intruder = Intruder(self.world, config.intruder_config) if config.intruder else None
+        self.rng = random.Random(derive_seed(config.seed, "intruder"))
+        self.heap: list[tuple[float, int, int, int]] = []
+        self.seq = 0
+        self.robot_wake: list[float | None] = [None] * len(starts)
+        self.policy_wake: float | None = None
+        self.next_action = [0] * len(starts)
+        self.pending_plan: Plan | None = None
+        self.replans = 0
+        self.replan_at: float | None = None
+        self.solver_ms = 0.0
+        self.robot_blocks = 0
+        self.last_progress = 0.0
+        self.completed: Completed | None = None
+
+    def push(self, t: float, kind: int, who: int) -> None:
+        self.seq += 1
+        heapq.heappush(self.heap, (t, kind, self.seq, who))
+
+    def run(self) -> SimResult:
+        ex = self.executor
+        ex.start(0.0)
+        self.handle(0.0)
+        if self.intruder is not None:
+            self.push(self.cfg.intruder_config.appear_ms, _INTRUDER, INTRUDER)
+        heap = self.heap
+        next_tick = 0.0
+        now = 0.0
+        while self.completed is None:
+            if heap and heap[0][0] <= next_tick:
+                now, kind, _, who = heapq.heappop(heap)
+                if kind <= _RECHECK:
+                    self.wake_robot(who, now)
+                elif kind == _INTRUDER:
+                    self.wake_intruder(now)
+                elif kind == _SOLVED:
+                    self.solved(now)
+                elif now == self.policy_wake:
+                    self.policy_wake = None
+                    ex.tick(now)
+                    self.handle(now)
+            else:
+                now = next_tick
+                next_tick += MONITOR_PERIOD_MS
+                if now - self.last_progress > self.cfg.stall_ms:
+                    raise SimulationError(f"no robot moved for {self.cfg.stall_ms:.0f} ms "
+                                          f"before {now:.0f} ms: deadlock")
+                ex.tick(now)
+                self.handle(now)
+        if self.cfg.trace is not None:
+            self.cfg.trace(summary_record(self.completed.soc_ms, self.completed.makespan_ms))
+        intr = self.intruder
+        return SimResult(
+            soc_ms=self.completed.soc_ms, makespan_ms=self.completed.makespan_ms,
+            plan_soc=self.cfg.plan.soc, plan_makespan=self.cfg.plan.makespan,
+            replans=self.replans, replan_at_ms=self.replan_at, solver_ms=self.solver_ms,
+            collisions=len(self.world.collisions), robot_blocks=self.robot_blocks,
+            intruder_cell=intr.cell if intr is not None and intr.entered_ms is not None
+            else None,
+            intruder_on_ms=intr.entered_ms if intr is not None else None, end_ms=now)
+
+    def wake_robot(self, k: int, now: float) -> None:
+        if self.robot_wake[k] != now:
+            return  # superseded by a cancel or a newer schedule
+        self.robot_wake[k] = None
+        self.robot_events(self.robots[k].wake(now))
+        self.schedule_robot(k)
+        self.handle(now)
+
+    def schedule_robot(self, k: int) -> None:
+        robot = self.robots[k]
+        t = robot.next_wakeup_ms()
+        if t is not None and t != self.robot_wake[k]:
+            self.robot_wake[k] = t
+            self.push(t, _ARRIVE if robot.state is RobotState.MOVING else _RECHECK, k)
+
+    def robot_events(self, events: list[RobotEvent]) -> None:
+        ex = self.executor
+        for e in events:
+            if e.kind == "started":
+                if e.plan == ex.plan_id:
+                    self.next_action[e.robot] = e.action + 1
+                self.last_progress = e.t_ms
+                ex.started(e.robot, e.plan, e.action, e.t_ms)
+            elif e.kind == "finished":
+                self.last_progress = e.t_ms
+                ex.finished(e.robot, e.plan, e.action, e.t_ms)
+            elif e.kind == "blocked":
+                d = self.robots[e.robot].current
+                assert d is not None
+                if INTRUDER not in self.world.holders(d.dst):
+                    self.robot_blocks += 1
+                ex.blocked(e.robot, e.plan, e.action, e.t_ms)
+            elif e.kind == "unblocked":
+                ex.unblocked(e.robot, e.plan, e.action, e.t_ms)
+            else:
+                ex.cancelled(e.robot, e.plan, e.action, e.t_ms)
+
+    def handle(self, now: float) -> None:
+        """Carry out the executor's commands until it has nothing more to say."""
+        ex = self.executor
+        cmds = ex.drain()
+        while cmds:
+            for c in cmds:
+                if isinstance(c, Dispatch):
+                    extra = self.cfg.extra_delay(c.plan, c.robot, c.action) \
+                        if self.cfg.extra_delay is not None else 0.0
+                    self.robot_events(self.robots[c.robot].dispatch(c, now, extra))
+                    self.schedule_robot(c.robot)
+                elif isinstance(c, Cancel):
+                    self.robot_events(self.robots[c.robot].cancel(c.plan, c.action, now))
+                    if self.robots[c.robot].next_wakeup_ms() is None:
+                        self.robot_wake[c.robot] = None
+                elif isinstance(c, Trigger):
+                    if self.replan_at is None:
+                        self.replan_at = now
+                elif isinstance(c, SolveRequest):
+                    self.solve(c, now)
+                elif isinstance(c, PlanAdopted):
+                    if c.plan > 0:
+                        self.replans += 1
+                    self.next_action = [0] * len(self.robots)
+                elif isinstance(c, Completed):
+                    self.completed = c
+            cmds = ex.drain()
+        wake = ex.next_wakeup_ms()
+        if wake is not None and wake >= now and wake != self.policy_wake:
+            self.policy_wake = wake
+            self.push(wake, _POLICY, -1)
+
+    def solve(self, request: SolveRequest, now: float) -> None:
+        began = time.perf_counter()
+        try:
+            solution = solve(self.cfg.grid, request.starts, request.goals,
+                             deadline=WallDeadline(self.cfg.solver_time_limit_s))
+            self.pending_plan = solution.plan
+        except NoSolution:
+            self.pending_plan = None
+        wall_ms = (time.perf_counter() - began) * 1000.0
+        st = self.cfg.solver_time
+        charged = wall_ms if st == "measured" else 0.0 if st == "zero" else float(st)
+        self.solver_ms += charged
+        self.last_progress = now + charged
+        self.push(now + charged, _SOLVED, -1)
+
+    def solved(self, now: float) -> None:
+        if self.pending_plan is None:
+            self.executor.abandon_replan(now)
+        else:
+            self.executor.adopt_plan(self.pending_plan, now)
+        self.pending_plan = None
+        self.handle(now)
+
+    def wake_intruder(self, now: float) -> None:
+        intr = self.intruder
+        assert intr is not None
+        if intr.state is IntruderState.ABSENT:
+            ex = self.executor
+            target = pick_target(self.rng, ex.plan.paths, self.next_action,
+                                 ex.monitor.start_ms, now + intr.config.lead_ms)
+            events = intr.appear(now, target)
+        else:
+            events = intr.wake(now)
+        if self.cfg.trace is not None:
+            for e in events:
+                self.cfg.trace(intruder_record(e.t_ms, e.cell, e.state))
+        t = intr.next_wakeup_ms()
+        if t is not None:
+            self.push(t, _INTRUDER, INTRUDER)
