@@ -1,0 +1,593 @@
+"""Experiment campaigns (paper section 5): instances, the four variants, parallel runs, resume.
+
+A campaign is a list of (map, agent count) groups, ``instances`` random instances per group
+and ``seeds`` seeds per instance. Each instance is generated from a seed, planned ONCE (1-robust,
+SOC-optimal) and kept in ``OUT/instances/`` as Solution JSON, so a rerun or a resumed run reuses
+it. Each (instance, seed) is one experiment of four simulations in virtual time: ``lower_bound``
+(no intruder), ``intruder``, ``random`` (intruder + one replan at a random time) and ``slack``
+(intruder + slack-triggered replan), all from the same initial plan.
+
+Rows are appended to ``OUT/results.csv`` as experiments complete (flushed, so an interruption
+loses only the experiments in flight); a rerun skips the rows already there; at the end the file
+is rewritten sorted. Work runs on a local process pool or, given a scheduler address, on a Dask
+cluster, through the same ``concurrent.futures`` interface.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+import zlib
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    Executor,
+    Future,
+    ProcessPoolExecutor,
+    as_completed,
+    wait,
+)
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gateway.commands.deadline import WallDeadline
+from gateway.planning.generators import random_instance
+from gateway.planning.grid import Cell, Grid
+from gateway.planning.movingai import read_map
+from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.solver import solve
+from sim_clients.des import PolicyName, SimConfig, SimResult, parse_solver_time, run_simulation
+from sim_clients.intruder import IntruderConfig
+
+VARIANTS: tuple[str, ...] = ("lower_bound", "intruder", "random", "slack")
+"""The four simulations of one experiment, in the order rows are sorted."""
+
+COLUMNS: tuple[str, ...] = ("map", "agents", "instance", "seed", "variant", "soc_ms",
+                            "makespan_ms", "replanned", "replan_at_ms", "solver_ms")
+"""``results.csv`` columns (DESIGN section 3)."""
+
+PAPER_GROUPS: tuple[tuple[str, int], ...] = (
+    *(("lab", n) for n in (5, 10, 15)),
+    *(("arena", n) for n in (10, 15, 20, 25)),
+    *(("room-32-32-4", n) for n in (5, 10, 15)),
+    *(("random-32-32-20", n) for n in (5, 10, 15)),
+)
+"""The paper's 13 (map, agents) groups; ``room-32-32-4`` stands in for its "room32-32-20",
+which does not exist in the MovingAI benchmark (shared/maps/SOURCES.md)."""
+PAPER_INSTANCES = 20
+PAPER_SEEDS = 5
+
+MAX_GENERATION_ATTEMPTS = 50
+"""Instances generated per slot before giving up when the planner keeps failing."""
+
+RowKey = tuple[str, int, int, int, str]
+
+
+class CampaignError(ValueError):
+    """Bad campaign input or an output folder made with other settings."""
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of ``results.csv``: one variant of one experiment."""
+
+    map: str
+    agents: int
+    instance: int
+    seed: int
+    variant: str
+    soc_ms: float
+    makespan_ms: float
+    replanned: bool
+    replan_at_ms: float | None
+    solver_ms: float
+
+    @property
+    def key(self) -> RowKey:
+        """What identifies the row (the campaign never writes two rows with one key)."""
+        return (self.map, self.agents, self.instance, self.seed, self.variant)
+
+    def sort_key(self) -> tuple[str, int, int, int, int]:
+        """The order of the final, sorted ``results.csv``."""
+        return (self.map, self.agents, self.instance, self.seed, VARIANTS.index(self.variant))
+
+    def to_csv(self) -> list[str]:
+        """The row's CSV fields (times with at most 3 decimals, ``replanned`` as 0/1)."""
+        at = "" if self.replan_at_ms is None else _fmt(self.replan_at_ms)
+        return [self.map, str(self.agents), str(self.instance), str(self.seed), self.variant,
+                _fmt(self.soc_ms), _fmt(self.makespan_ms), str(int(self.replanned)), at,
+                _fmt(self.solver_ms)]
+
+    @staticmethod
+    def from_csv(fields: Sequence[str]) -> Row:
+        """Parse the fields written by :meth:`to_csv` (ValueError on anything else)."""
+        if len(fields) != len(COLUMNS):
+            raise ValueError(f"expected {len(COLUMNS)} fields, got {len(fields)}")
+        m, agents, inst, seed, variant, soc, mk, replanned, at, solver = fields
+        if variant not in VARIANTS:
+            raise ValueError(f"unknown variant {variant!r}")
+        if replanned not in ("0", "1"):
+            raise ValueError(f"replanned must be 0 or 1, got {replanned!r}")
+        return Row(m, int(agents), int(inst), int(seed), variant, float(soc), float(mk),
+                   replanned == "1", float(at) if at else None, float(solver))
+
+
+def _fmt(value: float) -> str:
+    text = f"{value:.3f}".rstrip("0").rstrip(".")
+    return "0" if text == "-0" else text
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """What every simulation of a campaign shares (the paper's defaults).
+
+    ``solver_time`` is ``"measured"``, ``"zero"`` or a fixed number of ms as a string
+    (DESIGN section 2: only zero or fixed makes runs exactly reproducible).
+    ``replan_time_limit_s`` bounds each replanning solve; a replan that finds nothing in time
+    keeps the old plan.
+    """
+
+    solver_time: str = "measured"
+    threshold_ms: float = 2000.0
+    intruder_appear_ms: float = 3000.0
+    intruder_leave_ms: float = 10000.0
+    replan_time_limit_s: float = 10.0
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    """Which experiments a campaign runs; ``seed`` seeds instance generation."""
+
+    groups: tuple[tuple[str, int], ...]
+    instances: int
+    seeds: int
+    seed: int = 0
+    plan_time_limit_s: float = 10.0
+    sim: SimSettings = field(default_factory=SimSettings)
+
+    def __post_init__(self) -> None:
+        if not self.groups:
+            raise CampaignError("a campaign needs at least one map and agent count")
+        for name, agents in self.groups:
+            if agents < 1:
+                raise CampaignError(f"{name}: the number of agents must be positive, "
+                                    f"got {agents}")
+        if self.instances < 1 or self.seeds < 1:
+            raise CampaignError("--instances and --seeds must be positive")
+        if self.plan_time_limit_s <= 0:
+            raise CampaignError("--plan-time-limit must be positive")
+
+    @staticmethod
+    def paper(**overrides: Any) -> CampaignSpec:
+        """The paper's protocol: 13 groups x 20 instances x 5 seeds = 1300 experiments."""
+        args: dict[str, Any] = {"groups": PAPER_GROUPS, "instances": PAPER_INSTANCES,
+                                "seeds": PAPER_SEEDS}
+        args.update(overrides)
+        return CampaignSpec(**args)
+
+    def settings(self) -> dict[str, Any]:
+        """The settings that change results; an output folder is only reused with equal ones."""
+        return {"seed": self.seed, "plan_time_limit_s": self.plan_time_limit_s,
+                **asdict(self.sim)}
+
+    def slots(self) -> list[tuple[str, int, int]]:
+        """Every instance slot ``(map, agents, index)`` in campaign order."""
+        return [(m, n, i) for m, n in self.groups for i in range(self.instances)]
+
+    def experiment_seeds(self, map: str, agents: int, index: int) -> list[int]:
+        """The simulation seeds of one instance (the ``seed`` column of ``results.csv``).
+
+        Derived from the instance and the seed's number rather than 0..K-1: the simulator's
+        random choices (the intruder's robot, the random replan time) would otherwise repeat
+        across instances that share a seed number.
+        """
+        return [derived_seed(self.seed, map, agents, index, k, bits=31)
+                for k in range(self.seeds)]
+
+
+# ---------------------------------------------------------------------------------------------
+# instances
+
+
+@dataclass(frozen=True)
+class InstanceRecord:
+    """A generated instance with its initial plan (the file in ``OUT/instances/``)."""
+
+    map: str
+    agents: int
+    index: int
+    generator_seed: int
+    attempts: int
+    starts: tuple[Cell, ...]
+    goals: tuple[Cell, ...]
+    plan: Plan
+    optimal: bool
+    runtime_s: float
+    expanded_nodes: int
+
+    @property
+    def filename(self) -> str:
+        """``<map>-<agents>-<index>.json``."""
+        return f"{self.map}-{self.agents}-{self.index:03d}.json"
+
+    def to_json(self, campaign_seed: int) -> dict[str, Any]:
+        """Solution JSON (DESIGN section 3) plus an ``instance`` block saying how it was made."""
+        return {
+            "map": self.map, "motion": "omni", "robust": 1, "optimal": self.optimal,
+            "soc": self.plan.soc, "makespan": self.plan.makespan, "runtime_s": self.runtime_s,
+            "expanded_nodes": self.expanded_nodes,
+            "agents": [{"start": list(s), "goal": list(g), "path": [list(c) for c in p]}
+                       for s, g, p in zip(self.starts, self.goals, self.plan.paths, strict=True)],
+            "instance": {"campaign_seed": campaign_seed, "agents": self.agents,
+                         "index": self.index, "generator_seed": self.generator_seed,
+                         "attempts": self.attempts},
+        }
+
+    @staticmethod
+    def from_json(data: dict[str, Any]) -> InstanceRecord:
+        """Inverse of :meth:`to_json` (KeyError/ValueError/TypeError on a malformed file)."""
+        meta = data["instance"]
+        agents = data["agents"]
+        if len(agents) != meta["agents"]:
+            raise ValueError(f"{len(agents)} agents listed, the header says {meta['agents']}")
+        return InstanceRecord(
+            map=str(data["map"]), agents=int(meta["agents"]), index=int(meta["index"]),
+            generator_seed=int(meta["generator_seed"]), attempts=int(meta["attempts"]),
+            starts=tuple((int(a["start"][0]), int(a["start"][1])) for a in agents),
+            goals=tuple((int(a["goal"][0]), int(a["goal"][1])) for a in agents),
+            plan=Plan.of([a["path"] for a in agents]), optimal=bool(data["optimal"]),
+            runtime_s=float(data["runtime_s"]), expanded_nodes=int(data["expanded_nodes"]))
+
+
+def derived_seed(*parts: int | str, bits: int = 63) -> int:
+    """A stable seed of ``bits`` bits from ints and strings (independent of PYTHONHASHSEED)."""
+    entropy = [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) for p in parts]
+    state = np.random.SeedSequence(entropy).generate_state(2, dtype=np.uint64)
+    return int(state[0]) >> (64 - bits)
+
+
+@dataclass(frozen=True)
+class PlanTask:
+    """Generate and plan one instance slot (runs in a worker)."""
+
+    map: str
+    map_path: str
+    agents: int
+    index: int
+    campaign_seed: int
+    time_limit_s: float
+
+
+@lru_cache(maxsize=16)
+def load_grid(map_path: str) -> Grid:
+    """The grid of a map file, read once per worker process."""
+    return read_map(map_path)
+
+
+def plan_instance(task: PlanTask) -> InstanceRecord:
+    """Generate instances from derived seeds until the planner solves one within the limit."""
+    grid = load_grid(task.map_path)
+    for attempt in range(MAX_GENERATION_ATTEMPTS):
+        gen_seed = derived_seed(task.campaign_seed, task.map, task.agents, task.index, attempt)
+        inst = random_instance(grid, task.agents, np.random.default_rng(gen_seed))
+        began = time.perf_counter()
+        try:
+            solution = solve(grid, inst.starts, inst.goals,
+                             deadline=WallDeadline(task.time_limit_s))
+        except NoSolution:
+            continue
+        return InstanceRecord(task.map, task.agents, task.index, gen_seed, attempt + 1,
+                              inst.starts, inst.goals, solution.plan, solution.optimal,
+                              round(time.perf_counter() - began, 6), solution.expanded_nodes)
+    raise CampaignError(f"{task.map} with {task.agents} agents: no instance out of "
+                        f"{MAX_GENERATION_ATTEMPTS} was solved within {task.time_limit_s} s")
+
+
+# ---------------------------------------------------------------------------------------------
+# experiments
+
+
+@dataclass(frozen=True)
+class ExperimentTask:
+    """Run the missing variants of one (instance, seed) (runs in a worker)."""
+
+    map_path: str
+    record: InstanceRecord
+    seed: int
+    variants: tuple[str, ...]
+    sim: SimSettings
+
+
+VARIANT_CONFIG: dict[str, tuple[bool, PolicyName]] = {
+    "lower_bound": (False, "none"), "intruder": (True, "none"),
+    "random": (True, "random"), "slack": (True, "slack")}
+"""Each variant as (intruder on, replanning policy)."""
+
+
+def simulate_variant(grid: Grid, plan: Plan, seed: int, variant: str,
+                     sim: SimSettings) -> SimResult:
+    """One simulation of ``variant`` from the instance's initial plan."""
+    intruder, policy = VARIANT_CONFIG[variant]
+    return run_simulation(SimConfig(
+        grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy,
+        threshold_ms=sim.threshold_ms, solver_time=parse_solver_time(sim.solver_time),
+        solver_time_limit_s=sim.replan_time_limit_s,
+        intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
+                                       leave_ms=sim.intruder_leave_ms)))
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A simulation that raised instead of finishing (reported; its row is missing)."""
+
+    map: str
+    agents: int
+    instance: int
+    seed: int
+    variant: str
+    error: str
+
+
+Outcome = tuple[list[Row], list[Failure]]
+
+
+def run_experiment(task: ExperimentTask) -> Outcome:
+    """Simulate each requested variant of one experiment from the instance's initial plan.
+
+    A variant whose simulation raises is reported as a :class:`Failure` instead of stopping
+    the campaign (its experiment stays incomplete and a rerun tries it again).
+    """
+    grid = load_grid(task.map_path)
+    rec = task.record
+    rows, failures = [], []
+    for variant in task.variants:
+        try:
+            res = simulate_variant(grid, rec.plan, task.seed, variant, task.sim)
+        except Exception as exc:  # one bad run must not sink a long campaign
+            failures.append(Failure(rec.map, rec.agents, rec.index, task.seed, variant,
+                                    f"{type(exc).__name__}: {exc}"))
+            continue
+        rows.append(Row(rec.map, rec.agents, rec.index, task.seed, variant, res.soc_ms,
+                        res.makespan_ms, res.replans > 0, res.replan_at_ms, res.solver_ms))
+    return rows, failures
+
+
+def run_chunk(tasks: Sequence[ExperimentTask]) -> list[Outcome]:
+    """Run several experiments in one worker call (fewer round trips than one per task)."""
+    return [run_experiment(t) for t in tasks]
+
+
+# ---------------------------------------------------------------------------------------------
+# results.csv
+
+
+def read_results(path: Path) -> list[Row]:
+    """Rows of a ``results.csv`` (none if it does not exist).
+
+    A last line cut short by an interruption is dropped (and cut from the file) so that a
+    resumed run writes clean rows after it; any other malformed line is an error.
+    """
+    if not path.exists():
+        return []
+    text = path.read_text()
+    lines = text.splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        with path.open("r+") as f:
+            f.truncate(len(text.encode()) - len(lines[-1].encode()))
+        lines = lines[:-1]
+    reader = csv.reader(lines)
+    header = next(reader, None)
+    if header is None:
+        return []
+    if tuple(header) != COLUMNS:
+        raise CampaignError(f"{path}: unexpected header {','.join(header)}")
+    rows = []
+    for number, fields in enumerate(reader, start=2):
+        try:
+            rows.append(Row.from_csv(fields))
+        except ValueError as exc:
+            raise CampaignError(f"{path}:{number}: {exc}") from None
+    return rows
+
+
+def write_results(path: Path, rows: Iterable[Row]) -> None:
+    """Write all rows sorted, atomically (a temporary file renamed over ``path``)."""
+    tmp = path.with_suffix(".csv.tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(COLUMNS)
+        writer.writerows(r.to_csv() for r in sorted(rows, key=Row.sort_key))
+    os.replace(tmp, path)
+
+
+class _Appender:
+    """Appends rows to ``results.csv`` and flushes after each batch."""
+
+    def __init__(self, path: Path) -> None:
+        fresh = not path.exists() or path.stat().st_size == 0
+        self._file = path.open("a", newline="")
+        self._writer = csv.writer(self._file, lineterminator="\n")
+        if fresh:
+            self._writer.writerow(COLUMNS)
+            self._file.flush()
+
+    def append(self, rows: Sequence[Row]) -> None:
+        self._writer.writerows(r.to_csv() for r in rows)
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# running
+
+
+Progress = Callable[[str, int, int], None]
+"""``progress(phase, done, total)``; phase is ``"instances"`` or ``"experiments"``."""
+
+
+@dataclass
+class CampaignResult:
+    """What a run did: the rows of the spec (old and new) and the counts of new work."""
+
+    rows: list[Row]
+    planned: int
+    ran: int
+    complete: bool
+    failures: list[Failure]
+
+
+@contextmanager
+def open_executor(workers: int = 1,
+                  scheduler: str | None = None) -> Iterator[tuple[Executor, int]]:
+    """A process pool of ``workers`` processes, or an executor on a Dask cluster's scheduler.
+
+    Yields the executor and how many tasks it runs at once (a Dask cluster's total threads).
+    """
+    if scheduler is None:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            yield pool, workers
+        return
+    try:
+        from distributed import Client
+    except ImportError as exc:
+        raise CampaignError("--scheduler needs dask.distributed (pip install "
+                            "'fleetgate[dask]')") from exc
+    with Client(scheduler) as client:
+        threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+        yield client.get_executor(pure=False), max(1, threads)
+
+
+def _check_settings(out: Path, spec: CampaignSpec) -> None:
+    path = out / "campaign.json"
+    settings = spec.settings()
+    if path.exists():
+        old = json.loads(path.read_text())
+        diff = sorted(k for k in settings if old.get(k) != settings[k])
+        if diff:
+            raise CampaignError(
+                f"{out} holds a campaign made with other settings ("
+                + ", ".join(f"{k}: {old.get(k)!r} there, {settings[k]!r} now" for k in diff)
+                + "); use another --out")
+    path.write_text(json.dumps(settings, indent=2) + "\n")
+
+
+def _load_instances(folder: Path, spec: CampaignSpec,
+                    slots: Sequence[tuple[str, int, int]]) -> dict[tuple[str, int, int],
+                                                                   InstanceRecord]:
+    found = {}
+    for m, n, i in slots:
+        path = folder / f"{m}-{n}-{i:03d}.json"
+        if not path.exists():
+            continue
+        try:
+            data = json.loads(path.read_text())
+            rec = InstanceRecord.from_json(data)
+        except (ValueError, KeyError, TypeError) as exc:
+            raise CampaignError(f"{path}: not an instance file of a campaign ({exc})") from None
+        if (rec.map, rec.agents, rec.index) != (m, n, i) or \
+                data["instance"]["campaign_seed"] != spec.seed:
+            raise CampaignError(f"{path} belongs to another campaign; use another --out")
+        found[(m, n, i)] = rec
+    return found
+
+
+def _chunks(items: Sequence[ExperimentTask], size: int) -> list[Sequence[ExperimentTask]]:
+    return [items[k:k + size] for k in range(0, len(items), size)]
+
+
+def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
+                 executor: Executor, workers: int = 1, limit: int | None = None,
+                 progress: Progress | None = None, chunk_size: int | None = None,
+                 in_flight_chunks: int = 8) -> CampaignResult:
+    """Plan the missing instances, run the missing experiments, leave a sorted results.csv.
+
+    ``map_paths`` maps each map name of the spec to its file; ``workers`` is how many
+    processes ``executor`` runs tasks on (for chunking). ``limit`` stops after that many
+    new experiments (an interrupted campaign, for testing resume). At most
+    ``in_flight_chunks`` chunks per worker are queued at a time, so an interruption loses at
+    most those.
+    """
+    missing_maps = sorted({m for m, _ in spec.groups} - set(map_paths))
+    if missing_maps:
+        raise CampaignError(f"no map file given for {', '.join(missing_maps)}")
+    out.mkdir(parents=True, exist_ok=True)
+    _check_settings(out, spec)
+    folder = out / "instances"
+    folder.mkdir(exist_ok=True)
+    report = progress or (lambda _phase, _done, _total: None)
+
+    slots = spec.slots()
+    records = _load_instances(folder, spec, slots)
+    todo = [PlanTask(m, map_paths[m], n, i, spec.seed, spec.plan_time_limit_s)
+            for m, n, i in slots if (m, n, i) not in records]
+    report("instances", len(records), len(slots))
+    for planned in as_completed([executor.submit(plan_instance, t) for t in todo]):
+        rec = planned.result()
+        path = folder / rec.filename
+        path.write_text(json.dumps(rec.to_json(spec.seed)) + "\n")
+        records[(rec.map, rec.agents, rec.index)] = rec
+        report("instances", len(records), len(slots))
+
+    results_path = out / "results.csv"
+    existing = read_results(results_path)
+    done = {r.key for r in existing}
+    tasks = []
+    wanted: set[RowKey] = set()
+    for m, n, i in slots:
+        for s in spec.experiment_seeds(m, n, i):
+            wanted.update((m, n, i, s, v) for v in VARIANTS)
+            variants = tuple(v for v in VARIANTS if (m, n, i, s, v) not in done)
+            if variants:
+                tasks.append(ExperimentTask(map_paths[m], records[(m, n, i)], s, variants,
+                                            spec.sim))
+    total = len(slots) * spec.seeds
+    finished = total - len(tasks)
+    if limit is not None:
+        tasks = tasks[:max(0, limit)]
+    # The largest fleets first: the long tasks do not straggle at the end.
+    tasks.sort(key=lambda t: -t.record.agents)
+    size = chunk_size or max(1, min(8, len(tasks) // (workers * 16)))
+    chunks = _chunks(tasks, size)
+
+    new_rows: list[Row] = []
+    failures: list[Failure] = []
+    report("experiments", finished, total)
+    appender = _Appender(results_path)
+    try:
+        pending: set[Future[list[Outcome]]] = set()
+        queue = iter(chunks)
+        while True:
+            while len(pending) < in_flight_chunks * workers:
+                chunk = next(queue, None)
+                if chunk is None:
+                    break
+                pending.add(executor.submit(run_chunk, chunk))
+            if not pending:
+                break
+            ready, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in ready:
+                for rows, failed in fut.result():
+                    appender.append(rows)
+                    new_rows.extend(rows)
+                    failures.extend(failed)
+                    finished += 1
+            report("experiments", finished, total)
+    finally:
+        appender.close()
+
+    rows = existing + new_rows
+    write_results(results_path, rows)
+    with (out / "failures.jsonl").open("w") as f:
+        f.writelines(json.dumps(asdict(x)) + "\n" for x in failures)
+    mine = [r for r in rows if r.key in wanted]
+    return CampaignResult(sorted(mine, key=Row.sort_key), len(todo), len(tasks),
+                          len(mine) == len(wanted), failures)

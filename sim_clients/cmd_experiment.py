@@ -1,0 +1,289 @@
+"""``fleetgate experiment``: the paper's evaluation campaign (section 5) in one command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+from rich.text import Text
+
+from gateway.cli import EXIT_OK, UsageError
+from gateway.commands.mapstore import MapNotFound, resolve
+from sim_clients.campaign import (
+    PAPER_GROUPS,
+    PAPER_INSTANCES,
+    PAPER_SEEDS,
+    CampaignError,
+    CampaignSpec,
+    SimSettings,
+    open_executor,
+    run_campaign,
+)
+from sim_clients.des import parse_solver_time
+from sim_clients.plots import plot_all
+from sim_clients.stats import OutlierRules, join_experiments, summarize
+
+JsonDict = dict[str, Any]
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``fleetgate experiment``."""
+    p = sub.add_parser(
+        "experiment", help="run the paper's evaluation campaign (results.csv, summary, plots)",
+        description="Run every (map, agents, instance, seed) experiment in its four variants "
+        "(lower_bound, intruder, random, slack) in virtual time, in parallel and resumably; "
+        "write OUT/results.csv, OUT/summary.json, OUT/*.png and print a table per map.")
+    p.add_argument("--maps", nargs="+", metavar="MAP",
+                   help="map names or files (with --paper: the subset of the paper's maps "
+                   "lab, arena, room-32-32-4, random-32-32-20 to run)")
+    p.add_argument("--agents", nargs="+", metavar="N[,N..]|MAP=N[,N..]",
+                   help="agent counts for every map, or for one map as MAP=N,N")
+    p.add_argument("--instances", type=int, help=f"instances per map and agent count "
+                   f"(--paper: {PAPER_INSTANCES})")
+    p.add_argument("--seeds", type=int, help=f"seeds per instance (--paper: {PAPER_SEEDS})")
+    p.add_argument("--out", required=True, type=Path, help="output folder (reused to resume)")
+    p.add_argument("--paper", action="store_true",
+                   help="the paper's protocol: 13 map/agent groups x 20 instances x 5 seeds "
+                   "= 1300 experiments x 4 variants")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="worker processes (default: the number of CPU cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask distributed cluster (e.g. tcp://127.0.0.1:8786)")
+    p.add_argument("--solver-time", default="measured", metavar="measured|zero|MS",
+                   help="how replanning time is charged in virtual time (default measured)")
+    p.add_argument("--plan-time-limit", type=float, default=10.0, metavar="SEC",
+                   help="an instance counts only if planned within this (default 10)")
+    p.add_argument("--replan-time-limit", type=float, default=10.0, metavar="SEC",
+                   help="limit of each replanning solve; past it the old plan is kept "
+                   "(default 10)")
+    p.add_argument("--threshold-ms", type=float, default=2000.0,
+                   help="slack threshold Δ̄T of the slack policy (default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of instance generation")
+    p.add_argument("--maps-dir", help="folder searched first for map names")
+    p.add_argument("--limit", type=int, metavar="N",
+                   help="stop after N new experiments (rerun to resume)")
+    p.add_argument("--outlier-margin-ms", type=float, default=0.0,
+                   help="outliers: 'better than no-replan / the lower bound' by more than this")
+    p.add_argument("--outlier-similar-ms", type=float, default=100.0,
+                   help="outliers: replan times this close count as 'a similar time'")
+    p.add_argument("--outlier-diff-frac", type=float, default=0.10,
+                   help="outliers: SOCs this far apart (fraction) count as 'different'")
+    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _solver_time(text: str) -> str:
+    try:
+        parse_solver_time(text)
+    except ValueError as exc:
+        raise UsageError(f"--solver-time: {exc}") from None
+    return text
+
+
+def _counts(text: str) -> list[int]:
+    try:
+        counts = [int(c) for c in text.split(",") if c]
+    except ValueError:
+        raise UsageError(f"--agents: {text!r} is not a comma-separated list of numbers") from None
+    if not counts or min(counts) < 1:
+        raise UsageError(f"--agents: {text!r} must list positive numbers")
+    return counts
+
+
+def parse_groups(maps: Sequence[str] | None, agents: Sequence[str] | None,
+                 paper: bool) -> list[tuple[str, int]]:
+    """The (map, agents) groups of the command line, in the order given.
+
+    ``--agents`` items are counts for every map (``5,10 15``) or for one map (``arena=10,20``);
+    a map's own counts replace the common ones. With ``--paper`` the defaults are the paper's.
+    """
+    common: list[int] = []
+    per_map: dict[str, list[int]] = {}
+    for item in agents or ():
+        if "=" in item:
+            name, _, listed = item.partition("=")
+            per_map.setdefault(name, []).extend(_counts(listed))
+        else:
+            common.extend(_counts(item))
+    paper_maps = list(dict.fromkeys(m for m, _ in PAPER_GROUPS))
+    names = list(maps) if maps else (paper_maps if paper else [])
+    if not names:
+        raise UsageError("--maps is required (or --paper)")
+    unknown = sorted(set(per_map) - set(names))
+    if unknown:
+        raise UsageError(f"--agents names maps not in --maps: {', '.join(unknown)}")
+    groups: list[tuple[str, int]] = []
+    for name in names:
+        counts = per_map.get(name) or common
+        if not counts and paper:
+            counts = [n for m, n in PAPER_GROUPS if m == name]
+        if not counts:
+            raise UsageError(f"no agent counts for map {name!r}: give --agents")
+        groups.extend((name, n) for n in dict.fromkeys(counts))
+    return groups
+
+
+def _map_files(names: Sequence[str], maps_dir: str | None) -> dict[str, str]:
+    files = {}
+    for name in names:
+        try:
+            path = resolve(name, "map", maps_dir)
+        except MapNotFound as exc:
+            raise UsageError(str(exc)) from None
+        files[name] = str(path.resolve())
+    return files
+
+
+def _short(name: str) -> str:
+    return Path(name).stem if name.endswith(".map") else name
+
+
+PAPER: dict[str, dict[str, str]] = {
+    "lab": {"mp": "25.27", "mr": "3.45", "outliers": "0.7%"},
+    "arena": {"mp": "27.55", "mr": "7.07", "outliers": "4.3%"},
+    "room-32-32-4": {"mp": "27.70 (room32)", "mr": "10.92 (room32)"},
+    "random-32-32-20": {"mp": "28.95", "mr": "9.81"},
+    "all": {"share": "~1/3", "mp": "27.37 (mean of maps)", "mr": "7.00",
+            "slack_ms": "80 / 8398 / ~90000", "random_ms": "20 / 1774 / -"},
+}
+"""The paper's reported numbers (section 5), shown next to ours."""
+
+
+def _mean_row(d: JsonDict, scale: float, fmt: str) -> tuple[str, str, str]:
+    if d["mean"] is None:
+        return "-", "-", str(d["n"])
+    lo, hi = d["ci95"]
+    return (format(scale * d["mean"], fmt), f"[{scale * lo:{fmt}}, {scale * hi:{fmt}}]",
+            str(d["n"]))
+
+
+def _times(d: JsonDict) -> str:
+    if d["n"] == 0:
+        return "-"
+    return f"{d['median']:.0f} / {d['mean']:.0f} / {d['max']:.0f}"
+
+
+class _PlainTable(Table):
+    """A table whose cells are plain text (``[..]`` intervals are not rich markup)."""
+
+    def add_row(self, *cells: Any, **kwargs: Any) -> None:
+        super().add_row(*(Text(c) if isinstance(c, str) else c for c in cells), **kwargs)
+
+
+def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) -> Table:
+    """One map's (or all maps') numbers: value, 95 % bootstrap interval, n, the paper's value."""
+    paper = PAPER.get(name, {})
+    table = _PlainTable(title=f"{name}: {g['experiments']} experiments", title_justify="left")
+    table.add_column("metric")
+    for col in ("value", "95% CI", "n"):
+        table.add_column(col, justify="right")
+    table.add_column("paper")
+    share = g["slack_replan_share"]
+    table.add_row("slack replanned", "-" if share is None else f"{100 * share:.1f}%", "",
+                  str(g["slack_replanned"]), paper.get("share", ""))
+    diff = g["soc_difference_ms"]
+    table.add_row("T_P-T_R ms, slack replanned", *_mean_row(diff["replanned"], 1, "+.0f"),
+                  "< 0" if paper else "")
+    table.add_row("T_P-T_R ms, slack kept plan", *_mean_row(diff["not_replanned"], 1,
+                                                                  "+.0f"), "~ 0" if paper else "")
+    mit = g["mitigation"]
+    table.add_row("M^P %, slack replanned",
+                  *_mean_row(mit["slack_replanned"]["slack"], 100, ".2f"), paper.get("mp", ""))
+    table.add_row("M^R %, slack replanned",
+                  *_mean_row(mit["slack_replanned"]["random"], 100, ".2f"), paper.get("mr", ""))
+    if mean_of_maps is not None:
+        means = mean_of_maps["slack_replanned"]
+        table.add_row("M^P / M^R %, mean of maps",
+                      " / ".join("-" if means[k] is None else f"{100 * means[k]:.2f}"
+                                 for k in ("slack", "random")), "", "",
+                      "27.37 / 7.00")
+    table.add_row("M^P %, all", *_mean_row(mit["all"]["slack"], 100, ".2f"),
+                  "~ 0 where kept" if paper else "")
+    table.add_row("M^R %, all", *_mean_row(mit["all"]["random"], 100, ".2f"), "")
+    times = g["solver_ms"]
+    table.add_row("slack replan ms med/mean/max", _times(times["slack"]), "",
+                  str(times["slack"]["n"]), paper.get("slack_ms", ""))
+    table.add_row("random replan ms med/mean/max", _times(times["random"]), "",
+                  str(times["random"]["n"]), paper.get("random_ms", ""))
+    out = g["outliers"]
+    rules = ", ".join(f"{k} {v}" for k, v in out["by_rule"].items() if v)
+    table.add_row("outliers (not in M)",
+                  "-" if out["share"] is None else f"{100 * out['share']:.1f}%",
+                  rules, str(out["count"]), paper.get("outliers", ""))
+    return table
+
+
+def summary_tables(summary: JsonDict) -> list[Table]:
+    """The printed tables: one per map, then all maps pooled."""
+    tables = [summary_table(name, g) for name, g in summary["maps"].items()]
+    if len(summary["maps"]) > 1:
+        tables.append(summary_table("all", summary["all"], summary["mitigation_mean_of_maps"]))
+    return tables
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run (or resume) the campaign, then write the summary and plots and print the tables."""
+    groups = parse_groups(args.maps, args.agents, args.paper)
+    if args.workers < 1:
+        raise UsageError(f"--workers must be positive, got {args.workers}")
+    sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
+                      replan_time_limit_s=args.replan_time_limit)
+    files = _map_files(list(dict.fromkeys(m for m, _ in groups)), args.maps_dir)
+    named = [(_short(m), n) for m, n in groups]
+    try:
+        spec = CampaignSpec(
+            groups=tuple(named),
+            instances=args.instances or (PAPER_INSTANCES if args.paper else 0),
+            seeds=args.seeds or (PAPER_SEEDS if args.paper else 0),
+            seed=args.seed, plan_time_limit_s=args.plan_time_limit, sim=sim)
+        rules = OutlierRules(args.outlier_margin_ms, args.outlier_similar_ms,
+                             args.outlier_diff_frac)
+    except (CampaignError, TypeError) as exc:
+        raise UsageError(str(exc)) from None
+    map_paths = {_short(m): f for m, f in files.items()}
+    console = Console(stderr=True)
+    began = time.perf_counter()
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, disable=args.no_progress) as bar:
+        ids = {phase: bar.add_task(phase, total=None) for phase in ("instances", "experiments")}
+
+        def progress(phase: str, done: int, total: int) -> None:
+            bar.update(ids[phase], completed=done, total=total)
+
+        try:
+            with open_executor(args.workers, args.scheduler) as (executor, workers):
+                result = run_campaign(spec, args.out, map_paths, executor=executor,
+                                      workers=workers, limit=args.limit,
+                                      progress=progress)
+        except CampaignError as exc:
+            raise UsageError(str(exc)) from None
+    wall = time.perf_counter() - began
+    summary = summarize(result.rows, rules, seed=args.seed, resamples=args.resamples)
+    summary["campaign"] = {"complete": result.complete, "instances_planned": result.planned,
+                           "experiments_run": result.ran, "wall_s": round(wall, 3),
+                           "failures": [asdict(f) for f in result.failures],
+                           **spec.settings()}
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    exps, _ = join_experiments(result.rows)
+    pictures = plot_all(exps, args.out)
+    out = Console()
+    for table in summary_tables(summary):
+        out.print(table)
+    state = "complete" if result.complete else "INCOMPLETE (rerun the same command to resume)"
+    if result.failures:
+        state += (f"; {len(result.failures)} simulations FAILED (see "
+                  f"{args.out / 'failures.jsonl'})")
+    out.print(f"{len(exps)} experiments, {state}; planned {result.planned} instances and ran "
+              f"{result.ran} experiments in {wall:.1f} s; wrote {args.out / 'results.csv'}, "
+              f"{args.out / 'summary.json'}, " + ", ".join(str(p) for p in pictures))
+    return EXIT_OK

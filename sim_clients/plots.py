@@ -1,0 +1,83 @@
+"""The campaign's figures (paper section 5), as PNG files drawn with matplotlib's Agg backend.
+
+* ``replan_decision.png`` (paper Fig. "effect of replan decision"): one row per map; left, how
+  often the slack method replanned; right, box plots of ``T_c^D = T_c^P - T_c^R`` split by
+  whether it replanned.
+* ``fleet_size.png`` (paper Fig. "effect of agents"): one panel per map, box plots of
+  ``T_c^D`` per number of agents over the experiments where both methods replanned.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # before pyplot: files only, no display
+
+import matplotlib.pyplot as plt
+from matplotlib.axes import Axes
+
+from sim_clients.stats import Experiment
+
+REPLANNED_LABELS = ("Replan", "No Replan")
+
+
+def _boxes(ax: Axes, groups: Sequence[Sequence[float]], labels: Sequence[str]) -> None:
+    shown = [list(g) if g else [math.nan] for g in groups]
+    ax.boxplot(shown, showmeans=True, tick_labels=[f"{lab}\n(n={len(g)})"
+                                                   for lab, g in zip(labels, groups, strict=True)])
+    ax.axhline(0, color="grey", linewidth=0.8, linestyle="--")
+
+
+def plot_replan_decision(exps: Sequence[Experiment], path: Path) -> Path:
+    """Per map: slack replanning frequency and the SOC difference, replanned vs not."""
+    maps = sorted({e.map for e in exps})
+    fig, axes = plt.subplots(len(maps) or 1, 2, figsize=(9, 3.2 * max(1, len(maps))),
+                             squeeze=False, gridspec_kw={"width_ratios": [1, 2]})
+    for row, name in zip(axes, maps, strict=False):
+        mine = [e for e in exps if e.map == name]
+        yes = [e.difference_ms for e in mine if e.slack_replanned]
+        no = [e.difference_ms for e in mine if not e.slack_replanned]
+        row[0].bar(REPLANNED_LABELS, [len(yes), len(no)], color=["tab:blue", "tab:grey"])
+        row[0].set_ylabel("experiments")
+        row[0].set_title(f"{name}: replanning frequency")
+        _boxes(row[1], [yes, no], REPLANNED_LABELS)
+        row[1].set_ylabel("$T_c^P - T_c^R$ [ms]")
+        row[1].set_title(f"{name}: SOC difference")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_fleet_size(exps: Sequence[Experiment], path: Path) -> Path:
+    """Per map: the SOC difference per number of agents where both methods replanned."""
+    maps = sorted({e.map for e in exps})
+    cols = 2 if len(maps) > 1 else 1
+    rows = max(1, math.ceil(len(maps) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.4 * rows), squeeze=False)
+    flat = [ax for line in axes for ax in line]
+    for ax, name in zip(flat, maps, strict=False):
+        mine = [e for e in exps if e.map == name and e.slack_replanned and e.random_replanned]
+        counts = sorted({e.agents for e in exps if e.map == name})
+        _boxes(ax, [[e.difference_ms for e in mine if e.agents == n] for n in counts],
+               [str(n) for n in counts])
+        ax.set_xlabel("agents")
+        ax.set_ylabel("$T_c^P - T_c^R$ [ms]")
+        ax.set_title(f"{name}: both methods replanned")
+    for ax in flat[len(maps):]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_all(exps: Sequence[Experiment], folder: Path) -> list[Path]:
+    """Draw every figure into ``folder``; returns the files written."""
+    folder.mkdir(parents=True, exist_ok=True)
+    return [plot_replan_decision(exps, folder / "replan_decision.png"),
+            plot_fleet_size(exps, folder / "fleet_size.png")]
