@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from heapq import heappop, heappush
 
-from gateway.planning.cbs_conflicts import Branch, Conflict, pair_conflicts
+from gateway.planning.cbs_conflicts import Branch, Conflict, pair_conflicts, rectangle
 from gateway.planning.constraints import Constraint, ConstraintTable, build_table
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.low_level import (
@@ -43,6 +43,7 @@ class CBSOptions:
 
     cardinal: bool = True
     heuristic: bool = True
+    rectangle: bool = True
     bypass: bool = True
     target: bool = True
     avoidance: bool = True
@@ -52,8 +53,8 @@ class _Node:
     """A high-level node: constraints (a chain to the root), paths and their conflicts."""
 
     __slots__ = (
-        "branch", "classes", "conflicts", "costs", "g", "h", "h_done", "mdds", "nconf",
-        "parent", "paths",
+        "best", "branch", "conflicts", "costs", "g", "h", "h_done", "mdds", "nconf", "parent",
+        "paths",
     )
 
     def __init__(
@@ -63,7 +64,7 @@ class _Node:
         paths: list[tuple[int, ...]],
         conflicts: dict[tuple[int, int], list[Conflict]],
         mdds: dict[int, list[frozenset[int]]],
-        classes: dict[Conflict, int],
+        best: dict[tuple[int, int], tuple[int, Conflict]],
     ) -> None:
         self.parent = parent
         self.branch = branch
@@ -75,7 +76,7 @@ class _Node:
         self.conflicts = conflicts
         self.nconf = sum(len(c) for c in conflicts.values())
         self.mdds = mdds
-        self.classes = classes
+        self.best = best
 
 
 class _Search:
@@ -105,6 +106,12 @@ class _Search:
             if not grid.is_free(cell):
                 raise ValueError(f"forbidden cell {cell} is not a free cell of {grid!r}")
             self.base.append((grid.index(cell), int(t0), int(t1)))
+        self.start_cells: list[Cell] = [(int(x), int(y)) for x, y in starts]
+        self.goal_cells: list[Cell] = [(int(x), int(y)) for x, y in goals]
+        self.manhattan = [
+            abs(s[0] - g[0]) + abs(s[1] - g[1])
+            for s, g in zip(self.start_cells, self.goal_cells, strict=True)
+        ]
         self.deadline = deadline
         self.options = options
         self.expanded = 0
@@ -117,11 +124,11 @@ class _Search:
     ) -> ConstraintTable:
         cons = list(self.base)
         if extra is not None:
-            cons.append(extra[1:])
+            cons.extend(extra[1])
         while node is not None:
             b = node.branch
             if b is not None and b[0] == agent:
-                cons.append(b[1:])
+                cons.extend(b[1])
             node = node.parent
         return build_table(self.size, cons)
 
@@ -195,10 +202,8 @@ class _Search:
             if found:
                 conflicts[i, k] = found
         mdds = {a: m for a, m in node.mdds.items() if a != agent}
-        classes = {
-            c: v for c, v in node.classes.items() if c[1][0] != agent and c[2][0] != agent
-        }
-        ch = _Node(node, branch, paths, conflicts, mdds, classes)
+        best = {pair: v for pair, v in node.best.items() if agent not in pair}
+        ch = _Node(node, branch, paths, conflicts, mdds, best)
         ch.h = max(0, node.h - (ch.g - node.g))
         return ch
 
@@ -214,40 +219,65 @@ class _Search:
         return mdd
 
     def _raises_cost(self, node: _Node, branch: Branch) -> bool:
-        agent, cell, t0, t1 = branch
+        agent, ((cell, t0, t1),) = branch
         return mdd_always_visits(
             self.model, self._mdd(node, agent), self.goals[agent], cell, t0, t1
         )
 
     def classify(self, node: _Node, conflict: Conflict) -> int:
-        """CARDINAL, SEMI_CARDINAL or NON_CARDINAL (cached on the node)."""
-        kind = node.classes.get(conflict)
-        if kind is None:
-            kind = int(self._raises_cost(node, conflict[1])) + int(
-                self._raises_cost(node, conflict[2])
-            )
-            node.classes[conflict] = kind
-        return kind
+        """CARDINAL, SEMI_CARDINAL or NON_CARDINAL for a range or target conflict."""
+        return int(self._raises_cost(node, conflict[1])) + int(
+            self._raises_cost(node, conflict[2])
+        )
+
+    def _rectangle(self, node: _Node, i: int, j: int, time: int) -> Conflict | None:
+        manhattan = self.manhattan
+        if node.costs[i] != manhattan[i] or node.costs[j] != manhattan[j]:
+            return None
+        found = rectangle(
+            i, self.start_cells[i], self.goal_cells[i], j, self.start_cells[j],
+            self.goal_cells[j], self.grid.width,
+        )
+        return None if found is None else (time, *found)
+
+    def pair_best(self, node: _Node, pair: tuple[int, int]) -> tuple[int, Conflict]:
+        """The pair's conflict to split and its class (cached on the node)."""
+        got = node.best.get(pair)
+        if got is not None:
+            return got
+        found = node.conflicts[pair]
+        best = found[0]
+        kind = NON_CARDINAL
+        for c in found:
+            k = self.classify(node, c)
+            if k > kind or (k == kind and c[0] < best[0]):
+                best, kind = c, k
+        if kind < CARDINAL and self.options.rectangle:
+            rect = self._rectangle(node, pair[0], pair[1], min(c[0] for c in found))
+            if rect is not None:
+                best, kind = rect, CARDINAL
+        node.best[pair] = (kind, best)
+        return kind, best
 
     def choose(self, node: _Node) -> Conflict:
-        """The conflict to split: most cardinal, then earliest."""
+        """The conflict to split: most cardinal, then earliest (earliest only if not
+        ``options.cardinal``)."""
+        if not self.options.cardinal:
+            return min((c for found in node.conflicts.values() for c in found),
+                       key=lambda c: c[0])
         best: Conflict | None = None
         best_key = (0, 0)
-        classify = self.options.cardinal
-        for found in node.conflicts.values():
-            for c in found:
-                key = (-self.classify(node, c) if classify else 0, c[0])
-                if best is None or key < best_key:
-                    best, best_key = c, key
+        for pair in node.conflicts:
+            kind, c = self.pair_best(node, pair)
+            key = (-kind, c[0])
+            if best is None or key < best_key:
+                best, best_key = c, key
         assert best is not None
         return best
 
     def heuristic(self, node: _Node) -> int:
         """Minimum vertex cover of the pairs that have a cardinal conflict."""
-        edges = []
-        for pair, found in node.conflicts.items():
-            if any(self.classify(node, c) == CARDINAL for c in found):
-                edges.append(pair)
+        edges = [pair for pair in node.conflicts if self.pair_best(node, pair)[0] == CARDINAL]
         return min_vertex_cover(edges)
 
     # ----- high level ------------------------------------------------------------------------
@@ -298,9 +328,7 @@ class _Search:
         node.costs = ch.costs
         node.conflicts = ch.conflicts
         node.nconf = ch.nconf
-        node.classes = {
-            c: v for c, v in node.classes.items() if c[1][0] != agent and c[2][0] != agent
-        }
+        node.best = {pair: v for pair, v in node.best.items() if agent not in pair}
         node.h_done = False
 
     def solution(self, node: _Node) -> Solution:

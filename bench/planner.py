@@ -1,0 +1,129 @@
+"""Benchmark the 1-robust CBS on the paper's maps against plain CBS measured in the same run.
+
+Instances: random-32-32-20 (scen random-1..5, N = 10, 15, 20, 25), room-32-32-4 (random-1..5,
+N = 5, 10, 15) and arena (mapf-IR arena_300agents_1..5, first N = 10, 15, 20, 25 agents).
+The baseline is the same CBS with every improvement off (no MDD conflict choice, no heuristic,
+no bypass, no target reasoning, no conflict-avoidance tie-breaking) under a per-instance cap.
+Prints a table per map and one final result line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from gateway.planning.cbs import CBSOptions, solve_cbs
+from gateway.planning.instance import Instance, load_instance, load_mapf_ir
+from gateway.planning.plan import NoSolution
+from gateway.planning.validate import plan_violations
+
+DEFAULT_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
+PLAIN = CBSOptions(cardinal=False, heuristic=False, bypass=False, target=False, avoidance=False)
+
+
+@dataclass
+class WallDeadline:
+    """Expires ``seconds`` after creation (wall time: this is a driver, not the planner)."""
+
+    seconds: float
+
+    def __post_init__(self) -> None:
+        self.end = time.perf_counter() + self.seconds
+
+    def expired(self) -> bool:
+        """True once the time is up."""
+        return time.perf_counter() >= self.end
+
+
+def instances(maps: Path) -> list[tuple[str, Callable[[], Instance]]]:
+    """(map label, loader) for every benchmark instance."""
+    out: list[tuple[str, Callable[[], Instance]]] = []
+
+    def scen(name: str, counts: tuple[int, ...]) -> None:
+        for i in range(1, 6):
+            for n in counts:
+                out.append((name, lambda i=i, n=n: load_instance(
+                    maps / f"{name}.map", maps / "scen" / f"{name}-random-{i}.scen", n)))
+
+    scen("random-32-32-20", (10, 15, 20, 25))
+    scen("room-32-32-4", (5, 10, 15))
+    for i in range(1, 6):
+        for n in (10, 15, 20, 25):
+            out.append(("arena", lambda i=i, n=n: load_mapf_ir(
+                maps / "mapf-IR-instances" / f"arena_300agents_{i}.txt", n,
+                map_path=maps / "arena.map")))
+    return out
+
+
+def run(inst: Instance, options: CBSOptions, cap: float) -> tuple[float, int | None]:
+    """Seconds taken and SOC (None if not solved within ``cap``)."""
+    t0 = time.perf_counter()
+    try:
+        sol = solve_cbs(inst.grid, inst.starts, inst.goals, deadline=WallDeadline(cap),
+                        options=options)
+    except NoSolution:
+        return time.perf_counter() - t0, None
+    dt = time.perf_counter() - t0
+    bad = plan_violations(inst.grid, inst.starts, inst.goals, sol.plan)
+    if bad:
+        raise SystemExit(f"invalid plan on {inst.name}: {bad[:3]}")
+    return dt, sol.plan.soc
+
+
+def p99(xs: list[float]) -> float:
+    """The 99th percentile (nearest rank)."""
+    s = sorted(xs)
+    return s[min(len(s) - 1, max(0, round(0.99 * len(s)) - 1))]
+
+
+def main() -> None:
+    """Run the benchmark and print the table and the result line."""
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--maps-dir", type=Path, default=DEFAULT_MAPS)
+    ap.add_argument("--cap", type=float, default=10.0, help="per-instance limit, seconds")
+    ap.add_argument("--baseline-cap", type=float, default=2.0,
+                    help="per-instance limit of the plain-CBS baseline, seconds")
+    ap.add_argument("--no-baseline", action="store_true")
+    args = ap.parse_args()
+    rows: dict[str, list[tuple[float, int | None, float, int | None]]] = {}
+    for label, load in instances(args.maps_dir):
+        inst = load()
+        dt, soc = run(inst, CBSOptions(), args.cap)
+        bdt, bsoc = (0.0, None) if args.no_baseline else run(inst, PLAIN, args.baseline_cap)
+        if soc is not None and bsoc is not None and soc != bsoc:
+            raise SystemExit(f"SOC differs on {inst.name} n={inst.num_agents}: {soc} vs {bsoc}")
+        rows.setdefault(label, []).append((dt, soc, bdt, bsoc))
+        print(f"  {label:16s} {inst.name:22s} n={inst.num_agents:3d} soc={soc} "
+              f"{dt * 1000:8.1f} ms   plain: {bdt * 1000:8.1f} ms soc={bsoc}",
+              file=sys.stderr, flush=True)
+    print(f"{'map':16s} {'solved':>8s} {'median':>9s} {'p99':>9s} {'max':>9s}   "
+          f"{'plain solved':>12s} {'plain median':>12s}")
+    all_t: list[float] = []
+    ours_sum = plain_sum = 0.0
+    for label, rs in rows.items():
+        ts = [r[0] for r in rs]
+        all_t += ts
+        solved = sum(r[1] is not None for r in rs)
+        bsolved = sum(r[3] is not None for r in rs)
+        bts = [r[2] for r in rs]
+        ours_sum += sum(ts)
+        plain_sum += sum(bts)
+        print(f"{label:16s} {solved:>4d}/{len(rs):<3d} {statistics.median(ts):9.3f} "
+              f"{p99(ts):9.3f} {max(ts):9.3f}   {bsolved:>8d}/{len(rs):<3d} "
+              f"{statistics.median(bts):12.3f}")
+    total = sum(len(rs) for rs in rows.values())
+    solved = sum(r[1] is not None for rs in rows.values() for r in rs)
+    bsolved = sum(r[3] is not None for rs in rows.values() for r in rs)
+    ratio = plain_sum / ours_sum if ours_sum else float("nan")
+    print(f"RESULT cbs solved {solved}/{total} median {statistics.median(all_t) * 1000:.1f} ms "
+          f"max {max(all_t) * 1000:.0f} ms; plain CBS (cap {args.baseline_cap:g} s) solved "
+          f"{bsolved}/{total}; total time plain/ours = {ratio:.1f}x")
+
+
+if __name__ == "__main__":
+    main()
