@@ -16,7 +16,8 @@ the robot's pose: its translation the position, its rotation the heading. A fit 
 far from 1 (miscalibrated ``ppm`` or a misdetection) is refused.
 
 Fusion rule: odometry advances the pose between frames; a tag fix moves the pose towards the
-fix by ``tag_gain`` (1.0 = snap to the tag, the default).
+fix by ``tag_gain`` (1.0 = snap to the tag, the default), after replaying on the fix the
+odometry motion made since the frame was captured.
 """
 
 from __future__ import annotations
@@ -29,7 +30,15 @@ import numpy as np
 import numpy.typing as npt
 
 from robot_client.floor import Cell, FloorGrid
-from robot_client.odometry import DriveGeometry, EncoderOdometry, Pose, integrate, wrap_angle
+from robot_client.odometry import (
+    DriveGeometry,
+    EncoderOdometry,
+    Pose,
+    compose,
+    integrate,
+    relative,
+    wrap_angle,
+)
 
 Image = npt.NDArray[np.uint8]
 
@@ -137,9 +146,14 @@ class Localiser:
             self.apply(fix)
         return fix
 
-    def apply(self, fix: TagFix) -> Pose:
-        """Move the pose towards a fix by ``tag_gain``."""
-        g, p, f = self.tag_gain, self.pose, fix.pose
+    def apply(self, fix: TagFix, seen_at: Pose | None = None) -> Pose:
+        """Move the pose towards a fix by ``tag_gain``.
+
+        ``seen_at`` is the pose estimate when the frame was captured: the odometry motion since
+        then is replayed on top of the fix, so a fix that took a while to compute is not stale.
+        """
+        f = fix.pose if seen_at is None else compose(fix.pose, relative(seen_at, self.pose))
+        g, p = self.tag_gain, self.pose
         self.pose = Pose(p.x + g * (f.x - p.x), p.y + g * (f.y - p.y),
                          wrap_angle(p.theta + g * wrap_angle(f.theta - p.theta)))
         self.last_fix = fix

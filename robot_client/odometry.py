@@ -75,6 +75,20 @@ def integrate(pose: Pose, d_left: float, d_right: float, wheelbase_m: float) -> 
     return Pose(pose.x + dx, pose.y + dy, wrap_angle(pose.theta + dtheta))
 
 
+def relative(origin: Pose, pose: Pose) -> Pose:
+    """``pose`` expressed in the frame of ``origin`` (the motion from origin to pose)."""
+    c, s = math.cos(origin.theta), math.sin(origin.theta)
+    dx, dy = pose.x - origin.x, pose.y - origin.y
+    return Pose(c * dx + s * dy, -s * dx + c * dy, wrap_angle(pose.theta - origin.theta))
+
+
+def compose(base: Pose, motion: Pose) -> Pose:
+    """Apply ``motion`` (expressed in ``base``'s frame) to ``base``: inverse of :func:`relative`."""
+    c, s = math.cos(base.theta), math.sin(base.theta)
+    return Pose(base.x + c * motion.x - s * motion.y, base.y + s * motion.x + c * motion.y,
+                wrap_angle(base.theta + motion.theta))
+
+
 class EncoderOdometry:
     """Turns successive raw encoder readings into wheel travels.
 

@@ -7,6 +7,7 @@ that the driver's framing is checked against a separate implementation.
 
 from __future__ import annotations
 
+import asyncio
 import math
 import os
 import select
@@ -108,3 +109,20 @@ class SimulatedBase:
         return frame(basic_sensor_payload(
             timestamp=self.timestamp, bumper=self.bumper,
             left=round(self.left_ticks) % 65536, right=round(self.right_ticks) % 65536))
+
+
+async def run_realtime(base: SimulatedBase, master: int, stop: asyncio.Event,
+                       period_s: float = 0.02) -> None:
+    """Play the base in real time: every 20 ms advance, send feedback, take new commands."""
+    loop = asyncio.get_running_loop()
+    last = loop.time()
+    raw = bytearray()
+    while not stop.is_set():
+        await asyncio.sleep(period_s)
+        now = loop.time()
+        base.advance(now - last)
+        last = now
+        os.write(master, base.feedback())
+        commands = read_commands(master, raw, timeout_s=0.0, min_count=1_000_000)
+        if commands:
+            base.command = commands[-1]

@@ -136,3 +136,16 @@ def test_random_poses_on_the_grid(floor: FloorRenderer, locator: TagLocator, col
     assert fix.cell == (col, row)
     assert math.hypot(fix.pose.x - x - dx, fix.pose.y - y - dy) < 0.01
     assert abs(math.degrees(wrap_angle(fix.pose.theta - theta))) < 1.0
+
+
+def test_fix_replays_the_motion_made_since_capture(
+        floor: FloorRenderer, locator: TagLocator) -> None:
+    fix = locator.locate(floor.view(0.8, -0.4, 0.0))
+    assert fix is not None
+    loc = Localiser(locator, Pose(0.75, -0.4, 0.0))
+    seen_at = loc.pose
+    loc.on_encoders(0, 0)
+    loc.on_encoders(1000, 1000)  # 0.0852922 m forward while the frame was being processed
+    loc.apply(fix, seen_at=seen_at)
+    assert loc.pose.x == pytest.approx(fix.pose.x + 0.0852922, abs=1e-4)
+    assert loc.pose.y == pytest.approx(fix.pose.y, abs=1e-4)

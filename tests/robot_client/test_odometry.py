@@ -13,7 +13,9 @@ from robot_client.odometry import (
     EncoderOdometry,
     Odometry,
     Pose,
+    compose,
     integrate,
+    relative,
     tick_delta,
     wrap_angle,
 )
@@ -94,3 +96,12 @@ def test_arc_integration_is_additive(d_left: float, d_right: float, n: int,
         pose = integrate(pose, d_left / n, d_right / n, B)
     assert (pose.x, pose.y) == pytest.approx((whole.x, whole.y), abs=1e-9)
     assert wrap_angle(pose.theta - whole.theta) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_relative_and_compose() -> None:
+    # Origin at (1, 1) facing N; a pose at (1, 2) facing W is 1 m ahead, turned +90 degrees.
+    origin, pose = Pose(1.0, 1.0, math.pi / 2), Pose(1.0, 2.0, math.pi)
+    motion = relative(origin, pose)
+    assert (motion.x, motion.y, motion.theta) == pytest.approx((1.0, 0.0, math.pi / 2))
+    back = compose(origin, motion)
+    assert (back.x, back.y, back.theta) == pytest.approx((1.0, 2.0, math.pi))

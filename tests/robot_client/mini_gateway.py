@@ -1,0 +1,88 @@
+"""A minimal gateway for client tests: real websockets on 127.0.0.1 speaking protocol v1.
+
+It checks the bearer token at the handshake (401 otherwise), can refuse every connection
+(503) to hold a link down, and hands each accepted connection to the test, which scripts the
+gateway's side message by message.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import uuid
+from typing import Any, TypeVar
+
+from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.http11 import Request, Response
+
+from protocol import AnyMessage, decode, encode
+
+M = TypeVar("M")
+
+
+class Conn:
+    """The gateway's end of one robot connection."""
+
+    def __init__(self, ws: ServerConnection) -> None:
+        self.ws = ws
+        self.seq = 0
+        self.received: list[AnyMessage] = []
+
+    async def send(self, cls: type[AnyMessage], **fields: Any) -> None:
+        """Send a message of type ``cls`` with a fresh msg_id and the next seq."""
+        msg = cls(msg_id=uuid.uuid4().hex, seq=self.seq, **fields)
+        self.seq += 1
+        await self.ws.send(encode(msg))
+
+    async def expect(self, cls: type[M], action_id: str | None = None,
+                     timeout_s: float = 15.0) -> M:
+        """The next received message of type ``cls`` (and ``action_id``), skipping others."""
+        async with asyncio.timeout(timeout_s):
+            while True:
+                msg = decode(await self.ws.recv())
+                self.received.append(msg)
+                if isinstance(msg, cls) and (action_id is None
+                                             or getattr(msg, "action_id", None) == action_id):
+                    return msg
+
+    def of_type(self, cls: type[M]) -> list[M]:
+        """Every received message of type ``cls`` so far."""
+        return [m for m in self.received if isinstance(m, cls)]
+
+
+class MiniGateway:
+    """Accepts robot connections with the right token; see module doc."""
+
+    def __init__(self, token: str) -> None:
+        self.token = token
+        self.refuse = False
+        self.attempts = 0
+        self.connections: asyncio.Queue[Conn] = asyncio.Queue()
+        self._server: Server | None = None
+
+    async def start(self) -> int:
+        """Listen on an ephemeral loopback port; return it."""
+        self._server = await serve(self._handler, "127.0.0.1", 0,
+                                   process_request=self._check)
+        return int(self._server.sockets[0].getsockname()[1])
+
+    def _check(self, connection: ServerConnection, request: Request) -> Response | None:
+        self.attempts += 1
+        if self.refuse:
+            return connection.respond(503, "down\n")
+        if request.headers.get("Authorization") != f"Bearer {self.token}":
+            return connection.respond(401, "bad token\n")
+        return None
+
+    async def _handler(self, ws: ServerConnection) -> None:
+        await self.connections.put(Conn(ws))
+        await ws.wait_closed()
+
+    async def accept(self, timeout_s: float = 10.0) -> Conn:
+        """The next robot connection."""
+        return await asyncio.wait_for(self.connections.get(), timeout_s)
+
+    async def close(self) -> None:
+        """Stop listening and close every connection."""
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()

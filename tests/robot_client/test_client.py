@@ -1,0 +1,218 @@
+"""The robot client over real websockets against a scripted protocol-v1 gateway.
+
+Real parts: websockets on 127.0.0.1, protocol models, the Kobuki driver on a real pty, the
+odometry, the AprilTag localiser on rendered frames, the runner. Simulated: the Kobuki's
+motors (tests/robot_client/kobuki_side.py) and the camera (frames rendered at the simulated
+base's true pose).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+
+from protocol import (
+    Ack,
+    Action,
+    CancelAction,
+    Cancelled,
+    Finished,
+    Hello,
+    Pose,
+    Resume,
+    Started,
+    State,
+    Welcome,
+)
+from protocol.messages import Heading
+from robot_client.apriltag_localiser import Image
+from robot_client.client import RobotClient, build_client
+from robot_client.config import load_settings
+from robot_client.floor import FloorGrid
+from robot_client.kobuki import KobukiSerial
+from robot_client.odometry import wrap_angle
+from tests.robot_client.floor_render import FloorRenderer
+from tests.robot_client.kobuki_side import SimulatedBase, run_realtime
+from tests.robot_client.mini_gateway import Conn, MiniGateway
+
+FLOOR = FloorGrid(5, 4, 0.4, 0.12)
+RENDERER = FloorRenderer(5, 4, 0.4, 0.12)
+TOKEN = "robot-3-secret"
+
+
+class RenderedFrames:
+    """Camera stand-in: the floor rendered at the simulated base's true pose."""
+
+    def __init__(self, sim: SimulatedBase) -> None:
+        self.sim = sim
+        self.frames = 0
+
+    def read(self) -> Image | None:
+        self.frames += 1
+        return RENDERER.view(self.sim.x, self.sim.y, self.sim.theta, noise=4.0, blur=3,
+                             seed=self.frames)
+
+    def close(self) -> None:
+        pass
+
+
+@dataclass
+class Robot:
+    gateway: MiniGateway
+    client: RobotClient
+    sim: SimulatedBase
+    frames: RenderedFrames
+
+    def at(self, cell: tuple[int, int]) -> float:
+        x, y = FLOOR.centre(cell)
+        return math.hypot(self.sim.x - x, self.sim.y - y)
+
+
+def action(i: int, src: tuple[int, int], dst: tuple[int, int], h0: Heading, h1: Heading
+           ) -> dict[str, Any]:
+    """Fields of action i of robot 3 in plan 0."""
+    return {"action_id": f"0.3.{i}", "sequence": i, "src": Pose(cell=src, heading=h0),
+            "dst": Pose(cell=dst, heading=h1), "duration_ms": 1000.0}
+
+
+@pytest.fixture
+async def robot(request: pytest.FixtureRequest) -> AsyncIterator[Robot]:
+    token = getattr(request, "param", TOKEN)
+    gateway = MiniGateway(TOKEN)
+    port = await gateway.start()
+    master, slave = os.openpty()
+    sim = SimulatedBase(x=0.4, y=-0.4, theta=0.0)  # centre of cell (1, 1), facing E
+    base = KobukiSerial(os.ttyname(slave))
+    frames = RenderedFrames(sim)
+    settings = load_settings(
+        None, robot_id=3, token=token, gateway_url=f"ws://127.0.0.1:{port}/",
+        grid_width=5, grid_height=4, cell_m=0.4, tag_size_m=0.12, start_x=1, start_y=1,
+        max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0, camera_period_ms=50,
+        reconnect_min_s=0.1, reconnect_max_s=0.3, ping_interval_s=1.0, ping_timeout_s=1.0)
+    client = build_client(settings, base, frames)
+    stop = asyncio.Event()
+    sim_task = asyncio.create_task(run_realtime(sim, master, stop))
+    client_task = asyncio.create_task(client.run())
+    yield Robot(gateway, client, sim, frames)
+    client.stop()
+    await client_task
+    stop.set()
+    await sim_task
+    await gateway.close()
+    base.close()
+    os.close(slave)
+    os.close(master)
+
+
+async def handshake(robot: Robot, **welcome: object) -> tuple[Conn, Hello]:
+    conn = await robot.gateway.accept()
+    hello = await conn.expect(Hello)
+    await conn.send(Welcome, robot_id=3, start=Pose(cell=(1, 1), heading="E"), plan=0,
+                    state_period_ms=200.0, **welcome)
+    return conn, hello
+
+
+async def test_executes_acknowledges_and_drops_duplicates(robot: Robot) -> None:
+    conn, hello = await handshake(robot)
+    assert hello.robot_id == 3 and hello.pose == Pose(cell=(1, 1), heading="E")
+    assert hello.acked == [] and hello.finished == [] and hello.current is None
+
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
+    await conn.expect(Ack, "0.3.0")
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))  # duplicate dispatch
+    await conn.expect(Ack, "0.3.0")
+    await conn.expect(Started, "0.3.0")
+    done = await conn.expect(Finished, "0.3.0")
+    assert done.pose == Pose(cell=(2, 1), heading="E")
+    assert robot.at((2, 1)) < 0.015
+
+    await conn.send(Action, **action(1, (2, 1), (2, 1), "E", "N"))  # turn left
+    await conn.expect(Ack, "0.3.1")
+    await conn.expect(Started, "0.3.1")
+    turned = await conn.expect(Finished, "0.3.1")
+    assert turned.pose == Pose(cell=(2, 1), heading="N")
+    assert abs(wrap_angle(robot.sim.theta - math.pi / 2)) < math.radians(4)
+
+    # A late duplicate of a finished action: acked, its finish repeated, never re-executed.
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
+    await conn.expect(Ack, "0.3.0")
+    await conn.expect(Finished, "0.3.0")
+    await asyncio.sleep(0.3)
+    await conn.expect(State)
+    assert [m.action_id for m in conn.of_type(Started)] == ["0.3.0", "0.3.1"]
+    assert robot.at((2, 1)) < 0.015
+    seqs = [m.seq for m in conn.received]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs) and hello.seq == 0
+    assert len({m.msg_id for m in conn.received}) == len(conn.received)
+    states = conn.of_type(State)
+    assert states and all(s.robot_id == 3 for s in states)
+    assert states[-1].activity == "idle" and states[-1].battery == pytest.approx(
+        (16.0 - 13.2) / (16.5 - 13.2))
+    assert robot.frames.frames > 5 and robot.client.body.localiser.last_fix is not None
+
+
+async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) -> None:
+    conn, _ = await handshake(robot)
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
+    await conn.send(Action, **action(1, (2, 1), (3, 1), "E", "E"))
+    await conn.expect(Ack, "0.3.0")
+    await conn.expect(Ack, "0.3.1")
+    await conn.expect(Started, "0.3.0")
+    robot.gateway.refuse = True
+    conn.ws.transport.abort()  # the link dies without a close frame
+    # The robot completes action 0 on its own...
+    async with asyncio.timeout(10):
+        while robot.client.body.runner.busy:
+            await asyncio.sleep(0.05)
+    assert robot.at((2, 1)) < 0.015
+    # ...and stops: action 1 does not start while the gateway is unreachable.
+    await asyncio.sleep(1.0)
+    assert robot.at((2, 1)) < 0.015 and robot.sim.command == (0, 0)
+    attempts = robot.gateway.attempts
+    assert attempts >= 2  # it kept trying to reconnect
+
+    robot.gateway.refuse = False
+    conn2 = await robot.gateway.accept()
+    hello = await conn2.expect(Hello)
+    assert hello.finished == ["0.3.0"] and hello.acked == ["0.3.1"]
+    assert hello.current is not None and hello.current.action_id == "0.3.1"
+    assert hello.current.state == "received" and hello.pose == Pose(cell=(2, 1), heading="E")
+    await conn2.send(Welcome, robot_id=3, plan=0, state_period_ms=500.0,
+                     resend=[Action(msg_id="r1", seq=0, **action(1, (2, 1), (3, 1), "E", "E"))])
+    await conn2.expect(Ack, "0.3.1")
+    await conn2.expect(Started, "0.3.1")
+    await conn2.expect(Finished, "0.3.1")
+    assert robot.at((3, 1)) < 0.015
+    assert len(conn2.of_type(Started)) == 1
+
+
+async def test_pause_holds_actions_and_cancel_drops_a_held_one(robot: Robot) -> None:
+    conn, _ = await handshake(robot, paused=True)
+    await conn.send(Action, **action(0, (1, 1), (1, 0), "N", "N"))
+    await conn.expect(Ack, "0.3.0")
+    await asyncio.sleep(0.5)
+    assert robot.at((1, 1)) < 0.005 and not conn.of_type(Started)
+    await conn.send(CancelAction, action_id="0.3.0")
+    cancelled = await conn.expect(Cancelled, "0.3.0")
+    assert cancelled.pose is not None and cancelled.pose.cell == (1, 1)
+    await conn.send(Resume)
+    await conn.send(Action, **action(1, (1, 1), (1, 2), "S", "S"))  # omni-style: spin, drive
+    await conn.expect(Started, "0.3.1")
+    await conn.expect(Finished, "0.3.1")
+    assert robot.at((1, 2)) < 0.015
+    assert [m.action_id for m in conn.of_type(Started)] == ["0.3.1"]
+
+
+@pytest.mark.parametrize("robot", ["wrong-token"], indirect=True)
+async def test_a_refused_token_is_retried_with_backoff_and_never_moves(robot: Robot) -> None:
+    await asyncio.sleep(1.0)
+    # backoff 0.1 s growing to 0.3 s: a handful of attempts, not a tight loop
+    assert 3 <= robot.gateway.attempts <= 15
+    assert robot.gateway.connections.empty()
+    assert robot.at((1, 1)) < 0.001 and robot.sim.command == (0, 0)
