@@ -28,7 +28,7 @@ def random_map(width: int, height: int, obstacle_share: float, rng: np.random.Ge
     blocked = rng.choice(cells, size=round(obstacle_share * cells), replace=False)
     free = np.ones(cells, dtype=bool)
     free[blocked] = False
-    return Grid(largest_component(free.reshape(height, width)), name=name)
+    return Grid(largest_component(Grid(free.reshape(height, width))), name=name)
 
 
 def _room_tree_doors(rooms_x: int, rooms_y: int, extra_doors: float,
@@ -118,7 +118,7 @@ def random_instance(grid: Grid, agents: int, rng: np.random.Generator,
     """
     if agents < 1:
         raise ValueError(f"the number of agents must be at least 1, got {agents}")
-    labels = component_labels(grid.free).ravel()
+    labels = component_labels(grid).ravel()
     free_ids = np.flatnonzero(labels)
     if free_ids.size < agents:
         raise ValueError(f"{agents} agents need {agents} free cells, {grid!r} has "

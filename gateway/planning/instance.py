@@ -60,7 +60,7 @@ def instance_from_agents(grid: Grid, agents: AgentFile, count: int | None = None
         raise MapFormatError(agents.source, agents.last_line,
                              f"{count} agents asked, the file lists only {len(listed)}")
     chosen = listed if count is None else listed[:count]
-    labels = component_labels(grid.free)
+    labels = component_labels(grid)
     start_lines: dict[Cell, int] = {}
     goal_lines: dict[Cell, int] = {}
     for spec in chosen:

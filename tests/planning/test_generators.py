@@ -50,7 +50,7 @@ def test_random_map_is_connected_and_seeded(width: int, height: int, share: floa
     assert np.array_equal(grid.free, again.free)
     assert (grid.width, grid.height) == (width, height)
     if grid.free.any():
-        assert is_connected(grid.free)
+        assert is_connected(grid)
     # At least the asked share is blocked (more when cut-off pockets were filled).
     assert int((~grid.free).sum()) >= round(share * width * height)
 
@@ -64,7 +64,7 @@ def test_rooms_map_is_connected_and_seeded(rx: int, ry: int, size: int, extra: f
     assert np.array_equal(grid.free, rooms_map(rx, ry, size, np.random.default_rng(seed),
                                                extra).free)
     assert (grid.width, grid.height) == (rx * (size + 1) + 1, ry * (size + 1) + 1)
-    assert is_connected(grid.free)
+    assert is_connected(grid)
     # Rooms plus doors: a spanning tree needs rx * ry - 1 doors.
     assert int(grid.free.sum()) >= rx * ry * size * size + rx * ry - 1
 
@@ -78,7 +78,7 @@ def test_warehouse_map_shape(bx: int, by: int, length: int, depth: int, aisle: i
     assert grid.width == 2 * border + bx * length + (bx - 1) * aisle
     assert grid.height == 2 * border + by * depth + (by - 1) * aisle
     assert int((~grid.free).sum()) == bx * by * length * depth
-    assert is_connected(grid.free)
+    assert is_connected(grid)
 
 
 @FAST
@@ -162,7 +162,7 @@ def test_maps_generate_random_and_rooms(tmp_path: Path) -> None:
                 "--scenarios", "2", "--agents", "10"]
         assert run(*args).returncode == 0
         inst = load_instance(tmp_path / f"g-{kind}.map", tmp_path / f"g-{kind}-random-2.scen")
-        assert is_connected(inst.grid.free)
+        assert is_connected(inst.grid)
         _check_instance(inst.grid, inst.starts, inst.goals)
         again = run(*args)  # the files exist now: refused without --force, nothing changed
         assert again.returncode == 2

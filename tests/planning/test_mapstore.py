@@ -82,7 +82,7 @@ def test_download_by_scenario_name_via_environment_url(server: tuple[str, Path])
 
 
 @pytest.mark.parametrize(("name", "reason"), [
-    ("missing-2-2", "HTTP Error 404"),
+    ("missing-2-2", "HTTP 404 "),
     ("broken-1-1", "is not a zip archive"),
 ])
 def test_failed_download_exits_2_and_writes_nothing(server: tuple[str, Path], name: str,
