@@ -216,3 +216,10 @@ async def test_a_refused_token_is_retried_with_backoff_and_never_moves(robot: Ro
     assert 3 <= robot.gateway.attempts <= 15
     assert robot.gateway.connections.empty()
     assert robot.at((1, 1)) < 0.001 and robot.sim.command == (0, 0)
+
+
+def test_example_config_file_loads() -> None:
+    path = os.path.join(os.path.dirname(__file__), "..", "..", "deploy", "robot.example.toml")
+    settings = load_settings(None, config_file=path)
+    assert settings.floor() == FloorGrid(8, 6, 0.4, 0.12)
+    assert settings.token.get_secret_value() == "change-me"

@@ -1,0 +1,46 @@
+"""Robot settings sources and the fleetgate-robot entry point's refusals."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from robot_client.__main__ import main
+from robot_client.config import ConfigError, load_settings
+
+
+def test_cli_beats_env_beats_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text('robot_id = 1\ntoken = "t"\ngrid_width = 4\ngrid_height = 3\ncell_m = 0.5\n'
+                   'start_heading = "N"\n')
+    monkeypatch.setenv("FLEETGATE_ROBOT_CELL_M", "0.3")
+    monkeypatch.setenv("FLEETGATE_ROBOT_ROBOT_ID", "2")
+    s = load_settings(["--robot-id", "5"], config_file=cfg)
+    assert (s.robot_id, s.cell_m, s.grid_width, s.start_heading) == (5, 0.3, 4, "N")
+
+
+def test_bad_settings_give_one_line_reasons(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="robot_id: Field required"):
+        load_settings([], grid_width=3, grid_height=3, token="t")
+    with pytest.raises(ConfigError, match="not found"):
+        load_settings([], config_file=tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match="start_heading"):
+        load_settings([], robot_id=0, token="t", grid_width=3, grid_height=3,
+                      start_heading="NE")
+
+
+def test_entry_point_exits_2_when_the_base_cannot_be_opened(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["--robot-id", "0", "--token", "t", "--grid-width", "3", "--grid-height", "3",
+               "--serial-port", "/nonexistent/kobuki", "--no-camera"])
+    assert rc == 2
+    assert "cannot open Kobuki serial port" in capsys.readouterr().err
+
+
+def test_module_runs_with_help() -> None:
+    out = subprocess.run([sys.executable, "-m", "robot_client", "--help"], capture_output=True,
+                         text=True, timeout=60, check=True).stdout
+    assert "--gateway-url" in out and "--robot-id" in out
