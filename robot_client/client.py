@@ -52,6 +52,7 @@ from protocol import (
     encode,
 )
 from protocol import Pose as WirePose
+from protocol.messages import RobotActivity
 from robot_client.apriltag_localiser import Localiser, TagLocator
 from robot_client.body import RobotBody
 from robot_client.config import RobotSettings
@@ -280,7 +281,7 @@ class RobotClient:
                              battery=self._battery())
             await asyncio.sleep(self.state_period_ms / 1000.0)
 
-    def _activity(self) -> str:
+    def _activity(self) -> RobotActivity:
         cur = self.current()
         if cur is not None:
             return cur.state
