@@ -1,0 +1,92 @@
+"""``fleetgate simulate``: one simulated execution in virtual time (DESIGN section 3)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from gateway.commands.deadline import WallDeadline
+from gateway.commands.instance_args import add_instance_arguments, instance_from_args
+from gateway.planning.plan import NoSolution
+from gateway.planning.solver import solve
+from sim_clients.des import POLICIES, SimConfig, SolverTime, parse_solver_time, run_simulation
+from sim_clients.trace import JsonlWriter
+
+
+def _solver_time(text: str) -> SolverTime:
+    try:
+        return parse_solver_time(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.threshold_ms < 0:
+        raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms}")
+    if args.time_limit <= 0:
+        raise UsageError(f"--time-limit must be positive, got {args.time_limit}")
+    instance = instance_from_args(args)
+    try:
+        solution = solve(instance.grid, instance.starts, instance.goals,
+                         deadline=WallDeadline(args.time_limit))
+    except NoSolution as exc:
+        print(f"fleetgate: no plan for {instance.name or 'the instance'}: {exc}",
+              file=sys.stderr)
+        return EXIT_NO_SOLUTION
+    try:
+        writer = JsonlWriter(args.trace) if args.trace else None
+    except OSError as exc:
+        raise UsageError(f"cannot write the trace {args.trace}: {exc.strerror}") from None
+    config = SimConfig(instance.grid, solution.plan, seed=args.seed, intruder=args.intruder,
+                       policy=args.policy, threshold_ms=args.threshold_ms,
+                       solver_time=args.solver_time, solver_time_limit_s=args.time_limit,
+                       trace=writer)
+    try:
+        result = run_simulation(config)
+    finally:
+        if writer is not None:
+            writer.close()
+    if args.json:
+        print(json.dumps(result.summary()))
+        return EXIT_OK
+    replan = (f"replanned at {result.replan_at_ms:.0f} ms (solver {result.solver_ms:.0f} ms)"
+              if result.replan_at_ms is not None else "no replan")
+    intruder = (f"intruder on {result.intruder_cell} from {result.intruder_on_ms:.0f} ms"
+                if result.intruder_cell is not None else "no intruder in the way"
+                if args.intruder else "no intruder")
+    print(f"{instance.name}: {instance.num_agents} robots, plan SOC {result.plan_soc} "
+          f"(makespan {result.plan_makespan})")
+    print(f"executed SOC {result.soc_ms:.0f} ms, makespan {result.makespan_ms:.0f} ms; "
+          f"{intruder}; {replan}; collisions {result.collisions}")
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``fleetgate simulate``."""
+    p = sub.add_parser(
+        "simulate", help="one simulated execution in virtual time",
+        description="Plan the instance, then execute the plan with simulated robots in virtual "
+                    "time (every action 1000 ms), optionally with the intruder and a replanning "
+                    "policy. Exit codes: 0 success, 2 bad input, 3 no plan within the limit.")
+    add_instance_arguments(p)
+    p.add_argument("--seed", metavar="K", type=int, default=0,
+                   help="seed of the intruder's choice and the random policy (default 0)")
+    p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
+                   help="the intruder appears at 3000 ms and leaves at 10000 ms (default: on)")
+    p.add_argument("--policy", choices=POLICIES, default="none",
+                   help="replanning policy (default none; at most one replan)")
+    p.add_argument("--threshold-ms", metavar="MS", type=float, default=2000.0,
+                   help="fleet slack threshold of the slack policy (default 2000)")
+    p.add_argument("--solver-time", metavar="measured|zero|MS", type=_solver_time,
+                   default="measured",
+                   help="virtual time charged for a replan's solver: its wall time (default), "
+                        "nothing, or fixed milliseconds (zero or MS make runs reproducible)")
+    p.add_argument("--time-limit", metavar="SEC", type=float, default=60.0,
+                   help="planner time limit per solve in seconds (default 60)")
+    p.add_argument("--trace", metavar="FILE.jsonl", help="write the JSON-lines trace here")
+    p.add_argument("--json", action="store_true",
+                   help='print {"soc_ms", "makespan_ms", "plan_soc", "replans", '
+                        '"replan_at_ms", "solver_ms", "collisions"}')
+    p.set_defaults(func=_run)
