@@ -246,6 +246,7 @@ class Executor:
         """The present moved on: update the monitor's clamping and ask the policy."""
         self._check_time(now_ms)
         self._advance(now_ms)
+        self.monitor.advance(self._now)
         if (self.mode is Mode.RUNNING and self.replans < self.max_replans
                 and self.policy.should_replan(self._now, self.monitor)):
             self._trigger(self.policy.name)
@@ -260,6 +261,7 @@ class Executor:
                 f"cannot replan now: the budget of {self.max_replans} replan(s) is used up"
             )
         self._advance(now_ms)
+        self.monitor.advance(self._now)
         self._trigger("operator")
 
     def adopt_plan(self, plan: Plan, now_ms: float) -> None:
@@ -298,8 +300,8 @@ class Executor:
 
     # ------------------------------------------------------------------ internals
     def _advance(self, now_ms: float) -> None:
+        """Accept ``now_ms`` as the present (the monitor's clamping moves only at ticks)."""
         self._now = float(now_ms)
-        self.monitor.advance(self._now)
 
     def _trace(self, kind: str, robot: int, action: int) -> None:
         if self._record is not None:

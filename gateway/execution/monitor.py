@@ -3,7 +3,11 @@
 Estimates: ``t_s(a) = max t_c(p)`` over the predecessors of ``a`` (the robot's release time if
 it has none), ``t_c(a) = t_s(a) + t_x``; completed actions use their real times; a started,
 unfinished action has ``t_c = max(t_s + t_x, now)``; an action whose predecessors are all done
-cannot start before ``now``.  Slack: for a Type 2 edge ``e = (a_i^{r1} -> a_j^{r2})``,
+cannot start before ``now``. ``now`` is the monitor's clamping time: the latest
+:meth:`Monitor.advance` (the executor's latest tick), so the present is seen at the tick
+resolution while real start and finish times are used exactly.
+
+Slack: for a Type 2 edge ``e = (a_i^{r1} -> a_j^{r2})``,
 ``δ(e) = t_c(a_i^{r1}) - t_c(a_{j-1}^{r2})`` (r2's release time for its first action),
 ``Δ(a) = max(0, max δ(e))`` over incoming Type 2 edges, ``Δ0`` is Δ on the initial estimate,
 ``Δ̄ = Δ - Δ0`` and the fleet slack ``Δ̄F`` is the largest Δ̄ over actions not yet started (0 if
@@ -175,7 +179,11 @@ class Monitor:
             raise ExecutionError(f"time went backwards: {now_ms} ms < {self.now_ms} ms")
 
     def advance(self, now_ms: float) -> None:
-        """The present is ``now_ms``: re-clamp the frontier actions that are past due."""
+        """The present is ``now_ms``: re-clamp the frontier actions that are past due.
+
+        Only this moves the clamping time ``now_ms`` (the executor calls it at its ticks, every
+        ``MONITOR_PERIOD_MS``); starts and finishes in between carry their own real times.
+        """
         self._check_time(now_ms)
         if now_ms == self.now_ms:
             return
@@ -192,25 +200,25 @@ class Monitor:
         """True if every predecessor of vertex ``v`` is done."""
         return self._remaining[v] == 0
 
-    def action_started(self, v: int, now_ms: float) -> None:
-        """Vertex ``v`` (ready, not started) began at ``now_ms``."""
-        self.advance(now_ms)
+    def action_started(self, v: int, at_ms: float) -> None:
+        """Vertex ``v`` (ready, not started) began at ``at_ms`` (>= the clamping time)."""
+        self._check_time(at_ms)
         if self._state[v] != NOT_STARTED or self._remaining[v]:
             raise ExecutionError(f"vertex {v} cannot start: it is not ready or already started")
         self._state[v] = STARTED
         self._active.discard(v)
-        self._ts[v] = self.now_ms
-        heapq.heappush(self._thresholds, (self.now_ms + self.action_ms, v, _STARTED_KIND))
+        self._ts[v] = float(at_ms)
+        heapq.heappush(self._thresholds, (at_ms + self.action_ms, v, _STARTED_KIND))
         self._propagate([v])
 
-    def action_finished(self, v: int, now_ms: float) -> list[int]:
-        """Vertex ``v`` (started) finished at ``now_ms``; returns the vertices now ready."""
-        self.advance(now_ms)
+    def action_finished(self, v: int, at_ms: float) -> list[int]:
+        """Vertex ``v`` (started) finished at ``at_ms``; returns the vertices now ready."""
+        self._check_time(at_ms)
         if self._state[v] != STARTED:
             raise ExecutionError(f"vertex {v} cannot finish: it is not running")
         self._state[v] = DONE
         self._active.discard(v)
-        self._tc[v] = self.now_ms
+        self._tc[v] = float(at_ms)
         robot = self.adg.robot_of[v]
         self._next[robot] = v + 1
         ready = []
