@@ -20,6 +20,7 @@ import pytest
 from protocol import (
     Ack,
     Action,
+    Blocked,
     CancelAction,
     Cancelled,
     Finished,
@@ -28,6 +29,7 @@ from protocol import (
     Resume,
     Started,
     State,
+    Unblocked,
     Welcome,
 )
 from protocol.messages import Heading
@@ -94,7 +96,8 @@ async def robot(request: pytest.FixtureRequest) -> AsyncIterator[Robot]:
         None, robot_id=3, token=token, gateway_url=f"ws://127.0.0.1:{port}/",
         grid_width=5, grid_height=4, cell_m=0.4, tag_size_m=0.12, start_x=1, start_y=1,
         max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0, camera_period_ms=50,
-        reconnect_min_s=0.1, reconnect_max_s=0.3, ping_interval_s=1.0, ping_timeout_s=1.0)
+        reconnect_min_s=0.1, reconnect_max_s=0.3, ping_interval_s=1.0, ping_timeout_s=1.0,
+        bumper_pause_ms=400.0)
     client = build_client(settings, base, frames)
     stop = asyncio.Event()
     sim_task = asyncio.create_task(run_realtime(sim, master, stop))
@@ -207,6 +210,24 @@ async def test_pause_holds_actions_and_cancel_drops_a_held_one(robot: Robot) -> 
     await conn.expect(Finished, "0.3.1")
     assert robot.at((1, 2)) < 0.015
     assert [m.action_id for m in conn.of_type(Started)] == ["0.3.1"]
+
+
+async def test_bumper_contact_is_reported_blocked_then_unblocked(robot: Robot) -> None:
+    conn, _ = await handshake(robot)
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
+    await conn.expect(Started, "0.3.0")
+    await asyncio.sleep(0.3)
+    robot.sim.bumper = 0x04  # left bumper for 100 ms
+    await asyncio.sleep(0.1)
+    robot.sim.bumper = 0
+    blocked = await conn.expect(Blocked, "0.3.0")
+    unblocked = await conn.expect(Unblocked, "0.3.0")
+    await conn.expect(Finished, "0.3.0")
+    assert blocked.pose is not None and unblocked.pose is not None
+    # after the 400 ms pause it went on and still reached the target
+    assert robot.at((2, 1)) < 0.015
+    assert [type(m).__name__ for m in conn.received if not isinstance(m, State)][-3:] == [
+        "Blocked", "Unblocked", "Finished"]
 
 
 @pytest.mark.parametrize("robot", ["wrong-token"], indirect=True)

@@ -6,9 +6,11 @@ import math
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from robot_client.floor import FloorGrid
-from robot_client.odometry import wrap_angle
+from robot_client.floor import HEADING_ANGLE, FloorGrid, heading_of_step
+from robot_client.odometry import Pose, wrap_angle
 from robot_client.runner import ActionRunner, GridAction
 from tests.robot_client.floor_render import FloorRenderer
 from tests.robot_client.rig import PtyRig
@@ -128,6 +130,27 @@ def test_a_path_of_moves_and_turns(rig_factory: list[PtyRig]) -> None:
         assert [e.kind for e in events] == ["started", "finished"]
     assert at(rig, (0, 1)) < POS_TOL
     assert abs(wrap_angle(rig.sim.theta - math.pi)) < HEADING_TOL
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.floats(-0.04, 0.04), st.floats(-0.04, 0.04), st.floats(-0.25, 0.25),
+       st.sampled_from([((1, 1), (2, 1)), ((2, 1), (2, 2)), ((2, 2), (1, 2)), ((1, 2), (1, 1))]))
+def test_moves_converge_from_an_offset_start(dx: float, dy: float, dtheta: float,
+                                             move: tuple[tuple[int, int], tuple[int, int]]
+                                             ) -> None:
+    """The base starts up to 4 cm and 14 degrees off its cell centre and heading (and knows
+    it); whatever the direction, it still ends on the target centre."""
+    src, dst = move
+    rig = PtyRig(FLOOR, src, HEADING_ANGLE[heading_of_step(src, dst)] + dtheta)
+    try:
+        rig.sim.x += dx
+        rig.sim.y += dy
+        rig.body.localiser.pose = Pose(rig.sim.x, rig.sim.y, rig.sim.theta)
+        events = rig.run(GridAction("0.0.0", src, dst))
+        assert [e.kind for e in events] == ["started", "finished"]
+        assert at(rig, dst) < POS_TOL
+    finally:
+        rig.close()
 
 
 def test_bad_actions_are_refused() -> None:
