@@ -54,7 +54,7 @@ class GridAction:
         return "wait"
 
     def validate(self) -> None:
-        """ValueError unless a move goes to a 4-neighbour and a move keeps a sane heading."""
+        """ValueError unless a move goes to a 4-neighbour and the duration is positive."""
         if self.kind == "move":
             heading_of_step(self.src, self.dst)
         if self.duration_ms <= 0:
