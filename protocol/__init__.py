@@ -48,7 +48,16 @@ World session (the simulated world of a demo): the gateway forwards ``place_intr
 operators as ``event(intruder)``. The executor never learns where the intruder is.
 """
 
-from protocol.codec import MESSAGE_ADAPTER, MESSAGE_TYPES, ProtocolError, decode, encode
+from protocol.codec import (
+    MESSAGE_ADAPTER,
+    MESSAGE_TYPES,
+    OPERATOR_TYPES,
+    ROBOT_TYPES,
+    WORLD_TYPES,
+    ProtocolError,
+    decode,
+    encode,
+)
 from protocol.messages import (
     MAX_MESSAGE_BYTES,
     PROTOCOL_VERSION,
@@ -99,7 +108,8 @@ from protocol.messages import (
 from protocol.schema import json_schema
 
 __all__ = [
-    "MAX_MESSAGE_BYTES", "MESSAGE_ADAPTER", "MESSAGE_TYPES", "PROTOCOL_VERSION", "Ack",
+    "MAX_MESSAGE_BYTES", "MESSAGE_ADAPTER", "MESSAGE_TYPES", "OPERATOR_TYPES", "ROBOT_TYPES",
+    "WORLD_TYPES", "PROTOCOL_VERSION", "Ack",
     "Action", "ActionCounts", "Activity", "AnyMessage", "Blocked", "CancelAction", "Cancelled",
     "Error", "ErrorCode", "Event", "Finished", "GenerateParams", "GetSnapshot", "Hello",
     "IntruderReport", "LoadInstance", "LoadPlan", "Message", "Ok", "OperatorCommand", "Pause",

@@ -18,15 +18,30 @@ from protocol.messages import (
     AnyMessage,
     ErrorCode,
     Message,
+    OperatorCommand,
+    RobotMessage,
+    WorldMessage,
 )
 
 MESSAGE_ADAPTER: TypeAdapter[AnyMessage] = TypeAdapter(Message)
 """Validates any protocol message (discriminated on ``type``)."""
 
-MESSAGE_TYPES: frozenset[str] = frozenset(
-    t.model_fields["type"].default for t in AnyMessage.__args__
-)
+def _types(union: Any) -> frozenset[str]:
+    members = getattr(union, "__args__", (union,))
+    return frozenset(str(t.model_fields["type"].default) for t in members)
+
+
+MESSAGE_TYPES: frozenset[str] = _types(AnyMessage)
 """Every value of ``type`` that protocol v1 defines."""
+
+ROBOT_TYPES: frozenset[str] = _types(RobotMessage)
+"""The types a robot may send."""
+
+OPERATOR_TYPES: frozenset[str] = _types(OperatorCommand)
+"""The types an operator may send."""
+
+WORLD_TYPES: frozenset[str] = _types(WorldMessage)
+"""The types the world connection may send."""
 
 
 class ProtocolError(ValueError):

@@ -397,7 +397,7 @@ class WaitEdge(_Model):
     for_action: int
 
 
-GatewayStatus = Literal["empty", "loaded", "running", "paused", "replanning", "done"]
+GatewayStatus = Literal["empty", "planning", "loaded", "running", "paused", "replanning", "done"]
 
 
 class Snapshot(Envelope):

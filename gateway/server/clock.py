@@ -1,0 +1,140 @@
+"""Time for the gateway: real time, or virtual time for a whole asyncio system.
+
+Both clocks read the running event loop's clock, so everything that sleeps on the loop (the
+gateway's ticks, simulated robots, timeouts) shares one notion of time. Virtual time comes
+from a ``looptime`` event loop (:func:`run_virtual`): when every task is waiting, the loop
+jumps to the next timer instead of sleeping. We use that library rather than hand-writing
+time travel because detecting "all tasks idle" needs the loop's internals (its selector and
+timer heap), which looptime already patches and tests; a clock object alone cannot know it.
+
+The two clocks differ in how they run the planner: :class:`RealClock` runs it in a thread
+(events keep arriving while it works); :class:`VirtualClock` runs it inline, so virtual time
+stands still while it computes, and then charges its time as configured ("measured" wall
+time, "zero", or a fixed number of ms; DESIGN section 2) by sleeping that long in virtual time.
+Plan time can run ``speed`` times faster than the loop clock (the demo's ``--speed``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable, Coroutine
+from typing import Any, Literal, TypeVar
+
+import looptime
+
+T = TypeVar("T")
+
+SolverTime = Literal["measured", "zero"] | float
+"""How a virtual clock charges the planner's time: wall time, nothing, or a fixed ms."""
+
+
+class LoopClock:
+    """Milliseconds of plan time since :meth:`reset`, read from the running loop's clock."""
+
+    def __init__(self, speed: float = 1.0) -> None:
+        self._speed = float(speed)
+        self._base_loop_s: float | None = None
+        self._base_ms = 0.0
+
+    @staticmethod
+    def _loop_s() -> float:
+        return asyncio.get_running_loop().time()
+
+    def reset(self) -> None:
+        """Make now 0 ms (called when the gateway starts)."""
+        self._base_loop_s = self._loop_s()
+        self._base_ms = 0.0
+
+    @property
+    def speed(self) -> float:
+        """How many ms of plan time pass per ms of loop time."""
+        return self._speed
+
+    def set_speed(self, speed: float) -> None:
+        """Change the speed from now on; ``now_ms`` stays continuous."""
+        if speed <= 0:
+            raise ValueError(f"speed must be positive, got {speed}")
+        self._base_ms = self.now_ms()
+        self._base_loop_s = self._loop_s()
+        self._speed = float(speed)
+
+    def now_ms(self) -> float:
+        """Plan time in ms since :meth:`reset` (resets on first use)."""
+        if self._base_loop_s is None:
+            self.reset()
+        assert self._base_loop_s is not None
+        return self._base_ms + (self._loop_s() - self._base_loop_s) * 1000.0 * self._speed
+
+    async def sleep_until_ms(self, t_ms: float) -> None:
+        """Sleep until plan time ``t_ms`` (returns at once if it has passed)."""
+        delay = (t_ms - self.now_ms()) / self._speed / 1000.0
+        await asyncio.sleep(max(0.0, delay))
+
+    async def settle(self) -> None:
+        """Let the work of the current instant finish before a tick (no-op in real time)."""
+
+
+class RealClock(LoopClock):
+    """Wall-clock time; the planner runs in a worker thread."""
+
+    async def run_solver(self, fn: Callable[[], T]) -> tuple[T, float]:
+        """Run ``fn`` off the loop; returns its result and the wall ms it took."""
+        t0 = time.perf_counter()
+        result = await asyncio.to_thread(fn)
+        return result, (time.perf_counter() - t0) * 1000.0
+
+
+class VirtualClock(LoopClock):
+    """Virtual time; needs a looptime loop (:func:`run_virtual`).
+
+    ``solver_time`` says how much virtual time a planner call costs.
+    """
+
+    SETTLE_ROUNDS = 64
+    """Loop iterations a tick waits so that same-instant messages (several hops) arrive."""
+
+    def __init__(self, speed: float = 1.0, solver_time: SolverTime = "zero") -> None:
+        super().__init__(speed)
+        self.solver_time = solver_time
+
+    def reset(self) -> None:
+        """Make now 0 ms; refuses to run on a loop without virtual time."""
+        loop = asyncio.get_running_loop()
+        if not isinstance(loop, looptime.LoopTimeEventLoop):
+            raise RuntimeError("VirtualClock needs a looptime event loop: use run_virtual()")
+        super().reset()
+
+    def now_ms(self) -> float:
+        """Plan time, rounded to the loop's resolution (1 µs) so that integral instants are
+        exact (1.001 s x 1000 is not 1001.0 in floating point)."""
+        return round(super().now_ms(), 3)
+
+    async def settle(self) -> None:
+        """Yield enough loop iterations for every same-instant hop to complete."""
+        for _ in range(self.SETTLE_ROUNDS):
+            await asyncio.sleep(0)
+
+    async def run_solver(self, fn: Callable[[], T]) -> tuple[T, float]:
+        """Run ``fn`` inline (virtual time stands still), then sleep the charged time."""
+        t0 = time.perf_counter()
+        result = fn()
+        wall_ms = (time.perf_counter() - t0) * 1000.0
+        if self.solver_time == "measured":
+            charge = wall_ms
+        elif self.solver_time == "zero":
+            charge = 0.0
+        else:
+            charge = float(self.solver_time)
+        await self.sleep_until_ms(self.now_ms() + charge)
+        return result, charge
+
+
+Clock = RealClock | VirtualClock
+"""Either clock; both share the :class:`LoopClock` interface plus ``run_solver``."""
+
+
+def run_virtual(main: Coroutine[Any, Any, T]) -> T:
+    """Run ``main`` to completion on a fresh event loop in virtual time (starting at 0 s)."""
+    with asyncio.Runner(loop_factory=lambda: looptime.new_event_loop(start=0.0)) as runner:
+        return runner.run(main)

@@ -1,0 +1,141 @@
+"""Gateway configuration: defaults < config file (JSON or TOML) < FLEETGATE_* env < arguments.
+
+The embedded defaults give a zero-setup loopback demo: 127.0.0.1:8080, the ``lab`` map, demo
+tokens (``demo-robot-<id>``, ``demo-operator``, ``demo-world``). Demo tokens are refused on a
+non-loopback host unless ``allow_demo_tokens`` is set.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_settings import (
+    BaseSettings,
+    JsonConfigSettingsSource,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+
+class TokensConfig(BaseModel):
+    """Who may connect: bearer token -> role (and robot id for robots)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    robots: dict[str, int] = Field(default_factory=dict,
+                                   description="token -> robot id (agent index)")
+    operators: list[str] = Field(default_factory=lambda: ["demo-operator"])
+    world: list[str] = Field(default_factory=lambda: ["demo-world"])
+    demo_robot_prefix: str | None = "demo-robot-"
+    """If set, the token ``<prefix><id>`` authenticates robot ``<id>``."""
+
+
+class ConfigError(ValueError):
+    """The configuration (file, environment or arguments) is invalid; the message says why."""
+
+
+class GatewayConfig(BaseSettings):
+    """Everything ``fleetgate serve`` can be told."""
+
+    model_config = SettingsConfigDict(env_prefix="FLEETGATE_", env_nested_delimiter="__",
+                                      extra="forbid")
+
+    host: str = "127.0.0.1"
+    port: int = Field(default=8080, ge=0, le=65535)
+    tokens: TokensConfig = TokensConfig()
+    allow_demo_tokens: bool = False
+
+    map: str | None = "lab"
+    scen: str | None = None
+    agents: int | None = Field(default=None, ge=1)
+    instance: Path | None = None
+    generate_seed: int = 0
+    autostart: bool = False
+
+    policy: Literal["none", "random", "slack", "operator"] = "slack"
+    policy_seed: int = 0
+    threshold_ms: float = Field(default=2000.0, ge=0)
+    max_replans: int = Field(default=1, ge=0)
+    action_ms: float = Field(default=1000.0, gt=0)
+    drop_waits: bool = False
+    solver_time_limit_s: float = Field(default=10.0, gt=0)
+    speed: float = Field(default=1.0, gt=0, le=100)
+
+    state_period_ms: float = Field(default=5000.0, gt=0)
+    ping_interval_s: float = Field(default=5.0, gt=0)
+    ping_timeout_s: float = Field(default=5.0, gt=0)
+    send_queue: int = Field(default=4096, ge=1)
+    max_errors: int = Field(default=20, ge=1)
+    rate_per_s: float = Field(default=500.0, gt=0)
+    rate_burst: float = Field(default=1000.0, ge=1)
+    slack_series_len: int = Field(default=3000, ge=10)
+
+    static_dir: Path | None = None
+    trace: Path | None = None
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+
+    @model_validator(mode="after")
+    def _demo_tokens_only_on_loopback(self) -> GatewayConfig:
+        t = self.tokens
+        demo = (t.demo_robot_prefix is not None or "demo-operator" in t.operators
+                or "demo-world" in t.world)
+        if demo and not self.allow_demo_tokens and not _is_loopback(self.host):
+            raise ValueError(f"demo tokens on non-loopback host {self.host!r}: configure "
+                             "tokens (and demo_robot_prefix = null) or set allow_demo_tokens")
+        return self
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _first_error(exc: ValidationError) -> str:
+    err = exc.errors(include_url=False)[0]
+    where = ".".join(str(p) for p in err["loc"])
+    return f"{where}: {err['msg']}" if where else str(err["msg"])
+
+
+def load_config(path: str | Path | None = None, **overrides: Any) -> GatewayConfig:
+    """The configuration from ``path`` (``.json`` or ``.toml``), the environment and
+    ``overrides`` (highest priority; None values are ignored). Raises ConfigError."""
+    given = {k: v for k, v in overrides.items() if v is not None}
+    file = Path(path) if path is not None else None
+    if file is not None:
+        if file.suffix not in (".json", ".toml"):
+            raise ConfigError(f"config file must end in .json or .toml: {file}")
+        if not file.is_file():
+            raise ConfigError(f"config file not found: {file}")
+
+    class _FromFile(GatewayConfig):
+        @classmethod
+        def settings_customise_sources(
+            cls,
+            settings_cls: type[BaseSettings],
+            init_settings: PydanticBaseSettingsSource,
+            env_settings: PydanticBaseSettingsSource,
+            dotenv_settings: PydanticBaseSettingsSource,
+            file_secret_settings: PydanticBaseSettingsSource,
+        ) -> tuple[PydanticBaseSettingsSource, ...]:
+            if file is None:
+                return (init_settings, env_settings)
+            source: PydanticBaseSettingsSource = (
+                TomlConfigSettingsSource(settings_cls, file) if file.suffix == ".toml"
+                else JsonConfigSettingsSource(settings_cls, file))
+            return (init_settings, env_settings, source)
+
+    try:
+        merged = _FromFile(**given)
+    except ValidationError as exc:
+        raise ConfigError(f"bad configuration: {_first_error(exc)}") from None
+    except ValueError as exc:  # unreadable TOML/JSON
+        raise ConfigError(f"cannot read {file}: {exc}") from None
+    return GatewayConfig.model_validate(merged.model_dump())

@@ -1,0 +1,267 @@
+"""The gateway: one engine (the executor's owner task) behind any number of transports.
+
+Usage (real time, websockets)::
+
+    gw = Gateway(load_config())
+    async with gw:
+        port = await gw.listen()            # ws://host:port/ws, plus /metrics /healthz /
+        await gw.wait_done()
+
+Usage (driver 2: virtual time, in-memory transport)::
+
+    async def main():
+        async with Gateway(config, clock=VirtualClock()) as gw:
+            client = await gw.connect("demo-robot-0")  # a MemoryClient, like a ws client
+            ...
+    run_virtual(main())
+
+Connection handlers (:meth:`Gateway.serve_link`) only rate-limit, decode, check the sender's
+role and identity, and enqueue; everything else happens in the engine's owner task.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from types import TracebackType
+
+from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.http11 import Request, Response
+
+from gateway.server.auth import Authenticator, AuthError, Peer, request_token
+from gateway.server.clock import Clock, RealClock
+from gateway.server.config import GatewayConfig
+from gateway.server.engine import (
+    CommandError,
+    Connected,
+    Disconnected,
+    Engine,
+    Inbound,
+    InternalCommand,
+)
+from gateway.server.http import HttpRoutes, response
+from gateway.server.metrics import Metrics
+from gateway.server.planner import InstanceError, resolve_instance
+from gateway.server.session import Session
+from gateway.server.transport import (
+    HARD_MAX_BYTES,
+    Link,
+    LinkClosed,
+    MemoryClient,
+    WebSocketLink,
+    memory_pair,
+)
+from protocol import (
+    OPERATOR_TYPES,
+    ROBOT_TYPES,
+    WORLD_TYPES,
+    AnyMessage,
+    ErrorCode,
+    Hello,
+    OperatorCommand,
+    ProtocolError,
+    State,
+    decode,
+    parse_action_id,
+)
+
+log = logging.getLogger("fleetgate.gateway")
+
+ALLOWED: dict[str, frozenset[str]] = {
+    "robot": ROBOT_TYPES, "operator": OPERATOR_TYPES, "world": WORLD_TYPES,
+}
+"""Which message types each role may send."""
+
+
+class Gateway:
+    """The fleetgate gateway server; see the module docstring for how to run it."""
+
+    def __init__(self, config: GatewayConfig | None = None, *, clock: Clock | None = None
+                 ) -> None:
+        self.config = config if config is not None else GatewayConfig()
+        self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
+        self.metrics = Metrics()
+        self.auth = Authenticator(self.config.tokens)
+        self.engine = Engine(self.config, self.clock, self.metrics)
+        self._owner: asyncio.Task[None] | None = None
+        self._server: Server | None = None
+        self._ws_peers: dict[ServerConnection, Peer] = {}
+        self._links: set[asyncio.Task[None]] = set()
+        self._sessions: set[Session] = set()
+        ops = self.config.tokens.operators
+        self.http = HttpRoutes(self.metrics.render, self._health, self.config.static_dir,
+                               operator_token=ops[0] if ops else None)
+
+    # ------------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        """Start the owner task and load the configured instance, if any."""
+        if self._owner is not None:
+            return
+        self.clock.reset()
+        cfg = self.config
+        if cfg.instance is not None or (cfg.map is not None and (cfg.scen or cfg.agents)):
+            try:
+                problem = resolve_instance(cfg.map or "", cfg.scen, cfg.agents,
+                                           cfg.generate_seed, cfg.instance)
+            except InstanceError as exc:
+                raise ValueError(f"cannot load the configured instance: {exc}") from None
+            self.engine.load(problem)
+        self._owner = asyncio.get_running_loop().create_task(self.engine.run(), name="owner")
+
+    async def stop(self) -> None:
+        """Close every connection and stop the owner task."""
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+            self._server = None
+        for session in list(self._sessions):
+            session.close(1001, "gateway shutting down")
+        for task in list(self._links):
+            task.cancel()
+        await asyncio.gather(*self._links, return_exceptions=True)
+        if self._owner is not None:
+            self._owner.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._owner
+            self._owner = None
+        await self.engine.aclose()
+
+    async def __aenter__(self) -> Gateway:
+        await self.start()
+        return self
+
+    async def __aexit__(self, exc_type: type[BaseException] | None,
+                        exc: BaseException | None, tb: TracebackType | None) -> None:
+        await self.stop()
+
+    # ------------------------------------------------------------------------ API
+    @property
+    def status(self) -> str:
+        """The engine's status (empty, planning, loaded, running, paused, replanning, done)."""
+        return self.engine.status
+
+    @property
+    def latencies_ms(self) -> list[float]:
+        """Finish-received -> dispatch-queued latency of every dispatch a finish unlocked."""
+        return self.engine.latencies_ms
+
+    async def command(self, message: OperatorCommand) -> tuple[ErrorCode | None, str]:
+        """Run an operator command through the owner task; ``(None, detail)`` if accepted,
+        ``(code, detail)`` if refused. ``load_instance`` answers once planning is done."""
+        reply: asyncio.Future[tuple[ErrorCode | None, str]] = (
+            asyncio.get_running_loop().create_future())
+        self.engine.queue.put_nowait(InternalCommand(message, reply))
+        return await reply
+
+    async def wait_done(self) -> tuple[float, float]:
+        """Wait until the current execution completes; returns ``(soc_ms, makespan_ms)``."""
+        await self.engine.finished_event.wait()
+        assert self.engine.summary is not None
+        return self.engine.summary
+
+    async def connect(self, token: str) -> MemoryClient:
+        """Open an in-memory connection (driver 2); AuthError as a websocket 401/403 would."""
+        peer = self.auth.identify(token)
+        client, link = memory_pair(peer, self.config.send_queue)
+        self._track(asyncio.get_running_loop().create_task(self.serve_link(link)))
+        await asyncio.sleep(0)
+        return client
+
+    async def listen(self, host: str | None = None, port: int | None = None) -> int:
+        """Serve websockets and HTTP on ``host:port`` (config by default); returns the port."""
+        cfg = self.config
+        self._server = await serve(
+            self._ws_handler, host or cfg.host, cfg.port if port is None else port,
+            process_request=self._process_request, max_size=HARD_MAX_BYTES, compression=None,
+            ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s, max_queue=64)
+        bound = int(self._server.sockets[0].getsockname()[1])
+        log.info("listening", extra={"host": host or cfg.host, "port": bound})
+        return bound
+
+    # ------------------------------------------------------------------------ connections
+    def _track(self, task: asyncio.Task[None]) -> None:
+        self._links.add(task)
+        task.add_done_callback(self._links.discard)
+
+    def _health(self) -> bytes:
+        return json.dumps({"status": "ok", "gateway": self.engine.status,
+                           "robots": self.engine.connected_robots()}).encode()
+
+    def _process_request(self, connection: ServerConnection, request: Request
+                         ) -> Response | None:
+        if request.headers.get("Upgrade", "").lower() != "websocket":
+            return self.http(request.path)
+        try:
+            token = request_token(request.headers.get("Authorization"), request.path)
+            self._ws_peers[connection] = self.auth.identify(token)
+        except AuthError as exc:
+            log.warning("handshake refused", extra={"status": exc.status, "why": exc.reason})
+            return response(exc.status, f"{exc.reason}\n".encode(),
+                            extra=[("WWW-Authenticate", "Bearer")])
+        return None
+
+    async def _ws_handler(self, connection: ServerConnection) -> None:
+        peer = self._ws_peers.pop(connection)
+        task = asyncio.current_task()
+        assert task is not None
+        self._links.add(task)
+        try:
+            await self.serve_link(WebSocketLink(connection, peer))
+        finally:
+            self._links.discard(task)
+
+    async def serve_link(self, link: Link) -> None:
+        """Run one authenticated connection until it closes (both transports use this)."""
+        cfg = self.config
+        session = Session(link, queue_size=cfg.send_queue, max_errors=cfg.max_errors,
+                          rate_per_s=cfg.rate_per_s, rate_burst=cfg.rate_burst,
+                          on_error=lambda code: self.metrics.errors.labels(code.value).inc())
+        self._sessions.add(session)
+        queue = self.engine.queue
+        queue.put_nowait(Connected(session))
+        try:
+            while not session.closing:
+                raw = await link.recv()
+                message = self._admit(session, raw)
+                if message is not None:
+                    queue.put_nowait(Inbound(session, message, time.perf_counter()))
+        except LinkClosed:
+            pass
+        finally:
+            self._sessions.discard(session)
+            queue.put_nowait(Disconnected(session))
+            session.close()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(asyncio.shield(session.writer), 1.0)
+
+    def _admit(self, session: Session, raw: str | bytes) -> AnyMessage | None:
+        """Validate one message from a peer; reply ``error`` and return None if it is bad."""
+        if not session.allow():
+            session.error(ErrorCode.RATE_LIMITED, None, "too many messages")
+            return None
+        try:
+            message = decode(raw)
+        except ProtocolError as exc:
+            session.error(exc.code, exc.ref, exc.detail)
+            return None
+        peer = session.peer
+        if message.type not in ALLOWED[peer.role]:
+            session.error(ErrorCode.FORBIDDEN, message.msg_id,
+                          f"a {peer.role} may not send {message.type}")
+            return None
+        if peer.role == "robot":
+            if isinstance(message, Hello | State):
+                about = message.robot_id
+            else:
+                about = parse_action_id(message.action_id)[1]  # type: ignore[union-attr]
+            if about != peer.robot_id:
+                session.error(ErrorCode.NOT_YOURSELF, message.msg_id,
+                              f"robot {peer.robot_id} may not report about robot {about}")
+                return None
+        return message
+
+
+__all__ = ["ALLOWED", "AuthError", "CommandError", "Gateway", "MemoryClient"]

@@ -1,0 +1,87 @@
+"""The gateway's use of the planner: resolve instances by name and find 1-robust plans."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gateway.commands import mapstore
+from gateway.commands.deadline import WallDeadline
+from gateway.planning.generators import random_instance
+from gateway.planning.grid import Cell, Grid
+from gateway.planning.instance import Instance, load_instance, load_mapf_ir
+from gateway.planning.movingai import MapFormatError, read_map
+from gateway.planning.plan import Plan
+from gateway.planning.validate import plan_violations
+
+
+class InstanceError(ValueError):
+    """The named map, scenario or plan cannot be used; the message says why."""
+
+
+@dataclass(frozen=True)
+class Problem:
+    """What the gateway executes: an instance and, once planned, its plan."""
+
+    instance: Instance
+    map_name: str
+    plan: Plan | None = None
+
+
+def _map(name: str) -> tuple[Grid, str]:
+    path = mapstore.resolve(name, "map")
+    return read_map(path), Path(path).stem
+
+
+def resolve_instance(map: str, scen: str | None, agents: int | None, seed: int = 0,
+                     instance_file: Path | None = None) -> Problem:
+    """Load ``scen`` on ``map`` (first ``agents`` agents), a mapf-IR ``instance_file``, or
+    ``agents`` random starts/goals drawn with ``seed``. Raises InstanceError."""
+    try:
+        if instance_file is not None:
+            dirs = [d.path for d in mapstore.search_dirs()]
+            inst = load_mapf_ir(instance_file, agents, mapstore.resolve(map, "map"), dirs)
+            return Problem(inst, Path(instance_file).stem)
+        grid, map_name = _map(map)
+        if scen is not None:
+            inst = load_instance(mapstore.resolve(map, "map"), mapstore.resolve(scen, "scen"),
+                                 agents)
+            return Problem(inst, map_name)
+        if agents is None:
+            raise InstanceError("give a scenario or a number of agents to generate")
+        inst = random_instance(grid, agents, np.random.default_rng(seed), name=map_name)
+        return Problem(inst, map_name)
+    except mapstore.MapNotFound as exc:
+        raise InstanceError(str(exc)) from None
+    except (MapFormatError, ValueError) as exc:
+        raise InstanceError(str(exc)) from None
+    except OSError as exc:
+        raise InstanceError(f"cannot read {exc.filename}: {exc.strerror}") from None
+
+
+def problem_from_paths(map: str, paths: list[list[Cell]]) -> Problem:
+    """A given plan on a named map, checked to be a valid 1-robust plan. Raises InstanceError."""
+    try:
+        grid, map_name = _map(map)
+    except mapstore.MapNotFound as exc:
+        raise InstanceError(str(exc)) from None
+    except (MapFormatError, OSError) as exc:
+        raise InstanceError(f"cannot read map {map!r}: {exc}") from None
+    plan = Plan.of(paths)
+    starts = tuple(p[0] for p in plan.paths)
+    goals = tuple(p[-1] for p in plan.paths)
+    problems = plan_violations(grid, starts, goals, plan)
+    if problems:
+        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise InstanceError(f"invalid plan: {problems[0]}{more}")
+    return Problem(Instance(grid, starts, goals, map_name), map_name, plan)
+
+
+def plan_for(grid: Grid, starts: tuple[Cell, ...], goals: tuple[Cell, ...],
+             time_limit_s: float) -> Plan:
+    """A 1-robust plan from ``starts`` to ``goals`` (raises planning's NoSolution)."""
+    from gateway.planning.solver import solve
+
+    return solve(grid, starts, goals, deadline=WallDeadline(time_limit_s)).plan

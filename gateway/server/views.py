@@ -1,0 +1,67 @@
+"""What operators see: the fields of a ``snapshot`` message, built from the engine's state."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from gateway.planning.grid import Grid
+from protocol import ActionCounts, RobotView, WaitEdge
+
+if TYPE_CHECKING:
+    from gateway.server.engine import Engine
+
+
+def map_rows(grid: Grid) -> list[str]:
+    """The map as text rows: ``.`` free, ``@`` blocked (row y is ``rows[y]``)."""
+    return ["".join("." if f else "@" for f in row) for row in grid.free.tolist()]
+
+
+def snapshot_fields(engine: Engine) -> dict[str, Any]:
+    """Everything a ``snapshot`` carries except msg_id/seq."""
+    problem, ex = engine.problem, engine.executor
+    out: dict[str, Any] = {
+        "t_ms": engine.clock.now_ms() if ex is not None else 0.0,
+        "status": engine.status,
+        "threshold_ms": engine.threshold_ms,
+        "policy": engine.policy_name,
+        "speed": engine.clock.speed,
+        "fleet_slack": list(engine.slack_series),
+        "intruders": sorted(engine.intruders),
+    }
+    if problem is None:
+        return out
+    out["map_name"] = problem.map_name
+    out["rows"] = map_rows(problem.instance.grid)
+    plan = ex.plan if ex is not None else problem.plan
+    if plan is not None:
+        out["paths"] = [list(p) for p in plan.paths]
+    goals = problem.instance.goals
+    counts = {"dispatched": 0, "running": 0, "blocked": 0, "finished": 0}
+    robots = []
+    for r in range(problem.instance.num_agents):
+        rec = engine.robot(r)
+        path = plan.paths[r] if plan is not None else (problem.instance.starts[r],)
+        cell = rec.pose.cell if rec.pose is not None else (
+            ex.robot_cell(r) if ex is not None else path[0])
+        held = next(iter(rec.held.items()), None)
+        for h in rec.held.values():
+            counts[h.phase] += 1
+        counts["finished"] += rec.next_index if ex is not None else 0
+        robots.append(RobotView(
+            robot_id=r, connected=rec.session is not None, cell=cell,
+            heading=rec.pose.heading if rec.pose is not None else None,
+            activity=rec.activity(), action_id=held[0] if held else None, goal=goals[r],
+            remaining=list(path[min(rec.next_index, len(path) - 1):]),
+            slack_ms=ex.monitor.robot_slack(r) if ex is not None else 0.0))
+    out["robots"] = robots
+    if ex is not None:
+        total = sum(max(len(p) - 1, 0) for p in ex.plan.paths)
+        pending = max(0, total - sum(counts.values()))
+        out["actions"] = ActionCounts(pending=pending, **counts)
+        out.update(plan=ex.plan_id, soc_ms=ex.soc_ms, makespan_ms=ex.makespan_ms,
+                   est_soc_ms=ex.monitor.estimated_soc_ms(),
+                   est_makespan_ms=ex.monitor.estimated_makespan_ms(),
+                   replans=ex.replans,
+                   waits=[WaitEdge(robot=a, action=b, for_robot=c, for_action=d)
+                          for a, b, c, d in ex.monitor.blocking_edges()])
+    return out
