@@ -20,7 +20,7 @@ from gateway.planning.generators import (
 )
 from gateway.planning.grid import Grid
 from gateway.planning.instance import load_instance
-from tests.planning.fleetgate_cli import run
+from tests.planning.fleetgate_cli import call
 
 SHIPPED = Path(__file__).resolve().parents[2] / "gateway" / "planning" / "maps"
 LAB_RECIPE = ["warehouse", "lab", "--blocks-x", "3", "--blocks-y", "2", "--shelf-length", "2",
@@ -148,7 +148,7 @@ def test_lab_map_matches_its_description() -> None:
 @pytest.mark.parametrize("recipe", [LAB_RECIPE, WAREHOUSE_RECIPE], ids=["lab", "warehouse"])
 def test_shipped_maps_are_what_maps_generate_writes(tmp_path: Path, recipe: list[str]) -> None:
     """The recipes in gateway/planning/maps/README.md give the shipped files byte for byte."""
-    done = run("maps", "generate", *recipe, "--out", str(tmp_path))
+    done = call("maps", "generate", *recipe, "--out", str(tmp_path))
     assert done.returncode == 0, done.stderr
     written = sorted(p.name for p in tmp_path.iterdir())
     assert len(written) == 6
@@ -160,11 +160,11 @@ def test_maps_generate_random_and_rooms(tmp_path: Path) -> None:
     for kind in ("random", "rooms"):
         args = ["maps", "generate", kind, f"g-{kind}", "--out", str(tmp_path), "--seed", "3",
                 "--scenarios", "2", "--agents", "10"]
-        assert run(*args).returncode == 0
+        assert call(*args).returncode == 0
         inst = load_instance(tmp_path / f"g-{kind}.map", tmp_path / f"g-{kind}-random-2.scen")
         assert is_connected(inst.grid)
         _check_instance(inst.grid, inst.starts, inst.goals)
-        again = run(*args)  # the files exist now: refused without --force, nothing changed
+        again = call(*args)  # the files exist now: refused without --force, nothing changed
         assert again.returncode == 2
         assert "exists (use --force to overwrite)" in again.stderr
 
@@ -176,7 +176,7 @@ def test_maps_generate_random_and_rooms(tmp_path: Path) -> None:
       "--agents", "5"], "5 agents need 5 free cells"),
 ])
 def test_maps_generate_bad_parameters(tmp_path: Path, args: list[str], reason: str) -> None:
-    done = run("maps", "generate", *args, "--out", str(tmp_path))
+    done = call("maps", "generate", *args, "--out", str(tmp_path))
     assert done.returncode == 2
     assert reason in done.stderr
     assert list(tmp_path.iterdir()) == []

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from gateway.commands import mapstore
-from tests.planning.fleetgate_cli import run
+from tests.planning.fleetgate_cli import call, run
 
 TINY_MAP = "type octile\nheight 1\nwidth 3\nmap\n...\n"
 TINY_SCEN = "version 1\n0\ttiny-3-1.map\t3\t1\t0\t0\t2\t0\t2\n"
@@ -46,7 +46,7 @@ def server(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     (root / "broken-1-1.map.zip").write_bytes(b"not a zip")
     handler = functools.partial(_QuietHandler, directory=str(root))
     httpd = ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread = threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True)
     thread.start()
     yield f"http://127.0.0.1:{httpd.server_address[1]}/", tmp_path
     httpd.shutdown()
@@ -70,13 +70,18 @@ def test_download_extracts_map_and_scenarios_into_the_cache(server: tuple[str, P
     assert rows[("tiny-3-1-even-1", "scen")]["path"] == str(cache / "scen" /
                                                              "tiny-3-1-even-1.scen")
     assert rows[("lab", "map")]["origin"] == "shipped"
+    # The downloaded names now work for planning: one agent from (0,0) to (2,0) costs 2.
+    solved = run("plan", "--map", "tiny-3-1", "--scen", "tiny-3-1-random-1", "--json", env=env)
+    assert solved.returncode == 0, solved.stderr
+    assert json.loads(solved.stdout)["agents"][0]["path"] == [[0, 0], [1, 0], [2, 0]]
 
 
-def test_download_by_scenario_name_via_environment_url(server: tuple[str, Path]) -> None:
+def test_download_by_scenario_name_via_environment_url(server: tuple[str, Path],
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     url, tmp = server
-    env = {"HOME": str(tmp / "home"), "FLEETGATE_MAPS_URL": url}
-    done = run("maps", "download", "tiny-3-1-random-1", "--dest", str(tmp / "d"), "--no-scen",
-               env=env)
+    monkeypatch.setenv("HOME", str(tmp / "home"))
+    monkeypatch.setenv("FLEETGATE_MAPS_URL", url)
+    done = call("maps", "download", "tiny-3-1-random-1", "--dest", str(tmp / "d"), "--no-scen")
     assert done.returncode == 0, done.stderr
     assert sorted(p.name for p in (tmp / "d").iterdir()) == ["tiny-3-1.map"]
 
@@ -88,7 +93,7 @@ def test_download_by_scenario_name_via_environment_url(server: tuple[str, Path])
 def test_failed_download_exits_2_and_writes_nothing(server: tuple[str, Path], name: str,
                                                     reason: str) -> None:
     url, tmp = server
-    done = run("maps", "download", name, "--base-url", url, "--dest", str(tmp / "d"),
+    done = call("maps", "download", name, "--base-url", url, "--dest", str(tmp / "d"),
                "--no-scen")
     assert done.returncode == 2
     assert done.stderr.startswith("fleetgate: ")
@@ -117,6 +122,12 @@ def test_resolution_order(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> No
     listed = mapstore.available(first, env)
     assert [(a.origin, a.shadowed) for a in listed if a.name == "m"] == [
         ("--maps-dir", False), ("$FLEETGATE_MAPS", True), ("cache", True)]
+    monkeypatch.setenv("FLEETGATE_MAPS", str(second))
+    shown = call("maps", "list", "--maps-dir", str(first))
+    assert shown.returncode == 0
+    lines = [line.split() for line in shown.stdout.splitlines()[1:]]
+    assert ["map", "m", "$FLEETGATE_MAPS", str(second / "m.map"), "(shadowed)"] in lines
+    assert ["map", "lab", "shipped", str(mapstore.SHIPPED_DIR / "lab.map")] in lines
 
 
 def test_unknown_names_and_missing_paths(tmp_path: Path) -> None:
