@@ -1,0 +1,746 @@
+"""Simulated robots that speak protocol v1 to a gateway over any transport, many per process.
+
+Every robot of a :class:`SimFleet` is the sans-I/O :class:`~sim_clients.robot.SimRobot` of the
+discrete-event driver, driven by timers of the running event loop: it checks its target cell
+in the fleet's one shared :class:`~sim_clients.world.World`, acknowledges every action, drops
+duplicates, reports started / finished / blocked / unblocked / cancelled, sends a ``state``
+every ``state_period_ms`` and reconnects (``hello`` with what it holds and what it finished)
+when its link drops. A fleet may also open the "world" connection: it receives
+``place_intruder`` (and ``set_speed``) and reports ``intruder`` on/off.
+
+Time: robots read plan time from a :class:`~gateway.server.clock.LoopClock` (the gateway's own
+in one process, so both agree on "now" and on ``speed``). The automatic intruder of DESIGN
+section 2 needs the monitor's estimates at ``T_a`` (:class:`IntruderOracle`), which only an
+in-process driver can give; :meth:`SimFleet.poll_world` then runs due intruder work, and an
+in-process driver calls it at the gateway's monitor ticks after every robot event of that
+instant (the order of the discrete-event driver). Without that, the fleet polls on its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import random
+import time
+from collections import deque
+from collections.abc import Awaitable, Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol, TypeVar
+
+from websockets.exceptions import ConnectionClosed
+
+from gateway.execution.commands import Dispatch
+from gateway.planning.grid import Cell
+from gateway.planning.plan import Path
+from gateway.server.clock import LoopClock
+from gateway.server.engine import Engine
+from gateway.server.gateway import Gateway
+from gateway.server.planner import Problem
+from protocol import (
+    Ack,
+    Action,
+    Activity,
+    AnyMessage,
+    Blocked,
+    CancelAction,
+    Cancelled,
+    Error,
+    Finished,
+    Hello,
+    IntruderReport,
+    Pause,
+    PlaceIntruder,
+    Pose,
+    ProtocolError,
+    Resume,
+    SetSpeed,
+    Start,
+    Started,
+    State,
+    Unblocked,
+    Welcome,
+    decode,
+    encode,
+    parse_action_id,
+)
+from sim_clients.des import derive_seed
+from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
+from sim_clients.robot import RECHECK_MS, RobotEvent, RobotState, SimRobot
+from sim_clients.world import World
+
+log = logging.getLogger("fleetgate.sim")
+
+M = TypeVar("M", bound=AnyMessage)
+
+
+class ClientConnection(Protocol):
+    """What both a websockets client connection and the in-memory client offer."""
+
+    async def send(self, message: str) -> None:
+        """Send one text frame."""
+        ...
+
+    async def recv(self) -> str | bytes:
+        """The next frame; raises ``websockets.ConnectionClosed`` once closed."""
+        ...
+
+    async def close(self, code: int = 1000, reason: str = "") -> None:
+        """Close the connection."""
+        ...
+
+
+Connect = Callable[[str], Awaitable[ClientConnection]]
+"""Opens an authenticated connection for a token (a websocket or ``Gateway.connect``)."""
+
+
+def demo_robot_token(robot: int) -> str:
+    """The loopback demo token of robot ``robot`` (the gateway's default prefix)."""
+    return f"demo-robot-{robot}"
+
+
+class IntruderOracle(Protocol):
+    """What the automatic intruder reads from the executor at ``T_a`` (in-process only)."""
+
+    @property
+    def running(self) -> bool:
+        """True once an execution started (before that, there is nothing to read)."""
+        ...
+
+    @property
+    def plan_id(self) -> int:
+        """Number of the plan being executed."""
+        ...
+
+    def paths(self) -> Sequence[Path]:
+        """The current plan's paths."""
+        ...
+
+    def start_ms(self, robot: int, action: int) -> float:
+        """The monitor's estimated start of action ``action`` of ``robot``."""
+        ...
+
+
+@dataclass
+class FleetStats:
+    """What the robots saw: for latency, loss and duplicate accounting (perf_counter s)."""
+
+    received: dict[str, float] = field(default_factory=dict)
+    """First arrival of every action id."""
+    finish_sent: dict[str, float] = field(default_factory=dict)
+    """When each action's ``finished`` was handed to the connection."""
+    duplicates: int = 0
+    reconnects: int = 0
+    errors: list[str] = field(default_factory=list)
+    """``code: detail`` of every ``error`` a robot was sent."""
+
+
+_RUNNING = {RobotState.MOVING: "running", RobotState.BLOCKED: "blocked"}
+
+
+class FleetRobot:
+    """One simulated robot and its connection."""
+
+    def __init__(self, fleet: SimFleet, robot_id: int) -> None:
+        self.fleet = fleet
+        self.robot_id = robot_id
+        self.sim: SimRobot | None = None
+        self.seen: set[str] = set()
+        self.pending: deque[Action] = deque()
+        self.finished_ids: deque[str] = deque(maxlen=64)
+        self.paused = False
+        self.connected = asyncio.Event()
+        self.plan = -1
+        """Plan of the latest started action (with :attr:`next_action`: first not started)."""
+        self.next_action = 0
+        self._conn: ClientConnection | None = None
+        self._outbox: asyncio.Queue[str | None] = asyncio.Queue()
+        self._seq = itertools.count()
+        self._timer: asyncio.TimerHandle | None = None
+        self._state_period_ms = 5000.0
+
+    # ------------------------------------------------------------------ placement
+    @property
+    def cell(self) -> Cell | None:
+        """Where the robot stands (None until it was placed)."""
+        return self.sim.cell if self.sim is not None else None
+
+    def unplace(self) -> None:
+        """Take the robot out of the world (its cells are freed, its timer dropped)."""
+        sim = self.sim
+        if sim is not None:
+            d = sim.current
+            if sim.state is RobotState.MOVING and d is not None and d.dst != d.src:
+                self.fleet.world.release(d.dst, self.robot_id)
+            self.fleet.world.release(sim.cell, self.robot_id)
+            self.sim = None
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def place(self, cell: Cell) -> None:
+        """Put the robot on ``cell`` for a new run: forget every action of the previous one."""
+        self.unplace()
+        world = self.fleet.world
+        world.occupy(cell, self.robot_id, self.fleet.clock.now_ms())
+        self.sim = SimRobot(self.robot_id, world, cell, recheck_ms=self.fleet.recheck_ms)
+        self.seen.clear()
+        self.pending.clear()
+        self.finished_ids.clear()
+        self.plan, self.next_action = -1, 0
+
+    # ------------------------------------------------------------------ connection
+    async def run(self) -> None:
+        """Connect, say hello, serve the connection; reconnect until the fleet stops."""
+        fleet = self.fleet
+        while not fleet.stopping:
+            try:
+                conn = await fleet.connect(fleet.token(self.robot_id))
+            except (OSError, ConnectionClosed) as exc:
+                log.info("robot %d cannot connect: %s", self.robot_id, exc)
+                await asyncio.sleep(fleet.reconnect_delay_s)
+                continue
+            except Exception as exc:  # e.g. handshake refused: retrying will not help
+                fleet.fail(f"robot {self.robot_id}: cannot connect: {exc}")
+                return
+            self._conn = conn
+            writer = asyncio.create_task(self._write(conn))
+            try:
+                self._send(self._hello())
+                await self._read(conn)
+            except ConnectionClosed:
+                pass
+            finally:
+                self._conn = None
+                self.connected.clear()
+                self._outbox.put_nowait(None)
+                await writer
+                with contextlib.suppress(Exception):
+                    await conn.close()
+            if not fleet.stopping:
+                fleet.stats.reconnects += 1
+                await asyncio.sleep(fleet.reconnect_delay_s)
+
+    async def drop_link(self) -> None:
+        """Close the current connection abruptly (tests: the robot reconnects by itself)."""
+        if self._conn is not None:
+            await self._conn.close(1011, "simulated link loss")
+
+    def _hello(self) -> Hello:
+        sim = self.sim
+        current = None
+        if sim is not None and sim.current is not None and sim.state in _RUNNING:
+            d = sim.current
+            current = Activity(action_id=f"{d.plan}.{d.robot}.{d.action}",
+                               state=_RUNNING[sim.state])  # type: ignore[arg-type]
+        held = [a.action_id for a in self.pending]
+        if current is not None:
+            held.insert(0, current.action_id)
+        return self._message(Hello, robot_id=self.robot_id, pose=self._pose(),
+                             acked=held[-256:], finished=list(self.finished_ids),
+                             current=current)
+
+    def _pose(self) -> Pose | None:
+        cell = self.cell
+        return Pose(cell=cell) if cell is not None else None
+
+    def _message(self, kind: type[M], **fields: Any) -> M:
+        seq = next(self._seq)
+        return kind(msg_id=f"r{self.robot_id}-{seq}", seq=seq, **fields)
+
+    def _send(self, message: AnyMessage) -> None:
+        """Queue a message on the live connection (dropped while disconnected: the next
+        ``hello`` carries what matters)."""
+        if self._conn is not None:
+            self._outbox.put_nowait(encode(message))
+
+    async def _write(self, conn: ClientConnection) -> None:
+        while True:
+            text = await self._outbox.get()
+            if text is None:
+                return
+            with contextlib.suppress(ConnectionClosed):
+                await conn.send(text)
+
+    async def _read(self, conn: ClientConnection) -> None:
+        while True:
+            raw = await conn.recv()
+            try:
+                msg = decode(raw)
+            except ProtocolError as exc:
+                self.fleet.stats.errors.append(f"robot {self.robot_id} got a bad message: {exc}")
+                continue
+            self._on_message(msg)
+
+    def _on_message(self, msg: AnyMessage) -> None:
+        match msg:
+            case Welcome():
+                self._welcome(msg)
+            case Action():
+                self._action(msg)
+            case CancelAction():
+                self._cancel(msg.action_id)
+            case Pause():
+                self.paused = True
+            case Resume():
+                self.paused = False
+                self._feed()
+            case Error():
+                self.fleet.stats.errors.append(f"robot {self.robot_id}: {msg.code}: {msg.detail}")
+
+    def _welcome(self, msg: Welcome) -> None:
+        self._state_period_ms = msg.state_period_ms
+        self.paused = msg.paused
+        if self.sim is None and msg.start is not None:
+            self.place(msg.start.cell)
+        self.connected.set()
+        self.fleet.on_connected()
+        for action in msg.resend:
+            self._action(action)
+        self._feed()
+        if self.fleet.send_state:
+            self._schedule_state()
+
+    def _schedule_state(self) -> None:
+        loop = asyncio.get_running_loop()
+        delay = self._state_period_ms / self.fleet.clock.speed / 1000.0
+
+        def fire() -> None:
+            if self._conn is None or self.fleet.stopping:
+                return
+            self._send(self._state())
+            self._schedule_state()
+
+        loop.call_later(delay, fire)
+
+    def _state(self) -> State:
+        sim = self.sim
+        activity: Any = "idle"
+        current = None
+        if self.paused:
+            activity = "paused"
+        elif sim is not None and sim.current is not None and sim.state in _RUNNING:
+            d = sim.current
+            activity = _RUNNING[sim.state]
+            current = Activity(action_id=f"{d.plan}.{d.robot}.{d.action}", state=activity)
+        elif self.pending:
+            activity = "received"
+        return self._message(State, robot_id=self.robot_id, pose=self._pose(),
+                             activity=activity, current=current)
+
+    # ------------------------------------------------------------------ actions
+    def _action(self, action: Action) -> None:
+        aid = action.action_id
+        self._send(self._message(Ack, action_id=aid))
+        stats = self.fleet.stats
+        if aid in self.seen:
+            stats.duplicates += 1
+            return
+        if action.sequence == 0 and parse_action_id(aid)[0] == 0 and self._new_run(action):
+            self.place(action.src.cell)
+        self.seen.add(aid)
+        stats.received.setdefault(aid, time.perf_counter())
+        self.pending.append(action)
+        self._feed()
+
+    def _new_run(self, action: Action) -> bool:
+        """A first action of plan 0 arriving after this robot did anything, or before it was
+        placed, starts a new run (the operator loaded and started another instance)."""
+        return self.sim is None or (
+            self.sim.current is None and bool(self.seen) and action.action_id not in self.seen)
+
+    def _cancel(self, aid: str) -> None:
+        for action in self.pending:
+            if action.action_id == aid:
+                self.pending.remove(action)
+                self._report_one("cancelled", aid)
+                return
+        sim = self.sim
+        if sim is not None and sim.current is not None:
+            d = sim.current
+            if f"{d.plan}.{d.robot}.{d.action}" == aid:
+                self._emit(sim.cancel(d.plan, d.action, self._now()))
+                self._reschedule()
+                self._feed()
+                return  # a moving robot finishes instead
+        if aid not in self.seen:  # never arrived: confirm, and drop it if it comes late
+            self.seen.add(aid)
+            self._report_one("cancelled", aid)
+
+    def _feed(self) -> None:
+        """Hand the next pending action to the robot if it is idle and may move."""
+        sim = self.sim
+        if (sim is None or sim.state is not RobotState.IDLE or not self.pending or self.paused
+                or self._conn is None):
+            return
+        action = self.pending.popleft()
+        plan, robot, index = parse_action_id(action.action_id)
+        if sim.cell != action.src.cell:
+            self.fleet.stats.errors.append(
+                f"robot {self.robot_id} is on {sim.cell} but {action.action_id} starts at "
+                f"{action.src.cell}: moved there")
+            seen = set(self.seen)
+            self.place(action.src.cell)  # a simulated robot follows the plan it is given
+            self.seen = seen
+            sim = self.sim
+            assert sim is not None
+        d = Dispatch(plan, robot, index, action.src.cell, action.dst.cell, action.duration_ms)
+        self._emit(sim.dispatch(d, self._now()))
+        self._reschedule()
+
+    def _now(self) -> float:
+        return self.fleet.clock.now_ms()
+
+    def _reschedule(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        sim = self.sim
+        due = sim.next_wakeup_ms() if sim is not None else None
+        if due is None:
+            return
+        clock = self.fleet.clock
+        delay = max(0.0, (due - clock.now_ms()) / clock.speed / 1000.0)
+        self._timer = asyncio.get_running_loop().call_later(delay, self._wake, due)
+
+    def _wake(self, due: float) -> None:
+        self._timer = None
+        sim = self.sim
+        if sim is None or self.fleet.stopping:
+            return
+        self._emit(sim.wake(max(due, self._now())))
+        self._reschedule()
+        self._feed()
+
+    def _emit(self, events: list[RobotEvent]) -> None:
+        for e in events:
+            aid = f"{e.plan}.{e.robot}.{e.action}"
+            if e.kind == "started" and e.plan >= self.plan:
+                self.plan, self.next_action = e.plan, e.action + 1
+            elif e.kind == "finished":
+                self.finished_ids.append(aid)
+            self._report_one(e.kind, aid)
+
+    def _report_one(self, kind: str, aid: str) -> None:
+        kinds: dict[str, type[AnyMessage]] = {
+            "started": Started, "finished": Finished, "blocked": Blocked,
+            "unblocked": Unblocked, "cancelled": Cancelled}
+        self._send(self._message(kinds[kind], action_id=aid, pose=self._pose()))
+        if kind == "finished" and self._conn is not None:
+            self.fleet.stats.finish_sent[aid] = time.perf_counter()
+
+
+class _WorldIntruder:
+    """One intruder (automatic or placed by an operator) and when it next needs a look."""
+
+    def __init__(self, intruder: Intruder, auto: bool) -> None:
+        self.intruder = intruder
+        self.auto = auto
+
+
+class SimFleet:
+    """Many simulated robots on one shared :class:`World`, plus the "world" connection.
+
+    ``robots`` are the robot ids to run; ``connect(token)`` opens a connection. ``clock``
+    should be the gateway's clock when both run in one process. ``oracle`` enables the
+    automatic intruder (DESIGN section 2: appears at ``intruder_config.appear_ms``); its
+    random choices use ``seed`` exactly as the discrete-event driver does.
+    """
+
+    def __init__(self, connect: Connect, robots: Iterable[int], *,
+                 token: Callable[[int], str] = demo_robot_token,
+                 clock: LoopClock | None = None, world_token: str | None = None,
+                 oracle: IntruderOracle | None = None, seed: int = 0,
+                 intruder_config: IntruderConfig | None = None,
+                 recheck_ms: float = RECHECK_MS, reconnect_delay_s: float = 0.2,
+                 send_state: bool = True, external_poll: bool = False) -> None:
+        self.connect = connect
+        self.token = token
+        self.clock = clock if clock is not None else LoopClock()
+        self.world = World()
+        self.recheck_ms = recheck_ms
+        self.reconnect_delay_s = reconnect_delay_s
+        self.send_state = send_state
+        self.stats = FleetStats()
+        self.stopping = False
+        self.robots: dict[int, FleetRobot] = {}
+        self._world_token = world_token
+        self._world_conn: ClientConnection | None = None
+        self._world_seq = itertools.count()
+        self._world_ready = asyncio.Event()
+        self._oracle = oracle
+        self._intruder_config = intruder_config or IntruderConfig()
+        self._rng = random.Random(derive_seed(seed, "intruder"))
+        self._intruders: list[_WorldIntruder] = []
+        if oracle is not None:
+            self._intruders.append(
+                _WorldIntruder(Intruder(self.world, self._intruder_config), auto=True))
+        self._external_poll = external_poll
+        self._tasks: list[asyncio.Task[None]] = []
+        self._connected_count = 0
+        self._all_connected = asyncio.Event()
+        self._failure: str | None = None
+        self._ids = list(robots)
+
+    # ------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        """Start every robot (and the world connection) in the background."""
+        loop = asyncio.get_running_loop()
+        if self._world_token is not None:
+            self._tasks.append(loop.create_task(self._run_world(), name="sim-world"))
+        for r in self._ids:
+            self.add_robot(r)
+        if not self._external_poll:
+            self._tasks.append(loop.create_task(self._poll_loop(), name="sim-intruders"))
+
+    def add_robot(self, r: int) -> FleetRobot:
+        """Run robot ``r`` too (no-op if it runs already)."""
+        if r in self.robots:
+            return self.robots[r]
+        robot = self.robots[r] = FleetRobot(self, r)
+        self._tasks.append(asyncio.get_running_loop().create_task(robot.run(), name=f"sim-{r}"))
+        return robot
+
+    async def wait_connected(self, timeout: float | None = None) -> None:
+        """Until every robot got its first ``welcome`` (and the world connection is up)."""
+        async with asyncio.timeout(timeout):
+            await self._all_connected.wait()
+            if self._world_token is not None:
+                await self._world_ready.wait()
+        if self._failure is not None:
+            raise RuntimeError(self._failure)
+
+    def on_connected(self) -> None:
+        """A robot was welcomed (counts each robot once)."""
+        n = sum(1 for r in self.robots.values() if r.connected.is_set())
+        if n >= len(self.robots):
+            self._all_connected.set()
+
+    def fail(self, reason: str) -> None:
+        """Stop waiting: a robot cannot run at all."""
+        self._failure = reason
+        log.error(reason)
+        self._all_connected.set()
+
+    async def stop(self) -> None:
+        """Stop every robot and close the connections."""
+        self.stopping = True
+        for robot in self.robots.values():
+            if robot._conn is not None:
+                with contextlib.suppress(Exception):
+                    await robot._conn.close()
+        if self._world_conn is not None:
+            with contextlib.suppress(Exception):
+                await self._world_conn.close()
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+
+    def place_all(self, starts: Sequence[Cell]) -> None:
+        """Put robot k on ``starts[k]`` for a new run (other robots leave the world)."""
+        for robot in self.robots.values():
+            robot.unplace()
+        for k, cell in enumerate(starts):
+            if k in self.robots:
+                self.robots[k].place(cell)
+
+    # ------------------------------------------------------------------ the world
+    async def _run_world(self) -> None:
+        assert self._world_token is not None
+        while not self.stopping:
+            try:
+                conn = await self.connect(self._world_token)
+            except (OSError, ConnectionClosed):
+                await asyncio.sleep(self.reconnect_delay_s)
+                continue
+            self._world_conn = conn
+            try:
+                while True:
+                    try:
+                        msg = decode(await conn.recv())
+                    except ProtocolError as exc:
+                        self.stats.errors.append(f"world got a bad message: {exc}")
+                        continue
+                    if isinstance(msg, SetSpeed):
+                        if msg.speed != self.clock.speed:
+                            self.clock.set_speed(msg.speed)
+                        self._world_ready.set()
+                    elif isinstance(msg, PlaceIntruder):
+                        self.place_intruder((msg.cell[0], msg.cell[1]), msg.duration_ms)
+                    elif isinstance(msg, Error):
+                        self.stats.errors.append(f"world: {msg.code}: {msg.detail}")
+            except ConnectionClosed:
+                self._world_conn = None
+            if not self.stopping:
+                await asyncio.sleep(self.reconnect_delay_s)
+
+    def place_intruder(self, cell: Cell, duration_ms: float) -> None:
+        """An operator's intruder: on ``cell`` as soon as it is free, for ``duration_ms``."""
+        now = self.clock.now_ms()
+        intruder = Intruder(self.world, IntruderConfig(appear_ms=now,
+                                                       leave_ms=now + duration_ms))
+        self._report(intruder.appear(now, (-1, cell)))
+        self._intruders.append(_WorldIntruder(intruder, auto=False))
+
+    def poll_world(self, now_ms: float | None = None) -> None:
+        """Run every intruder step due at ``now_ms`` (default: now)."""
+        now = self.clock.now_ms() if now_ms is None else now_ms
+        for w in self._intruders:
+            intr = w.intruder
+            due = intr.next_wakeup_ms()
+            if due is None or due > now:
+                continue
+            if intr.state is IntruderState.ABSENT:
+                if self._oracle is None or not self._oracle.running:
+                    continue  # the run has not started: T_a is counted from its start
+                self._report(intr.appear(now, self._auto_target(now)))
+            else:
+                self._report(intr.wake(now))
+        self._intruders = [w for w in self._intruders
+                           if w.intruder.state is not IntruderState.GONE or w.auto]
+
+    def _auto_target(self, now: float) -> tuple[int, Cell] | None:
+        oracle = self._oracle
+        assert oracle is not None
+        plan_id = oracle.plan_id
+        next_action = [0] * len(oracle.paths())
+        for k in range(len(next_action)):
+            robot = self.robots.get(k)
+            if robot is not None and robot.plan == plan_id:
+                next_action[k] = robot.next_action
+        return pick_target(self._rng, oracle.paths(), next_action, oracle.start_ms,
+                           now + self._intruder_config.lead_ms)
+
+    def next_world_wakeup_ms(self) -> float | None:
+        """When :meth:`poll_world` has something to do next."""
+        dues = [d for w in self._intruders if (d := w.intruder.next_wakeup_ms()) is not None]
+        return min(dues, default=None)
+
+    async def _poll_loop(self) -> None:
+        """Poll the intruders at every multiple of ``recheck_ms`` (when no driver does it)."""
+        step = self.recheck_ms
+        while not self.stopping:
+            t = (self.clock.now_ms() // step + 1) * step
+            await self.clock.sleep_until_ms(t)
+            self.poll_world(t)
+
+    def _report(self, events: Iterable[Any]) -> None:
+        for e in events:
+            if self._world_conn is None:
+                continue
+            seq = next(self._world_seq)
+            text = encode(IntruderReport(msg_id=f"w-{seq}", seq=seq, cell=e.cell,
+                                         state=e.state))
+            task = asyncio.get_running_loop().create_task(self._world_send(text))
+            self._tasks.append(task)
+
+    async def _world_send(self, text: str) -> None:
+        conn = self._world_conn
+        if conn is not None:
+            with contextlib.suppress(ConnectionClosed):
+                await conn.send(text)
+
+
+# ---------------------------------------------------------------------- in-process runs
+class EngineOracle:
+    """The automatic intruder's view of a gateway engine in the same process."""
+
+    def __init__(self, engine: Engine) -> None:
+        self._engine = engine
+
+    @property
+    def running(self) -> bool:
+        """True once an execution started."""
+        return self._engine.executor is not None
+
+    @property
+    def plan_id(self) -> int:
+        """Number of the plan being executed."""
+        ex = self._engine.executor
+        assert ex is not None
+        return ex.plan_id
+
+    def paths(self) -> Sequence[Path]:
+        """The current plan's paths."""
+        ex = self._engine.executor
+        assert ex is not None
+        return ex.plan.paths
+
+    def start_ms(self, robot: int, action: int) -> float:
+        """The monitor's estimated start of an action."""
+        ex = self._engine.executor
+        assert ex is not None
+        return ex.monitor.start_ms(robot, action)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One execution through a gateway with a simulated fleet (times in plan ms)."""
+
+    soc_ms: float
+    makespan_ms: float
+    plan_soc: int
+    replans: int
+    replan_at_ms: float | None
+    solver_ms: float
+    collisions: int
+
+    def summary(self) -> dict[str, object]:
+        """The ``fleetgate simulate --json`` object (DESIGN section 3)."""
+        return {"soc_ms": self.soc_ms, "makespan_ms": self.makespan_ms,
+                "plan_soc": self.plan_soc, "replans": self.replans,
+                "replan_at_ms": self.replan_at_ms, "solver_ms": self.solver_ms,
+                "collisions": self.collisions}
+
+
+async def run_in_process(gateway: Gateway, problem: Problem, connect: Connect, *,
+                         seed: int = 0, intruder: bool = True,
+                         intruder_config: IntruderConfig | None = None,
+                         poll_at_ticks: bool = True, send_state: bool = False,
+                         fleet_ready: Callable[[SimFleet], None] | None = None) -> RunResult:
+    """Execute ``problem.plan`` on ``gateway`` with a simulated fleet connected by
+    ``connect`` (in-memory for driver 2, websockets for the demo) and return the result.
+
+    With ``poll_at_ticks`` the intruder is stepped at the gateway's monitor ticks, after the
+    robot events of that instant and before the tick (the discrete-event driver's order).
+    ``fleet_ready`` is called with the fleet once every robot is connected, before the start.
+    """
+    plan = problem.plan
+    if plan is None:
+        raise ValueError("the problem has no plan to execute")
+    engine = gateway.engine
+    fleet = SimFleet(connect, range(len(plan.paths)), clock=gateway.clock,
+                     world_token=gateway.config.tokens.world[0],
+                     oracle=EngineOracle(engine) if intruder else None, seed=seed,
+                     intruder_config=intruder_config, send_state=send_state,
+                     external_poll=poll_at_ticks)
+    replan_at: list[float] = []
+
+    def on_status(status: str) -> None:
+        if status == "replanning" and not replan_at:
+            replan_at.append(engine.now_ms())
+
+    if poll_at_ticks:
+        engine.before_tick.append(fleet.poll_world)
+    engine.status_listeners.append(on_status)
+    try:
+        engine.load(problem)
+        await fleet.start()
+        await fleet.wait_connected()
+        if fleet_ready is not None:
+            fleet_ready(fleet)
+        error, detail = await gateway.command(Start(msg_id="run-start", seq=0))
+        if error is not None:
+            raise RuntimeError(f"the gateway refused to start: {detail}")
+        soc, makespan = await gateway.wait_done()
+        ex = engine.executor
+        assert ex is not None
+        return RunResult(soc_ms=soc, makespan_ms=makespan, plan_soc=plan.soc,
+                         replans=ex.replans, replan_at_ms=replan_at[0] if replan_at else None,
+                         solver_ms=engine.solver_ms, collisions=len(fleet.world.collisions))
+    finally:
+        engine.status_listeners.remove(on_status)
+        if poll_at_ticks:
+            engine.before_tick.remove(fleet.poll_world)
+        await fleet.stop()
