@@ -3,7 +3,8 @@
 Vertices are numbered robot by robot: robot ``k`` owns the ids ``first[k] .. first[k+1]-1`` in
 the order of its path, so its Type 1 predecessor of ``v`` is ``v - 1`` (when ``v > first[k]``).
 Type 2 edges are stored twice, CSR-style: ``t2_pred[t2_pred_ptr[v]:t2_pred_ptr[v+1]]`` are the
-tails of the Type 2 edges into ``v`` and ``t2_succ[...]`` the heads of those out of ``v``.
+tails of the Type 2 edges into ``v`` and ``t2_succ[...]`` the heads of those out of ``v``;
+``pred``/``succ`` (with ``pred_ptr``/``succ_ptr``) hold all edges, Type 1 included.
 """
 
 from __future__ import annotations
@@ -70,6 +71,12 @@ class ADG:
         edges = self._type2_edges()
         self.t2_pred_ptr, self.t2_pred = _csr(self.n_vertices, [(h, t) for t, h in edges])
         self.t2_succ_ptr, self.t2_succ = _csr(self.n_vertices, [(t, h) for t, h in edges])
+        # all edges (Type 1 and 2) in CSR form, for the monitor's inner loop
+        firsts = set(self.first)
+        self.is_first = bytearray(v in firsts for v in range(self.n_vertices))
+        type1 = [(v - 1, v) for v in range(self.n_vertices) if not self.is_first[v]]
+        self.pred_ptr, self.pred = _csr(self.n_vertices, [(h, t) for t, h in edges + type1])
+        self.succ_ptr, self.succ = _csr(self.n_vertices, [(t, h) for t, h in edges + type1])
         # Every edge goes from path index i to a larger one, so (i, robot) is a topological order.
         self.order: list[int] = sorted(
             range(self.n_vertices), key=lambda v: (self.step_of[v], self.robot_of[v])
@@ -125,23 +132,15 @@ class ADG:
 
     def t1_pred(self, v: int) -> int:
         """The robot's previous action's vertex, or -1 for its first action."""
-        return v - 1 if v > self.first[self.robot_of[v]] else -1
-
-    def t1_succ(self, v: int) -> int:
-        """The robot's next action's vertex, or -1 for its last action."""
-        return v + 1 if v + 1 < self.first[self.robot_of[v] + 1] else -1
+        return -1 if self.is_first[v] else v - 1
 
     def predecessors(self, v: int) -> list[int]:
-        """All vertices with an edge into ``v`` (Type 1 first)."""
-        p = self.t1_pred(v)
-        t2 = self.t2_pred[self.t2_pred_ptr[v] : self.t2_pred_ptr[v + 1]]
-        return [p, *t2] if p >= 0 else t2
+        """All vertices with an edge into ``v`` (ascending ids)."""
+        return self.pred[self.pred_ptr[v] : self.pred_ptr[v + 1]]
 
     def successors(self, v: int) -> list[int]:
-        """All vertices with an edge out of ``v`` (Type 1 first)."""
-        s = self.t1_succ(v)
-        t2 = self.t2_succ[self.t2_succ_ptr[v] : self.t2_succ_ptr[v + 1]]
-        return [s, *t2] if s >= 0 else t2
+        """All vertices with an edge out of ``v`` (ascending ids)."""
+        return self.succ[self.succ_ptr[v] : self.succ_ptr[v + 1]]
 
     def type2_edges(self) -> Iterator[tuple[int, int, int, int]]:
         """Type 2 edges as ``(robot, action, robot2, action2)``, tail first."""

@@ -22,7 +22,8 @@ oracle and ``bench/monitor.py`` as the baseline.
 from __future__ import annotations
 
 import heapq
-from collections.abc import Sequence
+import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from gateway.execution.adg import ADG
@@ -64,9 +65,8 @@ class Monitor:
         self._state = bytearray(nv)
         self._remaining = [0] * nv  # unfinished predecessors
         for v in range(nv):
-            self._remaining[v] = len(adg.predecessors(v))
+            self._remaining[v] = adg.pred_ptr[v + 1] - adg.pred_ptr[v]
         self._ts = [0.0] * nv
-        self._tc = [0.0] * nv
         self._delta = [0.0] * nv
         self._next = list(adg.first[:-1])  # each robot's first unfinished vertex
         # frontier clamping: (threshold, vertex, kind); the vertex's value follows `now` once
@@ -74,67 +74,69 @@ class Monitor:
         self._thresholds: list[tuple[float, int, int]] = []
         self._active: set[int] = set()
         self._queued = bytearray(nv)
-        for v in adg.order:
-            self._ts[v], self._tc[v] = self._estimate(v)
-            self._delta[v] = self._slack(v)
-            if self._remaining[v] == 0:
-                heapq.heappush(self._thresholds, (self._ts[v], v, _READY_KIND))
-        self._delta0 = list(self._delta)
+        self._tc = [math.nan] * nv  # every vertex "changes" on the first evaluation
+        self._delta0 = self._delta  # placeholder until the initial estimate is known
         # lazy max-heaps of Δ̄ over not-started vertices: (-Δ̄, vertex, version)
         self._version = [0] * nv
         self._fleet: list[tuple[float, int, int]] = []
         self._robot_heaps: list[list[tuple[float, int, int]]] = [[] for _ in range(n)]
+        self._propagate(range(nv))
+        for v in range(nv):
+            if self._remaining[v] == 0:
+                heapq.heappush(self._thresholds, (self._ts[v], v, _READY_KIND))
+        self._delta0 = list(self._delta)
         self._rebuild_heaps()
 
     # ----------------------------------------------------------------- evaluation
-    def _estimate(self, v: int) -> tuple[float, float]:
-        """(t_s, t_c) of ``v`` from its predecessors' current values and the present."""
-        state = self._state[v]
-        if state == DONE:
-            return self._ts[v], self._tc[v]
-        if state == STARTED:
-            ts = self._ts[v]
-            return ts, max(ts + self.action_ms, self.now_ms)
-        preds = self.adg.predecessors(v)
-        tc = self._tc
-        ts = max(tc[p] for p in preds) if preds else self.release_ms[self.adg.robot_of[v]]
-        if self._remaining[v] == 0:
-            ts = max(ts, self.now_ms)
-        return ts, ts + self.action_ms
+    def _propagate(self, seeds: Iterable[int]) -> None:
+        """Re-evaluate ``seeds`` and, in topological order, every descendant whose inputs moved.
 
-    def _slack(self, v: int) -> float:
-        """Δ(v): the largest δ over v's incoming Type 2 edges, at least 0."""
+        A vertex's (t_s, t_c) follow from its predecessors' t_c (or its robot's release time),
+        its real times and the clamping time; its Δ from its Type 2 tails' t_c and its Type 1
+        predecessor's t_c. Successors are re-evaluated only if t_c changed.
+        """
         adg = self.adg
-        lo, hi = adg.t2_pred_ptr[v], adg.t2_pred_ptr[v + 1]
-        if lo == hi:
-            return 0.0
-        p = adg.t1_pred(v)
-        prev = self._tc[p] if p >= 0 else self.release_ms[adg.robot_of[v]]
-        tc = self._tc
-        return max(0.0, max(tc[u] for u in adg.t2_pred[lo:hi]) - prev)
-
-    def _propagate(self, seeds: Sequence[int]) -> None:
-        """Re-evaluate ``seeds`` and, in topological order, every descendant whose inputs moved."""
-        topo, queued = self.adg.topo, self._queued
+        topo, queued = adg.topo, self._queued
+        pred_ptr, pred, succ_ptr, succ = adg.pred_ptr, adg.pred, adg.succ_ptr, adg.succ
+        t2_ptr, t2, is_first, robot_of = adg.t2_pred_ptr, adg.t2_pred, adg.is_first, adg.robot_of
+        state, remaining, release = self._state, self._remaining, self.release_ms
+        ts_of, tc_of, delta = self._ts, self._tc, self._delta
+        now, tx = self.now_ms, self.action_ms
         heap: list[tuple[int, int]] = []
         for v in seeds:
             if not queued[v]:
                 queued[v] = 1
                 heap.append((topo[v], v))
         heapq.heapify(heap)
-        adg = self.adg
         while heap:
             _, v = heapq.heappop(heap)
             queued[v] = 0
-            ts, tc = self._estimate(v)
-            self._ts[v] = ts
-            d = self._slack(v)
-            if d != self._delta[v]:
-                self._delta[v] = d
-                self._push_slack(v)
-            if tc != self._tc[v]:
-                self._tc[v] = tc
-                for w in adg.successors(v):
+            st = state[v]
+            if st == DONE:
+                tc = tc_of[v]
+            elif st == STARTED:
+                tc = ts_of[v] + tx
+                if tc < now:
+                    tc = now
+            else:
+                lo, hi = pred_ptr[v], pred_ptr[v + 1]
+                ts = max([tc_of[p] for p in pred[lo:hi]]) if lo < hi else release[robot_of[v]]
+                if ts < now and remaining[v] == 0:
+                    ts = now
+                ts_of[v] = ts
+                tc = ts + tx
+            lo, hi = t2_ptr[v], t2_ptr[v + 1]
+            if lo < hi:
+                prev = release[robot_of[v]] if is_first[v] else tc_of[v - 1]
+                d = max([tc_of[u] for u in t2[lo:hi]]) - prev
+                if d < 0.0:
+                    d = 0.0
+                if d != delta[v]:
+                    delta[v] = d
+                    self._push_slack(v)
+            if tc != tc_of[v]:
+                tc_of[v] = tc
+                for w in succ[succ_ptr[v] : succ_ptr[v + 1]]:
                     if not queued[w]:
                         queued[w] = 1
                         heapq.heappush(heap, (topo[w], w))
