@@ -71,7 +71,7 @@ def test_bad_plans_and_lookups_are_rejected() -> None:
         adg.vertex(0, 4)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(seed=st.integers(0, 10**6), robots=st.integers(1, 6), horizon=st.integers(1, 14),
        drop_waits=st.booleans())
 def test_edges_match_the_all_pairs_definition(seed: int, robots: int, horizon: int,

@@ -142,3 +142,15 @@ def test_corridor_slack_policy_triggers_at_first_tick_above_threshold() -> None:
     assert m.start_ms(RED, 0) == 3500 and m.start_ms(BLUE, 1) == 4500
     assert m.initial_slack(BLUE, 1) == 0 and m.fleet_slack() == 0
     assert m.estimated_soc_ms() == 6500 + 6500
+
+
+def test_long_delay_keeps_slack_exact_through_heap_compaction() -> None:
+    # Same corridor, red's r0 stuck for 30 s: every tick raises Δ(b1) (one heap push each),
+    # far more pushes than the 2 V + 64 entries that trigger a compaction of the lazy heaps.
+    ex = Executor(Plan.of(CORRIDOR))
+    _corridor_until_red_finishes(ex)
+    m = ex.monitor
+    for t in range(1100, 31_000, 100):
+        ex.tick(t)
+        assert m.fleet_slack() == m.robot_slack(BLUE) == t - 1000
+        assert m.robot_slack(RED) == 0

@@ -20,10 +20,10 @@ from tests.execution.support import Driver, random_robust_plan
 @st.composite
 def plans(draw: st.DrawFn) -> list[list[tuple[int, int]]]:
     """A random 1-robust plan on a small grid (crowded enough for many Type 2 edges)."""
-    width, height = draw(st.integers(3, 5)), draw(st.integers(2, 4))
-    robots = draw(st.integers(1, min(5, width * height // 2)))
+    width, height = draw(st.integers(3, 6)), draw(st.integers(2, 5))
+    robots = draw(st.integers(1, min(7, width * height // 2)))
     return random_robust_plan(draw(st.integers(0, 10**6)), width, height, robots,
-                              draw(st.integers(1, 12)))
+                              draw(st.integers(1, 14)))
 
 
 
@@ -32,7 +32,7 @@ def _kept(plan: Plan, drop_waits: bool) -> set[tuple[int, int]]:
             if not (drop_waits and p[i] == p[i + 1])}
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(paths=plans(), seed=st.integers(0, 10**6), drop_waits=st.booleans())
 def test_retiming_runs_every_action_exactly_once_in_order(
         paths: list[list[tuple[int, int]]], seed: int, drop_waits: bool) -> None:
@@ -53,7 +53,7 @@ def test_retiming_runs_every_action_exactly_once_in_order(
         assert last[k] >= 700 * n
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(paths=plans(), seed=st.integers(0, 10**6), drop_waits=st.booleans(),
        replan_at=st.integers(0, 8000), max_replans=st.integers(1, 3),
        abandon=st.sampled_from([0.0, 0.5]), slack=st.booleans())
