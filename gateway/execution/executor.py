@@ -173,7 +173,7 @@ class Executor:
         if not (math.isfinite(now_ms) and now_ms >= 0):
             raise ExecutionError(f"start time must be a finite number >= 0, got {now_ms}")
         self.mode = Mode.RUNNING
-        self._now = float(now_ms)
+        self._now = now_ms  # kept as given (trace t_ms)
         if now_ms != 0.0:
             self._install(self.plan, self.adg, 0, self._now)
         self._adopted()
@@ -301,7 +301,7 @@ class Executor:
     # ------------------------------------------------------------------ internals
     def _advance(self, now_ms: float) -> None:
         """Accept ``now_ms`` as the present (the monitor's clamping moves only at ticks)."""
-        self._now = float(now_ms)
+        self._now = now_ms  # kept as given (trace t_ms)
 
     def _trace(self, kind: str, robot: int, action: int) -> None:
         if self._record is not None:

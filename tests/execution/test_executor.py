@@ -54,7 +54,22 @@ def test_start_emits_plan_and_trace_records() -> None:
         ("start", 10.0), ("blocked", 20.0), ("unblocked", 30.0), ("start", 30.0),
         ("finish", 1010.0), ("dispatch", 1010.0)]
     assert ex.robot_cell(A) == (1, 1) and ex.robot_cell(B) == (1, 0)
+    assert isinstance(log[3]["t_ms"], int)  # t_ms exactly as the driver gave it
     assert MONITOR_PERIOD_MS == 100
+
+
+def test_drop_waits_dispatches_path_indices_and_skips_waits() -> None:
+    ex = Executor(Plan.of(CROSSING), drop_waits=True)
+    ex.start(0)
+    assert _dispatches(ex) == [(A, 0)]
+    ex.started(A, 0, 0, 0)
+    ex.finished(A, 0, 0, 1000)
+    ex.started(A, 0, 1, 1000)
+    ex.finished(A, 0, 1, 2000)
+    assert ex.drain() == [Dispatch(0, A, 1, (1, 1), (2, 1), 1000.0),
+                          Dispatch(0, B, 2, (1, 0), (1, 1), 1000.0)]
+    with pytest.raises(ExecutionError, match="is a wait"):
+        ex.started(B, 0, 1, 2000)
 
 
 def test_a_plan_without_actions_completes_at_start() -> None:
