@@ -121,6 +121,8 @@ class SimResult:
     collisions: int
     robot_blocks: int
     """Times a robot found its next cell held by another robot (the ADG should prevent it)."""
+    intruder_robot: int | None
+    """The robot the intruder went for (None if it had no target)."""
     intruder_cell: Cell | None
     intruder_on_ms: float | None
     """When the intruder entered its cell; None if it never did."""
@@ -220,6 +222,7 @@ class _Simulation:
             plan_soc=self.cfg.plan.soc, plan_makespan=self.cfg.plan.makespan,
             replans=self.replans, replan_at_ms=self.replan_at, solver_ms=self.solver_ms,
             collisions=len(self.world.collisions), robot_blocks=self.robot_blocks,
+            intruder_robot=intr.robot if intr is not None else None,
             intruder_cell=intr.cell if intr is not None and intr.entered_ms is not None
             else None,
             intruder_on_ms=intr.entered_ms if intr is not None else None, end_ms=now)

@@ -119,7 +119,7 @@ class SimRobot:
         self.state = RobotState.IDLE
         self._current = None
         self._wake = None
-        self._last = (plan, action)
+        self._last = None  # a cancelled action may be dispatched again (replan abandoned)
         return [RobotEvent("cancelled", self.robot, plan, action, now_ms)]
 
     def wake(self, now_ms: float) -> list[RobotEvent]:

@@ -99,6 +99,7 @@ class ExecState:
 
     graph: PlanGraph
     dispatched: set[Act] = field(default_factory=set)
+    cancelled: set[Act] = field(default_factory=set)
     started: dict[Act, float] = field(default_factory=dict)
     finished: dict[Act, float] = field(default_factory=dict)
 
@@ -267,22 +268,22 @@ class _Replay:
             return
         src, dst = st.graph.paths[k][i], st.graph.paths[k][i + 1]
         if kind == "dispatch":
-            if a in st.dispatched:
+            if a in st.dispatched and a not in st.cancelled:
                 self.error(where, f"action {a} dispatched twice")
+            st.cancelled.discard(a)
             missing = [p for p in st.graph.preds[a] if p not in st.finished]
             if missing:
                 self.error(where, f"action {a} dispatched before {missing} finished")
             st.dispatched.add(a)
-        elif kind in ("blocked", "unblocked"):
-            if a not in st.dispatched or a in st.started:
+        elif kind in ("blocked", "unblocked", "cancel"):
+            # the executor records a cancel when the robot confirms it did not move
+            if a not in st.dispatched or a in st.started or a in st.cancelled:
                 self.error(where, f"{kind} of action {a} that is not waiting to start")
-        elif kind == "cancel":
-            # a robot may already be moving when the cancel goes out; it then finishes
-            if a not in st.dispatched:
-                self.error(where, f"cancel of action {a} that was never dispatched")
+            if kind == "cancel":
+                st.cancelled.add(a)
         elif kind == "start":
-            if a not in st.dispatched:
-                self.error(where, f"action {a} started without dispatch")
+            if a not in st.dispatched or a in st.cancelled:
+                self.error(where, f"action {a} started without (a standing) dispatch")
             if a in st.started:
                 self.error(where, f"action {a} started twice")
                 return

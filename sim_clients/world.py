@@ -63,7 +63,3 @@ class World:
         holders.remove(who)
         if not holders:
             del self._holders[cell]
-
-    def occupied(self) -> dict[Cell, tuple[int, ...]]:
-        """A snapshot of every taken cell and its occupants."""
-        return {cell: tuple(h) for cell, h in self._holders.items()}

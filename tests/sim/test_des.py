@@ -45,7 +45,8 @@ def scenarios(draw: st.DrawFn) -> tuple[SimConfig, dict[tuple[int, int], int]]:
         intruder=draw(st.sampled_from([True, True, False])),
         policy=draw(st.sampled_from(["none", "random", "slack"])),
         threshold_ms=draw(st.sampled_from([0, 500, 2000])), solver_time="zero",
-        solver_time_limit_s=5.0, intruder_config=intruder,
+        # a vanishing planner time limit makes replans fail: execution resumes the old plan
+        solver_time_limit_s=draw(st.sampled_from([5.0, 5.0, 1e-9])), intruder_config=intruder,
         extra_delay=lambda plan_id, robot, action: float(delays.get((robot, action), 0)),
         stall_ms=120_000.0)
     return config, delays
@@ -123,3 +124,23 @@ def test_bad_configs_are_refused() -> None:
         SimConfig(open_grid(1, 1), plan)
     with pytest.raises(ValueError, match="solver time"):
         SimConfig(open_grid(2, 1), plan, solver_time="later")  # type: ignore[arg-type]
+
+
+def test_an_abandoned_replan_resumes_the_old_plan() -> None:
+    # a slack trigger while the intruder blocks a robot cancels that robot's action; the
+    # planner gets no time, so the executor resumes plan 0 and dispatches the action again
+    grid = open_grid(5, 5)
+    for seed in (0, 1, 2):
+        plan = random_plan(grid, 7, 14, random.Random(seed))
+        config = SimConfig(grid, plan, seed=seed, policy="slack", threshold_ms=0.0,
+                           solver_time="zero", solver_time_limit_s=1e-9,
+                           intruder_config=IntruderConfig(appear_ms=1000, leave_ms=8000))
+        result, records = traced(config)
+        cancels = [(r["robot"], r["action"]) for r in records if r["type"] == "cancel"]
+        assert cancels and result.replans == 0 and result.replan_at_ms is not None
+        redispatched = [(r["robot"], r["action"]) for r in records
+                        if r["type"] == "dispatch" and (r["robot"], r["action"]) in cancels]
+        assert len(redispatched) == 2 * len(cancels)
+        report = check_trace(records)
+        assert report.ok, report.errors
+        assert report.actions_run == sum(len(p) - 1 for p in plan.paths)

@@ -81,6 +81,18 @@ def test_cancel_only_while_blocked() -> None:
     assert kinds(r.wake(1030.0)) == [("finished", 1030.0)]
 
 
+def test_a_cancelled_action_can_be_dispatched_again() -> None:
+    # the replan was abandoned: the executor dispatches the same action of the old plan again
+    w = World([(0, 0), (1, 0)])
+    r = SimRobot(0, w, (0, 0))
+    d = Dispatch(0, 0, 2, (0, 0), (1, 0), 1000.0)
+    r.dispatch(d, 0.0)
+    r.cancel(0, 2, 100.0)
+    assert kinds(r.dispatch(d, 300.0)) == [("blocked", 300.0)]
+    w.release((1, 0), 1)
+    assert kinds(r.wake(400.0)) == [("unblocked", 400.0), ("started", 400.0)]
+
+
 def test_bad_dispatches_are_refused_and_duplicates_dropped() -> None:
     w = World([(0, 0), (5, 5)])
     r = SimRobot(0, w, (0, 0))

@@ -123,6 +123,19 @@ def test_replan_must_start_where_robots_stand() -> None:
     assert report.plans == 2 and report.soc_ms == 4000
 
 
+def test_cancelled_action_may_be_dispatched_again_but_not_started_without() -> None:
+    # robot 1 is blocked, its action 1 cancelled (a replan that was then abandoned) and
+    # dispatched again: fine. Starting it while cancelled is not.
+    head = [*ordered(plan_record(0, 0, PATHS), *run(0, 0, 0, 1000), *run(1, 0, 0, 1000)),
+            ev(1000, "dispatch", 1, 1), ev(1000, "blocked", 1, 1), ev(1200, "cancel", 1, 1)]
+    tail = [ev(1300, "start", 1, 1), ev(2300, "finish", 1, 1), *run(0, 1, 2300, 3300),
+            *run(1, 2, 3300, 4300), summary_record(3300 + 4300, 4300)]
+    report = check_trace([*head, ev(1300, "dispatch", 1, 1), *tail])
+    assert report.ok, report.errors
+    report = check_trace([*head, *tail])
+    assert any("started without (a standing) dispatch" in e for e in report.errors)
+
+
 def test_slack_over_time() -> None:
     # robot 0's action 1 starts at 1000 and has not finished at 2600: estimated to finish at
     # 2600 (clamped by the present), so robot 1's entry into (1,0), planned right after its
