@@ -20,19 +20,16 @@ from dataclasses import dataclass
 from heapq import heappop, heappush
 
 from gateway.planning.cbs_conflicts import Branch, Conflict, pair_conflicts, rectangle
-from gateway.planning.constraints import Constraint, ConstraintTable, build_table
+from gateway.planning.constraints import ConstraintTable, build_table
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.low_level import (
     AvoidanceTable,
-    OmniModel,
     build_mdd,
     mdd_always_visits,
     space_time_astar,
 )
 from gateway.planning.plan import Deadline, NoSolution, Plan, Solution
-
-Forbidden = tuple[Cell, int, int]
-"""``(cell, t0, t1)``: no agent may be on the cell at any timestep in ``[t0, t1]``."""
+from gateway.planning.problem import Forbidden, Problem
 
 NON_CARDINAL, SEMI_CARDINAL, CARDINAL = 0, 1, 2
 
@@ -91,23 +88,16 @@ class _Search:
         deadline: Deadline,
         options: CBSOptions,
     ) -> None:
-        _check_instance(grid, starts, goals)
+        problem = Problem(grid, starts, goals, forbidden)
         self.grid = grid
-        self.model = OmniModel(grid)
-        self.size = grid.size
-        self.starts = [self.model.state(grid.index(c)) for c in starts]
-        self.goals = [grid.index(c) for c in goals]
-        self.h = [self.model.heuristic(g) for g in self.goals]
-        for k, (s, hk) in enumerate(zip(self.starts, self.h, strict=True)):
-            if hk[s] < 0:
-                raise NoSolution(f"agent {k} cannot reach its goal {goals[k]} from {starts[k]}")
-        self.base: list[Constraint] = []
-        for cell, t0, t1 in forbidden:
-            if not grid.is_free(cell):
-                raise ValueError(f"forbidden cell {cell} is not a free cell of {grid!r}")
-            self.base.append((grid.index(cell), int(t0), int(t1)))
-        self.start_cells: list[Cell] = [(int(x), int(y)) for x, y in starts]
-        self.goal_cells: list[Cell] = [(int(x), int(y)) for x, y in goals]
+        self.model = problem.model
+        self.size = problem.size
+        self.starts = problem.starts
+        self.goals = problem.goals
+        self.h = problem.h
+        self.base = problem.base
+        self.start_cells = problem.start_cells
+        self.goal_cells = problem.goal_cells
         self.manhattan = [
             abs(s[0] - g[0]) + abs(s[1] - g[1])
             for s, g in zip(self.start_cells, self.goal_cells, strict=True)
@@ -356,18 +346,6 @@ def min_vertex_cover(edges: Sequence[tuple[int, int]]) -> int:
         return best
 
     return cover(frozenset(edges))
-
-
-def _check_instance(grid: Grid, starts: Sequence[Cell], goals: Sequence[Cell]) -> None:
-    """Raise ValueError unless starts and goals are free, distinct and as many as each other."""
-    if len(starts) != len(goals):
-        raise ValueError(f"{len(starts)} starts but {len(goals)} goals")
-    for what, cells in (("start", starts), ("goal", goals)):
-        for k, c in enumerate(cells):
-            if not grid.is_free(c):
-                raise ValueError(f"{what} {c} of agent {k} is not a free cell of {grid!r}")
-        if len(set(map(tuple, cells))) != len(cells):
-            raise ValueError(f"two agents share a {what} cell")
 
 
 def solve_cbs(

@@ -7,11 +7,12 @@ number ``(cell, heading)`` pairs and map each to its cell through ``cells``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from heapq import heappop, heappush
 
 from gateway.planning.constraints import INF, ConstraintTable
-from gateway.planning.distance import distance_table
+from gateway.planning.distance import distance_tables
 from gateway.planning.grid import Grid
 from gateway.planning.plan import Deadline, NoSolution
 
@@ -42,9 +43,10 @@ class OmniModel:
         """The state of an agent standing on ``cell`` at the start."""
         return cell
 
-    def heuristic(self, goal: int) -> list[int]:
-        """Exact moves-to-go from every state to ``goal`` (-1 where unreachable)."""
-        result: list[int] = distance_table(self.grid, self.grid.cell(goal)).tolist()
+    def heuristics(self, goals: Sequence[int]) -> list[list[int]]:
+        """For each goal cell, exact moves-to-go from every state (-1 where unreachable)."""
+        cell = self.grid.cell
+        result: list[list[int]] = distance_tables(self.grid, [cell(g) for g in goals]).tolist()
         return result
 
 
@@ -70,12 +72,14 @@ def space_time_astar(
     table: ConstraintTable,
     avoid: AvoidanceTable | None,
     deadline: Deadline,
+    max_expansions: int | None = None,
 ) -> list[int] | None:
     """A cheapest path of states from ``start`` that ends on cell ``goal`` and may stay there.
 
     The path ends at time T with ``T > table.goal_block(goal)``, so staying on the goal after T
     breaks no constraint. Among cheapest paths it returns one with fewest conflicts counted by
-    ``avoid``. Returns None if no path exists; raises ``NoSolution(timed_out=True)`` when the
+    ``avoid``. Returns None if no path exists (or none was found within ``max_expansions``
+    expansions, if given); raises ``NoSolution(timed_out=True)`` when the
     deadline expires.
     """
     size = table.size
@@ -92,14 +96,15 @@ def space_time_astar(
     nstates = len(succ)
     floor = goal_block + 1
     f0 = max(h[start], floor)
-    open_list: list[tuple[int, int, int, int, int, object]] = [(f0, 0, 0, 0, start, None)]
+    open_list: list[tuple[int, int, int, int, int, int, object]] = [
+        (f0, 0, h[start], 0, start, 0, None)
+    ]
     closed: set[int] = set()
     tie = 0
     expanded = 0
     while open_list:
         entry = heappop(open_list)
-        _, nc, negt, _, s, _ = entry
-        t = -negt
+        _, nc, _, _, s, t, _ = entry
         key = (t if t < horizon else horizon) * nstates + s
         if key in closed:
             continue
@@ -109,12 +114,15 @@ def space_time_astar(
             node: object = entry
             while node is not None:
                 path.append(node[4])  # type: ignore[index]
-                node = node[5]  # type: ignore[index]
+                node = node[6]  # type: ignore[index]
             path.reverse()
             return path
         expanded += 1
-        if expanded % DEADLINE_EVERY == 0 and deadline.expired():
-            raise NoSolution("deadline expired in the low-level search", timed_out=True)
+        if expanded % DEADLINE_EVERY == 0:
+            if deadline.expired():
+                raise NoSolution("deadline expired in the low-level search", timed_out=True)
+            if max_expansions is not None and expanded >= max_expansions:
+                return None
         nt = t + 1
         tk = nt * size
         ckey = (nt if nt < horizon else horizon) * nstates
@@ -138,7 +146,7 @@ def space_time_astar(
                 if st is not None and nt >= st:
                     nu += 1
             tie += 1
-            heappush(open_list, (fu, nu, -nt, tie, u, entry))
+            heappush(open_list, (fu, nu, hu, tie, u, nt, entry))
     return None
 
 
