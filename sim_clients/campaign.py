@@ -164,14 +164,6 @@ class CampaignSpec:
         if self.plan_time_limit_s <= 0:
             raise CampaignError("--plan-time-limit must be positive")
 
-    @staticmethod
-    def paper(**overrides: Any) -> CampaignSpec:
-        """The paper's protocol: 13 groups x 20 instances x 5 seeds = 1300 experiments."""
-        args: dict[str, Any] = {"groups": PAPER_GROUPS, "instances": PAPER_INSTANCES,
-                                "seeds": PAPER_SEEDS}
-        args.update(overrides)
-        return CampaignSpec(**args)
-
     def settings(self) -> dict[str, Any]:
         """The settings that change results; an output folder is only reused with equal ones."""
         return {"seed": self.seed, "plan_time_limit_s": self.plan_time_limit_s,

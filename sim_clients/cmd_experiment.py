@@ -215,6 +215,9 @@ def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) 
                   str(times["slack"]["n"]), paper.get("slack_ms", ""))
     table.add_row("random replan ms med/mean/max", _times(times["random"]), "",
                   str(times["random"]["n"]), paper.get("random_ms", ""))
+    failed = g["replans_without_plan"]
+    table.add_row("replans with no plan in time", f"{failed['slack']} / {failed['random']}",
+                  "slack / random", "", "")
     out = g["outliers"]
     rules = ", ".join(f"{k} {v}" for k, v in out["by_rule"].items() if v)
     table.add_row("outliers (not in M)",
@@ -268,14 +271,16 @@ def run(args: argparse.Namespace) -> int:
         except CampaignError as exc:
             raise UsageError(str(exc)) from None
     wall = time.perf_counter() - began
-    summary = summarize(result.rows, rules, seed=args.seed, resamples=args.resamples)
+    order = [m for m, _ in spec.groups]
+    summary = summarize(result.rows, rules, seed=args.seed, resamples=args.resamples,
+                        maps_first=order)
     summary["campaign"] = {"complete": result.complete, "instances_planned": result.planned,
                            "experiments_run": result.ran, "wall_s": round(wall, 3),
                            "failures": [asdict(f) for f in result.failures],
                            **spec.settings()}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     exps, _ = join_experiments(result.rows)
-    pictures = plot_all(exps, args.out)
+    pictures = plot_all(exps, args.out, order)
     out = Console()
     for table in summary_tables(summary):
         out.print(table)

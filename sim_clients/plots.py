@@ -20,7 +20,7 @@ matplotlib.use("Agg")  # before pyplot: files only, no display
 import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
 
-from sim_clients.stats import Experiment
+from sim_clients.stats import Experiment, map_order
 
 REPLANNED_LABELS = ("Replan", "No Replan")
 
@@ -32,9 +32,13 @@ def _boxes(ax: Axes, groups: Sequence[Sequence[float]], labels: Sequence[str]) -
     ax.axhline(0, color="grey", linewidth=0.8, linestyle="--")
 
 
-def plot_replan_decision(exps: Sequence[Experiment], path: Path) -> Path:
+BOX_NOTE = "boxes: quartiles and 1.5 IQR whiskers, line: median, triangle: mean"
+
+
+def plot_replan_decision(exps: Sequence[Experiment], path: Path,
+                         maps_first: Sequence[str] = ()) -> Path:
     """Per map: slack replanning frequency and the SOC difference, replanned vs not."""
-    maps = sorted({e.map for e in exps})
+    maps = map_order(exps, maps_first)
     fig, axes = plt.subplots(len(maps) or 1, 2, figsize=(9, 3.2 * max(1, len(maps))),
                              squeeze=False, gridspec_kw={"width_ratios": [1, 2]})
     for row, name in zip(axes, maps, strict=False):
@@ -47,15 +51,17 @@ def plot_replan_decision(exps: Sequence[Experiment], path: Path) -> Path:
         _boxes(row[1], [yes, no], REPLANNED_LABELS)
         row[1].set_ylabel("$T_c^P - T_c^R$ [ms]")
         row[1].set_title(f"{name}: SOC difference")
-    fig.tight_layout()
+    fig.text(0.99, 0.002, BOX_NOTE, ha="right", va="bottom", fontsize=7, color="grey")
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
 
 
-def plot_fleet_size(exps: Sequence[Experiment], path: Path) -> Path:
+def plot_fleet_size(exps: Sequence[Experiment], path: Path,
+                    maps_first: Sequence[str] = ()) -> Path:
     """Per map: the SOC difference per number of agents where both methods replanned."""
-    maps = sorted({e.map for e in exps})
+    maps = map_order(exps, maps_first)
     cols = 2 if len(maps) > 1 else 1
     rows = max(1, math.ceil(len(maps) / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.4 * rows), squeeze=False)
@@ -70,14 +76,16 @@ def plot_fleet_size(exps: Sequence[Experiment], path: Path) -> Path:
         ax.set_title(f"{name}: both methods replanned")
     for ax in flat[len(maps):]:
         ax.set_visible(False)
-    fig.tight_layout()
+    fig.text(0.99, 0.002, BOX_NOTE, ha="right", va="bottom", fontsize=7, color="grey")
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
 
 
-def plot_all(exps: Sequence[Experiment], folder: Path) -> list[Path]:
-    """Draw every figure into ``folder``; returns the files written."""
+def plot_all(exps: Sequence[Experiment], folder: Path,
+             maps_first: Sequence[str] = ()) -> list[Path]:
+    """Draw every figure into ``folder`` (maps ordered by :func:`map_order`); returns the files."""
     folder.mkdir(parents=True, exist_ok=True)
-    return [plot_replan_decision(exps, folder / "replan_decision.png"),
-            plot_fleet_size(exps, folder / "fleet_size.png")]
+    return [plot_replan_decision(exps, folder / "replan_decision.png", maps_first),
+            plot_fleet_size(exps, folder / "fleet_size.png", maps_first)]

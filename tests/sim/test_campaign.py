@@ -121,7 +121,8 @@ def test_plots_are_written(full: Path, tmp_path: Path) -> None:
 
 def test_cli_writes_results_summary_and_plots(full: Path, tmp_path: Path) -> None:
     out = tmp_path / "cli"
-    cmd = [sys.executable, "-m", "gateway.cli", "experiment", "--maps", "lab", "--agents", "5",
+    # The console script (``python -m gateway.cli`` would load a second copy of gateway.cli).
+    cmd = [str(Path(sys.executable).with_name("fleetgate")), "experiment", "--maps", "lab", "--agents", "5",
            "--instances", "2", "--seeds", "2", "--solver-time", "zero", "--plan-time-limit",
            "20", "--out", str(out), "--workers", "2", "--no-progress"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
@@ -130,7 +131,7 @@ def test_cli_writes_results_summary_and_plots(full: Path, tmp_path: Path) -> Non
     summary = json.loads((out / "summary.json").read_text())
     assert summary["all"]["experiments"] == 4 and summary["campaign"]["complete"]
     assert list(summary["maps"]) == ["lab"]
-    assert "Slack vs random replanning" in done.stdout and "lab" in done.stdout
+    assert "lab: 4 experiments" in done.stdout and "M^P %, slack replanned" in done.stdout
     for name in ("replan_decision.png", "fleet_size.png"):
         assert (out / name).stat().st_size > 5000
 

@@ -135,3 +135,21 @@ def test_bootstrap_interval_contains_the_mean(values: list[float], seed: int) ->
     slack = 1e-9 * max(1.0, max(abs(v) for v in values))
     assert lo - slack <= mean <= hi + slack
     assert min(values) - slack <= lo <= hi <= max(values) + slack
+
+
+def test_a_trigger_without_a_plan_still_counts_as_a_decision_to_replan() -> None:
+    # Slack triggered at 7000 ms but the solver found nothing in time (replanned = 0).
+    rows = _experiment("a", 1, 10000, 12000, 11500, 13000, slack_at=7000)
+    rows[3] = Row("a", 5, 1, 0, "slack", 13000, 2600, False, 7000.0, 10000.0)
+    exp = join_experiments(rows)[0][0]
+    assert exp.slack_replanned and not exp.slack_solved
+    g = summarize(rows, resamples=100)["maps"]["a"]
+    assert g["slack_replanned"] == 1
+    assert g["replans_without_plan"] == {"slack": 1, "random": 0}
+    assert g["solver_ms"]["slack"]["max"] == 10000
+
+
+def test_maps_keep_the_campaign_order() -> None:
+    rows = _experiment("zeta", 1, 10, 12, 11, 11, slack_at=None) + ROWS
+    assert list(summarize(rows, resamples=50, maps_first=["zeta", "a"])["maps"]) == ["zeta", "a"]
+    assert list(summarize(rows, resamples=50)["maps"]) == ["a", "zeta"]
