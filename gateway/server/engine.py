@@ -397,6 +397,8 @@ class Engine:
         for aid, h in list(rec.held.items()):
             if h.cancel and h.phase != "running" and aid != running:
                 self._catch_up(r, rec, aid, "cancelled", now)
+        if self.executor is not None:
+            self._route(self.executor.drain())  # unlocked actions go into the resend list
         rec.session = session
         self.metrics.connected_robots.inc()
         resend = [Action(msg_id=f"resend-{aid}", seq=0, **h.fields)
@@ -409,8 +411,6 @@ class Engine:
                 session.send(CancelAction, action_id=aid)
         self._broadcast_event("connection", now, robot=r, state="on")
         log.info("robot connected", extra={"robot": r, "resent": len(resend)})
-        if self.executor is not None:
-            self._route(self.executor.drain())
         self._maybe_autostart()
 
     def _start_pose(self, r: int) -> Pose | None:

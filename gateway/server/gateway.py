@@ -176,7 +176,8 @@ class Gateway:
         self._server = await serve(
             self._ws_handler, host or cfg.host, cfg.port if port is None else port,
             process_request=self._process_request, max_size=HARD_MAX_BYTES, compression=None,
-            ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s, max_queue=64)
+            ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s,
+            close_timeout=cfg.ping_timeout_s, max_queue=64)
         bound = int(self._server.sockets[0].getsockname()[1])
         log.info("listening", extra={"host": host or cfg.host, "port": bound})
         return bound

@@ -14,6 +14,7 @@ from gateway.planning.grid import Cell, Grid
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
 from gateway.planning.movingai import MapFormatError, read_map
 from gateway.planning.plan import Plan
+from gateway.planning.solver import solve
 from gateway.planning.validate import plan_violations
 
 
@@ -82,6 +83,5 @@ def problem_from_paths(map: str, paths: list[list[Cell]]) -> Problem:
 def plan_for(grid: Grid, starts: tuple[Cell, ...], goals: tuple[Cell, ...],
              time_limit_s: float) -> Plan:
     """A 1-robust plan from ``starts`` to ``goals`` (raises planning's NoSolution)."""
-    from gateway.planning.solver import solve
 
     return solve(grid, starts, goals, deadline=WallDeadline(time_limit_s)).plan

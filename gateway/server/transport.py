@@ -54,7 +54,8 @@ class _Closed:
 
 def _closed_error(code: int, reason: str) -> ConnectionClosed:
     frame = Close(code, reason)
-    return (ConnectionClosedOK if code in (1000, 1001) else ConnectionClosedError)(frame, frame)
+    kind = ConnectionClosedOK if code in (1000, 1001) else ConnectionClosedError
+    return kind(frame, frame, rcvd_then_sent=True)
 
 
 class _Pipe:

@@ -40,13 +40,19 @@ def ws_url(gw: Gateway, query: str = "") -> str:
     return f"ws://127.0.0.1:{gw.port}/ws{query}"  # type: ignore[attr-defined]
 
 
-@pytest.fixture
-def ws_connect(gateway: Gateway) -> Connect:
-    """Open a websocket to the gateway with a bearer token (no proxy, no compression)."""
+def connector(gw: Gateway) -> Connect:
+    """Opens websockets to a listening gateway with a bearer token (no proxy, no
+    compression); ``query`` is appended to the URL (e.g. ``?token=...``)."""
 
     async def _connect(token: str | None, query: str = "", **kw: Any) -> ClientConnection:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
-        return await connect(ws_url(gateway, query), additional_headers=headers, proxy=None,
+        return await connect(ws_url(gw, query), additional_headers=headers, proxy=None,
                              compression=None, **kw)
 
     return _connect
+
+
+@pytest.fixture
+def ws_connect(gateway: Gateway) -> Connect:
+    """:func:`connector` for the ``gateway`` fixture."""
+    return connector(gateway)

@@ -85,8 +85,9 @@ class Peer:
 
 
 class TestRobot(Peer):
-    __test__ = False
     """A robot that executes whatever it is dispatched."""
+
+    __test__ = False
 
     def __init__(self, link: ClientLink, robot_id: int, move_s: float = 0.0,
                  ack: bool = True) -> None:
@@ -150,8 +151,10 @@ class TestRobot(Peer):
 
 
 class TestOperator(Peer):
-    __test__ = False
     """An operator: first message is the snapshot, then events."""
+
+    __test__ = False
+    _cursor = 0
 
     async def snapshot(self) -> Snapshot:
         """The next snapshot."""
@@ -159,9 +162,15 @@ class TestOperator(Peer):
         return snap
 
     async def event(self, kind: str, timeout: float = 10.0) -> Event:
-        """Skip until an event of ``kind``."""
+        """The next event of ``kind`` after the last one returned (also among messages that
+        other helpers already read into the inbox)."""
+        cursor = self._cursor
         async with asyncio.timeout(timeout):
             while True:
-                msg = await self.recv()
-                if isinstance(msg, Event) and msg.event == kind:
-                    return msg
+                for i in range(cursor, len(self.inbox)):
+                    msg = self.inbox[i]
+                    if isinstance(msg, Event) and msg.event == kind:
+                        self._cursor = i + 1
+                        return msg
+                cursor = len(self.inbox)
+                await self.recv()
