@@ -122,9 +122,9 @@ def test_plots_are_written(full: Path, tmp_path: Path) -> None:
 def test_cli_writes_results_summary_and_plots(full: Path, tmp_path: Path) -> None:
     out = tmp_path / "cli"
     # The console script (``python -m gateway.cli`` would load a second copy of gateway.cli).
-    cmd = [str(Path(sys.executable).with_name("fleetgate")), "experiment", "--maps", "lab", "--agents", "5",
-           "--instances", "2", "--seeds", "2", "--solver-time", "zero", "--plan-time-limit",
-           "20", "--out", str(out), "--workers", "2", "--no-progress"]
+    cmd = [str(Path(sys.executable).with_name("fleetgate")), "experiment", "--maps", "lab",
+           "--agents", "5", "--instances", "2", "--seeds", "2", "--solver-time", "zero",
+           "--plan-time-limit", "20", "--out", str(out), "--workers", "2", "--no-progress"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert (out / "results.csv").read_text() == (full / "results.csv").read_text()
