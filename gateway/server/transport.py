@@ -59,10 +59,13 @@ def _closed_error(code: int, reason: str) -> ConnectionClosed:
 
 
 class _Pipe:
-    """Two bounded queues between a memory client and its gateway link."""
+    """Two queues between a memory client and its gateway link. Towards the client it is
+    bounded (a client that does not read blocks the gateway's writer for it, as a full TCP
+    buffer would); towards the gateway it is not (the gateway reads at once and rate-limits),
+    so a client never blocks on a gateway that stopped reading."""
 
     def __init__(self, size: int) -> None:
-        self.to_gateway: asyncio.Queue[str | bytes | _Closed] = asyncio.Queue(size)
+        self.to_gateway: asyncio.Queue[str | bytes | _Closed] = asyncio.Queue()
         self.to_client: asyncio.Queue[str | _Closed] = asyncio.Queue(size)
         self.closed: _Closed | None = None
 

@@ -1,0 +1,138 @@
+"""One conformance suite, run over both transports (in-memory and websocket on 127.0.0.1):
+the same gateway behaviour whichever way the messages travel (DESIGN section 1, driver 2)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator, Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+
+from gateway.server.auth import AuthError
+from gateway.server.gateway import Gateway
+from protocol import ErrorCode, GetSnapshot, LoadPlan, Ok, SetThreshold
+from tests.server.conftest import LAB_PATHS, connector, make_config
+from tests.server.robots import ClientLink, Peer, TestRobot
+
+
+@dataclass
+class Transport:
+    """A gateway plus a way to open client connections to it over one transport."""
+
+    name: str
+    gw: Gateway
+    open: Callable[[str | None], Awaitable[ClientLink]]
+
+    async def handshake_status(self, token: str | None) -> int:
+        """The HTTP-like status a refused handshake gets (401/403)."""
+        try:
+            await self.open(token)
+        except InvalidStatus as exc:
+            return exc.response.status_code
+        except AuthError as exc:
+            return exc.status
+        raise AssertionError("handshake was accepted")
+
+
+async def _transport(name: str, **config: Any) -> AsyncIterator[Transport]:
+    async with Gateway(make_config(**config)) as gw:
+        if name == "memory":
+            async def open_memory(token: str | None) -> ClientLink:
+                return await gw.connect(token or "")
+            yield Transport(name, gw, open_memory)
+        else:
+            gw.port = await gw.listen()  # type: ignore[attr-defined]
+            ws = connector(gw)
+
+            async def open_ws(token: str | None) -> ClientLink:
+                return await ws(token)
+            yield Transport(name, gw, open_ws)
+
+
+@pytest.fixture(params=["memory", "websocket"])
+async def transport(request: pytest.FixtureRequest) -> AsyncIterator[Transport]:
+    """Each test runs once per transport."""
+    async for t in _transport(request.param):
+        yield t
+
+
+async def test_hello_gets_welcome_for_the_bound_robot(transport: Transport) -> None:
+    robot = TestRobot(await transport.open("demo-robot-7"), 7)
+    welcome = await robot.hello()
+    assert welcome.robot_id == 7 and welcome.resend == []
+    assert transport.gw.engine.connected_robots() == 1
+
+
+async def test_handshake_auth(transport: Transport) -> None:
+    assert await transport.handshake_status(None) == 401
+    assert await transport.handshake_status("nobody") == 403
+
+
+async def test_order_is_preserved(transport: Transport) -> None:
+    op = Peer(await transport.open("demo-operator"), "op")
+    refs = [await op.send(SetThreshold, threshold_ms=float(i)) for i in range(100)]
+    got: list[str] = []
+    async with asyncio.timeout(10):
+        while len(got) < len(refs):
+            msg = await op.recv()
+            if isinstance(msg, Ok):
+                got.append(msg.ref)
+    assert got == refs
+    assert transport.gw.engine.threshold_ms == 99.0
+
+
+async def test_client_close_is_seen_by_the_gateway(transport: Transport) -> None:
+    robot = TestRobot(await transport.open("demo-robot-1"), 1)
+    await robot.hello()
+    await robot.link.close()
+    async with asyncio.timeout(5):
+        while transport.gw.engine.connected_robots():
+            await asyncio.sleep(0.01)
+    assert transport.gw.engine.robot(1).session is None
+
+
+async def test_gateway_close_after_abuse_flushes_errors_first(transport: Transport) -> None:
+    peer = Peer(await transport.open("demo-robot-2"), "r2")
+    limit = transport.gw.config.max_errors
+    for _ in range(limit):
+        await peer.send_raw("[]")
+    with pytest.raises(ConnectionClosed) as exc:
+        async with asyncio.timeout(5):
+            while True:
+                await peer.recv()
+    assert [getattr(m, "code", None) for m in peer.inbox] == [ErrorCode.MALFORMED] * limit
+    assert exc.value.rcvd is not None and exc.value.rcvd.code == 1008
+
+
+async def test_frame_over_the_hard_limit_closes_1009(transport: Transport) -> None:
+    peer = Peer(await transport.open("demo-robot-3"), "r3")
+    with pytest.raises(ConnectionClosed) as exc:
+        await peer.send_raw(json.dumps({"pad": "x" * 300_000}))
+        async with asyncio.timeout(5):
+            await peer.recv()
+    assert exc.value.rcvd is not None and exc.value.rcvd.code == 1009
+
+
+@pytest.mark.parametrize("name", ["memory", "websocket"])
+async def test_a_slow_client_never_stalls_the_others(name: str) -> None:
+    async for t in _transport(name, send_queue=8):
+        await t.gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS))
+        slow = Peer(await t.open("demo-operator"), "slow")  # never reads
+        fast = Peer(await t.open("demo-operator"), "fast")
+        for _ in range(900):
+            await slow.send(GetSnapshot)
+        async with asyncio.timeout(10):
+            for i in range(20):
+                ref = await fast.send(SetThreshold, threshold_ms=float(i))
+                while not isinstance(msg := await fast.recv(), Ok) or msg.ref != ref:
+                    pass
+            while len(t.gw.engine.operators) != 1:  # the slow one was dropped
+                await asyncio.sleep(0.01)
+        with pytest.raises(ConnectionClosed):
+            async with asyncio.timeout(10):
+                while True:
+                    await slow.recv()
