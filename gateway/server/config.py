@@ -81,7 +81,7 @@ class GatewayConfig(BaseSettings):
     @model_validator(mode="after")
     def _demo_tokens_only_on_loopback(self) -> GatewayConfig:
         t = self.tokens
-        demo = (t.demo_robot_prefix is not None or "demo-operator" in t.operators
+        demo = (bool(t.demo_robot_prefix) or "demo-operator" in t.operators
                 or "demo-world" in t.world)
         if demo and not self.allow_demo_tokens and not _is_loopback(self.host):
             raise ValueError(f"demo tokens on non-loopback host {self.host!r}: configure "
