@@ -98,3 +98,12 @@ def test_serve_rejects_a_missing_config(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=60, check=False)
     assert proc.returncode == 2
     assert "config file not found" in proc.stderr
+
+
+def test_the_example_deployment_config_is_valid() -> None:
+    cfg = load_config(Path(__file__).parents[2] / "deploy" / "gateway.example.toml")
+    assert cfg.host == "0.0.0.0" and not cfg.allow_demo_tokens
+    auth = Authenticator(cfg.tokens)
+    assert auth.identify("CHANGE-ME-robot-2-token") == Peer("robot", 2)
+    with pytest.raises(AuthError):
+        auth.identify("demo-robot-0")
