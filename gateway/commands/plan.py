@@ -1,0 +1,77 @@
+"""``fleetgate plan``: solve one instance with the 1-robust planner and print the solution."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from gateway.commands.deadline import WallDeadline
+from gateway.commands.instance_args import add_instance_arguments, instance_from_args
+from gateway.planning.instance import Instance
+from gateway.planning.plan import NoSolution, Solution
+from gateway.planning.solver import solve
+from gateway.planning.validate import check_plan
+
+DEFAULT_TIME_LIMIT = 60.0
+"""Seconds the planner may take unless ``--time-limit`` says otherwise."""
+
+
+def solution_json(instance: Instance, solution: Solution, runtime_s: float) -> dict[str, Any]:
+    """The solution object of DESIGN section 3 (``fleetgate plan --json``)."""
+    plan = solution.plan
+    return {
+        "map": instance.grid.name,
+        "motion": "omni",
+        "robust": 1,
+        "optimal": solution.optimal,
+        "soc": plan.soc,
+        "makespan": plan.makespan,
+        "runtime_s": round(runtime_s, 6),
+        "expanded_nodes": solution.expanded_nodes,
+        "agents": [{"start": list(s), "goal": list(g), "path": [list(c) for c in path]}
+                   for s, g, path in zip(instance.starts, instance.goals, plan.paths,
+                                         strict=True)],
+    }
+
+
+def _plan(args: argparse.Namespace) -> int:
+    if args.time_limit is not None and args.time_limit <= 0:
+        raise UsageError(f"--time-limit must be positive, got {args.time_limit}")
+    instance = instance_from_args(args)
+    deadline = WallDeadline(args.time_limit)
+    try:
+        solution = solve(instance.grid, instance.starts, instance.goals, deadline=deadline)
+    except NoSolution as exc:
+        runtime = deadline.elapsed()
+        why = (f"no solution within the time limit of {args.time_limit:g} s" if exc.timed_out
+               else f"no solution: {exc}")
+        print(f"fleetgate: {why} ({runtime:.3f} s)", file=sys.stderr)
+        return EXIT_NO_SOLUTION
+    runtime = deadline.elapsed()
+    check_plan(instance.grid, instance.starts, instance.goals, solution.plan)
+    if args.json:
+        print(json.dumps(solution_json(instance, solution, runtime)))
+    else:
+        quality = "optimal" if solution.optimal else "not proven optimal"
+        print(f"{instance.grid.name or 'map'}, {instance.num_agents} agents: "
+              f"SOC {solution.plan.soc}, makespan {solution.plan.makespan} ({quality}), "
+              f"{solution.expanded_nodes} nodes expanded in {runtime:.3f} s")
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``fleetgate plan``."""
+    parser = sub.add_parser(
+        "plan", help="solve a MAPF instance (1-robust, sum-of-costs optimal)",
+        description="Find a 1-robust plan for the first N agents of a scenario (or a mapf-IR "
+                    "instance). Exit 2 on bad input, 3 when no solution is found in time.")
+    add_instance_arguments(parser)
+    parser.add_argument("--json", action="store_true",
+                        help="print the solution as JSON (map, soc, makespan, agents' paths...)")
+    parser.add_argument("--time-limit", type=float, default=DEFAULT_TIME_LIMIT, metavar="SEC",
+                        help=f"give up after SEC seconds of wall time "
+                             f"(default {DEFAULT_TIME_LIMIT:g})")
+    parser.set_defaults(func=_plan)
