@@ -64,6 +64,13 @@ def decode(raw: str | bytes) -> AnyMessage:
     """Parse one message; raise :class:`ProtocolError` with the matching code if it is bad."""
     if len(raw) > MAX_MESSAGE_BYTES:
         raise ProtocolError(ErrorCode.TOO_LARGE, f"{len(raw)} bytes > {MAX_MESSAGE_BYTES}")
+    try:  # fast path: parse and validate in one pass (pydantic-core), ~2x faster
+        message = MESSAGE_ADAPTER.validate_json(raw)
+    except ValidationError:
+        pass  # diagnose below, with the precise error code
+    else:
+        if "v" in message.model_fields_set:  # ``v`` has a default but is mandatory on the wire
+            return message
     try:
         data: Any = json.loads(raw)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
