@@ -93,11 +93,16 @@ ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled"]
 # ------------------------------------------------------------------------------ queue items
 @dataclass
 class Inbound:
-    """A validated message from a session (``received`` = perf_counter at arrival)."""
+    """A validated message from a session (``received`` = perf_counter at arrival).
+
+    ``at_ms`` is the plan time of its arrival: a robot's report is applied at that time, not
+    when the owner task gets to it, so a burst of reports does not delay the later ones.
+    """
 
     session: Session
     message: AnyMessage
     received: float
+    at_ms: float | None = None
 
 
 @dataclass
@@ -356,7 +361,7 @@ class Engine:
             case Ack():
                 self._ack(session, msg.action_id, msg.msg_id)
             case Started() | Finished() | Blocked() | Unblocked() | Cancelled():
-                self._report(session, msg, item.received)
+                self._report(session, msg, item.received, item.at_ms)
             case State():
                 r = self._robot_of(session)
                 if r is not None and msg.pose is not None:
@@ -444,7 +449,7 @@ class Engine:
 
     def _report(self, session: Session,
                 msg: Started | Finished | Blocked | Unblocked | Cancelled,
-                received: float) -> None:
+                received: float, at_ms: float | None = None) -> None:
         kind: ReportKind = msg.type
         r = self._robot_of(session)
         if r is None:
@@ -468,7 +473,8 @@ class Engine:
             return
         try:
             self._unlocked_at = received if kind == "finished" else None
-            self._apply(r, rec, aid, kind, self.now_ms())
+            now = self.now_ms() if at_ms is None else max(at_ms, self.executor.now_ms)
+            self._apply(r, rec, aid, kind, now)
             self._route(self.executor.drain())
         except ExecutionError as exc:
             session.error(ErrorCode.REJECTED, msg.msg_id, str(exc))

@@ -228,7 +228,8 @@ class Gateway:
                 raw = await link.recv()
                 message = self._admit(session, raw)
                 if message is not None:
-                    queue.put_nowait(Inbound(session, message, time.perf_counter()))
+                    queue.put_nowait(Inbound(session, message, time.perf_counter(),
+                                             self.clock.now_ms()))
         except LinkClosed:
             pass
         finally:
