@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import jsonschema
@@ -12,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.cli import main
 from protocol import (
     MAX_MESSAGE_BYTES,
     MESSAGE_TYPES,
@@ -31,7 +30,6 @@ from protocol import (
 from protocol.messages import EventKind
 from tests.protocol.samples import samples
 
-FLEETGATE = str(Path(sys.executable).parent / "fleetgate")
 VALIDATOR = jsonschema.Draft202012Validator(json_schema())
 
 
@@ -143,13 +141,11 @@ def test_finished_pose_is_optional() -> None:
         Finished(msg_id="a", seq=3, action_id="0.1.2")
 
 
-def test_cli_writes_the_schema(tmp_path: Path) -> None:
+def test_cli_writes_the_schema(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "schema.json"
-    proc = subprocess.run([FLEETGATE, "protocol", "schema", "-o",
-                           str(out)], capture_output=True, text=True, check=False)
-    assert proc.returncode == 0, proc.stderr
+    assert main(["protocol", "schema", "-o", str(out)]) == 0
     assert json.loads(out.read_text()) == json.loads(json.dumps(json_schema()))
-    bad = subprocess.run([FLEETGATE, "protocol", "schema", "-o",
-                          str(tmp_path / "no" / "such" / "dir.json")],
-                         capture_output=True, text=True, check=False)
-    assert bad.returncode == 2 and "cannot write" in bad.stderr
+    assert main(["protocol", "schema"]) == 0
+    assert json.loads(capsys.readouterr().out) == json.loads(out.read_text())
+    assert main(["protocol", "schema", "-o", str(tmp_path / "no" / "such.json")]) == 2
+    assert "cannot write" in capsys.readouterr().err

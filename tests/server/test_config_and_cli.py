@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from gateway.cli import main
 from gateway.server.auth import Authenticator, AuthError, Peer, request_token
 from gateway.server.config import ConfigError, load_config
 
@@ -93,11 +94,10 @@ def test_serve_runs_until_sigterm(tmp_path: Path) -> None:
             proc.wait()
 
 
-def test_serve_rejects_a_missing_config(tmp_path: Path) -> None:
-    proc = subprocess.run([FLEETGATE, "serve", "--config", str(tmp_path / "none.toml")],
-                          capture_output=True, text=True, timeout=60, check=False)
-    assert proc.returncode == 2
-    assert "config file not found" in proc.stderr
+def test_serve_rejects_a_missing_config(tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["serve", "--config", str(tmp_path / "none.toml")]) == 2
+    assert "config file not found" in capsys.readouterr().err
 
 
 def test_the_example_deployment_config_is_valid() -> None:
