@@ -27,7 +27,7 @@ import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, cast
 
 from websockets.exceptions import ConnectionClosed
 
@@ -246,8 +246,11 @@ class FleetRobot:
         return Pose(cell=cell) if cell is not None else None
 
     def _message(self, kind: type[M], **fields: Any) -> M:
+        """A message with this robot's next msg_id/seq; not validated again (the fields are
+        built here from validated values), which halves the robot's cost per message."""
         seq = next(self._seq)
-        return kind(msg_id=f"r{self.robot_id}-{seq}", seq=seq, **fields)
+        return cast(M, kind.model_construct(msg_id=f"r{self.robot_id}-{seq}", seq=seq,
+                                            **fields))
 
     def _send(self, message: AnyMessage) -> None:
         """Queue a message on the live connection (dropped while disconnected: the next
@@ -351,21 +354,27 @@ class FleetRobot:
             self.sim.current is None and bool(self.seen) and action.action_id not in self.seen)
 
     def _cancel(self, aid: str) -> None:
+        """Drop a held action that has not started moving and confirm; a moving robot
+        finishes instead. A cancelled action may be dispatched again (an abandoned replan),
+        so it is no longer a duplicate."""
         for action in self.pending:
             if action.action_id == aid:
                 self.pending.remove(action)
+                self.seen.discard(aid)
                 self._report_one("cancelled", aid)
                 return
         sim = self.sim
         if sim is not None and sim.current is not None:
             d = sim.current
             if f"{d.plan}.{d.robot}.{d.action}" == aid:
-                self._emit(sim.cancel(d.plan, d.action, self._now()))
+                events = sim.cancel(d.plan, d.action, self._now())
+                if events:
+                    self.seen.discard(aid)
+                self._emit(events)
                 self._reschedule()
                 self._feed()
-                return  # a moving robot finishes instead
-        if aid not in self.seen:  # never arrived: confirm, and drop it if it comes late
-            self.seen.add(aid)
+                return
+        if aid not in self.seen:  # not held here (e.g. the robot restarted): confirm
             self._report_one("cancelled", aid)
 
     def _feed(self) -> None:
@@ -623,7 +632,7 @@ class SimFleet:
         while not self.stopping:
             t = (self.clock.now_ms() // step + 1) * step
             await self.clock.sleep_until_ms(t)
-            self.poll_world(t)
+            self.poll_world()
 
     def _report(self, events: Iterable[Any]) -> None:
         for e in events:
@@ -694,53 +703,53 @@ class RunResult:
                 "collisions": self.collisions}
 
 
-async def run_in_process(gateway: Gateway, problem: Problem, connect: Connect, *,
-                         seed: int = 0, intruder: bool = True,
-                         intruder_config: IntruderConfig | None = None,
-                         poll_at_ticks: bool = True, send_state: bool = False,
-                         fleet_ready: Callable[[SimFleet], None] | None = None) -> RunResult:
-    """Execute ``problem.plan`` on ``gateway`` with a simulated fleet connected by
-    ``connect`` (in-memory for driver 2, websockets for the demo) and return the result.
+def fleet_for(gateway: Gateway, robots: int, connect: Connect, *, seed: int = 0,
+              intruder: bool = True, intruder_config: IntruderConfig | None = None,
+              poll_at_ticks: bool = True, send_state: bool = False) -> SimFleet:
+    """A fleet of robots ``0..robots-1`` for ``gateway`` in the same process (its clock, its
+    world token, its executor as the automatic intruder's oracle if ``intruder``).
 
     With ``poll_at_ticks`` the intruder is stepped at the gateway's monitor ticks, after the
-    robot events of that instant and before the tick (the discrete-event driver's order).
-    ``fleet_ready`` is called with the fleet once every robot is connected, before the start.
+    robot events of that instant and before the tick (the discrete-event driver's order; driver
+    2 needs it to match driver 3 exactly). Otherwise the fleet steps it on its own.
     """
-    plan = problem.plan
-    if plan is None:
-        raise ValueError("the problem has no plan to execute")
     engine = gateway.engine
-    fleet = SimFleet(connect, range(len(plan.paths)), clock=gateway.clock,
+    fleet = SimFleet(connect, range(robots), clock=gateway.clock,
                      world_token=gateway.config.tokens.world[0],
                      oracle=EngineOracle(engine) if intruder else None, seed=seed,
                      intruder_config=intruder_config, send_state=send_state,
                      external_poll=poll_at_ticks)
+    if poll_at_ticks:
+        engine.before_tick.append(fleet.poll_world)
+    return fleet
+
+
+async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) -> RunResult:
+    """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, start, and wait
+    for the end of the execution. The fleet keeps running afterwards (the caller stops it)."""
+    plan = problem.plan
+    if plan is None:
+        raise ValueError("the problem has no plan to execute")
+    engine = gateway.engine
     replan_at: list[float] = []
 
     def on_status(status: str) -> None:
         if status == "replanning" and not replan_at:
             replan_at.append(engine.now_ms())
 
-    if poll_at_ticks:
-        engine.before_tick.append(fleet.poll_world)
     engine.status_listeners.append(on_status)
     try:
         engine.load(problem)
         await fleet.start()
         await fleet.wait_connected()
-        if fleet_ready is not None:
-            fleet_ready(fleet)
         error, detail = await gateway.command(Start(msg_id="run-start", seq=0))
         if error is not None:
             raise RuntimeError(f"the gateway refused to start: {detail}")
         soc, makespan = await gateway.wait_done()
-        ex = engine.executor
-        assert ex is not None
-        return RunResult(soc_ms=soc, makespan_ms=makespan, plan_soc=plan.soc,
-                         replans=ex.replans, replan_at_ms=replan_at[0] if replan_at else None,
-                         solver_ms=engine.solver_ms, collisions=len(fleet.world.collisions))
     finally:
         engine.status_listeners.remove(on_status)
-        if poll_at_ticks:
-            engine.before_tick.remove(fleet.poll_world)
-        await fleet.stop()
+    ex = engine.executor
+    assert ex is not None
+    return RunResult(soc_ms=soc, makespan_ms=makespan, plan_soc=plan.soc, replans=ex.replans,
+                     replan_at_ms=replan_at[0] if replan_at else None,
+                     solver_ms=engine.solver_ms, collisions=len(fleet.world.collisions))

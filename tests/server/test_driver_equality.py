@@ -18,7 +18,7 @@ from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
 from sim_clients.des import PolicyName, SimConfig, run_simulation
-from sim_clients.fleet import RunResult, run_in_process
+from sim_clients.fleet import RunResult, fleet_for, run_in_process
 from sim_clients.trace import read_trace
 from sim_clients.tracecheck import check_trace
 
@@ -39,8 +39,11 @@ def driver2(inst: Instance, plan: Plan, seed: int, intruder: bool, policy: Polic
 
     async def main() -> RunResult:
         async with Gateway(config, clock=VirtualClock(solver_time=SOLVER_MS)) as gw:
-            return await run_in_process(gw, Problem(inst, "lab", plan), gw.connect, seed=seed,
-                                        intruder=intruder)
+            fleet = fleet_for(gw, len(plan.paths), gw.connect, seed=seed, intruder=intruder)
+            try:
+                return await run_in_process(gw, Problem(inst, "lab", plan), fleet)
+            finally:
+                await fleet.stop()
 
     return run_virtual(main())
 

@@ -1,0 +1,184 @@
+"""``fleetgate demo``: the gateway, a simulated fleet and the operator GUI in one process.
+
+Everything talks over real websockets on loopback in real time: the gateway listens on
+``--host:--port`` (GUI at ``http://H:P/``), the simulated robots and the world connect to it
+like remote ones would. Actions last ``1000 / speed`` ms of wall time; every reported time is
+plan time (wall time x speed). The first run starts by itself; without ``--headless`` the
+gateway keeps serving the GUI afterwards (load, start, pause, intruders...) until Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import signal
+import sys
+from pathlib import Path
+
+from websockets.asyncio.client import connect as ws_connect
+
+from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from gateway.commands.deadline import WallDeadline
+from gateway.commands.instance_args import add_instance_arguments, instance_from_args
+from gateway.planning.plan import NoSolution
+from gateway.planning.solver import solve
+from gateway.server.config import ConfigError, GatewayConfig, load_config
+from gateway.server.gateway import Gateway
+from gateway.server.logs import configure_logging
+from gateway.server.planner import Problem
+from sim_clients.des import derive_seed
+from sim_clients.fleet import (
+    ClientConnection,
+    Connect,
+    RunResult,
+    SimFleet,
+    fleet_for,
+    run_in_process,
+)
+
+DEFAULT_MAP, DEFAULT_SCEN, DEFAULT_AGENTS = "lab", "lab-random-1", 10
+"""The zero-setup demo: 10 robots on the shipped lab map (its seed-0 intruder triggers a
+slack replan)."""
+
+
+def websocket_connector(url: str) -> Connect:
+    """Opens ``url`` with a bearer token (no proxy, no compression: loopback)."""
+
+    async def connect(token: str) -> ClientConnection:
+        return await ws_connect(url, additional_headers={"Authorization": f"Bearer {token}"},
+                                proxy=None, compression=None, max_queue=None)
+
+    return connect
+
+
+def _follow_runs(gateway: Gateway, fleet: SimFleet) -> None:
+    """After the first run, an operator may load and start others: give every agent a
+    robot and put the robots on the plan's starts whenever a new run begins."""
+    engine = gateway.engine
+    previous: list[str] = [engine.status]
+
+    def on_status(status: str) -> None:
+        was, previous[0] = previous[0], status
+        problem = engine.problem
+        if problem is None:
+            return
+        if status == "loaded":
+            for r in range(problem.instance.num_agents):
+                fleet.add_robot(r)
+        if status == "running" and was in ("loaded", "done") and engine.executor is not None:
+            fleet.place_all([p[0] for p in engine.executor.plan.paths])
+
+    engine.status_listeners.append(on_status)
+
+
+async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace) -> RunResult:
+    async with Gateway(config) as gateway:
+        port = await gateway.listen()
+        host = config.host
+        print(f"fleetgate demo: GUI at http://{host}:{port}/ "
+              f"(robots and world on ws://{host}:{port}/ws)", file=sys.stderr, flush=True)
+        fleet = fleet_for(gateway, problem.instance.num_agents,
+                          websocket_connector(f"ws://{host}:{port}/ws"), seed=args.seed,
+                          intruder=args.intruder, poll_at_ticks=False, send_state=True)
+        try:
+            result = await run_in_process(gateway, problem, fleet)
+            if args.json:
+                print(json.dumps(result.summary()), flush=True)
+            else:
+                print(f"run complete: SOC {result.soc_ms:.0f} ms (plan {result.plan_soc} x "
+                      f"1000 ms), makespan {result.makespan_ms:.0f} ms, "
+                      f"{result.replans} replan(s), {result.collisions} collisions",
+                      file=sys.stderr, flush=True)
+            if not args.headless:
+                _follow_runs(gateway, fleet)
+                print("serving the GUI until Ctrl-C", file=sys.stderr, flush=True)
+                await _until_interrupted()
+        finally:
+            await fleet.stop()
+        return result
+
+
+async def _until_interrupted() -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, stop.set)
+    await stop.wait()
+
+
+def _run(args: argparse.Namespace) -> int:
+    if not 0 < args.speed <= 100:
+        raise UsageError(f"--speed must be in (0, 100], got {args.speed}")
+    if args.threshold_ms < 0:
+        raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms}")
+    instance = instance_from_args(args)
+    try:
+        plan = solve(instance.grid, instance.starts, instance.goals,
+                     deadline=WallDeadline(args.time_limit)).plan
+    except NoSolution as exc:
+        print(f"fleetgate: no plan for {instance.name or 'the instance'}: {exc}",
+              file=sys.stderr)
+        return EXIT_NO_SOLUTION
+    if args.trace:
+        try:
+            Path(args.trace).open("w").close()
+        except OSError as exc:
+            raise UsageError(f"cannot write the trace {args.trace}: {exc.strerror}") from None
+    try:
+        config = load_config(None, host=args.host, port=args.port, map=None, speed=args.speed,
+                             policy=args.policy, threshold_ms=args.threshold_ms,
+                             policy_seed=derive_seed(args.seed, "replan"), trace=args.trace,
+                             solver_time_limit_s=args.time_limit, log_level=args.log_level)
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None
+    configure_logging(config.log_level)
+    problem = Problem(instance, instance.name or str(args.map), plan)
+    try:
+        asyncio.run(_demo(config, problem, args))
+    except OSError as exc:
+        raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
+                         ) from None
+    except KeyboardInterrupt:
+        pass
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``fleetgate demo``."""
+    p = sub.add_parser(
+        "demo", help="gateway + simulated fleet + GUI on loopback (zero setup)",
+        description="Plan the instance, start the gateway on HOST:PORT, connect a simulated "
+                    "robot per agent and the simulated world over websockets, and execute the "
+                    "plan in real time (an action lasts 1000/SPEED ms; reported times are plan "
+                    "time). The GUI is at http://HOST:PORT/ and stays up after the run until "
+                    "Ctrl-C unless --headless. Defaults: 10 robots on the lab map, slack "
+                    "policy, intruder on. Exit codes: 0 success, 2 bad input, 3 no plan.")
+    p.add_argument("--host", default="127.0.0.1", help="address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free)")
+    p.add_argument("--headless", action="store_true",
+                   help="exit when the first run is complete instead of serving the GUI")
+    p.add_argument("--json", action="store_true",
+                   help='print the run like "fleetgate simulate --json": {"soc_ms", '
+                        '"makespan_ms", "plan_soc", "replans", "replan_at_ms", "solver_ms", '
+                        '"collisions"}')
+    p.add_argument("--trace", metavar="FILE.jsonl", help="write the JSON-lines trace here")
+    add_instance_arguments(p)
+    p.set_defaults(map=DEFAULT_MAP, scen=DEFAULT_SCEN, agents=DEFAULT_AGENTS)
+    p.add_argument("--speed", metavar="F", type=float, default=1.0,
+                   help="the world runs F times faster than plan time (default 1)")
+    p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
+                   help="the intruder appears at 3000 ms and leaves at 10000 ms (default: on)")
+    p.add_argument("--policy", choices=["none", "random", "slack", "operator"], default="slack",
+                   help="replanning policy (default slack)")
+    p.add_argument("--threshold-ms", metavar="MS", type=float, default=2000.0,
+                   help="fleet slack threshold of the slack policy (default 2000)")
+    p.add_argument("--seed", metavar="K", type=int, default=0,
+                   help="seed of the intruder's choice and the random policy (default 0)")
+    p.add_argument("--time-limit", metavar="SEC", type=float, default=30.0,
+                   help="planner time limit per solve in seconds (default 30)")
+    p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+                   default="WARNING", help="gateway log level on stderr (default WARNING)")
+    p.set_defaults(func=_run)

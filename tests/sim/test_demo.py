@@ -1,0 +1,81 @@
+"""``fleetgate demo``: gateway + simulated fleet over real websockets on loopback, in real time,
+as a user runs it (a subprocess); its trace is checked by the independent trace checker."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+from sim_clients.trace import read_trace
+from sim_clients.tracecheck import check_trace
+
+FLEETGATE = [sys.executable, "-m", "gateway.cli"]
+
+
+def demo(*args: str, timeout: float = 90.0) -> dict[str, object]:
+    """Run ``fleetgate demo --headless --json --port 0 ARGS``; its JSON result."""
+    proc = subprocess.run([*FLEETGATE, "demo", "--headless", "--json", "--port", "0", *args],
+                          capture_output=True, text=True, timeout=timeout, check=False)
+    assert proc.returncode == 0, proc.stderr
+    result: dict[str, object] = json.loads(proc.stdout)
+    return result
+
+
+def test_ten_robots_without_intruder_take_the_plans_time(tmp_path: Path) -> None:
+    trace = tmp_path / "demo.jsonl"
+    out = demo("--no-intruder", "--speed", "5", "--agents", "10", "--trace", str(trace))
+    plan_ms = 1000.0 * float(out["plan_soc"])  # type: ignore[arg-type]
+    soc = float(out["soc_ms"])  # type: ignore[arg-type]
+    # real time: every action lasts 200 ms of wall time (x5 = 1000 ms of plan time) plus the
+    # loopback round trips, so the SOC is the plan's within 2% and never below it
+    assert plan_ms <= soc <= 1.02 * plan_ms
+    assert out["replans"] == 0 and out["collisions"] == 0
+    report = check_trace(read_trace(trace))
+    assert report.errors == []
+    assert report.collisions == []
+    assert report.soc_ms == soc
+
+
+def test_intruder_and_slack_policy_stay_safe(tmp_path: Path) -> None:
+    # the defaults: 10 robots on lab, intruder, slack policy (in real time whether the slack
+    # crosses the threshold depends on timing; the safety properties may not)
+    trace = tmp_path / "demo.jsonl"
+    out = demo("--speed", "10", "--trace", str(trace))
+    assert out["collisions"] == 0
+    records = read_trace(trace)
+    report = check_trace(records)
+    assert report.errors == []
+    assert report.collisions == []  # robots and the intruder never shared a cell
+    assert report.plans == 1 + int(out["replans"])  # type: ignore[call-overload]
+    assert report.soc_ms == out["soc_ms"]
+    assert any(r["type"] == "intruder" and r["state"] == "on" for r in records)
+
+
+def test_without_headless_it_keeps_serving_until_ctrl_c() -> None:
+    proc = subprocess.Popen([*FLEETGATE, "demo", "--port", "0", "--speed", "20", "--agents", "3",
+                             "--no-intruder"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stderr is not None
+        port = None
+        for line in proc.stderr:
+            m = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
+            if m:
+                port = int(m[1])
+            if "until Ctrl-C" in line:
+                break
+        assert port is not None
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=5) as resp:
+            health = json.load(resp)
+        assert health["gateway"] == "done"  # the run is over, the gateway still answers
+        assert health["robots"] == 3
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0
+    finally:
+        proc.kill()
+        proc.wait()
