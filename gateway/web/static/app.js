@@ -1,0 +1,264 @@
+// The operator GUI: wires the connection, the fleet model, the map, the chart and the controls.
+
+import { Connection, operatorToken } from "./connection.js";
+import { FleetModel, fmtS } from "./model.js";
+import { MapView, robotColor } from "./mapview.js";
+import { SlackChart } from "./chart.js";
+
+const $ = (id) => document.getElementById(id);
+const model = new FleetModel();
+const mapView = new MapView($("map"), $("map-wrap"));
+const chart = new SlackChart($("chart"));
+let armed = false; // the next map click places an intruder
+let snapshotAsked = 0; // performance.now() of the outstanding get_snapshot (0: none)
+let tableDrawn = 0;
+
+const scheme = location.protocol === "https:" ? "wss" : "ws";
+const token = operatorToken();
+const url = `${scheme}://${location.host}/ws${token ? `?token=${encodeURIComponent(token)}` : ""}`;
+const conn = new Connection(url, { onMessage, onLink });
+
+// ------------------------------------------------------------------------- incoming
+function onMessage(msg) {
+  if (msg.type === "snapshot") {
+    snapshotAsked = 0;
+    model.applySnapshot(msg);
+    mapView.setRows(msg.rows);
+    syncControls();
+    renderPanels();
+  } else if (msg.type === "event") {
+    model.applyEvent(msg);
+    if (["status", "plan", "summary"].includes(msg.event)) askSnapshot(true);
+    if (msg.event === "status") syncControls();
+    if (msg.event !== "slack") renderLog();
+  } else if (msg.type === "error") {
+    notify(`gateway: ${msg.code} ${msg.detail}`, true);
+  }
+}
+
+function onLink(state, detail) {
+  const el = $("link");
+  el.dataset.state = state;
+  el.textContent = state === "on" ? "live" : `offline: ${detail}`;
+  if (state === "on") askSnapshot(true);
+  syncControls();
+}
+
+function askSnapshot(force = false) {
+  const now = performance.now();
+  if (!force && snapshotAsked && now - snapshotAsked < 2000) return;
+  if (conn.send("get_snapshot") !== null) snapshotAsked = now;
+}
+
+// ------------------------------------------------------------------------- commands
+async function command(type, fields, label) {
+  const reply = await conn.command(type, fields);
+  if (reply.type === "ok") {
+    notify(reply.detail || `${label}: ok`);
+  } else {
+    notify(`${label} refused: ${reply.detail || reply.code}`, true);
+  }
+  askSnapshot(true);
+  return reply;
+}
+
+function notify(text, error = false) {
+  const el = $("notice");
+  el.textContent = text;
+  el.classList.toggle("error", error);
+}
+
+$("btn-start").addEventListener("click", () => command("start", {}, "start"));
+$("btn-pause").addEventListener("click", () => command("pause", {}, "pause"));
+$("btn-resume").addEventListener("click", () => command("resume", {}, "resume"));
+$("btn-replan").addEventListener("click", () => command("replan_now", {}, "replan"));
+
+$("speed").addEventListener("input", () => {
+  $("speed-out").textContent = `${Number($("speed").value)}×`;
+});
+$("speed").addEventListener("change", () =>
+  command("set_speed", { speed: Number($("speed").value) }, "speed"));
+$("policy").addEventListener("change", () =>
+  command("set_policy", { policy: $("policy").value }, "policy"));
+$("threshold").addEventListener("change", () => {
+  const v = Number($("threshold").value);
+  if (Number.isFinite(v) && v >= 0) command("set_threshold", { threshold_ms: v }, "threshold");
+  else notify("threshold must be a number of milliseconds ≥ 0", true);
+});
+
+function setArmed(on) {
+  armed = on;
+  $("btn-intruder").setAttribute("aria-pressed", String(on));
+  $("intruder-hint").hidden = !on;
+  $("map").classList.toggle("arming", on);
+  if (!on) mapView.hover = null;
+}
+$("btn-intruder").addEventListener("click", () => setArmed(!armed));
+
+$("map").addEventListener("pointermove", (ev) => {
+  mapView.hover = armed ? mapView.cellAt(ev) : null;
+});
+$("map").addEventListener("pointerleave", () => {
+  mapView.hover = null;
+});
+$("map").addEventListener("click", (ev) => {
+  if (!armed) return;
+  const cell = mapView.cellAt(ev);
+  if (!cell || !mapView.isFree(...cell)) {
+    notify("pick a free cell of the map for the intruder", true);
+    return;
+  }
+  const seconds = Number($("intruder-s").value);
+  if (!(seconds > 0)) {
+    notify("the intruder's time must be a positive number of seconds", true);
+    return;
+  }
+  setArmed(false);
+  command("place_intruder", { cell, duration_ms: seconds * 1000 }, "intruder");
+});
+
+$("generate").addEventListener("change", () => {
+  $("scen-name").disabled = $("generate").checked;
+});
+$("load-form").addEventListener("submit", (ev) => {
+  ev.preventDefault();
+  const fields = { map: $("map-name").value.trim(), agents: Number($("agents").value) };
+  if ($("generate").checked) fields.generate = { seed: Number($("gen-seed").value) || 0 };
+  else if ($("scen-name").value.trim()) fields.scen = $("scen-name").value.trim();
+  notify(`planning ${fields.map} with ${fields.agents} robots…`);
+  command("load_instance", fields, "load");
+});
+
+// ------------------------------------------------------------------------- rendering
+const BUSY = new Set(["running", "paused", "replanning", "planning"]);
+
+function syncControls() {
+  const s = model.snap;
+  const status = model.status;
+  const live = conn.connected;
+  const badge = $("status");
+  badge.textContent = live ? status : "offline";
+  badge.dataset.status = live ? status : "offline";
+  $("btn-start").disabled = !live || !(status === "loaded" || status === "done");
+  $("btn-pause").disabled = !live || !(status === "running" || status === "replanning");
+  $("btn-resume").disabled = !live || status !== "paused";
+  $("btn-replan").disabled = !live || status !== "running";
+  $("btn-load").disabled = !live || BUSY.has(status);
+  if (!s) return;
+  const focused = document.activeElement;
+  if (focused !== $("policy")) $("policy").value = s.policy;
+  if (focused !== $("threshold")) $("threshold").value = String(s.threshold_ms);
+  if (focused !== $("speed")) {
+    $("speed").value = String(s.speed);
+    $("speed-out").textContent = `${s.speed}×`;
+  }
+  $("threshold").disabled = s.policy !== "slack";
+  $("policy-now").textContent = s.policy === "slack"
+    ? `slack > ${fmtS(s.threshold_ms)}` : s.policy;
+}
+
+function renderPanels() {
+  const s = model.snap;
+  if (!s) return;
+  const plan = $("plan-now");
+  plan.textContent = s.plan === null ? "–" : `#${s.plan} (${s.replans} replan${s.replans === 1 ? "" : "s"})`;
+  plan.dataset.plan = s.plan === null ? "" : String(s.plan);
+  $("map-now").textContent = s.map_name ? `${s.map_name} · ${s.robots.length} robots` : "–";
+  const hasRun = s.plan !== null;
+  $("soc").textContent = hasRun ? fmtS(s.soc_ms) : "–";
+  $("makespan").textContent = hasRun ? fmtS(s.makespan_ms) : "–";
+  $("est-soc").textContent = hasRun ? fmtS(s.est_soc_ms) : "–";
+  $("est-makespan").textContent = hasRun ? fmtS(s.est_makespan_ms) : "–";
+  const base = model.planCosts();
+  $("plan-soc").textContent = base ? fmtS(base.soc) : "–";
+  $("plan-makespan").textContent = base ? fmtS(base.makespan) : "–";
+  const a = s.actions;
+  const total = a.pending + a.dispatched + a.running + a.blocked + a.finished;
+  $("progress").max = Math.max(1, total);
+  $("progress").value = a.finished;
+  $("progress-text").textContent = `${a.finished} / ${total} actions`;
+  const now = performance.now();
+  if (now - tableDrawn > 400) {
+    tableDrawn = now;
+    renderRobots();
+  }
+}
+
+function renderRobots() {
+  const s = model.snap;
+  const waits = new Map();
+  for (const w of s.waits) {
+    if (!waits.has(w.robot)) waits.set(w.robot, new Set());
+    waits.get(w.robot).add(w.for_robot);
+  }
+  const rows = s.robots.map((r) => {
+    const tr = document.createElement("tr");
+    tr.dataset.robot = String(r.robot_id);
+    tr.dataset.activity = r.activity;
+    const cells = [
+      `<span class="swatch" style="background:${robotColor(r.robot_id)}"></span>${r.robot_id}`,
+      `${r.cell[0]},${r.cell[1]}`, r.connected ? r.activity : "disconnected",
+      [...(waits.get(r.robot_id) || [])].join(", "), fmtS(r.slack_ms),
+    ];
+    tr.innerHTML = cells.map((c) => `<td>${c}</td>`).join("");
+    return tr;
+  });
+  $("robot-rows").replaceChildren(...rows);
+}
+
+function renderLog() {
+  const items = model.log.slice(0, 30).map((e) => {
+    const li = document.createElement("li");
+    li.className = e.kind;
+    const t = document.createElement("time");
+    t.textContent = `${(e.t / 1000).toFixed(1)} s`;
+    li.append(t, ` ${e.text}`);
+    return li;
+  });
+  $("log").replaceChildren(...items);
+}
+
+function frame() {
+  const wall = performance.now();
+  if (model.snap) {
+    const s = model.snap;
+    const now = model.now(wall);
+    mapView.draw(model, model.robots(wall), wall);
+    chart.draw({
+      series: s.fleet_slack, threshold: s.threshold_ms, marks: model.marks, now,
+      horizon: s.est_makespan_ms, showThreshold: s.policy === "slack",
+    });
+    const last = s.fleet_slack.length ? s.fleet_slack[s.fleet_slack.length - 1][1] : 0;
+    $("slack-now").textContent = s.plan === null ? "" : `now ${fmtS(last)}`;
+    $("clock").textContent = s.plan === null ? "–" : `${(now / 1000).toFixed(1)} s`;
+  }
+  requestAnimationFrame(frame);
+}
+
+// Keep the picture fresh: a snapshot every 250 ms while a run is live, every 2 s otherwise.
+setInterval(() => {
+  if (!conn.connected) return;
+  if (model.active || model.status === "planning") askSnapshot();
+  else if (performance.now() - (model.anchorWall || 0) > 2000) askSnapshot();
+}, 250);
+
+// For tests and the curious: the GUI's view of the fleet.
+window.fleetgate = {
+  model,
+  status: () => model.status,
+  plan: () => (model.snap ? model.snap.plan : null),
+  robots: () => model.robots().map((r) => ({
+    id: r.id, cell: r.cell, pos: r.pos, activity: r.activity, remaining: r.remaining,
+  })),
+  slack: () => (model.snap ? model.snap.fleet_slack.slice() : []),
+  /** Page coordinates of the centre of cell (x, y) on the map. */
+  cellCenter: (x, y) => {
+    const box = $("map").getBoundingClientRect();
+    const [cx, cy] = mapView.center(x, y);
+    return { x: box.left + cx, y: box.top + cy };
+  },
+};
+
+syncControls();
+conn.open();
+requestAnimationFrame(frame);

@@ -1,0 +1,86 @@
+// The operator websocket: protocol v1 envelopes, replies matched to commands, reconnect.
+
+const RETRY_MS = [250, 500, 1000, 2000, 4000];
+
+/** The operator token: ?token= in the page URL, else the one the gateway put in the page. */
+export function operatorToken() {
+  const fromUrl = new URLSearchParams(location.search).get("token");
+  if (fromUrl) return fromUrl;
+  const meta = document.querySelector('meta[name="fleetgate-token"]');
+  const value = meta ? meta.content : "";
+  return value && !value.startsWith("{{") ? value : "";
+}
+
+/** One operator connection to the gateway that reconnects by itself.
+ *
+ * `onMessage(msg)` gets every snapshot and event; `onLink(state, detail)` gets "on"/"off".
+ * `command(type, fields)` sends a command and resolves with the gateway's `ok` or `error`.
+ */
+export class Connection {
+  constructor(url, { onMessage, onLink }) {
+    this.url = url;
+    this.onMessage = onMessage;
+    this.onLink = onLink;
+    this.ws = null;
+    this.seq = 0;
+    this.prefix = `gui-${Math.random().toString(36).slice(2, 8)}`;
+    this.pending = new Map();
+    this.failures = 0;
+  }
+
+  open() {
+    const ws = new WebSocket(this.url);
+    this.ws = ws;
+    ws.onopen = () => {
+      this.failures = 0;
+      this.onLink("on", "connected");
+    };
+    ws.onmessage = (ev) => this.receive(ev.data);
+    ws.onclose = (ev) => {
+      this.ws = null;
+      for (const [, resolve] of this.pending) resolve({ type: "error", detail: "link lost" });
+      this.pending.clear();
+      const why = ev.code === 1006 ? "gateway unreachable" : `closed (${ev.code}) ${ev.reason}`;
+      this.onLink("off", why);
+      const delay = RETRY_MS[Math.min(this.failures, RETRY_MS.length - 1)];
+      this.failures += 1;
+      setTimeout(() => this.open(), delay);
+    };
+  }
+
+  get connected() {
+    return this.ws !== null && this.ws.readyState === WebSocket.OPEN;
+  }
+
+  receive(text) {
+    let msg;
+    try {
+      msg = JSON.parse(text);
+    } catch {
+      return;
+    }
+    if ((msg.type === "ok" || msg.type === "error") && this.pending.has(msg.ref)) {
+      const resolve = this.pending.get(msg.ref);
+      this.pending.delete(msg.ref);
+      resolve(msg);
+      return;
+    }
+    this.onMessage(msg);
+  }
+
+  /** Send one message; returns its msg_id (or null when offline). */
+  send(type, fields = {}) {
+    if (!this.connected) return null;
+    const seq = this.seq++;
+    const msgId = `${this.prefix}-${seq}`;
+    this.ws.send(JSON.stringify({ type, v: 1, msg_id: msgId, seq, ...fields }));
+    return msgId;
+  }
+
+  /** Send a command and wait for its `ok` / `error` reply. */
+  command(type, fields = {}) {
+    const msgId = this.send(type, fields);
+    if (msgId === null) return Promise.resolve({ type: "error", detail: "not connected" });
+    return new Promise((resolve) => this.pending.set(msgId, resolve));
+  }
+}

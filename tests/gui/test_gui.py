@@ -1,0 +1,176 @@
+"""The operator GUI in headless Chromium against a real ``fleetgate demo`` (lab map, speed 2).
+
+Positions, status and the slack series are read from what the page itself holds
+(``window.fleetgate``, filled only from the gateway's websocket messages) and from its DOM.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any
+
+import pytest
+from playwright.sync_api import Page, expect
+
+from tests.gui.conftest import SPEED
+
+pytestmark = pytest.mark.gui
+
+ACTIVE = "['running', 'paused', 'replanning'].includes(window.fleetgate.status())"
+
+
+def robots(page: Page) -> list[dict[str, Any]]:
+    """The robots as the page draws them: id, cell, pos (fractional while moving), activity."""
+    result: list[dict[str, Any]] = page.evaluate("window.fleetgate.robots()")
+    return result
+
+
+def cells(page: Page) -> list[tuple[int, int]]:
+    """Each robot's cell, from the page."""
+    return [tuple(r["cell"]) for r in robots(page)]
+
+
+def wait_moved(page: Page, before: list[tuple[int, int]], timeout_ms: float = 5_000) -> None:
+    """Until some robot's cell differs from ``before``."""
+    page.wait_for_function(
+        "prev => JSON.stringify(window.fleetgate.robots().map(r => r.cell)) !== prev",
+        arg=json.dumps([list(c) for c in before], separators=(",", ":")), timeout=timeout_ms)
+
+
+def set_speed(page: Page, speed: float) -> None:
+    """Move the speed slider (its change event sends set_speed) and wait for the gateway."""
+    slider = page.get_by_label("Speed")
+    slider.fill(str(speed))
+    slider.dispatch_event("change")
+    page.wait_for_function(f"window.fleetgate.model.snap.speed === {speed}")
+
+
+def fresh_run(page: Page) -> None:
+    """Finish any run quickly (speed 20), then start the loaded plan at the test speed."""
+    if page.evaluate(ACTIVE):
+        set_speed(page, 20)
+        if page.evaluate("window.fleetgate.status() === 'paused'"):
+            page.get_by_role("button", name="Resume").click()
+        page.wait_for_function("window.fleetgate.status() === 'done'", timeout=20_000)
+        set_speed(page, SPEED)
+    elif page.evaluate(f"window.fleetgate.model.snap.speed !== {SPEED}"):
+        set_speed(page, SPEED)
+    page.get_by_role("button", name="Start").click()
+    expect(page.locator("#status")).to_have_text("running")
+    page.wait_for_function("window.fleetgate.plan() === 0")
+
+
+def test_page_loads(page: Page) -> None:
+    """The GUI connects, draws the lab map (14 x 10) and a robot per agent, labels controls."""
+    expect(page).to_have_title("fleetgate operator")
+    expect(page.locator("#link")).to_have_text("live")
+    snap = page.evaluate("window.fleetgate.model.snap")
+    assert len(snap["rows"]) == 10 and all(len(r) == 14 for r in snap["rows"])
+    assert len(robots(page)) == len(snap["robots"]) >= 1
+    for name in ("Start", "Pause", "Resume", "Replan now", "Place intruder", "Load"):
+        expect(page.get_by_role("button", name=name)).to_be_visible()
+    for label in ("Speed", "Policy", "Map", "Scenario", "Robots", "Generate"):
+        expect(page.get_by_label(label, exact=True)).to_be_visible()
+    expect(page.get_by_label("Threshold")).to_be_visible()
+    box = page.locator("#map").bounding_box()
+    assert box is not None and box["width"] > 400 and box["height"] > 300
+
+
+def test_robots_move(page: Page) -> None:
+    """Positions change between two reads; a moving robot is drawn between its two cells."""
+    fresh_run(page)
+    first = cells(page)
+    page.wait_for_function(
+        "window.fleetgate.robots().some(r => r.activity === 'running'"
+        " && (r.pos[0] % 1 !== 0 || r.pos[1] % 1 !== 0))", timeout=5_000)
+    time.sleep(1.2)
+    assert cells(page) != first
+    expect(page.locator("#status")).to_have_text("running")
+
+
+def test_pause_stops_and_resume_restarts(page: Page) -> None:
+    """After pause (and the running moves completing) nobody moves; after resume they do."""
+    fresh_run(page)
+    time.sleep(0.6)
+    page.get_by_role("button", name="Pause").click()
+    expect(page.locator("#status")).to_have_text("paused")
+    expect(page.get_by_role("button", name="Resume")).to_be_enabled()
+    page.wait_for_function(
+        "window.fleetgate.robots().every(r => r.activity !== 'running')", timeout=5_000)
+    time.sleep(0.3)
+    paused = cells(page)
+    time.sleep(1.5)  # 3 actions' worth of plan time at speed 2
+    assert cells(page) == paused
+    assert all(r["activity"] != "running" for r in robots(page))
+    page.get_by_role("button", name="Resume").click()
+    expect(page.locator("#status")).to_have_text("running")
+    wait_moved(page, paused)
+
+
+def test_intruder_click_blocks_a_robot_and_slack_rises(page: Page) -> None:
+    """Policy none; an intruder clicked onto a cell a robot is about to enter blocks it and
+    the fleet slack Δ̄F in the chart's series goes above zero (no replan hides it)."""
+    page.get_by_label("Policy").select_option("none")
+    page.wait_for_function("window.fleetgate.model.snap.policy === 'none'")
+    fresh_run(page)
+    rs = robots(page)
+    occupied = {tuple(r["cell"]) for r in rs}
+    # the robot with the longest way to go; its 3rd cell ahead, if no robot stands there now
+    target = next(tuple(r["remaining"][3]) for r in sorted(rs, key=lambda r: -len(r["remaining"]))
+                  if len(r["remaining"]) > 4 and tuple(r["remaining"][3]) not in occupied)
+    # real-time jitter leaves Δ̄F at a few ms at most before the intruder
+    assert max((v for _, v in page.evaluate("window.fleetgate.slack()")), default=0.0) < 100
+    page.get_by_label("for (s)").fill("6")
+    page.get_by_role("button", name="Place intruder").click()
+    expect(page.get_by_role("button", name="Place intruder")).to_have_attribute(
+        "aria-pressed", "true")
+    xy = page.evaluate(f"window.fleetgate.cellCenter({target[0]}, {target[1]})")
+    page.mouse.click(xy["x"], xy["y"])
+    page.wait_for_function(
+        f"window.fleetgate.model.snap.intruders.some(c => c[0] === {target[0]}"
+        f" && c[1] === {target[1]})", timeout=5_000)
+    page.wait_for_function(
+        "window.fleetgate.robots().some(r => r.activity === 'blocked')", timeout=6_000)
+    page.wait_for_function(
+        "window.fleetgate.slack().some(p => p[1] > 500)", timeout=6_000)
+    expect(page.get_by_role("list", name="Event log")).to_contain_text("blocked")
+    assert page.evaluate("window.fleetgate.plan()") == 0  # policy none: nobody replanned
+
+
+def test_replan_now_adopts_a_new_plan(page: Page) -> None:
+    """"Replan now" stops the fleet, solves from where the robots are, and plan 1 runs."""
+    fresh_run(page)
+    time.sleep(0.6)
+    expect(page.locator("#plan-now")).to_have_attribute("data-plan", "0")
+    page.get_by_role("button", name="Replan now").click()
+    expect(page.locator("#plan-now")).to_have_attribute("data-plan", "1", timeout=10_000)
+    expect(page.locator("#plan-now")).to_contain_text("1 replan")
+    expect(page.get_by_role("list", name="Event log")).to_contain_text("new plan 1")
+    page.wait_for_function("window.fleetgate.status() === 'running'"
+                           " || window.fleetgate.status() === 'done'", timeout=5_000)
+
+
+def test_load_instance_then_run(page: Page) -> None:
+    """Load 6 robots of lab-random-2 from the form, start it, they move; then restore."""
+    fresh_run(page)
+    set_speed(page, 20)
+    page.wait_for_function("window.fleetgate.status() === 'done'", timeout=20_000)
+    set_speed(page, SPEED)
+    page.get_by_label("Scenario").fill("lab-random-2")
+    page.get_by_label("Robots").fill("6")
+    page.get_by_role("button", name="Load").click()
+    expect(page.locator("#status")).to_have_text("loaded", timeout=15_000)
+    page.wait_for_function("window.fleetgate.robots().length === 6")
+    expect(page.locator("#map-now")).to_contain_text("6 robots")
+    first = cells(page)
+    page.get_by_role("button", name="Start").click()
+    wait_moved(page, first)
+    # back to the module's instance for whoever runs next
+    set_speed(page, 20)
+    page.wait_for_function("window.fleetgate.status() === 'done'", timeout=20_000)
+    set_speed(page, SPEED)
+    page.get_by_label("Scenario").fill("lab-random-1")
+    page.get_by_label("Robots").fill("10")
+    page.get_by_role("button", name="Load").click()
+    expect(page.locator("#status")).to_have_text("loaded", timeout=15_000)
