@@ -381,8 +381,9 @@ class Engine:
     def _hello(self, session: Session, msg: Hello) -> None:
         r = msg.robot_id
         rec = self.robot(r)
-        if rec.session is not None and rec.session is not session:
-            rec.session.close(4000, "replaced by a new connection of the same robot")
+        if rec.session is not None:  # a reconnect, or a second hello on this connection
+            if rec.session is not session:
+                rec.session.close(4000, "replaced by a new connection of the same robot")
             self.metrics.connected_robots.dec()
         rec.session = None  # dispatches unlocked below are resent in the welcome
         if msg.pose is not None:

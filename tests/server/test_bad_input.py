@@ -16,14 +16,16 @@ from gateway.server.gateway import Gateway
 from protocol import (
     MAX_MESSAGE_BYTES,
     Action,
+    Error,
     ErrorCode,
     Finished,
     Hello,
     LoadPlan,
     Start,
     Started,
+    State,
 )
-from tests.server.conftest import LAB_PATHS, Connect
+from tests.server.conftest import LAB_PATHS, Connect, connector, make_config
 from tests.server.robots import Peer, TestRobot
 
 
@@ -190,3 +192,24 @@ async def test_reports_before_hello_are_refused(ws_connect: Connect) -> None:
 async def _until(predicate: Any) -> None:
     while not predicate():
         await asyncio.sleep(0.01)
+
+
+async def test_flooding_is_rate_limited() -> None:
+    # burst of 5 messages, then 1 per second: of 12 sent at once, at least 6 are refused
+    async with Gateway(make_config(rate_per_s=1.0, rate_burst=5.0, max_errors=100)) as gw:
+        gw.port = await gw.listen()  # type: ignore[attr-defined]
+        robot = TestRobot(await connector(gw)("demo-robot-0"), 0)
+        for _ in range(12):
+            await robot.send(State, robot_id=0)
+        async with asyncio.timeout(5):
+            while sum(1 for m in robot.inbox if isinstance(m, Error)) < 6:
+                await robot.recv()
+        codes = {m.code for m in robot.inbox if isinstance(m, Error)}
+        assert codes == {ErrorCode.RATE_LIMITED}
+
+
+async def test_second_hello_on_one_connection_counts_once(fleet: Fleet) -> None:
+    await fleet.bad.hello()
+    await fleet.bad.hello()
+    assert fleet.gw.metrics.connected_robots._value.get() == 3
+    assert fleet.gw.engine.connected_robots() == 3

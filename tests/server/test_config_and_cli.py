@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -15,6 +16,7 @@ import pytest
 from gateway.cli import main
 from gateway.server.auth import Authenticator, AuthError, Peer, request_token
 from gateway.server.config import ConfigError, load_config
+from gateway.server.logs import JsonFormatter
 
 FLEETGATE = str(Path(sys.executable).parent / "fleetgate")
 
@@ -107,3 +109,11 @@ def test_the_example_deployment_config_is_valid() -> None:
     assert auth.identify("CHANGE-ME-robot-2-token") == Peer("robot", 2)
     with pytest.raises(AuthError):
         auth.identify("demo-robot-0")
+
+
+def test_logs_are_json_lines_with_extra_fields() -> None:
+    record = logging.makeLogRecord({"name": "fleetgate.engine", "levelname": "INFO",
+                                    "msg": "robot %s connected", "args": (3,), "robot": 3})
+    line = json.loads(JsonFormatter().format(record))
+    assert line["msg"] == "robot 3 connected" and line["robot"] == 3
+    assert line["level"] == "INFO" and line["logger"] == "fleetgate.engine"
