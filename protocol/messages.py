@@ -192,7 +192,9 @@ class Action(Envelope):
 class Welcome(Envelope):
     """Answer to ``hello``: the robot's assigned start and the actions it must (re)execute.
 
-    ``resend`` holds every dispatched action the gateway has no ``finished`` for, in order.
+    ``resend`` holds every dispatched action the gateway has no ``finished`` for, in order
+    (each with ``msg_id`` ``"resend-<action_id>"`` and ``seq`` 0); the robot executes those it
+    does not hold yet and drops the others. Cancels still owed follow as ``cancel`` messages.
     """
 
     type: Literal["welcome"] = "welcome"

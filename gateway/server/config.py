@@ -78,6 +78,11 @@ class GatewayConfig(BaseSettings):
     trace: Path | None = None
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
+    @property
+    def loopback(self) -> bool:
+        """True if the gateway listens on a loopback address only."""
+        return _is_loopback(self.host)
+
     @model_validator(mode="after")
     def _demo_tokens_only_on_loopback(self) -> GatewayConfig:
         t = self.tokens

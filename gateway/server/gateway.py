@@ -92,8 +92,11 @@ class Gateway:
         self._links: set[asyncio.Task[None]] = set()
         self._sessions: set[Session] = set()
         ops = self.config.tokens.operators
+        embed = ops[0] if ops and self.config.loopback else None  # loopback demo only
         self.http = HttpRoutes(self.metrics.render, self._health, self.config.static_dir,
-                               operator_token=ops[0] if ops else None)
+                               operator_token=embed)
+        self.port: int | None = None
+        """The bound port once :meth:`listen` returned."""
 
     # ------------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
@@ -178,9 +181,9 @@ class Gateway:
             process_request=self._process_request, max_size=HARD_MAX_BYTES, compression=None,
             ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s,
             close_timeout=cfg.ping_timeout_s, max_queue=64)
-        bound = int(self._server.sockets[0].getsockname()[1])
-        log.info("listening", extra={"host": host or cfg.host, "port": bound})
-        return bound
+        self.port = int(self._server.sockets[0].getsockname()[1])
+        log.info("listening", extra={"host": host or cfg.host, "port": self.port})
+        return self.port
 
     # ------------------------------------------------------------------------ connections
     def _track(self, task: asyncio.Task[None]) -> None:

@@ -31,13 +31,13 @@ def make_config(**overrides: Any) -> GatewayConfig:
 async def gateway() -> AsyncIterator[Gateway]:
     """A started gateway listening on 127.0.0.1 (port in ``gateway.port``)."""
     async with Gateway(make_config()) as gw:
-        gw.port = await gw.listen()  # type: ignore[attr-defined]
+        await gw.listen()
         yield gw
 
 
 def ws_url(gw: Gateway, query: str = "") -> str:
     """The websocket URL of a listening gateway."""
-    return f"ws://127.0.0.1:{gw.port}/ws{query}"  # type: ignore[attr-defined]
+    return f"ws://127.0.0.1:{gw.port}/ws{query}"
 
 
 def connector(gw: Gateway) -> Connect:

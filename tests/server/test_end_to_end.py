@@ -29,13 +29,13 @@ action 0 (a Type 2 edge). 1-robust: robot 1 is never where robot 0 was one step 
 async def traced(tmp_path: Path) -> AsyncIterator[Gateway]:
     """A listening gateway that writes its trace to ``tmp_path/trace.jsonl``."""
     async with Gateway(make_config(trace=tmp_path / "trace.jsonl")) as gw:
-        gw.port = await gw.listen()  # type: ignore[attr-defined]
+        await gw.listen()
         yield gw
 
 
 async def ws(gw: Gateway, token: str) -> ClientConnection:
     """A websocket client authenticated with ``token``."""
-    return await connect(f"ws://127.0.0.1:{gw.port}/ws",  # type: ignore[attr-defined]
+    return await connect(f"ws://127.0.0.1:{gw.port}/ws",
                          additional_headers={"Authorization": f"Bearer {token}"}, proxy=None)
 
 

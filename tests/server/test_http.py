@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
+from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from protocol import LoadPlan, Start
 from tests.server.conftest import LAB_PATHS, connector, make_config
@@ -40,8 +41,8 @@ async def served(tmp_path: Path) -> AsyncIterator[tuple[Gateway, int]]:
     (static / "style.css").write_text("body{}")
     (tmp_path / "secret.txt").write_text("do not serve")
     async with Gateway(make_config(static_dir=static)) as gw:
-        gw.port = await gw.listen()  # type: ignore[attr-defined]
-        yield gw, gw.port  # type: ignore[attr-defined]
+        await gw.listen()
+        yield gw, gw.port or 0
 
 
 async def test_static_files_with_content_types(served: tuple[Gateway, int]) -> None:
@@ -90,3 +91,12 @@ async def test_metrics_after_a_run(served: tuple[Gateway, int]) -> None:
     assert samples["fleetgate_replans_total"] == 0
     for t in tasks:
         t.cancel()
+
+
+def test_operator_token_is_embedded_only_on_loopback(tmp_path: Path) -> None:
+    (tmp_path / "index.html").write_text("t={{OPERATOR_TOKEN}}")
+    exposed = Gateway(GatewayConfig(host="0.0.0.0", allow_demo_tokens=True,
+                                    static_dir=tmp_path))
+    assert exposed.http("/").body == b"t={{OPERATOR_TOKEN}}"
+    local = Gateway(GatewayConfig(static_dir=tmp_path))
+    assert local.http("/").body == b"t=demo-operator"

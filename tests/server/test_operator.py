@@ -114,7 +114,7 @@ async def test_pause_stops_new_moves_until_resume(gateway: Gateway, ws_connect: 
 
 async def test_replan_now_adopts_a_new_plan(tmp_path: Path) -> None:
     async with Gateway(make_config(trace=tmp_path / "t.jsonl", policy="none")) as gw:
-        gw.port = await gw.listen()  # type: ignore[attr-defined]
+        await gw.listen()
         connect = connector(gw)
         op = await operator(connect)
         await ok(op, LoadInstance, map="lab", scen="lab-random-3", agents=4)

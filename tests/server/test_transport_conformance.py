@@ -45,7 +45,7 @@ async def _transport(name: str, **config: Any) -> AsyncIterator[Transport]:
                 return await gw.connect(token or "")
             yield Transport(name, gw, open_memory)
         else:
-            gw.port = await gw.listen()  # type: ignore[attr-defined]
+            await gw.listen()
             ws = connector(gw)
 
             async def open_ws(token: str | None) -> ClientLink:
