@@ -101,7 +101,7 @@ class VirtualClock(LoopClock):
     def reset(self) -> None:
         """Make now 0 ms; refuses to run on a loop without virtual time."""
         loop = asyncio.get_running_loop()
-        if not isinstance(loop, looptime.LoopTimeEventLoop):
+        if not isinstance(loop, looptime.LoopTimeEventLoop) or not loop.looptime_on:
             raise RuntimeError("VirtualClock needs a looptime event loop: use run_virtual()")
         super().reset()
 

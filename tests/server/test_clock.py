@@ -1,0 +1,90 @@
+"""Clocks: virtual time runs a whole asyncio system (gateway + in-memory robots) exactly and
+reproducibly; speed changes keep time continuous; the planner's time is charged as told."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+import pytest
+
+from gateway.server.clock import RealClock, VirtualClock, run_virtual
+from gateway.server.gateway import Gateway
+from protocol import LoadPlan, Start
+from tests.server.conftest import LAB_PATHS, make_config
+from tests.server.robots import TestRobot
+
+
+async def _run_lab(trace: Path) -> tuple[float, float, float]:
+    async with Gateway(make_config(trace=trace), clock=VirtualClock()) as gw:
+        await gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS))
+        robots = [TestRobot(await gw.connect(f"demo-robot-{i}"), i, move_s=1.0)
+                  for i in range(3)]
+        for r in robots:
+            await r.hello()
+        tasks = [asyncio.create_task(r.run()) for r in robots]
+        await gw.command(Start(msg_id="s", seq=1))
+        soc, makespan = await gw.wait_done()
+        for t in tasks:
+            t.cancel()
+        return soc, makespan, gw.clock.now_ms()
+
+
+def test_virtual_time_is_exact_and_reproducible(tmp_path: Path) -> None:
+    first = run_virtual(_run_lab(tmp_path / "a.jsonl"))
+    # every action takes 1000 ms and no robot waits: SOC = (5 + 3 + 2) x 1000, makespan 5000
+    assert first[:2] == (10000.0, 5000.0)
+    assert first[2] == 5000.0
+    second = run_virtual(_run_lab(tmp_path / "b.jsonl"))
+    assert second == first
+    a = [json.loads(x) for x in (tmp_path / "a.jsonl").read_text().splitlines()]
+    b = [json.loads(x) for x in (tmp_path / "b.jsonl").read_text().splitlines()]
+    assert a == b and a[-1] == {"type": "summary", "soc_ms": 10000.0, "makespan_ms": 5000.0}
+
+
+def test_virtual_clock_charges_the_solver_as_configured() -> None:
+    async def charged(solver_time: float | str) -> tuple[int, float, float]:
+        clock = VirtualClock(solver_time=solver_time)  # type: ignore[arg-type]
+        clock.reset()
+        result, ms = await clock.run_solver(lambda: 6 * 7)
+        return result, ms, clock.now_ms()
+
+    assert run_virtual(charged(750.0)) == (42, 750.0, 750.0)
+    assert run_virtual(charged("zero")) == (42, 0.0, 0.0)
+    result, ms, now = run_virtual(charged("measured"))
+    assert result == 42 and ms >= 0.0
+    assert now == pytest.approx(ms, abs=0.001)  # the loop's resolution is 1 µs
+
+
+def test_speed_change_keeps_plan_time_continuous() -> None:
+    async def scenario() -> list[float]:
+        clock = VirtualClock(speed=1.0)
+        clock.reset()
+        await asyncio.sleep(1.0)           # 1000 ms of plan time at speed 1
+        clock.set_speed(4.0)
+        seen = [clock.now_ms()]
+        await asyncio.sleep(0.5)           # 0.5 s of loop time = 2000 ms at speed 4
+        seen.append(clock.now_ms())
+        await clock.sleep_until_ms(5000.0)  # 1000 ms more plan time = 0.25 s of loop time
+        seen.append(clock.now_ms())
+        return seen
+
+    assert run_virtual(scenario()) == [1000.0, 3000.0, 5000.0]
+
+
+async def test_virtual_clock_refuses_a_real_loop() -> None:
+    with pytest.raises(RuntimeError, match="looptime"):
+        VirtualClock().reset()
+    with pytest.raises(ValueError, match="positive"):
+        RealClock().set_speed(0.0)
+
+
+async def test_real_clock_runs_the_solver_in_a_thread() -> None:
+    import threading
+
+    clock = RealClock()
+    clock.reset()
+    main = threading.get_ident()
+    worker, _ = await clock.run_solver(threading.get_ident)
+    assert worker != main
