@@ -21,7 +21,6 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import IO, Any, Literal
 
 from gateway.execution.commands import (
@@ -39,6 +38,15 @@ from gateway.planning.grid import Cell
 from gateway.planning.plan import NoSolution, Plan
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
+from gateway.server.items import (
+    Connected,
+    Disconnected,
+    Inbound,
+    InternalCommand,
+    Item,
+    Reply,
+    SolverDone,
+)
 from gateway.server.metrics import Metrics
 from gateway.server.planner import (
     InstanceError,
@@ -47,12 +55,12 @@ from gateway.server.planner import (
     problem_from_paths,
     resolve_instance,
 )
+from gateway.server.robots import Held, RobotRecord
 from gateway.server.session import Session
 from gateway.server.views import snapshot_fields
 from protocol import (
     Ack,
     Action,
-    AnyMessage,
     Blocked,
     CancelAction,
     Cancelled,
@@ -83,94 +91,11 @@ from protocol import (
     action_id,
     parse_action_id,
 )
-from protocol.messages import GatewayStatus, PolicyName, RobotActivity
+from protocol.messages import GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
 
 ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled"]
-
-
-# ------------------------------------------------------------------------------ queue items
-@dataclass
-class Inbound:
-    """A validated message from a session (``received`` = perf_counter at arrival).
-
-    ``at_ms`` is the plan time of its arrival: a robot's report is applied at that time, not
-    when the owner task gets to it, so a burst of reports does not delay the later ones.
-    """
-
-    session: Session
-    message: AnyMessage
-    received: float
-    at_ms: float | None = None
-
-
-@dataclass
-class Connected:
-    """A session was opened."""
-
-    session: Session
-
-
-@dataclass
-class Disconnected:
-    """A session ended."""
-
-    session: Session
-
-
-@dataclass
-class InternalCommand:
-    """An operator command from inside the process (demo, tests); answered on ``reply``."""
-
-    message: OperatorCommand
-    reply: asyncio.Future[tuple[ErrorCode | None, str]]
-
-
-@dataclass
-class SolverDone:
-    """The planner finished: ``result`` is a plan or the exception it raised."""
-
-    purpose: Literal["load", "replan"]
-    result: Plan | Exception
-    problem: Problem | None
-    reply: Session | asyncio.Future[tuple[ErrorCode | None, str]] | None
-    ref: str | None
-    wall_ms: float
-
-
-Item = Inbound | Connected | Disconnected | InternalCommand | SolverDone
-Reply = Session | asyncio.Future[tuple[ErrorCode | None, str]] | None
-
-
-# ------------------------------------------------------------------------------ robot records
-@dataclass
-class Held:
-    """An action a robot holds: dispatched, not finished or cancelled."""
-
-    fields: dict[str, Any]
-    phase: Literal["dispatched", "running", "blocked"] = "dispatched"
-    acked: bool = False
-    cancel: bool = False
-
-
-@dataclass
-class RobotRecord:
-    """What the gateway knows about one robot."""
-
-    session: Session | None = None
-    pose: Pose | None = None
-    held: dict[str, Held] = field(default_factory=dict)
-    applied: dict[str, str] = field(default_factory=dict)  # action id -> "finished"/"cancelled"
-    next_index: int = 0  # actions of the current plan finished
-
-    def activity(self) -> RobotActivity:
-        """What the robot is doing, as far as the gateway knows."""
-        if self.session is None:
-            return "disconnected"
-        for h in self.held.values():
-            return "received" if h.phase == "dispatched" else h.phase
-        return "idle"
 
 
 class CommandError(Exception):

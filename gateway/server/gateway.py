@@ -34,15 +34,9 @@ from websockets.http11 import Request, Response
 from gateway.server.auth import Authenticator, AuthError, Peer, request_token
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
-from gateway.server.engine import (
-    CommandError,
-    Connected,
-    Disconnected,
-    Engine,
-    Inbound,
-    InternalCommand,
-)
+from gateway.server.engine import CommandError, Engine
 from gateway.server.http import HttpRoutes, response
+from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.metrics import Metrics
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.session import Session

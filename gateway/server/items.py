@@ -1,0 +1,66 @@
+"""What the owner task's queue carries: connection events, validated messages, internal
+commands and planner results (produced by connection handlers and helper tasks, consumed by
+:class:`gateway.server.engine.Engine` alone)."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+from typing import Literal
+
+from gateway.planning.plan import Plan
+from gateway.server.planner import Problem
+from gateway.server.session import Session
+from protocol import AnyMessage, ErrorCode, OperatorCommand
+
+
+@dataclass
+class Inbound:
+    """A validated message from a session (``received`` = perf_counter at arrival).
+
+    ``at_ms`` is the plan time of its arrival: a robot's report is applied at that time, not
+    when the owner task gets to it, so a burst of reports does not delay the later ones.
+    """
+
+    session: Session
+    message: AnyMessage
+    received: float
+    at_ms: float | None = None
+
+
+@dataclass
+class Connected:
+    """A session was opened."""
+
+    session: Session
+
+
+@dataclass
+class Disconnected:
+    """A session ended."""
+
+    session: Session
+
+
+@dataclass
+class InternalCommand:
+    """An operator command from inside the process (demo, tests); answered on ``reply``."""
+
+    message: OperatorCommand
+    reply: asyncio.Future[tuple[ErrorCode | None, str]]
+
+
+@dataclass
+class SolverDone:
+    """The planner finished: ``result`` is a plan or the exception it raised."""
+
+    purpose: Literal["load", "replan"]
+    result: Plan | Exception
+    problem: Problem | None
+    reply: Session | asyncio.Future[tuple[ErrorCode | None, str]] | None
+    ref: str | None
+    wall_ms: float
+
+
+Item = Inbound | Connected | Disconnected | InternalCommand | SolverDone
+Reply = Session | asyncio.Future[tuple[ErrorCode | None, str]] | None
