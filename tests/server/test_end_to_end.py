@@ -158,3 +158,19 @@ async def test_silent_link_is_dropped_by_ping_timeout(gateway: Gateway) -> None:
     await asyncio.wait_for(_until(lambda: gw.engine.robot(0).session is None), 10)
     assert list(gw.engine.robot(0).held) == ["0.0.0"]
     assert gw.status == "running"
+
+
+async def test_autostart_when_every_robot_said_hello() -> None:
+    async with Gateway(make_config(autostart=True)) as gw:
+        await gw.listen()
+        await load(gw, LAB_PATHS)
+        robots = [TestRobot(await ws(gw, f"demo-robot-{i}"), i) for i in range(3)]
+        for r in robots[:2]:
+            await r.hello()
+        assert gw.status == "loaded"  # robot 2 is still missing
+        await robots[2].hello()
+        tasks = [asyncio.create_task(r.run()) for r in robots]
+        soc, _ = await asyncio.wait_for(gw.wait_done(), 10)
+        assert soc > 0 and [len(r.finished) for r in robots] == [5, 3, 2]
+        for t in tasks:
+            t.cancel()

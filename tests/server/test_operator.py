@@ -13,6 +13,7 @@ from protocol import (
     Error,
     ErrorCode,
     Event,
+    GenerateParams,
     GetSnapshot,
     IntruderReport,
     LoadInstance,
@@ -86,6 +87,19 @@ async def test_load_instance_start_and_event_stream(gateway: Gateway, ws_connect
     final = await _snapshot(op)
     assert final.status == "done" and final.actions.finished == total
     assert final.soc_ms == gateway.engine.summary[0]  # type: ignore[index]
+
+
+async def test_load_instance_can_generate_starts_and_goals(gateway: Gateway,
+                                                          ws_connect: Connect) -> None:
+    op = await operator(ws_connect)
+    await ok(op, LoadInstance, map="lab", generate=GenerateParams(seed=5), agents=6)
+    snap = await op.snapshot()
+    starts = [tuple(p[0]) for p in snap.paths]
+    goals = [tuple(p[-1]) for p in snap.paths]
+    assert len(set(starts)) == len(set(goals)) == 6
+    again = await ok(op, LoadInstance, map="lab", generate=GenerateParams(seed=5), agents=6)
+    assert "6 robots" in again.detail
+    assert [tuple(p[0]) for p in (await op.snapshot()).paths] == starts  # same seed, same starts
 
 
 async def test_pause_stops_new_moves_until_resume(gateway: Gateway, ws_connect: Connect
