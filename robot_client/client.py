@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 import uuid
 from collections import deque
-from collections.abc import Callable
 from typing import Any
 
 from websockets.asyncio.client import ClientConnection, backoff, connect
@@ -57,7 +55,7 @@ from robot_client.apriltag_localiser import Localiser, TagLocator
 from robot_client.body import RobotBody
 from robot_client.config import RobotSettings
 from robot_client.floor import HEADING_ANGLE, nearest_heading
-from robot_client.frames import FrameSource
+from robot_client.frames import FrameSource, monotonic_ms
 from robot_client.kobuki import KobukiSerial
 from robot_client.odometry import Pose
 from robot_client.runner import ActionRunner, GridAction, RunnerEvent
@@ -86,13 +84,11 @@ class RobotClient:
     """One robot's connection to the gateway (see module doc). ``run`` until ``stop``."""
 
     def __init__(self, settings: RobotSettings, body: RobotBody,
-                 frames: FrameSource | None = None,
-                 clock_ms: Callable[[], float] | None = None) -> None:
+                 frames: FrameSource | None = None) -> None:
         self.settings = settings
         self.body = body
         self.frames = frames
         self.floor = settings.floor()
-        self._clock_ms = clock_ms or (lambda: time.monotonic() * 1000.0)
         self.held: deque[GridAction] = deque()
         self.known: set[str] = set()
         self.finished: deque[str] = deque(maxlen=256)
@@ -187,7 +183,7 @@ class RobotClient:
         period = self.settings.control_period_ms / 1000.0
         deadline = loop.time()
         while True:
-            now = self._clock_ms()
+            now = monotonic_ms()
             for event in self.body.tick(now):
                 await self._report(event)
             if not self.body.runner.busy and self.held and self.link is not None \
@@ -205,10 +201,10 @@ class RobotClient:
         while True:
             frame = await asyncio.to_thread(self.frames.read)
             if frame is not None:
-                seen_at = self.body.pose
-                fix = await asyncio.to_thread(locator.locate, frame)
+                fix = await asyncio.to_thread(locator.locate, frame.image)
                 if fix is not None:
-                    self.body.localiser.apply(fix, seen_at=seen_at)
+                    # replay on the fix the motion made since the frame was captured
+                    self.body.localiser.apply(fix, seen_at=self.body.pose_at(frame.t_ms))
             await asyncio.sleep(period)
 
     # ---------------------------------------------------------------- link

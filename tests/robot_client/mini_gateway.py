@@ -26,6 +26,7 @@ class Conn:
         self.ws = ws
         self.seq = 0
         self.received: list[AnyMessage] = []
+        self._unclaimed: list[AnyMessage] = []
 
     async def send(self, cls: type[AnyMessage], **fields: Any) -> None:
         """Send a message of type ``cls`` with a fresh msg_id and the next seq."""
@@ -35,14 +36,22 @@ class Conn:
 
     async def expect(self, cls: type[M], action_id: str | None = None,
                      timeout_s: float = 15.0) -> M:
-        """The next received message of type ``cls`` (and ``action_id``), skipping others."""
+        """The first received message of type ``cls`` (and ``action_id``) that no earlier
+        ``expect`` returned, waiting for it if needed: messages may arrive in any order."""
+
+        def matches(msg: AnyMessage) -> bool:
+            return isinstance(msg, cls) and (
+                action_id is None or getattr(msg, "action_id", None) == action_id)
+
         async with asyncio.timeout(timeout_s):
             while True:
+                for msg in self._unclaimed:
+                    if matches(msg):
+                        self._unclaimed.remove(msg)
+                        return msg  # type: ignore[return-value]
                 msg = decode(await self.ws.recv())
                 self.received.append(msg)
-                if isinstance(msg, cls) and (action_id is None
-                                             or getattr(msg, "action_id", None) == action_id):
-                    return msg
+                self._unclaimed.append(msg)
 
     def of_type(self, cls: type[M]) -> list[M]:
         """Every received message of type ``cls`` so far."""

@@ -163,3 +163,16 @@ def test_bad_actions_are_refused() -> None:
     runner.start(GridAction("0.0.0", (0, 0), (0, 0)), 0.0)
     with pytest.raises(RuntimeError, match="busy"):
         runner.start(GridAction("0.0.1", (0, 0), (1, 0)), 0.0)
+
+
+def test_body_remembers_the_pose_of_each_tick(rig_factory: list[PtyRig]) -> None:
+    rig = make(rig_factory, (0, 0), 0.0)
+    rig.body.start(GridAction("0.0.0", (0, 0), (1, 0), "E", "E"), rig.now)
+    seen = []
+    for _ in range(30):
+        rig.tick()
+        seen.append((rig.now, rig.body.pose))
+    t, pose = seen[10]
+    assert rig.body.pose_at(t) == pose and rig.body.pose_at(t + 19.0) == pose
+    assert rig.body.pose_at(-1.0) == seen[0][1]  # older than the history: the oldest kept
+    assert seen[29][1].x > seen[10][1].x  # it was moving, so the poses differ
