@@ -92,7 +92,7 @@ class Session:
             self._queue.put_nowait(None)
         except asyncio.QueueFull:
             self.writer.cancel()
-            asyncio.get_running_loop().create_task(self.link.close(code, reason))
+            self._closer = asyncio.get_running_loop().create_task(self.link.close(code, reason))
 
     async def _write(self) -> None:
         try:
