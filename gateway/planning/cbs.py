@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from heapq import heappop, heappush
 
 from gateway.planning.cbs_conflicts import Branch, Conflict, pair_conflicts, rectangle
-from gateway.planning.constraints import ConstraintTable, build_table
+from gateway.planning.constraints import FINISH, ConstraintTable, build_table
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.low_level import (
     AvoidanceTable,
@@ -210,6 +210,8 @@ class _Search:
 
     def _raises_cost(self, node: _Node, branch: Branch) -> bool:
         agent, ((cell, t0, t1),) = branch
+        if cell == FINISH:
+            return node.costs[agent] <= t0
         return mdd_always_visits(
             self.model, self._mdd(node, agent), self.goals[agent], cell, t0, t1
         )

@@ -11,14 +11,15 @@ CBS complete and optimal:
   branches ``i: (v, t0, t0 + 1)`` and ``j: (v, t0, t0 + 1)``. A plan breaking both has i and j on
   v at two times of ``[t0, t0 + 1]``, which is itself a conflict.
 * target conflict, i parked on its goal g from its cost ``T_i`` and j on g at ``tj >= T_i - 1``
-  (``tj`` the last such time): branches ``i: (g, tj + 1, tj + 1)`` (i arrives for good after
-  ``tj + 1``) and ``j: (g, tj, INF)`` (j never on g from ``tj`` on). If i's cost is at most
-  ``tj + 1`` then i is on g from ``tj + 1`` for ever, and j on g at any time ``>= tj`` conflicts.
+  (``tj`` the last such time): branches ``i: (FINISH, tj + 1, tj + 1)`` (i arrives for good
+  after ``tj + 1``; it may still pass over g earlier) and ``j: (g, tj, INF)`` (j never on g
+  from ``tj`` on). If i's cost is at most ``tj + 1`` then i is on g from ``tj + 1`` for ever,
+  and j on g at any time ``>= tj`` conflicts.
 """
 
 from __future__ import annotations
 
-from gateway.planning.constraints import INF, Constraint
+from gateway.planning.constraints import FINISH, INF, Constraint
 from gateway.planning.grid import Cell
 
 Branch = tuple[int, tuple[Constraint, ...]]
@@ -54,10 +55,10 @@ def pair_conflicts(
     if target:
         tj = _last_visit(pj, gi)
         if tj >= ti_end - 1 and tj >= 0:
-            out.append((tj, (i, ((gi, tj + 1, tj + 1),)), (j, ((gi, tj, INF),))))
+            out.append((tj, (i, ((FINISH, tj + 1, tj + 1),)), (j, ((gi, tj, INF),))))
         ti = _last_visit(pi, gj)
         if ti >= tj_end - 1 and ti >= 0:
-            out.append((ti, (j, ((gj, ti + 1, ti + 1),)), (i, ((gj, ti, INF),))))
+            out.append((ti, (j, ((FINISH, ti + 1, ti + 1),)), (i, ((gj, ti, INF),))))
     seen: set[tuple[int, int]] = set()
     prev_i = pi[0]
     prev_j = pj[0]
@@ -108,6 +109,12 @@ def rectangle(
     is never on the exit row ``y = min gy`` at tau_v. A plan breaking both has h and v on
     monotone prefixes that cross R both ways, so they share a cell at times ``delta`` apart:
     a conflict. Hence every valid plan keeps one branch, and both raise their agent's cost.
+
+    The ranges are widened by a slack ``w`` (``[tau, tau + w]``): a prefix reaching the barrier
+    at most one step late is still monotone (a late arrival by one is one wait, by parity), and
+    it meets the other prefix at a time difference in ``delta + [-w_v, w_h]``; with
+    ``w_h = min(1, 1 - delta)`` and ``w_v = min(1, 1 + delta)`` that is still within one step.
+    So a branch with ``w = 1`` raises its agent's cost by two.
     """
     dx = _axis_direction((gi[0] > si[0]) - (gi[0] < si[0]), (gj[0] > sj[0]) - (gj[0] < sj[0]))
     dy = _axis_direction((gi[1] > si[1]) - (gi[1] < si[1]), (gj[1] > sj[1]) - (gj[1] < sj[1]))
@@ -115,23 +122,25 @@ def rectangle(
         return None
     six, siy, gix, giy = dx * si[0], dy * si[1], dx * gi[0], dy * gi[1]
     sjx, sjy, gjx, gjy = dx * sj[0], dy * sj[1], dx * gj[0], dy * gj[1]
-    if abs((sjx - six) + (sjy - siy)) > 1:
+    delta = (sjx - six) + (sjy - siy)  # tau_i - tau_j on every cell
+    if abs(delta) > 1:
         return None
     rsx, rsy, rgx, rgy = max(six, sjx), max(siy, sjy), min(gix, gjx), min(giy, gjy)
     if rsx > rgx or rsy > rgy:
         return None
     if siy >= sjy and giy <= gjy and sjx >= six and gjx <= gix:
-        h, shx, shy, v, svx, svy = i, six, siy, j, sjx, sjy
+        h, shx, shy, v, svx, svy, dh = i, six, siy, j, sjx, sjy, delta
     elif sjy >= siy and gjy <= giy and six >= sjx and gix <= gjx:
-        h, shx, shy, v, svx, svy = j, sjx, sjy, i, six, siy
+        h, shx, shy, v, svx, svy, dh = j, sjx, sjy, i, six, siy, -delta
     else:
         return None
+    wh, wv = min(1, 1 - dh), min(1, 1 + dh)
     bar_h = tuple(
-        (dy * y * width + dx * rgx, (rgx - shx) + (y - shy), (rgx - shx) + (y - shy))
+        (dy * y * width + dx * rgx, (rgx - shx) + (y - shy), (rgx - shx) + (y - shy) + wh)
         for y in range(rsy, rgy + 1)
     )
     bar_v = tuple(
-        (dy * rgy * width + dx * x, (x - svx) + (rgy - svy), (x - svx) + (rgy - svy))
+        (dy * rgy * width + dx * x, (x - svx) + (rgy - svy), (x - svx) + (rgy - svy) + wv)
         for x in range(rsx, rgx + 1)
     )
     return (h, bar_h), (v, bar_v)

@@ -15,7 +15,12 @@ INF = 1 << 30
 """An open upper end of a time range."""
 
 Constraint = tuple[int, int, int]
-"""``(cell id, t0, t1)``: the cell is forbidden at every timestep in ``[t0, t1]``."""
+"""``(cell id, t0, t1)``: the cell is forbidden at every timestep in ``[t0, t1]``; or
+``(FINISH, t, t)``: the agent may not arrive on its goal for good at or before t (it may still
+pass over its goal earlier)."""
+
+FINISH = -1
+"""The "cell" of a constraint on when the agent finishes rather than where it is."""
 
 
 @dataclass(slots=True)
@@ -25,7 +30,8 @@ class ConstraintTable:
     ``blocked`` holds keys ``t * size + cell`` of finite ranges; ``permanent[cell]`` is the
     first timestep from which a cell is forbidden for ever; ``horizon`` is a time after which
     nothing changes any more (so the low level may merge states by cell); ``last_blocked[cell]``
-    is the latest finite timestep at which the cell is forbidden.
+    is the latest finite timestep at which the cell is forbidden; the agent may not finish at or
+    before ``min_finish``.
     """
 
     size: int
@@ -33,15 +39,17 @@ class ConstraintTable:
     permanent: dict[int, int]
     last_blocked: dict[int, int]
     horizon: int
+    min_finish: int = -1
 
     def goal_block(self, goal: int) -> int:
         """Latest timestep at which ``goal`` is forbidden (INF if for ever, -1 if never).
 
-        An agent may end its path on ``goal`` at time T only if ``T > goal_block(goal)``.
+        An agent may end its path on ``goal`` at time T only if ``T > goal_block(goal)`` (this
+        includes its ``min_finish``).
         """
         if goal in self.permanent:
             return INF
-        return self.last_blocked.get(goal, -1)
+        return max(self.last_blocked.get(goal, -1), self.min_finish)
 
     def forbids(self, cell: int, t: int) -> bool:
         """True if ``cell`` is forbidden at timestep ``t``."""
@@ -57,7 +65,12 @@ def build_table(size: int, constraints: Iterable[Constraint]) -> ConstraintTable
     permanent: dict[int, int] = {}
     last_blocked: dict[int, int] = {}
     horizon = 0
+    min_finish = -1
     for cell, t0, t1 in constraints:
+        if cell == FINISH:
+            min_finish = max(min_finish, t0)
+            horizon = max(horizon, t0)
+            continue
         if t0 < 0 or t1 < t0:
             raise ValueError(f"bad time range [{t0}, {t1}] on cell {cell}")
         if t1 >= INF:
@@ -70,4 +83,4 @@ def build_table(size: int, constraints: Iterable[Constraint]) -> ConstraintTable
         if t1 > last_blocked.get(cell, -1):
             last_blocked[cell] = t1
         horizon = max(horizon, t1)
-    return ConstraintTable(size, blocked, permanent, last_blocked, horizon + 1)
+    return ConstraintTable(size, blocked, permanent, last_blocked, horizon + 1, min_finish)

@@ -37,6 +37,7 @@ def optimal_soc(
     if any(blocked(s, 0) for s in starts):
         return None
     moves = [[c, *grid.neighbours(c)] for c in (grid.cell(i) for i in range(grid.size))]
+    goals = [(g[0], g[1]) for g in goals]
     start = (tuple(starts), frozenset[int](), 0)
     best = {start: 0}
     heap: list[tuple[int, int, tuple[tuple[Cell, ...], frozenset[int], int]]] = [(0, 0, start)]
@@ -46,8 +47,8 @@ def optimal_soc(
         if cost > best.get(state, max_cost + 1) or cost > max_cost:
             continue
         cells, done, t = state
-        if len(done) == n:
-            return cost
+        if len(done) == n and not any(c in goals and t1 > t for c, _, t1 in forbidden):
+            return cost  # everyone parked for good and no later window hits a parked agent
         # finishing: any unfinished agent on its goal may finish now, for free
         for k in range(n):
             if k not in done and cells[k] == goals[k]:
