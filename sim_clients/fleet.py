@@ -498,6 +498,11 @@ class SimFleet:
         loop = asyncio.get_running_loop()
         if self._world_token is not None:
             self._tasks.append(loop.create_task(self._run_world(), name="sim-world"))
+            try:  # robots move at the gateway's speed: learn it before they can get actions
+                async with asyncio.timeout(10.0):
+                    await self._world_ready.wait()
+            except TimeoutError:
+                log.warning("no set_speed from the gateway on the world connection yet")
         for r in self._ids:
             self.add_robot(r)
         if not self._external_poll:

@@ -1,0 +1,137 @@
+"""``fleetgate sim``: simulated robots (and the simulated world) for a running gateway.
+
+Each robot connects to ``--connect`` with its own token, executes what it is dispatched on a
+shared simulated floor, and reconnects when its link drops. The world connection receives the
+operator's ``place_intruder`` and the gateway's ``set_speed``. Runs until Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import signal
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from gateway.cli import EXIT_OK, UsageError
+from sim_clients.cmd_demo import websocket_connector
+from sim_clients.fleet import SimFleet
+
+
+def parse_robots(spec: str) -> list[int]:
+    """``"10"`` = robots 0..9; ``"3-5,8"`` = robots 3, 4, 5 and 8. ValueError if malformed."""
+    spec = spec.strip()
+    if spec.isdigit():
+        return list(range(int(spec)))
+    robots: list[int] = []
+    for part in spec.split(","):
+        lo, dash, hi = part.strip().partition("-")
+        if not lo.isdigit() or (dash and not hi.isdigit()):
+            raise ValueError(f"robots must be a count or ids like 0-9,12; got {spec!r}")
+        first, last = int(lo), int(hi) if dash else int(lo)
+        if last < first:
+            raise ValueError(f"empty robot range {part!r}")
+        robots.extend(range(first, last + 1))
+    if len(set(robots)) != len(robots):
+        raise ValueError(f"a robot is listed twice in {spec!r}")
+    return robots
+
+
+def token_source(spec: str) -> Callable[[int], str]:
+    """Robot id -> token from a template containing ``{id}`` or a JSON file ``{"id": token}``."""
+    if "{id}" in spec:
+        return lambda r: spec.replace("{id}", str(r))
+    try:
+        data = json.loads(Path(spec).read_text())
+    except OSError as exc:
+        raise ValueError(f"--tokens is neither a template with {{id}} nor a readable file: "
+                         f"{spec} ({exc.strerror})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--tokens file {spec} is not JSON: {exc.msg}") from None
+    if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
+        raise ValueError(f'--tokens file {spec} must map robot ids to tokens: {{"0": "..."}}')
+    tokens = {int(k): v for k, v in data.items() if str(k).isdigit()}
+
+    def lookup(r: int) -> str:
+        if r not in tokens:
+            raise ValueError(f"no token for robot {r} in {spec}")
+        return tokens[r]
+
+    return lookup
+
+
+async def _run_fleet(fleet: SimFleet) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, stop.set)
+    await fleet.start()
+    try:
+        waiting = asyncio.ensure_future(fleet.wait_connected())
+        stopped = asyncio.ensure_future(stop.wait())
+        await asyncio.wait({waiting, stopped}, return_when=asyncio.FIRST_COMPLETED)
+        if waiting.done():
+            waiting.result()  # a robot that can never connect raises here
+            print(f"fleetgate sim: {len(fleet.robots)} robots connected", file=sys.stderr,
+                  flush=True)
+        else:
+            waiting.cancel()
+        await stopped
+    finally:
+        await fleet.stop()
+    st = fleet.stats
+    print(f"fleetgate sim: {len(st.finish_sent)} actions finished, {st.duplicates} duplicates "
+          f"dropped, {st.reconnects} reconnects", file=sys.stderr, flush=True)
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
+        robots = parse_robots(args.robots)
+        tokens = token_source(args.tokens)
+        for r in robots:
+            tokens(r)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if not args.connect.startswith(("ws://", "wss://")):
+        raise UsageError(f"--connect must be a ws:// or wss:// URL, got {args.connect!r}")
+    if args.reconnect_s <= 0:
+        raise UsageError(f"--reconnect-s must be positive, got {args.reconnect_s}")
+
+    async def main() -> None:
+        world = None if args.world_token == "none" else args.world_token
+        fleet = SimFleet(websocket_connector(args.connect), robots, token=tokens,
+                         world_token=world, reconnect_delay_s=args.reconnect_s)
+        await _run_fleet(fleet)
+
+    try:
+        asyncio.run(main())
+    except RuntimeError as exc:  # a robot's handshake was refused
+        print(f"fleetgate sim: {exc}", file=sys.stderr)
+        return 2
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``fleetgate sim``."""
+    p = sub.add_parser(
+        "sim", help="simulated robots for a running gateway",
+        description="Connect simulated robots (and the simulated world, which places the "
+                    "operator's intruders) to a running gateway; they execute what they are "
+                    "dispatched on a shared simulated floor and reconnect when their link "
+                    "drops. Stops on Ctrl-C. The world's speed follows the gateway's.")
+    p.add_argument("--connect", metavar="URL", default="ws://127.0.0.1:8080/ws",
+                   help="the gateway's websocket URL (default ws://127.0.0.1:8080/ws)")
+    p.add_argument("--robots", metavar="SPEC", default="10",
+                   help="how many robots (0..N-1) or which: e.g. 10, 0-4, 0,2,7 (default 10)")
+    p.add_argument("--tokens", metavar="TEMPLATE|FILE", default="demo-robot-{id}",
+                   help="robot tokens: a template with {id} (default demo-robot-{id}) or a "
+                        'JSON file {"0": "token", ...}')
+    p.add_argument("--world-token", default="demo-world",
+                   help="token of the world connection, or 'none' (default demo-world)")
+    p.add_argument("--reconnect-s", type=float, default=1.0,
+                   help="seconds between reconnection attempts (default 1)")
+    p.set_defaults(func=_run)
