@@ -1,0 +1,261 @@
+"""Load benchmark: R simulated robots over websockets against one gateway in another process.
+
+Workload: an open grid with ~1 robot per 8 cells and a 1-robust plan of ``S`` steps per robot
+(prioritised random walks toward random goals, built by ``bench/monitor.py``'s
+``robust_walks``: nearly every step is a move and robots cross, so Type 2 edges abound). Every
+action lasts 1000 ms, so the fleet offers R actions/s for about S seconds. The gateway runs in
+a child process (``--serve``, optionally under cProfile) and starts when every robot is there;
+the robots (``sim_clients.fleet``) run in this process.
+
+Latency is measured on the robot side, end to end: for every dispatched action, from the
+moment the last of its ADG predecessors' ``finished`` messages was handed to its websocket to
+the moment the action arrived at its robot (so it includes both network legs, the gateway's
+validation, executor and routing, and the robots' own event loop). ``lost`` = plan actions
+never received, ``duplicated`` = actions received twice (there is no reconnect here).
+
+Prints ONE JSON line: ``{"robots", "actions", "p50_ms", "p99_ms", "lost", "duplicated", ...}``
+plus the gateway's own finish-received -> dispatch-queued p99, the achieved/offered action
+rate, and ``p99_ratio``: p99 against a 10-robot baseline run measured in the same invocation.
+``--find-max`` searches the largest fleet with p99 <= 50 ms, nothing lost or duplicated.
+
+    .venv/bin/python bench/load.py --robots 500 --seconds 30 --json
+    .venv/bin/python bench/load.py --find-max --seconds 20 --json
+    .venv/bin/python bench/load.py --robots 1000 --seconds 20 --profile /tmp/gw.prof
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import cProfile
+import json
+import math
+import pstats
+import random
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from monitor import robust_walks  # bench/monitor.py (this script's directory is on sys.path)
+
+from gateway.execution.adg import ADG
+from gateway.planning.grid import Grid
+from gateway.planning.instance import Instance
+from gateway.planning.plan import Plan
+from gateway.server.config import GatewayConfig
+from gateway.server.gateway import Gateway
+from gateway.server.planner import Problem
+from sim_clients.cmd_demo import websocket_connector
+from sim_clients.fleet import FleetStats, SimFleet
+
+P99_LIMIT_MS = 50.0
+BASELINE_ROBOTS = 10
+
+
+def workload(robots: int, steps: int, seed: int) -> tuple[int, Plan]:
+    """Grid side and a 1-robust plan of ``robots`` walkers over ``steps`` steps."""
+    size = max(8, math.ceil(math.sqrt(robots * 8)))
+    return size, Plan.of(robust_walks(size, robots, steps, random.Random(seed)))
+
+
+def _raise_fd_limit() -> None:
+    _soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    with contextlib.suppress(ValueError, OSError):
+        resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+
+
+# ------------------------------------------------------------------ the gateway process
+async def _serve(plan_file: Path) -> dict[str, Any]:
+    data = json.loads(plan_file.read_text())
+    plan = Plan.of(data["paths"])
+    size = int(data["size"])
+    grid = Grid(np.ones((size, size), dtype=bool), name=f"open-{size}")
+    inst = Instance(grid, tuple(p[0] for p in plan.paths), tuple(p[-1] for p in plan.paths),
+                    "load")
+    config = GatewayConfig(port=0, map=None, autostart=True, policy="none",
+                           ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING")
+    async with Gateway(config) as gw:
+        gw.engine.load(Problem(inst, "load", plan))
+        port = await gw.listen()
+        print(port, flush=True)
+        soc, _ = await gw.wait_done()
+        lat = sorted(gw.latencies_ms)
+        return {"soc_ms": soc, "dispatches": len(lat),
+                "gateway_p50_ms": statistics.median(lat) if lat else None,
+                "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
+
+
+def serve_main(plan_file: Path, profile: Path | None) -> None:
+    """``--serve``: run the gateway until the plan is executed; print its port, then a
+    JSON line of its own measurements."""
+    _raise_fd_limit()
+    # CPU time, not wall time: on a shared machine wall time would charge preemptions to
+    # whatever function happened to run
+    profiler = cProfile.Profile(time.process_time) if profile is not None else None
+    if profiler is not None:
+        profiler.enable()
+    result = asyncio.run(_serve(plan_file))
+    if profiler is not None:
+        profiler.disable()
+        profiler.dump_stats(str(profile))
+    print(json.dumps(result), flush=True)
+
+
+# ------------------------------------------------------------------ the robots (this process)
+def latencies_ms(plan: Plan, stats: FleetStats) -> list[float]:
+    """Per dispatched action with predecessors: last predecessor's finish sent -> received."""
+    adg = ADG(plan)
+    out = []
+    for v in range(adg.n_vertices):
+        preds = adg.pred[adg.pred_ptr[v]:adg.pred_ptr[v + 1]]
+        got = stats.received.get(f"0.{adg.robot_of[v]}.{adg.step_of[v]}")
+        if not preds or got is None:
+            continue
+        sent = [stats.finish_sent.get(f"0.{adg.robot_of[p]}.{adg.step_of[p]}") for p in preds]
+        if any(s is None for s in sent):
+            continue
+        out.append((got - max(s for s in sent if s is not None)) * 1000.0)
+    return out
+
+
+def _percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+async def _drive(port: int, plan: Plan, deadline_s: float) -> tuple[FleetStats, float, int]:
+    """Run the fleet until every action was finished (or the deadline); returns the stats,
+    the execution's wall time and the number of plan actions."""
+    total = sum(len(p) - 1 for p in plan.paths)
+    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(len(plan.paths)),
+                     send_state=True, reconnect_delay_s=1.0)
+    await fleet.start()
+    try:
+        await fleet.wait_connected(timeout=120.0)
+        t0 = time.perf_counter()
+        end = t0 + deadline_s
+        while len(fleet.stats.finish_sent) < total and time.perf_counter() < end:
+            await asyncio.sleep(0.2)
+        first = min(fleet.stats.received.values(), default=t0)
+        last = max(fleet.stats.finish_sent.values(), default=t0)
+        return fleet.stats, last - first, total
+    finally:
+        await fleet.stop()
+
+
+def run_once(robots: int, seconds: int, seed: int, profile: Path | None = None
+             ) -> dict[str, Any]:
+    """One gateway process + one fleet; the measurements as a dict."""
+    size, plan = workload(robots, seconds, seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        plan_file = Path(tmp) / "plan.json"
+        plan_file.write_text(json.dumps({"size": size, "paths": [list(p) for p in plan.paths]}))
+        cmd = [sys.executable, __file__, "--serve", str(plan_file)]
+        if profile is not None:
+            cmd += ["--profile", str(profile)]
+        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        try:
+            assert gw.stdout is not None
+            port = int(gw.stdout.readline())
+            stats, wall_s, total = asyncio.run(_drive(port, plan, 3.0 * seconds + 60.0))
+            gateway = json.loads(gw.stdout.readline() or "{}")
+            gw.wait(timeout=60)
+        finally:
+            if gw.poll() is None:
+                gw.kill()
+                gw.wait()
+    lat = latencies_ms(plan, stats)
+    offered = total / plan.makespan  # actions per second if nobody is ever late
+    achieved = total / wall_s if wall_s > 0 else 0.0
+    return {"robots": robots, "actions": len(stats.received),
+            "p50_ms": round(statistics.median(lat), 3) if lat else None,
+            "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
+            "lost": total - len(stats.received), "duplicated": stats.duplicates,
+            "errors": len(stats.errors),
+            "gateway_p99_ms": gateway.get("gateway_p99_ms"),
+            "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
+            "rate_ratio": round(achieved / offered, 4) if offered else None}
+
+
+def holds(result: dict[str, Any]) -> bool:
+    """p99 within the limit, nothing lost or duplicated."""
+    p99 = result["p99_ms"]
+    return (p99 is not None and p99 <= P99_LIMIT_MS and result["lost"] == 0
+            and result["duplicated"] == 0 and result["errors"] == 0)
+
+
+def find_max(seconds: int, seed: int, start: int, limit: int) -> tuple[int, list[dict[str, Any]]]:
+    """Largest fleet (to within 10 %) that holds: double from ``start``, then bisect."""
+    runs: list[dict[str, Any]] = []
+    good, bad = 0, None
+    r = start
+    while r <= limit:
+        res = run_once(r, seconds, seed)
+        runs.append(res)
+        print(json.dumps(res), file=sys.stderr, flush=True)
+        if not holds(res):
+            bad = r
+            break
+        good, r = r, r * 2
+    while bad is not None and bad - good > max(50, good // 10):
+        mid = (good + bad) // 2
+        res = run_once(mid, seconds, seed)
+        runs.append(res)
+        print(json.dumps(res), file=sys.stderr, flush=True)
+        if holds(res):
+            good = mid
+        else:
+            bad = mid
+    return good, runs
+
+
+def main() -> int:
+    """Parse arguments and run."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--robots", type=int, default=500)
+    p.add_argument("--seconds", type=int, default=30, help="plan steps (~ run seconds)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--json", action="store_true", help="print the result as one JSON line")
+    p.add_argument("--find-max", action="store_true",
+                   help="search the largest fleet with p99 <= 50 ms, 0 lost, 0 duplicated")
+    p.add_argument("--max-robots", type=int, default=4000, help="upper bound of --find-max")
+    p.add_argument("--profile", type=Path, help="cProfile the gateway process into this file")
+    p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.serve is not None:
+        serve_main(args.serve, args.profile)
+        return 0
+    _raise_fd_limit()
+    baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed)
+    if args.find_max:
+        best, runs = find_max(args.seconds, args.seed, 250, args.max_robots)
+        result = next((r for r in runs if r["robots"] == best), baseline)
+        result = {"max_robots": best, **result}
+    else:
+        result = run_once(args.robots, args.seconds, args.seed, args.profile)
+    base_p99 = baseline["p99_ms"]
+    result["baseline_robots"] = BASELINE_ROBOTS
+    result["baseline_p99_ms"] = base_p99
+    result["p99_ratio"] = (round(result["p99_ms"] / base_p99, 2)
+                           if result.get("p99_ms") and base_p99 else None)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{result['robots']} robots, {result['actions']} actions: p50 "
+              f"{result['p50_ms']} ms, p99 {result['p99_ms']} ms ({result['p99_ratio']}x the "
+              f"{BASELINE_ROBOTS}-robot p99), lost {result['lost']}, duplicated "
+              f"{result['duplicated']}, achieved/offered rate {result['rate_ratio']}")
+    if args.profile is not None and args.profile.exists():
+        pstats.Stats(str(args.profile), stream=sys.stderr).sort_stats("tottime").print_stats(25)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
