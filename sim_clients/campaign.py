@@ -445,8 +445,13 @@ def open_executor(workers: int = 1,
     Yields the executor and how many tasks it runs at once (a Dask cluster's total threads).
     """
     if scheduler is None:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        pool = ProcessPoolExecutor(max_workers=workers)
+        try:
             yield pool, workers
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C: drop the queued work
+            raise
+        pool.shutdown()
         return
     try:
         from distributed import Client
@@ -499,7 +504,7 @@ def _chunks(items: Sequence[ExperimentTask], size: int) -> list[Sequence[Experim
 def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
                  executor: Executor, workers: int = 1, limit: int | None = None,
                  progress: Progress | None = None, chunk_size: int | None = None,
-                 in_flight_chunks: int = 8) -> CampaignResult:
+                 in_flight_chunks: int = 2) -> CampaignResult:
     """Plan the missing instances, run the missing experiments, leave a sorted results.csv.
 
     ``map_paths`` maps each map name of the spec to its file; ``workers`` is how many

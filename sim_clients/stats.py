@@ -19,7 +19,8 @@ from sim_clients.campaign import Row
 
 JsonDict = dict[str, Any]
 
-OUTLIER_RULES = ("not_replanned_but_better", "below_lower_bound", "same_time_different_cost")
+OUTLIER_RULES = ("not_replanned_but_better", "below_lower_bound", "same_time_different_cost",
+                 "replan_without_plan")
 """The paper's outlier kinds (section 5.3), in the order they are reported."""
 
 
@@ -33,6 +34,9 @@ class OutlierRules:
       below the lower bound.
     * ``same_time_different_cost``: both methods replanned within ``similar_time_ms`` of each
       other yet their SOCs differ by more than ``different_fraction`` of the smaller one.
+    * ``replan_without_plan`` (ours, not the paper's): a method stopped the fleet to replan but
+      the solver found no plan within its time limit, so the run measures our limit, not the
+      method (the paper's solver always finished, after up to 90 s).
     """
 
     margin_ms: float = 0.0
@@ -132,6 +136,9 @@ def outlier_reasons(exp: Experiment, rules: OutlierRules) -> tuple[str, ...]:
             and abs(exp.slack_at_ms - exp.random_at_ms) <= rules.similar_time_ms
             and abs(exp.t_p - exp.t_r) > rules.different_fraction * min(exp.t_p, exp.t_r)):
         reasons.append("same_time_different_cost")
+    if (exp.slack_replanned and not exp.slack_solved) or (
+            exp.random_replanned and not exp.random_solved):
+        reasons.append("replan_without_plan")
     return tuple(reasons)
 
 

@@ -90,7 +90,7 @@ def test_summary_numbers_by_hand() -> None:
     assert mit["all"]["no_influence"] == 1
     assert g["outliers"]["count"] == 2 and g["outliers"]["share"] == 0.4
     assert g["outliers"]["by_rule"] == {"not_replanned_but_better": 1, "below_lower_bound": 1,
-                                        "same_time_different_cost": 1}
+                                        "same_time_different_cost": 1, "replan_without_plan": 0}
     # Solver times: slack replans of E1, E3 (80, 120); random in all five (10..50).
     assert g["solver_ms"]["slack"] == {"n": 2, "median": 100, "mean": 100, "max": 120}
     assert g["solver_ms"]["random"] == {"n": 5, "median": 30, "mean": 30, "max": 50}
@@ -143,9 +143,11 @@ def test_a_trigger_without_a_plan_still_counts_as_a_decision_to_replan() -> None
     rows[3] = Row("a", 5, 1, 0, "slack", 13000, 2600, False, 7000.0, 10000.0)
     exp = join_experiments(rows)[0][0]
     assert exp.slack_replanned and not exp.slack_solved
+    assert outlier_reasons(exp, OutlierRules()) == ("replan_without_plan",)
     g = summarize(rows, resamples=100)["maps"]["a"]
     assert g["slack_replanned"] == 1
     assert g["replans_without_plan"] == {"slack": 1, "random": 0}
+    assert g["mitigation"]["all"]["slack"]["n"] == 0  # the outlier is left out
     assert g["solver_ms"]["slack"]["max"] == 10000
 
 
