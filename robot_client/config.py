@@ -34,7 +34,7 @@ class RobotSettings(BaseSettings):
         env_prefix=ENV_PREFIX, extra="forbid", cli_prog_name="fleetgate-robot",
         cli_kebab_case=True, cli_implicit_flags=True)
 
-    gateway_url: str = Field("ws://127.0.0.1:8080/", description="gateway websocket URL")
+    gateway_url: str = Field("ws://127.0.0.1:8080/ws", description="gateway websocket URL")
     robot_id: int = Field(ge=0, description="this robot's agent index in the plan")
     token: SecretStr = Field(description="per-robot token (sent as 'Authorization: Bearer')")
     serial_port: str = Field("/dev/kobuki", description="Kobuki base serial device")
