@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -59,12 +58,3 @@ class DemoProcess:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-
-def wait_until(predicate: object, timeout_s: float, what: str, poll_s: float = 0.05) -> None:
-    """Poll ``predicate()`` until it is true; AssertionError naming ``what`` on timeout."""
-    assert callable(predicate)
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(poll_s)

@@ -1,49 +1,29 @@
 """The operator GUI in headless Chromium against a real ``fleetgate demo`` (lab map, speed 2).
 
-Positions, status and the slack series are read from what the page itself holds
-(``window.fleetgate``, filled only from the gateway's websocket messages) and from its DOM.
+Positions, status and the slack series are read from what the page itself holds (see
+``gui_page``) and from its DOM.
 """
 
 from __future__ import annotations
 
-import json
 import time
-from typing import Any
 
 import pytest
 from playwright.sync_api import Page, expect
 
 from tests.gui.conftest import SPEED
+from tests.gui.gui_page import (
+    cells,
+    intruder_target,
+    place_intruder,
+    robots,
+    set_speed,
+    wait_moved,
+)
 
 pytestmark = pytest.mark.gui
 
 ACTIVE = "['running', 'paused', 'replanning'].includes(window.fleetgate.status())"
-
-
-def robots(page: Page) -> list[dict[str, Any]]:
-    """The robots as the page draws them: id, cell, pos (fractional while moving), activity."""
-    result: list[dict[str, Any]] = page.evaluate("window.fleetgate.robots()")
-    return result
-
-
-def cells(page: Page) -> list[tuple[int, int]]:
-    """Each robot's cell, from the page."""
-    return [tuple(r["cell"]) for r in robots(page)]
-
-
-def wait_moved(page: Page, before: list[tuple[int, int]], timeout_ms: float = 5_000) -> None:
-    """Until some robot's cell differs from ``before``."""
-    page.wait_for_function(
-        "prev => JSON.stringify(window.fleetgate.robots().map(r => r.cell)) !== prev",
-        arg=json.dumps([list(c) for c in before], separators=(",", ":")), timeout=timeout_ms)
-
-
-def set_speed(page: Page, speed: float) -> None:
-    """Move the speed slider (its change event sends set_speed) and wait for the gateway."""
-    slider = page.get_by_label("Speed")
-    slider.fill(str(speed))
-    slider.dispatch_event("change")
-    page.wait_for_function(f"window.fleetgate.model.snap.speed === {speed}")
 
 
 def fresh_run(page: Page) -> None:
@@ -114,22 +94,10 @@ def test_intruder_click_blocks_a_robot_and_slack_rises(page: Page) -> None:
     page.get_by_label("Policy").select_option("none")
     page.wait_for_function("window.fleetgate.model.snap.policy === 'none'")
     fresh_run(page)
-    rs = robots(page)
-    occupied = {tuple(r["cell"]) for r in rs}
-    # the robot with the longest way to go; its 3rd cell ahead, if no robot stands there now
-    target = next(tuple(r["remaining"][3]) for r in sorted(rs, key=lambda r: -len(r["remaining"]))
-                  if len(r["remaining"]) > 4 and tuple(r["remaining"][3]) not in occupied)
+    target = intruder_target(page)
     # real-time jitter leaves Δ̄F at a few ms at most before the intruder
     assert max((v for _, v in page.evaluate("window.fleetgate.slack()")), default=0.0) < 100
-    page.get_by_label("for (s)").fill("6")
-    page.get_by_role("button", name="Place intruder").click()
-    expect(page.get_by_role("button", name="Place intruder")).to_have_attribute(
-        "aria-pressed", "true")
-    xy = page.evaluate(f"window.fleetgate.cellCenter({target[0]}, {target[1]})")
-    page.mouse.click(xy["x"], xy["y"])
-    page.wait_for_function(
-        f"window.fleetgate.model.snap.intruders.some(c => c[0] === {target[0]}"
-        f" && c[1] === {target[1]})", timeout=5_000)
+    place_intruder(page, target, 6)
     page.wait_for_function(
         "window.fleetgate.robots().some(r => r.activity === 'blocked')", timeout=6_000)
     page.wait_for_function(

@@ -176,7 +176,8 @@ function renderPanels() {
   const total = a.pending + a.dispatched + a.running + a.blocked + a.finished;
   $("progress").max = Math.max(1, total);
   $("progress").value = a.finished;
-  $("progress-text").textContent = `${a.finished} / ${total} actions`;
+  $("progress-text").textContent = s.plan === null ? "no run yet"
+    : `${a.finished} / ${total} actions of plan #${s.plan}`;
   const now = performance.now();
   if (now - tableDrawn > 400) {
     tableDrawn = now;

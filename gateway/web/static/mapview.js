@@ -2,8 +2,8 @@
 // who waits for whom, intruders; and which cell a click hits.
 
 const PALETTE = [
-  "#1c7ed6", "#e8590c", "#2b8a3e", "#ae3ec9", "#f08c00", "#0c8599", "#d6336c",
-  "#5f3dc4", "#5c940d", "#c2255c", "#1864ab", "#862e9c",
+  "#1c7ed6", "#e8590c", "#2b8a3e", "#ae3ec9", "#e67700", "#0c8599", "#d6336c", "#5f3dc4",
+  "#66a80f", "#8d5524", "#a61e4d", "#1098ad", "#4c6ef5", "#087f5b", "#be4bdb", "#868e2b",
 ];
 
 /** The colour of robot `id` (a fixed palette, then golden-angle hues). */
@@ -220,26 +220,33 @@ export class MapView {
   }
 
   drawArrow(from, to) {
+    // A curved arrow from the waiting robot to the one it waits for (visible when adjacent).
     const { ctx, cell } = this;
     const [x0, y0] = this.center(from[0], from[1]);
     const [x1, y1] = this.center(to[0], to[1]);
     const len = Math.hypot(x1 - x0, y1 - y0);
     if (len < cell * 0.5) return;
-    const ux = (x1 - x0) / len;
-    const uy = (y1 - y0) / len;
+    const bend = Math.max(cell * 0.55, len * 0.22);
+    const cx = (x0 + x1) / 2 - ((y1 - y0) / len) * bend;
+    const cy = (y0 + y1) / 2 + ((x1 - x0) / len) * bend;
     const gap = cell * 0.42;
-    const ax = x0 + ux * gap;
-    const ay = y0 + uy * gap;
-    const bx = x1 - ux * gap;
-    const by = y1 - uy * gap;
-    const head = Math.max(5, cell * 0.22);
+    const toward = (px, py, qx, qy) => {
+      const d = Math.hypot(qx - px, qy - py);
+      return [px + ((qx - px) / d) * gap, py + ((qy - py) / d) * gap];
+    };
+    const [ax, ay] = toward(x0, y0, cx, cy);
+    const [bx, by] = toward(x1, y1, cx, cy);
+    const tl = Math.hypot(bx - cx, by - cy);
+    const ux = (bx - cx) / tl;
+    const uy = (by - cy) / tl;
+    const head = Math.max(6, cell * 0.24);
     ctx.strokeStyle = COLORS.wait;
     ctx.fillStyle = COLORS.wait;
     ctx.lineWidth = Math.max(2, cell * 0.08);
     ctx.setLineDash([cell * 0.16, cell * 0.1]);
     ctx.beginPath();
     ctx.moveTo(ax, ay);
-    ctx.lineTo(bx - ux * head * 0.8, by - uy * head * 0.8);
+    ctx.quadraticCurveTo(cx, cy, bx - ux * head * 0.8, by - uy * head * 0.8);
     ctx.stroke();
     ctx.setLineDash([]);
     ctx.beginPath();
