@@ -122,29 +122,40 @@ class _Search:
             node = node.parent
         return build_table(self.size, cons)
 
-    def _avoidance(self, paths: Sequence[tuple[int, ...] | None], agent: int) -> AvoidanceTable:
-        counts: dict[int, int] = {}
-        stays: dict[int, int] = {}
+    def _occupancy(self, paths: Sequence[tuple[int, ...] | None]) -> AvoidanceTable:
+        """Conflict counts of a visit to every (cell, time) against all the given paths."""
         size = self.size
-        horizon = 0
-        for j, p in enumerate(paths):
-            if j == agent or p is None:
-                continue
-            end = len(p) - 1
-            horizon = max(horizon, end + 1)
-            for t in range(end):
-                v = p[t]
-                for tt in (t - 1, t, t + 1):
-                    if tt >= 0:
-                        key = tt * size + v
-                        counts[key] = counts.get(key, 0) + 1
-            stays[p[end]] = max(end - 1, 0)
+        horizon = max((len(p) for p in paths if p is not None), default=0)
+        counts = [0] * ((horizon + 1) * size)
+        stays: dict[int, int] = {}
+        for p in paths:
+            if p is not None:
+                self._count(counts, p, 1)
+                stays[p[-1]] = max(len(p) - 2, 0)
         return AvoidanceTable(counts, stays, horizon)
 
+    def _count(self, counts: list[int], path: tuple[int, ...], sign: int) -> None:
+        """Add (sign 1) or remove (sign -1) one path's 1-robust footprint: cell v at times
+        t-1, t, t+1 for each step t before its end (its goal stay is in ``stays``)."""
+        size = self.size
+        for t in range(len(path) - 1):
+            v = path[t]
+            if t:
+                counts[(t - 1) * size + v] += sign
+            counts[t * size + v] += sign
+            counts[(t + 1) * size + v] += sign
+
+    def _avoidance(self, everyone: AvoidanceTable, path: tuple[int, ...]) -> AvoidanceTable:
+        """``everyone``'s table without the agent whose current path is ``path``."""
+        counts = everyone.counts[:]
+        self._count(counts, path, -1)
+        stays = dict(everyone.stays)
+        del stays[path[-1]]
+        return AvoidanceTable(counts, stays, everyone.horizon)
+
     def _plan(
-        self, agent: int, table: ConstraintTable, paths: Sequence[tuple[int, ...] | None]
+        self, agent: int, table: ConstraintTable, avoid: AvoidanceTable | None
     ) -> tuple[int, ...] | None:
-        avoid = self._avoidance(paths, agent) if self.options.avoidance else None
         states = space_time_astar(
             self.model, self.starts[agent], self.goals[agent], self.h[agent], table, avoid,
             self.deadline,
@@ -160,7 +171,8 @@ class _Search:
         n = len(self.starts)
         paths: list[tuple[int, ...] | None] = [None] * n
         for k in range(n):
-            path = self._plan(k, self._table(None, k), paths)
+            avoid = self._occupancy(paths) if self.options.avoidance else None
+            path = self._plan(k, self._table(None, k), avoid)
             if path is None:
                 raise NoSolution(f"agent {k} has no path under the forbidden windows")
             paths[k] = path
@@ -173,11 +185,16 @@ class _Search:
                     conflicts[i, j] = found
         return _Node(None, None, full, conflicts, {}, {})
 
-    def child(self, node: _Node, branch: Branch) -> _Node | None:
-        """The node with ``branch`` added and its agent replanned (None if it has no path)."""
+    def child(
+        self, node: _Node, branch: Branch, everyone: AvoidanceTable | None
+    ) -> _Node | None:
+        """The node with ``branch`` added and its agent replanned (None if it has no path).
+
+        ``everyone`` is the node's occupancy table, if conflicts are to be avoided."""
         agent = branch[0]
         table = self._table(node, agent, branch)
-        path = self._plan(agent, table, node.paths)
+        avoid = None if everyone is None else self._avoidance(everyone, node.paths[agent])
+        path = self._plan(agent, table, avoid)
         if path is None:
             return None
         paths = list(node.paths)
@@ -298,8 +315,9 @@ class _Search:
             conflict = self.choose(node)
             children = []
             bypassed = False
+            everyone = self._occupancy(node.paths) if opts.avoidance else None
             for branch in conflict[1:]:
-                ch = self.child(node, branch)
+                ch = self.child(node, branch, everyone)
                 if ch is None:
                     continue
                 if opts.bypass and ch.g == node.g and ch.nconf < node.nconf:

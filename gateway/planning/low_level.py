@@ -55,11 +55,11 @@ class AvoidanceTable:
     """Other agents' occupancy, used only to break ties towards fewer conflicts.
 
     ``counts[t * size + cell]`` is how many other agents a visit of ``cell`` at ``t`` conflicts
-    with; ``stays[cell]`` is the time from which an agent parked on ``cell`` conflicts with a
-    visit; after ``horizon`` nothing changes.
+    with (times past the list's end count 0); ``stays[cell]`` is the time from which an agent
+    parked on ``cell`` conflicts with a visit; after ``horizon`` nothing changes.
     """
 
-    counts: dict[int, int]
+    counts: list[int]
     stays: dict[int, int]
     horizon: int
 
@@ -90,7 +90,8 @@ def space_time_astar(
     goal_block = table.goal_block(goal)
     if goal_block >= INF or h[start] < 0 or table.forbids(cells[start], 0):
         return None
-    counts = avoid.counts if avoid is not None else {}
+    counts = avoid.counts if avoid is not None else []
+    ncounts = len(counts)
     stays = avoid.stays if avoid is not None else {}
     horizon = max(table.horizon, avoid.horizon if avoid is not None else 0, goal_block + 1)
     nstates = len(succ)
@@ -140,7 +141,7 @@ def space_time_astar(
             fu = nt + hu
             if fu < floor:
                 fu = floor
-            nu = nc + counts.get(tk + c, 0)
+            nu = nc + counts[tk + c] if tk + c < ncounts else nc
             if stays:
                 st = stays.get(c)
                 if st is not None and nt >= st:
@@ -160,14 +161,22 @@ def build_mdd(
     """
     succ = model.succ
     cells = model.cells
+    size = table.size
+    blocked = table.blocked
+    permanent = table.permanent
     layers: list[set[int]] = [{start}]
     for t in range(1, cost + 1):
         budget = cost - t
+        tk = t * size
         cur: set[int] = set()
         for s in layers[-1]:
             for u in succ[s]:
-                if 0 <= h[u] <= budget and not table.forbids(cells[u], t):
-                    cur.add(u)
+                if u in cur or not 0 <= h[u] <= budget:
+                    continue
+                c = cells[u]
+                if tk + c in blocked or permanent.get(c, INF) <= t:
+                    continue
+                cur.add(u)
         layers.append(cur)
     layers[cost] = {s for s in layers[cost] if cells[s] == goal}
     for t in range(cost - 1, -1, -1):
