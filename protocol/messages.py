@@ -399,6 +399,16 @@ class WaitEdge(_Model):
     for_action: int
 
 
+class ReplanMark(_Model):
+    """A replan of the current run: triggered at ``trigger_ms`` by ``policy``; plan ``plan``
+    adopted at ``adopted_ms`` (both None while it is being solved, or if it was abandoned)."""
+
+    trigger_ms: float
+    policy: str
+    plan: int | None = None
+    adopted_ms: float | None = None
+
+
 GatewayStatus = Literal["empty", "planning", "loaded", "running", "paused", "replanning", "done"]
 
 
@@ -425,6 +435,7 @@ class Snapshot(Envelope):
     waits: list[WaitEdge] = Field(default_factory=list)
     intruders: list[Cell] = Field(default_factory=list)
     replans: int = 0
+    replan_marks: list[ReplanMark] = Field(default_factory=list)
 
 
 EventKind = Literal[

@@ -127,6 +127,8 @@ class Engine:
         self.policy_seed = config.policy_seed
         self.threshold_ms = config.threshold_ms
         self.slack_series: deque[tuple[float, float]] = deque(maxlen=config.slack_series_len)
+        self.replan_marks: list[dict[str, Any]] = []
+        """The current run's replans for operators (fields of protocol.ReplanMark)."""
         self.intruders: set[Cell] = set()
         self.latencies_ms: list[float] = []
         self.summary: tuple[float, float] | None = None
@@ -710,6 +712,7 @@ class Engine:
             rec.applied.clear()
             rec.next_index = 0
         self.slack_series.clear()
+        self.replan_marks.clear()
         self.summary = None
         self.solver_ms = 0.0
         self.finished_event.clear()
@@ -734,7 +737,12 @@ class Engine:
         if agents is not None:
             fields["paths"] = [a["path"] for a in agents]
         t_ms: Any = rec["t_ms"]
-        self._broadcast_event(str(rec["type"]), float(t_ms), **fields)
+        kind = str(rec["type"])
+        if kind == "trigger":
+            self.replan_marks.append({"trigger_ms": float(t_ms), "policy": str(rec["policy"])})
+        elif kind == "plan" and rec.get("plan") and self.replan_marks:
+            self.replan_marks[-1].update(plan=rec["plan"], adopted_ms=float(t_ms))
+        self._broadcast_event(kind, float(t_ms), **fields)
 
     def _broadcast_event(self, kind: str, t_ms: float, **fields: Any) -> None:
         for op in list(self.operators):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from gateway.planning.grid import Grid
-from protocol import ActionCounts, RobotView, WaitEdge
+from protocol import ActionCounts, ReplanMark, RobotView, WaitEdge
 
 if TYPE_CHECKING:
     from gateway.server.engine import Engine
@@ -27,6 +27,7 @@ def snapshot_fields(engine: Engine) -> dict[str, Any]:
         "speed": engine.clock.speed,
         "fleet_slack": list(engine.slack_series),
         "intruders": sorted(engine.intruders),
+        "replan_marks": [ReplanMark(**m) for m in engine.replan_marks],
     }
     if problem is None:
         return out

@@ -117,6 +117,17 @@ def test_replan_now_adopts_a_new_plan(page: Page) -> None:
     expect(page.get_by_role("list", name="Event log")).to_contain_text("new plan 1")
     page.wait_for_function("window.fleetgate.status() === 'running'"
                            " || window.fleetgate.status() === 'done'", timeout=5_000)
+    # a page opened afterwards marks the same replan in its chart (from the snapshot alone)
+    marks = page.evaluate("window.fleetgate.model.marks")
+    late = page.context.new_page()
+    late.goto(page.url)
+    late.wait_for_function("window.fleetgate && window.fleetgate.model.snap !== null")
+    late_marks = late.evaluate("window.fleetgate.model.marks")
+    late.close()
+    assert [m["label"] for m in late_marks] == ["operator", "plan 1"]
+    assert [m["label"] for m in marks] == ["operator", "plan 1"]
+    assert [m["t"] for m in late_marks] == [m["t"] for m in marks]
+    assert late_marks[0]["t"] <= late_marks[1]["t"]
 
 
 def test_load_instance_then_run(page: Page) -> None:

@@ -24,7 +24,7 @@ export class FleetModel {
     this.anchorT = 0; // plan time at anchorWall (performance.now() ms)
     this.anchorWall = 0;
     this.starts = new Map(); // robot -> plan time its running action started
-    this.marks = []; // {t, label} replans and triggers for the chart
+    this.marks = []; // {t, label, trigger} replans for the chart (snapshot, then events)
     this.log = []; // newest first: {t, text, kind}
     this.baseline = null; // SOC and makespan of the run's first plan
   }
@@ -48,9 +48,11 @@ export class FleetModel {
     const prev = this.snap;
     const newRun = !prev || s.t_ms + 500 < this.now(wall) || s.plan === null
       || (prev.plan !== null && s.plan < prev.plan) || s.map_name !== prev.map_name;
-    if (newRun) {
-      this.marks = [];
-      this.starts.clear();
+    if (newRun) this.starts.clear();
+    this.marks = [];
+    for (const m of s.replan_marks || []) {
+      this.marks.push({ t: m.trigger_ms, label: m.policy, trigger: true });
+      if (m.adopted_ms !== null) this.marks.push({ t: m.adopted_ms, label: `plan ${m.plan}` });
     }
     this.snap = s;
     this.anchorT = s.t_ms;
