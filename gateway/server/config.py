@@ -68,6 +68,7 @@ class GatewayConfig(BaseSettings):
     state_period_ms: float = Field(default=5000.0, gt=0)
     ping_interval_s: float = Field(default=5.0, gt=0)
     ping_timeout_s: float = Field(default=5.0, gt=0)
+    close_timeout_s: float = Field(default=2.0, gt=0)
     send_queue: int = Field(default=4096, ge=1)
     max_errors: int = Field(default=20, ge=1)
     rate_per_s: float = Field(default=500.0, gt=0)

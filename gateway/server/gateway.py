@@ -174,7 +174,7 @@ class Gateway:
             self._ws_handler, host or cfg.host, cfg.port if port is None else port,
             process_request=self._process_request, max_size=HARD_MAX_BYTES, compression=None,
             ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s,
-            close_timeout=cfg.ping_timeout_s, max_queue=64)
+            close_timeout=cfg.close_timeout_s, max_queue=64)
         self.port = int(self._server.sockets[0].getsockname()[1])
         log.info("listening", extra={"host": host or cfg.host, "port": self.port})
         return self.port

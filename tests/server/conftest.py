@@ -23,8 +23,8 @@ Connect = Callable[..., Awaitable[ClientConnection]]
 
 
 def make_config(**overrides: Any) -> GatewayConfig:
-    """A loopback test configuration (ephemeral port, demo tokens)."""
-    return GatewayConfig(port=0, ping_interval_s=1.0, ping_timeout_s=1.0, **overrides)
+    """A loopback test configuration (ephemeral port, demo tokens, short close timeout)."""
+    return GatewayConfig(**{"port": 0, "close_timeout_s": 1.0, **overrides})
 
 
 @pytest.fixture

@@ -146,15 +146,20 @@ async def _until(predicate: object) -> None:
         await asyncio.sleep(0.01)
 
 
-async def test_silent_link_is_dropped_by_ping_timeout(gateway: Gateway) -> None:
-    gw = gateway
+async def test_silent_link_is_dropped_by_ping_timeout() -> None:
+    async with Gateway(make_config(ping_interval_s=0.5, ping_timeout_s=0.5)) as gw:
+        await gw.listen()
+        await _silent_robot_is_dropped(gw)
+
+
+async def _silent_robot_is_dropped(gw: Gateway) -> None:
     await load(gw, DEPENDENT_PATHS)
     r0 = TestRobot(await ws(gw, "demo-robot-0"), 0)
     await r0.hello()
     await gw.command(Start(msg_id="s", seq=1))
     await r0.expect(Action)
     r0.link.transport.pause_reading()  # type: ignore[attr-defined]  # pongs stop coming back
-    # ping every 1 s, 1 s to answer (test config): the gateway gives up and holds the steps
+    # a ping every 0.5 s, 0.5 s to answer: the gateway gives up and holds the steps
     await asyncio.wait_for(_until(lambda: gw.engine.robot(0).session is None), 10)
     assert list(gw.engine.robot(0).held) == ["0.0.0"]
     assert gw.status == "running"

@@ -9,6 +9,7 @@ from typing import Any
 
 from gateway.server.gateway import Gateway
 from protocol import (
+    Ack,
     AnyMessage,
     Error,
     ErrorCode,
@@ -63,6 +64,18 @@ async def fleet(ws_connect: Connect, n: int, move_s: float) -> tuple[list[TestRo
     return robots, [asyncio.create_task(r.run()) for r in robots]
 
 
+async def barrier(robots: list[TestRobot], op: TestOperator) -> None:
+    """Wait until the gateway handled everything the robots sent so far and the events it
+    caused reached ``op``: each robot gets the reply to a probe (an ack of an unknown action,
+    answered in order on its connection), then ``op`` a snapshot (after those events)."""
+    for r in robots:
+        ref = await r.send(Ack, action_id=f"999.{r.robot_id}.0")
+        async with asyncio.timeout(10):
+            while not any(isinstance(m, Error) and m.ref == ref for m in r.inbox):
+                await asyncio.sleep(0.01)
+    await _snapshot(op)
+
+
 async def test_load_instance_start_and_event_stream(gateway: Gateway, ws_connect: Connect
                                                     ) -> None:
     op = await operator(ws_connect)
@@ -115,9 +128,10 @@ async def test_pause_stops_new_moves_until_resume(gateway: Gateway, ws_connect: 
         while not all(any(isinstance(m, Pause) for m in r.inbox) for r in robots):
             await asyncio.sleep(0.01)
     # moves already under way may finish; after that nothing starts while paused
-    await asyncio.sleep(0.1)
+    await barrier(robots, op)
     starts = sum(1 for m in op.inbox if isinstance(m, Event) and m.event == "start")
     await asyncio.sleep(0.3)
+    await barrier(robots, op)
     assert sum(1 for m in op.inbox if isinstance(m, Event) and m.event == "start") == starts
     assert (await _snapshot(op)).status == "paused"
     await ok(op, Resume)
