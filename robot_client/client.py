@@ -3,8 +3,9 @@
 Three tasks share one event loop:
 
 * control: every ``control_period_ms`` it ticks the body (base feedback in, wheel command
-  out), reports the runner's events, and starts the next held action when the robot is idle,
-  connected and not paused;
+  out), reports the runner's events (``started``, ``finished``; a bumper pause as an immediate
+  ``state`` with activity ``blocked``, see :meth:`RobotClient._report`), and starts the next
+  held action when the robot is idle, connected and not paused;
 * camera: reads frames in a worker thread, measures tag fixes there and applies them;
 * link: connects with the robot's token, says ``hello`` (pose, held and finished action ids,
   current activity), takes the ``welcome``, then acknowledges every action (a duplicate action
@@ -33,7 +34,6 @@ from protocol import (
     Action,
     Activity,
     AnyMessage,
-    Blocked,
     CancelAction,
     Cancelled,
     Error,
@@ -44,7 +44,6 @@ from protocol import (
     Resume,
     Started,
     State,
-    Unblocked,
     Welcome,
     decode,
     encode,
@@ -65,8 +64,7 @@ log = logging.getLogger("fleetgate.robot")
 BATTERY_EMPTY_V, BATTERY_FULL_V = 13.2, 16.5
 """Kobuki pack voltages taken as 0 % and 100 % for the rough ``state.battery`` figure."""
 
-_REPORTS: dict[str, type[Started | Finished | Blocked | Unblocked]] = {
-    "started": Started, "finished": Finished, "blocked": Blocked, "unblocked": Unblocked}
+_REPORTS: dict[str, type[Started | Finished]] = {"started": Started, "finished": Finished}
 _LINK_ERRORS = (OSError, TimeoutError, InvalidHandshake, ConnectionClosed, ProtocolError)
 
 
@@ -96,6 +94,7 @@ class RobotClient:
         self.link: ClientConnection | None = None
         self.state_period_ms = 5000.0
         self.sessions = 0
+        self.gateway_errors: deque[Error] = deque(maxlen=100)
         self._seq = 0
         self._send_lock = asyncio.Lock()
         self._stop = asyncio.Event()
@@ -168,13 +167,25 @@ class RobotClient:
         return True
 
     async def _report(self, event: RunnerEvent) -> None:
+        """Tell the gateway about a runner event.
+
+        A bumper pause (runner ``blocked`` / ``unblocked``) always happens after ``started``,
+        while protocol v1's ``blocked`` / ``unblocked`` mean "target cell taken" before the
+        robot starts, and the gateway's executor refuses them for an action under way. So a
+        bumper pause is reported as an immediate ``state`` snapshot (activity ``blocked``, then
+        ``running`` again) instead.
+        """
         if event.kind == "finished":
             self.finished.append(event.action_id)
         if event.kind == "started":
             self._moved = True
-        if self.link is not None:
+        if self.link is None:
+            return
+        if event.kind in _REPORTS:
             await self._send(self.link, _REPORTS[event.kind], action_id=event.action_id,
                              pose=self.wire_pose())
+        else:
+            await self._send_state(self.link)
 
     # ---------------------------------------------------------------- control
 
@@ -270,11 +281,14 @@ class RobotClient:
             loc.pose = Pose(x, y, theta)
         log.info("welcomed (plan %s, %d to resend)", msg.plan, len(msg.resend))
 
+    async def _send_state(self, ws: ClientConnection) -> None:
+        await self._send(ws, State, robot_id=self.settings.robot_id, pose=self.wire_pose(),
+                         activity=self._activity(), current=self.current(),
+                         battery=self._battery())
+
     async def _state_loop(self, ws: ClientConnection) -> None:
         while True:
-            await self._send(ws, State, robot_id=self.settings.robot_id, pose=self.wire_pose(),
-                             activity=self._activity(), current=self.current(),
-                             battery=self._battery())
+            await self._send_state(ws)
             await asyncio.sleep(self.state_period_ms / 1000.0)
 
     def _activity(self) -> RobotActivity:
@@ -293,6 +307,7 @@ class RobotClient:
         elif isinstance(msg, Resume):
             self.paused = False
         elif isinstance(msg, Error):
+            self.gateway_errors.append(msg)
             log.warning("gateway error %s (ref %s): %s", msg.code, msg.ref, msg.detail)
         else:
             log.warning("ignoring unexpected %s message", msg.type)

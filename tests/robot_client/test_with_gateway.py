@@ -90,7 +90,8 @@ async def lab_robot(path: list[tuple[int, int]]) -> AsyncIterator[Setup]:
             None, robot_id=0, token=TOKEN, gateway_url=f"ws://127.0.0.1:{port}/",
             grid_width=14, grid_height=10, cell_m=0.4, tag_size_m=0.12, start_x=path[0][0],
             start_y=path[0][1], max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0,
-            camera_period_ms=50, reconnect_min_s=0.1, reconnect_max_s=0.3)
+            camera_period_ms=50, reconnect_min_s=0.1, reconnect_max_s=0.3,
+            bumper_pause_ms=400.0)
         client = build_client(settings, base, LabFrames(sim))
         sim_task = asyncio.create_task(run_realtime(sim, master, stop))
         client_task = asyncio.create_task(client.run())
@@ -115,11 +116,20 @@ async def test_real_gateway_drives_a_robot_through_its_plan() -> None:
     async with lab_robot([(1, 1), (2, 1), (2, 1), (2, 0)]) as s:
         code, detail = await s.gateway.command(Start(msg_id="op-2", seq=1))
         assert code is None, detail
+        async with asyncio.timeout(10):
+            while s.client.body.runner.action is None:
+                await asyncio.sleep(0.02)
+        await asyncio.sleep(0.3)
+        s.sim.bumper = 0x02  # someone bumps into the robot during its first move
+        await asyncio.sleep(0.1)
+        s.sim.bumper = 0
         soc_ms, makespan_ms = await asyncio.wait_for(s.gateway.wait_done(), 30)
+        assert not s.client.gateway_errors  # the gateway accepted every report
         assert s.at((2, 0)) < ARRIVED_M
         assert abs(wrap_angle(s.sim.theta - math.pi / 2)) < math.radians(4)
-        # two 0.4 m moves at <= 0.4 m/s (>= 1 s each) and a 1000 ms wait, timed by the gateway
-        assert makespan_ms >= 3000.0 and soc_ms == makespan_ms
+        # two 0.4 m moves at <= 0.4 m/s (>= 1 s each), a 400 ms bumper pause and a 1000 ms
+        # wait, timed by the gateway
+        assert makespan_ms >= 3400.0 and soc_ms == makespan_ms
         assert list(s.client.finished) == ["0.0.0", "0.0.1", "0.0.2"]
         assert s.client.body.localiser.last_fix is not None
 
@@ -145,5 +155,6 @@ async def test_link_cut_mid_action_robot_finishes_offline_and_gateway_catches_up
         s.proxy.refuse = False
         await asyncio.wait_for(s.gateway.wait_done(), 30)
         assert s.client.sessions == 2 and s.proxy.accepted >= 2
+        assert not s.client.gateway_errors
         assert list(s.client.finished) == ["0.0.0", "0.0.1"]
         assert s.at((3, 1)) < ARRIVED_M
