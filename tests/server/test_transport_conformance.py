@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +27,8 @@ class Transport:
     name: str
     gw: Gateway
     open: Callable[[str | None], Awaitable[ClientLink]]
+    open_reluctant: Callable[[str], Awaitable[ClientLink]]
+    """A client that buffers as little as it can (it will not read)."""
 
     async def handshake_status(self, token: str | None) -> int:
         """The HTTP-like status a refused handshake gets (401/403)."""
@@ -43,14 +46,21 @@ async def _transport(name: str, **config: Any) -> AsyncIterator[Transport]:
         if name == "memory":
             async def open_memory(token: str | None) -> ClientLink:
                 return await gw.connect(token or "")
-            yield Transport(name, gw, open_memory)
+            yield Transport(name, gw, open_memory, open_memory)
         else:
             await gw.listen()
             ws = connector(gw)
 
             async def open_ws(token: str | None) -> ClientLink:
                 return await ws(token)
-            yield Transport(name, gw, open_ws)
+
+            async def open_small(token: str) -> ClientLink:
+                sock = socket.socket()
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+                sock.setblocking(False)
+                await asyncio.get_running_loop().sock_connect(sock, ("127.0.0.1", gw.port))
+                return await ws(token, sock=sock, max_queue=1)
+            yield Transport(name, gw, open_ws, open_small)
 
 
 @pytest.fixture(params=["memory", "websocket"])
@@ -121,7 +131,7 @@ async def test_frame_over_the_hard_limit_closes_1009(transport: Transport) -> No
 async def test_a_slow_client_never_stalls_the_others(name: str) -> None:
     async for t in _transport(name, send_queue=8):
         await t.gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS))
-        slow = Peer(await t.open("demo-operator"), "slow")  # never reads
+        slow = Peer(await t.open_reluctant("demo-operator"), "slow")  # never reads
         fast = Peer(await t.open("demo-operator"), "fast")
         for _ in range(900):
             await slow.send(GetSnapshot)
