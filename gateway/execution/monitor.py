@@ -80,6 +80,11 @@ class Monitor:
         self._version = [0] * nv
         self._fleet: list[tuple[float, int, int]] = []
         self._robot_heaps: list[list[tuple[float, int, int]]] = [[] for _ in range(n)]
+        # seeds of starts and finishes not yet propagated: the work is deferred to the next
+        # query or clamping step, so a burst of events between two ticks costs one pass over
+        # the union of their descendants instead of one pass each (same values: every vertex
+        # is a function of its predecessors, evaluated in topological order)
+        self._pending: list[int] = []
         self._propagate(range(nv))
         for v in range(nv):
             if self._remaining[v] == 0:
@@ -141,6 +146,12 @@ class Monitor:
                         queued[w] = 1
                         heapq.heappush(heap, (topo[w], w))
 
+    def _flush(self) -> None:
+        """Propagate the deferred starts and finishes (before any estimate is read)."""
+        if self._pending:
+            seeds, self._pending = self._pending, []
+            self._propagate(seeds)
+
     # ----------------------------------------------------------------- slack heaps
     def _push_slack(self, v: int) -> None:
         if self._state[v] != NOT_STARTED:
@@ -187,6 +198,7 @@ class Monitor:
         ``MONITOR_PERIOD_MS``); starts and finishes in between carry their own real times.
         """
         self._check_time(now_ms)
+        self._flush()  # at the clamping time the deferred events happened under
         if now_ms == self.now_ms:
             return
         self.now_ms = float(now_ms)
@@ -211,7 +223,7 @@ class Monitor:
         self._active.discard(v)
         self._ts[v] = float(at_ms)
         heapq.heappush(self._thresholds, (at_ms + self.action_ms, v, _STARTED_KIND))
-        self._propagate([v])
+        self._pending.append(v)
 
     def action_finished(self, v: int, at_ms: float) -> list[int]:
         """Vertex ``v`` (started) finished at ``at_ms``; returns the vertices now ready."""
@@ -231,7 +243,7 @@ class Monitor:
                 ready.append(w)
                 base = max(self._tc[p] for p in self.adg.predecessors(w))
                 heapq.heappush(self._thresholds, (base, w, _READY_KIND))
-        self._propagate(succ)
+        self._pending.extend(succ)
         return ready
 
     # ----------------------------------------------------------------- queries
@@ -246,14 +258,17 @@ class Monitor:
 
     def start_ms(self, robot: int, action: int) -> float:
         """Estimated (or real, once started) start time of ``a_action^robot``."""
+        self._flush()
         return self._ts[self.adg.vertex(robot, action)]
 
     def completion_ms(self, robot: int, action: int) -> float:
         """Estimated (or real, once done) completion time t_c of ``a_action^robot``."""
+        self._flush()
         return self._tc[self.adg.vertex(robot, action)]
 
     def action_slack(self, robot: int, action: int) -> float:
         """Δ(a): how long the robot is expected to wait for others before starting a."""
+        self._flush()
         return self._delta[self.adg.vertex(robot, action)]
 
     def initial_slack(self, robot: int, action: int) -> float:
@@ -262,6 +277,7 @@ class Monitor:
 
     def slack_growth(self, robot: int, action: int) -> float:
         """Δ̄(a) = Δ(a) - Δ0(a): extra waiting caused by other robots' delays."""
+        self._flush()
         v = self.adg.vertex(robot, action)
         return self._delta[v] - self._delta0[v]
 
@@ -269,14 +285,17 @@ class Monitor:
         """Largest Δ̄ over the robot's actions not yet started (0 if none is left)."""
         if not 0 <= robot < self.adg.n_robots:
             raise ExecutionError(f"unknown robot {robot} (the plan has {self.adg.n_robots} robots)")
+        self._flush()
         return self._heap_max(self._robot_heaps[robot])
 
     def fleet_slack(self) -> float:
         """Δ̄F: the largest Δ̄ over all actions not yet started (0 if none is left)."""
+        self._flush()
         return self._heap_max(self._fleet)
 
     def robot_completion_ms(self, robot: int) -> float:
         """Estimated completion time of the robot's last action (its previous one if none)."""
+        self._flush()
         last = self.adg.first[robot + 1] - 1
         return self._tc[last] if last >= self.adg.first[robot] else self._base_completion[robot]
 
@@ -305,6 +324,7 @@ class Monitor:
 
     def snapshot(self) -> Estimate:
         """Copies of the current per-vertex t_s, t_c, Δ and Δ0 (indexed by vertex id)."""
+        self._flush()
         return Estimate(list(self._ts), list(self._tc), list(self._delta), list(self._delta0))
 
 
