@@ -87,7 +87,7 @@ async def _serve(plan_file: Path) -> dict[str, Any]:
         print(port, flush=True)
         soc, _ = await gw.wait_done()
         lat = sorted(gw.latencies_ms)
-        return {"soc_ms": soc, "dispatches": len(lat),
+        return {"soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time(),
                 "gateway_p50_ms": statistics.median(lat) if lat else None,
                 "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
 
@@ -164,7 +164,9 @@ def run_once(robots: int, seconds: int, seed: int, profile: Path | None = None
         try:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
+            cpu0 = time.process_time()
             stats, wall_s, total = asyncio.run(_drive(port, plan, 3.0 * seconds + 60.0))
+            robots_cpu = time.process_time() - cpu0
             gateway = json.loads(gw.stdout.readline() or "{}")
             gw.wait(timeout=60)
         finally:
@@ -180,6 +182,8 @@ def run_once(robots: int, seconds: int, seed: int, profile: Path | None = None
             "lost": total - len(stats.received), "duplicated": stats.duplicates,
             "errors": len(stats.errors),
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
+            "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
+            "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
             "rate_ratio": round(achieved / offered, 4) if offered else None}
 
