@@ -280,7 +280,7 @@ def run(args: argparse.Namespace) -> int:
                            **spec.settings()}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     exps, _ = join_experiments(result.rows)
-    pictures = plot_all(exps, args.out, order)
+    pictures = plot_all(exps, args.out, order, rules)
     out = Console()
     for table in summary_tables(summary):
         out.print(table)

@@ -5,12 +5,14 @@
   whether it replanned.
 * ``fleet_size.png`` (paper Fig. "effect of agents"): one panel per map, box plots of
   ``T_c^D`` per number of agents over the experiments where both methods replanned.
+
+Box plots may leave out outliers (counted in the tick labels), see :func:`plot_all`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -20,35 +22,44 @@ matplotlib.use("Agg")  # before pyplot: files only, no display
 import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
 
-from sim_clients.stats import Experiment, map_order
+from sim_clients.stats import Experiment, OutlierRules, map_order, outlier_reasons
 
 REPLANNED_LABELS = ("Replan", "No Replan")
 
 
-def _boxes(ax: Axes, groups: Sequence[Sequence[float]], labels: Sequence[str]) -> None:
-    shown = [list(g) if g else [math.nan] for g in groups]
-    ax.boxplot(shown, showmeans=True, tick_labels=[f"{lab}\n(n={len(g)})"
-                                                   for lab, g in zip(labels, groups, strict=True)])
+Hide = Callable[[Experiment], bool]
+
+
+def _boxes(ax: Axes, groups: Sequence[Sequence[Experiment]], labels: Sequence[str],
+           hide: Hide) -> None:
+    """Box plots of ``T_c^D`` per group; experiments ``hide`` picks are counted, not drawn."""
+    shown = [[e.difference_ms for e in g if not hide(e)] for g in groups]
+    ticks = []
+    for lab, g, values in zip(labels, groups, shown, strict=True):
+        hidden = len(g) - len(values)
+        ticks.append(f"{lab}\n(n={len(values)})" + (f"\n+{hidden} outl." if hidden else ""))
+    ax.boxplot([v or [math.nan] for v in shown], showmeans=True, tick_labels=ticks)
     ax.axhline(0, color="grey", linewidth=0.8, linestyle="--")
 
 
-BOX_NOTE = "boxes: quartiles and 1.5 IQR whiskers, line: median, triangle: mean"
+BOX_NOTE = ("boxes: quartiles and 1.5 IQR whiskers, line: median, triangle: mean; "
+            "outliers by the summary's rules are not drawn")
 
 
 def plot_replan_decision(exps: Sequence[Experiment], path: Path,
-                         maps_first: Sequence[str] = ()) -> Path:
+                         maps_first: Sequence[str] = (), hide: Hide = lambda e: False) -> Path:
     """Per map: slack replanning frequency and the SOC difference, replanned vs not."""
     maps = map_order(exps, maps_first)
     fig, axes = plt.subplots(len(maps) or 1, 2, figsize=(9, 3.2 * max(1, len(maps))),
                              squeeze=False, gridspec_kw={"width_ratios": [1, 2]})
     for row, name in zip(axes, maps, strict=False):
         mine = [e for e in exps if e.map == name]
-        yes = [e.difference_ms for e in mine if e.slack_replanned]
-        no = [e.difference_ms for e in mine if not e.slack_replanned]
+        yes = [e for e in mine if e.slack_replanned]
+        no = [e for e in mine if not e.slack_replanned]
         row[0].bar(REPLANNED_LABELS, [len(yes), len(no)], color=["tab:blue", "tab:grey"])
         row[0].set_ylabel("experiments")
         row[0].set_title(f"{name}: replanning frequency")
-        _boxes(row[1], [yes, no], REPLANNED_LABELS)
+        _boxes(row[1], [yes, no], REPLANNED_LABELS, hide)
         row[1].set_ylabel("$T_c^P - T_c^R$ [ms]")
         row[1].set_title(f"{name}: SOC difference")
     fig.text(0.99, 0.002, BOX_NOTE, ha="right", va="bottom", fontsize=7, color="grey")
@@ -59,7 +70,7 @@ def plot_replan_decision(exps: Sequence[Experiment], path: Path,
 
 
 def plot_fleet_size(exps: Sequence[Experiment], path: Path,
-                    maps_first: Sequence[str] = ()) -> Path:
+                    maps_first: Sequence[str] = (), hide: Hide = lambda e: False) -> Path:
     """Per map: the SOC difference per number of agents where both methods replanned."""
     maps = map_order(exps, maps_first)
     cols = 2 if len(maps) > 1 else 1
@@ -69,8 +80,8 @@ def plot_fleet_size(exps: Sequence[Experiment], path: Path,
     for ax, name in zip(flat, maps, strict=False):
         mine = [e for e in exps if e.map == name and e.slack_replanned and e.random_replanned]
         counts = sorted({e.agents for e in exps if e.map == name})
-        _boxes(ax, [[e.difference_ms for e in mine if e.agents == n] for n in counts],
-               [str(n) for n in counts])
+        _boxes(ax, [[e for e in mine if e.agents == n] for n in counts],
+               [str(n) for n in counts], hide)
         ax.set_xlabel("agents")
         ax.set_ylabel("$T_c^P - T_c^R$ [ms]")
         ax.set_title(f"{name}: both methods replanned")
@@ -83,9 +94,17 @@ def plot_fleet_size(exps: Sequence[Experiment], path: Path,
     return path
 
 
-def plot_all(exps: Sequence[Experiment], folder: Path,
-             maps_first: Sequence[str] = ()) -> list[Path]:
-    """Draw every figure into ``folder`` (maps ordered by :func:`map_order`); returns the files."""
+def plot_all(exps: Sequence[Experiment], folder: Path, maps_first: Sequence[str] = (),
+             rules: OutlierRules | None = None) -> list[Path]:
+    """Draw every figure into ``folder`` (maps ordered by :func:`map_order`); returns the files.
+
+    With ``rules``, the experiments they flag as outliers are counted but not drawn (a replan
+    whose solver hit its limit costs minutes of SOC and would flatten every other box).
+    """
     folder.mkdir(parents=True, exist_ok=True)
-    return [plot_replan_decision(exps, folder / "replan_decision.png", maps_first),
-            plot_fleet_size(exps, folder / "fleet_size.png", maps_first)]
+
+    def hide(e: Experiment) -> bool:
+        return rules is not None and bool(outlier_reasons(e, rules))
+
+    return [plot_replan_decision(exps, folder / "replan_decision.png", maps_first, hide),
+            plot_fleet_size(exps, folder / "fleet_size.png", maps_first, hide)]
