@@ -243,6 +243,9 @@ def run(args: argparse.Namespace) -> int:
                       replan_time_limit_s=args.replan_time_limit)
     files = _map_files(list(dict.fromkeys(m for m, _ in groups)), args.maps_dir)
     named = [(_short(m), n) for m, n in groups]
+    stems = {_short(m) for m in files}
+    if len(stems) != len(files):
+        raise UsageError("two --maps have the same name; rename one of the files")
     try:
         spec = CampaignSpec(
             groups=tuple(named),

@@ -1,0 +1,35 @@
+"""``fleetgate experiment`` argument handling: map and agent-count groups."""
+
+from __future__ import annotations
+
+import pytest
+
+from gateway.cli import UsageError
+from sim_clients.campaign import PAPER_GROUPS
+from sim_clients.cmd_experiment import parse_groups
+
+
+def test_paper_groups_are_the_papers_1300_experiments() -> None:
+    groups = parse_groups(None, None, paper=True)
+    assert groups == list(PAPER_GROUPS)
+    # 20 instances x 5 seeds per group: 13 groups -> 1300 experiments.
+    assert len(groups) * 20 * 5 == 1300
+    assert parse_groups(["arena"], None, paper=True) == [("arena", n) for n in (10, 15, 20, 25)]
+
+
+def test_common_and_per_map_counts() -> None:
+    assert parse_groups(["lab", "arena"], ["5,10", "arena=20", "arena=25"], paper=False) == [
+        ("lab", 5), ("lab", 10), ("arena", 20), ("arena", 25)]
+    assert parse_groups(["lab"], ["5", "5,10"], paper=False) == [("lab", 5), ("lab", 10)]
+
+
+@pytest.mark.parametrize(("maps", "agents", "message"), [
+    (None, ["5"], "--maps is required"),
+    (["lab"], None, "no agent counts for map 'lab'"),
+    (["lab"], ["five"], "not a comma-separated list"),
+    (["lab"], ["0"], "positive"),
+    (["lab"], ["arena=5"], "not in --maps: arena"),
+])
+def test_bad_groups(maps: list[str] | None, agents: list[str] | None, message: str) -> None:
+    with pytest.raises(UsageError, match=message):
+        parse_groups(maps, agents, paper=False)
