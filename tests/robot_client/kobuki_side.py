@@ -112,15 +112,20 @@ class SimulatedBase:
 
 
 async def run_realtime(base: SimulatedBase, master: int, stop: asyncio.Event,
-                       period_s: float = 0.02) -> None:
-    """Play the base in real time: every 20 ms advance, send feedback, take new commands."""
+                       period_s: float = 0.02, max_step_s: float = 0.04) -> None:
+    """Play the base in real time: every 20 ms advance, send feedback, take new commands.
+
+    The base and the client share one event loop; when a loaded machine stalls it, the base
+    advances at most ``max_step_s`` per iteration (its clock slows down) rather than driving
+    on blindly for the whole stall, which no controller tick could have corrected.
+    """
     loop = asyncio.get_running_loop()
     last = loop.time()
     raw = bytearray()
     while not stop.is_set():
         await asyncio.sleep(period_s)
         now = loop.time()
-        base.advance(now - last)
+        base.advance(min(now - last, max_step_s))
         last = now
         os.write(master, base.feedback())
         commands = read_commands(master, raw, timeout_s=0.0, min_count=1_000_000)

@@ -202,41 +202,35 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
     assert len(conn2.of_type(Started)) == 1
 
 
-async def test_pause_holds_actions_and_cancel_drops_a_held_one(robot: Robot) -> None:
-    conn, _ = await handshake(robot, paused=True)
+async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
+    conn, _ = await handshake(robot, paused=True, state_period_ms=60000.0)  # one snapshot only
     await conn.send(Action, **action(0, (1, 1), (1, 0), "N", "N"))
     await conn.expect(Ack, "0.3.0")
     await asyncio.sleep(0.3)
+    # paused: the action is held, not started
     assert robot.at((1, 1)) < 0.005 and not conn.of_type(Started)
     await conn.send(CancelAction, action_id="0.3.0")
     cancelled = await conn.expect(Cancelled, "0.3.0")
     assert cancelled.pose is not None and cancelled.pose.cell == (1, 1)
     await conn.send(Resume)
-    await conn.send(Action, **action(1, (1, 1), (1, 2), "S", "S"))  # omni-style: spin, drive
+    await conn.send(Action, **action(1, (1, 1), (1, 2), "S", "S"))  # spin to S, then drive
     await conn.expect(Started, "0.3.1")
-    await conn.expect(Finished, "0.3.1")
-    assert robot.at((1, 2)) < ARRIVED_M
-    assert [m.action_id for m in conn.of_type(Started)] == ["0.3.1"]
-
-
-async def test_bumper_pause_is_reported_as_blocked_state_snapshots(robot: Robot) -> None:
-    conn, _ = await handshake(robot, state_period_ms=60000.0)  # no periodic snapshots
-    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
-    await conn.expect(Started, "0.3.0")
     await asyncio.sleep(0.3)
     robot.sim.bumper = 0x04  # left bumper for 100 ms
     await asyncio.sleep(0.1)
     robot.sim.bumper = 0
+    # The bumper pause is reported by immediate snapshots, not by blocked/unblocked.
     hit = await conn.expect(State)
     while hit.activity != "blocked":  # skip the snapshot sent right after welcome
         hit = await conn.expect(State)
-    assert hit.current is not None and hit.current.action_id == "0.3.0"
+    assert hit.current is not None and hit.current.action_id == "0.3.1"
     assert hit.current.state == "blocked"
     resumed = await conn.expect(State)
     assert resumed.activity == "running" and resumed.current is not None
-    await conn.expect(Finished, "0.3.0")
+    await conn.expect(Finished, "0.3.1")
     # after the 400 ms pause it went on and still reached the target
-    assert robot.at((2, 1)) < ARRIVED_M
+    assert robot.at((1, 2)) < ARRIVED_M
+    assert [m.action_id for m in conn.of_type(Started)] == ["0.3.1"]
     assert not conn.of_type(Blocked) and not conn.of_type(Unblocked)
 
 
