@@ -559,6 +559,7 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     failures: list[Failure] = []
     report("experiments", finished, total)
     appender = _Appender(results_path)
+    failure_log = (out / "failures.jsonl").open("w")  # this run's failures (retried on rerun)
     try:
         pending: set[Future[list[Outcome]]] = set()
         queue = iter(chunks)
@@ -576,15 +577,16 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
                     appender.append(rows)
                     new_rows.extend(rows)
                     failures.extend(failed)
+                    failure_log.writelines(json.dumps(asdict(x)) + "\n" for x in failed)
+                    failure_log.flush()
                     finished += 1
             report("experiments", finished, total)
     finally:
         appender.close()
+        failure_log.close()
 
     rows = existing + new_rows
     write_results(results_path, rows)
-    with (out / "failures.jsonl").open("w") as f:
-        f.writelines(json.dumps(asdict(x)) + "\n" for x in failures)
     mine = [r for r in rows if r.key in wanted]
     return CampaignResult(sorted(mine, key=Row.sort_key), len(todo), len(tasks),
                           len(mine) == len(wanted), failures)

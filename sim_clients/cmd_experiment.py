@@ -239,6 +239,8 @@ def run(args: argparse.Namespace) -> int:
     groups = parse_groups(args.maps, args.agents, args.paper)
     if args.workers < 1:
         raise UsageError(f"--workers must be positive, got {args.workers}")
+    if args.threshold_ms < 0 or args.replan_time_limit <= 0:
+        raise UsageError("--threshold-ms must be >= 0 and --replan-time-limit > 0")
     sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
                       replan_time_limit_s=args.replan_time_limit)
     files = _map_files(list(dict.fromkeys(m for m, _ in groups)), args.maps_dir)

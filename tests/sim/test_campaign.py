@@ -19,10 +19,13 @@ from sim_clients.campaign import (
     VARIANTS,
     CampaignError,
     CampaignSpec,
+    ExperimentTask,
+    InstanceRecord,
     SimSettings,
     open_executor,
     read_results,
     run_campaign,
+    run_experiment,
 )
 from sim_clients.plots import plot_all
 from sim_clients.stats import join_experiments
@@ -140,3 +143,14 @@ def test_cli_writes_results_summary_and_plots(full: Path, tmp_path: Path) -> Non
                          timeout=60)
     assert bad.returncode == 2
     assert "--agents" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_a_simulation_that_raises_is_a_failure_not_a_crash(full: Path) -> None:
+    rec = InstanceRecord.from_json(json.loads((full / "instances" / "lab-5-000.json").read_text()))
+    task = ExperimentTask(MAPS["lab"], rec, 3, ("lower_bound", "slack"),
+                          SimSettings(solver_time="zero", threshold_ms=-1))
+    rows, failures = run_experiment(task)
+    assert rows == []
+    assert [(f.instance, f.seed, f.variant) for f in failures] == [(0, 3, "lower_bound"),
+                                                                   (0, 3, "slack")]
+    assert all("threshold_ms" in f.error for f in failures)
