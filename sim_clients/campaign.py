@@ -435,6 +435,10 @@ class CampaignResult:
     ran: int
     complete: bool
     failures: list[Failure]
+    planning_s: float = 0.0
+    """Wall time of the instance phase (generating and planning)."""
+    running_s: float = 0.0
+    """Wall time of the experiment phase (simulations, replans included)."""
 
 
 @contextmanager
@@ -527,6 +531,7 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     todo = [PlanTask(m, map_paths[m], n, i, spec.seed, spec.plan_time_limit_s)
             for m, n, i in slots if (m, n, i) not in records]
     report("instances", len(records), len(slots))
+    began = time.perf_counter()
     for planned in as_completed([executor.submit(plan_instance, t) for t in todo]):
         rec = planned.result()
         path = folder / rec.filename
@@ -534,6 +539,7 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
         records[(rec.map, rec.agents, rec.index)] = rec
         report("instances", len(records), len(slots))
 
+    planning_s = time.perf_counter() - began
     results_path = out / "results.csv"
     existing = read_results(results_path)
     done = {r.key for r in existing}
@@ -558,6 +564,7 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     new_rows: list[Row] = []
     failures: list[Failure] = []
     report("experiments", finished, total)
+    began = time.perf_counter()
     appender = _Appender(results_path)
     failure_log = (out / "failures.jsonl").open("w")  # this run's failures (retried on rerun)
     try:
@@ -585,8 +592,10 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
         appender.close()
         failure_log.close()
 
+    running_s = time.perf_counter() - began
     rows = existing + new_rows
     write_results(results_path, rows)
     mine = [r for r in rows if r.key in wanted]
     return CampaignResult(sorted(mine, key=Row.sort_key), len(todo), len(tasks),
-                          len(mine) == len(wanted), failures)
+                          len(mine) == len(wanted), failures, round(planning_s, 3),
+                          round(running_s, 3))

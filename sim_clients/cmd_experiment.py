@@ -281,6 +281,7 @@ def run(args: argparse.Namespace) -> int:
                         maps_first=order)
     summary["campaign"] = {"complete": result.complete, "instances_planned": result.planned,
                            "experiments_run": result.ran, "wall_s": round(wall, 3),
+                           "planning_s": result.planning_s, "running_s": result.running_s,
                            "failures": [asdict(f) for f in result.failures],
                            **spec.settings()}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -293,7 +294,9 @@ def run(args: argparse.Namespace) -> int:
     if result.failures:
         state += (f"; {len(result.failures)} simulations FAILED (see "
                   f"{args.out / 'failures.jsonl'})")
-    out.print(f"{len(exps)} experiments, {state}; planned {result.planned} instances and ran "
-              f"{result.ran} experiments in {wall:.1f} s; wrote {args.out / 'results.csv'}, "
+    out.print(f"{len(exps)} experiments, {state}; planned {result.planned} instances in "
+              f"{result.planning_s:.1f} s and ran {result.ran} experiments in "
+              f"{result.running_s:.1f} s ({wall:.1f} s in all); wrote "
+              f"{args.out / 'results.csv'}, "
               f"{args.out / 'summary.json'}, " + ", ".join(str(p) for p in pictures))
     return EXIT_OK
