@@ -183,6 +183,7 @@ def run_once(robots: int, seconds: int, seed: int, profile: Path | None = None
             "errors": len(stats.errors),
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
+            "gateway_cpu_ms_per_action": round(1000.0 * gateway.get("cpu_s", 0.0) / total, 3),
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
             "rate_ratio": round(achieved / offered, 4) if offered else None}

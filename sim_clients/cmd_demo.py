@@ -73,7 +73,18 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet) -> None:
     engine.status_listeners.append(on_status)
 
 
-async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace) -> RunResult:
+def _stop_on_signals() -> asyncio.Event:
+    """An event set by SIGINT or SIGTERM (the demo then stops cleanly)."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, stop.set)
+    return stop
+
+
+async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace) -> None:
+    stop = _stop_on_signals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         host = config.host
@@ -82,8 +93,14 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
         fleet = fleet_for(gateway, problem.instance.num_agents,
                           websocket_connector(f"ws://{host}:{port}/ws"), seed=args.seed,
                           intruder=args.intruder, poll_at_ticks=False, send_state=True)
+        run = asyncio.ensure_future(run_in_process(gateway, problem, fleet))
+        stopped = asyncio.ensure_future(stop.wait())
         try:
-            result = await run_in_process(gateway, problem, fleet)
+            await asyncio.wait({run, stopped}, return_when=asyncio.FIRST_COMPLETED)
+            if not run.done():
+                print("fleetgate demo: interrupted before the run completed", file=sys.stderr)
+                return
+            result: RunResult = run.result()
             if args.json:
                 print(json.dumps(result.summary()), flush=True)
             else:
@@ -94,19 +111,12 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
             if not args.headless:
                 _follow_runs(gateway, fleet)
                 print("serving the GUI until Ctrl-C", file=sys.stderr, flush=True)
-                await _until_interrupted()
+                await stopped
         finally:
+            for task in (run, stopped):
+                task.cancel()
+            await asyncio.gather(run, stopped, return_exceptions=True)
             await fleet.stop()
-        return result
-
-
-async def _until_interrupted() -> None:
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError):
-            loop.add_signal_handler(sig, stop.set)
-    await stop.wait()
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -141,8 +151,6 @@ def _run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
                          ) from None
-    except KeyboardInterrupt:
-        pass
     return EXIT_OK
 
 
