@@ -11,9 +11,9 @@ from playwright.sync_api import Browser, Page, sync_playwright
 from tests.gui.demo_process import CHROMIUM, CHROMIUM_ARGS, DemoProcess
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "gui"
-SPEED = 2.0
-"""World speed of the tests: an action lasts 500 ms of wall time, long enough to see a robot
-between its two cells, short enough that a run of the lab instance (makespan 16) takes ~8 s."""
+SPEED = 3.0
+"""World speed of the tests: an action lasts 333 ms of wall time, long enough to see a robot
+between its two cells, short enough that a run of the lab instance (makespan 16) takes ~6 s."""
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The operator GUI in headless Chromium against a real ``fleetgate demo`` (lab map, speed 2).
+"""The operator GUI in headless Chromium against a real ``fleetgate demo`` (lab map, speed 3).
 
 Positions, status and the slack series are read from what the page itself holds (see
 ``gui_page``) and from its DOM.
@@ -57,6 +57,37 @@ def test_page_loads(page: Page) -> None:
     assert box is not None and box["width"] > 400 and box["height"] > 300
 
 
+MODEL_CHECK = """async () => {
+  const { FleetModel, pathCost } = await import("/model.js");
+  const path = [[0, 0], [1, 0], [2, 0], [2, 0]];
+  const m = new FleetModel();
+  m.applySnapshot({
+    t_ms: 1000, status: "running", speed: 2, plan: 0, map_name: "x", paths: [path],
+    robots: [{ robot_id: 0, cell: [1, 0], activity: "received", action_id: "0.0.1",
+               connected: true, goal: [2, 0], remaining: path.slice(1), slack_ms: 0 }],
+    waits: [], intruders: [], fleet_slack: [], replan_marks: [], threshold_ms: 2000,
+  }, 5000);
+  m.applyEvent({ event: "start", t_ms: 1100, plan: 0, robot: 0, action: 1 });
+  const moving = m.robots(5000 + 200)[0];
+  m.applyEvent({ event: "finish", t_ms: 2100, plan: 0, robot: 0, action: 1 });
+  const arrived = m.robots(5000 + 600)[0];
+  return { cost: pathCost(path), moving, arrived };
+}"""
+
+
+def test_model_draws_a_moving_robot_between_its_cells(page: Page) -> None:
+    """The page's fleet model on a hand-made snapshot: action 1 of [(0,0),(1,0),(2,0),(2,0)]
+    started at plan time 1100; 200 ms of wall time after the snapshot (t 1000, speed 2) it is
+    plan time 1400, so 300 of its 1000 ms are done: drawn at x = 1.3, spanning (1,0)-(2,0).
+    After its finish it stands on (2,0). The path's cost is 2 (the trailing wait is free)."""
+    out = page.evaluate(MODEL_CHECK)
+    assert out["cost"] == 2
+    assert out["moving"]["from"] == [1, 0] and out["moving"]["to"] == [2, 0]
+    assert out["moving"]["pos"] == pytest.approx([1.3, 0])
+    assert out["arrived"]["cell"] == [2, 0] and out["arrived"]["pos"] == [2, 0]
+    assert out["arrived"]["to"] is None and out["arrived"]["activity"] == "idle"
+
+
 def test_robots_move(page: Page) -> None:
     """Positions change between two reads; a moving robot is drawn between its two cells."""
     fresh_run(page)
@@ -80,7 +111,7 @@ def test_pause_stops_and_resume_restarts(page: Page) -> None:
         "window.fleetgate.robots().every(r => r.activity !== 'running')", timeout=5_000)
     time.sleep(0.3)
     paused = cells(page)
-    time.sleep(1.5)  # 3 actions' worth of plan time at speed 2
+    time.sleep(1.0)  # 3 actions' worth of plan time at speed 3
     assert cells(page) == paused
     assert all(r["activity"] != "running" for r in robots(page))
     page.get_by_role("button", name="Resume").click()
@@ -131,13 +162,26 @@ def test_replan_now_adopts_a_new_plan(page: Page) -> None:
 
 
 def test_load_instance_then_run(page: Page) -> None:
-    """Load 6 robots of lab-random-2 from the form, start it, they move; then restore."""
+    """A bad map name is refused with the gateway's reason; a generated instance loads; 6
+    robots of lab-random-2 load from the form, start and move; then the module's instance."""
     fresh_run(page)
     set_speed(page, 20)
     page.wait_for_function("window.fleetgate.status() === 'done'", timeout=20_000)
     set_speed(page, SPEED)
-    page.get_by_label("Scenario").fill("lab-random-2")
-    page.get_by_label("Robots").fill("6")
+    page.get_by_label("Map", exact=True).fill("no-such-map")
+    page.get_by_role("button", name="Load").click()
+    expect(page.get_by_role("status").filter(has_text="refused")).to_contain_text("no-such-map")
+    page.get_by_label("Map", exact=True).fill("lab")
+    page.get_by_label("Generate").check()
+    expect(page.get_by_label("Scenario", exact=True)).to_be_disabled()
+    page.get_by_label("seed").fill("3")
+    page.get_by_label("Robots", exact=True).fill("4")
+    page.get_by_role("button", name="Load").click()
+    page.wait_for_function("window.fleetgate.status() === 'loaded'"
+                           " && window.fleetgate.robots().length === 4", timeout=15_000)
+    page.get_by_label("Generate").uncheck()
+    page.get_by_label("Scenario", exact=True).fill("lab-random-2")
+    page.get_by_label("Robots", exact=True).fill("6")
     page.get_by_role("button", name="Load").click()
     expect(page.locator("#status")).to_have_text("loaded", timeout=15_000)
     page.wait_for_function("window.fleetgate.robots().length === 6")
@@ -149,7 +193,7 @@ def test_load_instance_then_run(page: Page) -> None:
     set_speed(page, 20)
     page.wait_for_function("window.fleetgate.status() === 'done'", timeout=20_000)
     set_speed(page, SPEED)
-    page.get_by_label("Scenario").fill("lab-random-1")
-    page.get_by_label("Robots").fill("10")
+    page.get_by_label("Scenario", exact=True).fill("lab-random-1")
+    page.get_by_label("Robots", exact=True).fill("10")
     page.get_by_role("button", name="Load").click()
     expect(page.locator("#status")).to_have_text("loaded", timeout=15_000)

@@ -178,6 +178,12 @@ function renderPanels() {
   $("progress").value = a.finished;
   $("progress-text").textContent = s.plan === null ? "no run yet"
     : `${a.finished} / ${total} actions of plan #${s.plan}`;
+  const count = (activity) => s.robots.filter((r) => r.activity === activity).length;
+  $("map").setAttribute("aria-label", s.map_name
+    ? `Map ${s.map_name}: ${s.robots.length} robots, ${count("running")} moving, `
+      + `${count("blocked")} blocked, ${s.waits.length} waiting for another robot, `
+      + `${s.intruders.length} intruder(s)`
+    : "Map: no instance loaded");
   const now = performance.now();
   if (now - tableDrawn > 400) {
     tableDrawn = now;
