@@ -198,5 +198,6 @@ def test_fleetgate_sim_drives_a_gateway_over_websockets() -> None:
     soc, code = asyncio.run(main())
     assert code == 0
     # speed 20 (the robots learn it on the world connection): an action takes 50 ms of wall
-    # time; loopback round trips add a little (at speed 1 it would be 20x the plan's cost)
-    assert 1000 * CORRIDOR.soc <= soc <= 1.5 * 1000 * CORRIDOR.soc
+    # time plus loopback round trips (each ms of those is 20 ms of plan time on a loaded
+    # machine); at the wrong speed (1) it would be 20x the plan's cost
+    assert 1000 * CORRIDOR.soc <= soc <= 3 * 1000 * CORRIDOR.soc
