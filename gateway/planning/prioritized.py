@@ -4,7 +4,9 @@ Agents are planned one at a time in priority order by space-time A* against a re
 of the agents before them: a planned agent on cell v at t reserves v at t-1, t and t+1 (the
 1-robust rule), and from the step before it reaches its goal it holds the goal for ever. Every
 agent not yet planned holds its start at t = 1, since nobody may enter a cell that an agent
-occupied the step before. When an agent finds no path (or none within an expansion budget), the
+occupied the step before (they hold it a little longer, see ``START_HOLD``). Agents whose goal
+is cut off from their start by the other agents' goals go first, since those goals get parked
+on. When an agent finds no path (or none within an expansion budget), the
 search restarts with that agent moved to the front; an agent that fails again while already in
 front gets the others shuffled behind it (seeded, so runs are reproducible).
 """
@@ -14,14 +16,19 @@ from __future__ import annotations
 import random
 from collections.abc import Sequence
 
+from gateway.planning.connectivity import component_labels
 from gateway.planning.constraints import INF, ConstraintTable
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.low_level import space_time_astar
 from gateway.planning.plan import Deadline, NoSolution, Plan, Solution
 from gateway.planning.problem import Forbidden, Problem
 
-EXPANSION_BUDGET = 200
+EXPANSION_BUDGET = 300
 """An agent's search gives up after this many expansions per timestep of its horizon."""
+
+START_HOLD = 3
+"""Agents not yet planned hold their starts during timesteps 1..START_HOLD, so that each can
+still wait there for START_HOLD - 1 steps when its turn comes."""
 
 
 class _Reservations:
@@ -38,7 +45,8 @@ class _Reservations:
             for t in range(t0, t1 + 1):
                 self._add(t, cell)
         for s in problem.starts:
-            self._add(1, problem.model.cells[s])
+            for t in range(1, START_HOLD + 1):
+                self._add(t, problem.model.cells[s])
 
     def _add(self, t: int, cell: int) -> None:
         key = t * self.size + cell
@@ -84,7 +92,8 @@ def _attempt(
     paths: list[tuple[int, ...]] = [()] * problem.num_agents
     for k in order:
         start_cell = problem.model.cells[problem.starts[k]]
-        res.release(1, start_cell)
+        for t in range(1, START_HOLD + 1):
+            res.release(t, start_cell)
         budget = EXPANSION_BUDGET * (problem.h[k][problem.starts[k]] + res.horizon + 1)
         states = space_time_astar(
             problem.model, problem.starts[k], problem.goals[k], problem.h[k], res.table(), None,
@@ -95,6 +104,25 @@ def _attempt(
         paths[k] = problem.cells_of(states)
         res.reserve(paths[k])
     return paths
+
+
+def _boxed_in(problem: Problem) -> set[int]:
+    """Agents whose goal cannot be reached from their start once all other goals are taken."""
+    free = problem.grid.free.copy()
+    for g in problem.goals:
+        free.flat[g] = False
+    if not free.any():
+        return set(range(problem.num_agents))
+    labels = component_labels(Grid(free)).ravel().tolist()
+    out = set()
+    nbrs = problem.grid.neighbour_ids
+    for k, (s, g) in enumerate(zip(problem.starts, problem.goals, strict=True)):
+        s_cell = problem.model.cells[s]
+        from_start = {labels[c] for c in (s_cell, *nbrs(s_cell))} - {0}
+        to_goal = {labels[c] for c in nbrs(g)} - {0}
+        if s_cell != g and not from_start & to_goal and g not in nbrs(s_cell):
+            out.add(k)
+    return out
 
 
 def solve_prioritized(
@@ -116,7 +144,9 @@ def solve_prioritized(
     """
     problem = Problem(grid, starts, goals, forbidden)
     rng = random.Random(seed)
-    order = sorted(range(problem.num_agents), key=lambda k: -problem.h[k][problem.starts[k]])
+    boxed = _boxed_in(problem)
+    order = sorted(range(problem.num_agents),
+                   key=lambda k: (k not in boxed, -problem.h[k][problem.starts[k]]))
     front: list[int] = []
     for attempt in range(1, attempts + 1):
         if deadline.expired():

@@ -37,17 +37,23 @@ def test_prioritised_plans_are_valid_and_not_below_the_optimum(
     assert sol.plan.soc >= best.plan.soc
 
 
-def test_failed_agent_moves_to_the_front() -> None:
+def test_agent_boxed_in_by_a_goal_goes_first() -> None:
     # Pocket (1,1) under corridor cell (1,0). Agent 0 (3,0)->(1,0) and agent 1 (0,0)->(1,1)
-    # both have distance 2, so agent 0 goes first and parks on (1,0) from t=2, which holds the
-    # cell from t=1: agent 1 can never pass. The restart plans agent 1 first and succeeds.
+    # both have distance 2; by distance alone agent 0 would go first and park on (1,0) (held
+    # from t=1), sealing the pocket. Agent 1's goal is cut off by agent 0's goal, so it is
+    # planned first and the first order succeeds.
     grid = grid_of("....", "@.@@")
     starts, goals = [(3, 0), (0, 0)], [(1, 0), (1, 1)]
-    sol = solve_prioritized(grid, starts, goals, deadline=NeverExpires())
-    assert sol.expanded_nodes == 2  # attempts
+    sol = solve_prioritized(grid, starts, goals, deadline=NeverExpires(), attempts=1)
+    assert sol.expanded_nodes == 1  # attempts
     assert_valid(grid, starts, goals, sol.plan)
-    with pytest.raises(NoSolution) as err:
-        solve_prioritized(grid, starts, goals, deadline=NeverExpires(), attempts=1)
+
+
+def test_gives_up_after_its_attempts() -> None:
+    # A swap in a corridor: every order fails; each failure reorders and retries.
+    with pytest.raises(NoSolution, match="in 4 orders") as err:
+        solve_prioritized(grid_of("...."), [(0, 0), (3, 0)], [(3, 0), (0, 0)],
+                          deadline=NeverExpires(), attempts=4)
     assert not err.value.timed_out
 
 
