@@ -440,14 +440,6 @@ class FleetRobot:
             self.fleet.stats.finish_sent[aid] = time.perf_counter()
 
 
-class _WorldIntruder:
-    """One intruder (automatic or placed by an operator) and when it next needs a look."""
-
-    def __init__(self, intruder: Intruder, auto: bool) -> None:
-        self.intruder = intruder
-        self.auto = auto
-
-
 class SimFleet:
     """Many simulated robots on one shared :class:`World`, plus the "world" connection.
 
@@ -481,13 +473,11 @@ class SimFleet:
         self._oracle = oracle
         self._intruder_config = intruder_config or IntruderConfig()
         self._rng = random.Random(derive_seed(seed, "intruder"))
-        self._intruders: list[_WorldIntruder] = []
-        if oracle is not None:
-            self._intruders.append(
-                _WorldIntruder(Intruder(self.world, self._intruder_config), auto=True))
+        # the automatic intruder (absent until T_a), then any the operator places
+        self._intruders: list[Intruder] = (
+            [Intruder(self.world, self._intruder_config)] if oracle is not None else [])
         self._external_poll = external_poll
         self._tasks: list[asyncio.Task[None]] = []
-        self._connected_count = 0
         self._all_connected = asyncio.Event()
         self._failure: str | None = None
         self._ids = list(robots)
@@ -595,13 +585,12 @@ class SimFleet:
         intruder = Intruder(self.world, IntruderConfig(appear_ms=now,
                                                        leave_ms=now + duration_ms))
         self._report(intruder.appear(now, (-1, cell)))
-        self._intruders.append(_WorldIntruder(intruder, auto=False))
+        self._intruders.append(intruder)
 
     def poll_world(self, now_ms: float | None = None) -> None:
         """Run every intruder step due at ``now_ms`` (default: now)."""
         now = self.clock.now_ms() if now_ms is None else now_ms
-        for w in self._intruders:
-            intr = w.intruder
+        for intr in self._intruders:
             due = intr.next_wakeup_ms()
             if due is None or due > now:
                 continue
@@ -611,8 +600,7 @@ class SimFleet:
                 self._report(intr.appear(now, self._auto_target(now)))
             else:
                 self._report(intr.wake(now))
-        self._intruders = [w for w in self._intruders
-                           if w.intruder.state is not IntruderState.GONE or w.auto]
+        self._intruders = [i for i in self._intruders if i.state is not IntruderState.GONE]
 
     def _auto_target(self, now: float) -> tuple[int, Cell] | None:
         oracle = self._oracle
@@ -625,11 +613,6 @@ class SimFleet:
                 next_action[k] = robot.next_action
         return pick_target(self._rng, oracle.paths(), next_action, oracle.start_ms,
                            now + self._intruder_config.lead_ms)
-
-    def next_world_wakeup_ms(self) -> float | None:
-        """When :meth:`poll_world` has something to do next."""
-        dues = [d for w in self._intruders if (d := w.intruder.next_wakeup_ms()) is not None]
-        return min(dues, default=None)
 
     async def _poll_loop(self) -> None:
         """Poll the intruders at every multiple of ``recheck_ms`` (when no driver does it)."""
