@@ -85,9 +85,10 @@ async def _serve(plan_file: Path) -> dict[str, Any]:
         gw.engine.load(Problem(inst, "load", plan))
         port = await gw.listen()
         print(port, flush=True)
+        cpu0 = time.process_time()  # from here: connections and the execution, not imports
         soc, _ = await gw.wait_done()
         lat = sorted(gw.latencies_ms)
-        return {"soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time(),
+        return {"soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time() - cpu0,
                 "gateway_p50_ms": statistics.median(lat) if lat else None,
                 "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
 
@@ -123,6 +124,17 @@ def latencies_ms(plan: Plan, stats: FleetStats) -> list[float]:
             continue
         out.append((got - max(s for s in sent if s is not None)) * 1000.0)
     return out
+
+
+def cpu_pressure() -> float | None:
+    """Share of the last minute in which some task waited for a CPU (Linux PSI), in %: how
+    much other load on the machine distorted the latencies."""
+    try:
+        line = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+    except (OSError, IndexError):
+        return None
+    fields = dict(f.split("=") for f in line.split()[1:])
+    return float(fields["avg60"])
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -184,6 +196,7 @@ def run_once(robots: int, seconds: int, seed: int, profile: Path | None = None
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
             "gateway_cpu_ms_per_action": round(1000.0 * gateway.get("cpu_s", 0.0) / total, 3),
+            "cpu_pressure_pct": cpu_pressure(),
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
             "rate_ratio": round(achieved / offered, 4) if offered else None}
