@@ -3,7 +3,8 @@
 Instances: random-32-32-20 (scen random-1..5, N = 10, 15, 20, 25), room-32-32-4 (random-1..5,
 N = 5, 10, 15) and arena (mapf-IR arena_300agents_1..5, first N = 10, 15, 20, 25 agents).
 The baseline is the same CBS with every improvement off (no MDD conflict choice, no heuristic,
-no bypass, no target reasoning, no conflict-avoidance tie-breaking) under a per-instance cap.
+no bypass, no target or rectangle reasoning, no conflict-avoidance tie-breaking) under a
+per-instance cap.
 Times are CPU seconds of this process (the planner is single-threaded) for ``solve_cbs``,
 distance tables included, files not. Prints a table per map (seconds)
 and one final result line.
@@ -26,7 +27,8 @@ from gateway.planning.plan import NoSolution
 from gateway.planning.validate import plan_violations
 
 DEFAULT_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
-PLAIN = CBSOptions(cardinal=False, heuristic=False, bypass=False, target=False, avoidance=False)
+PLAIN = CBSOptions(cardinal=False, heuristic=False, dependency=False, bypass=False, target=False,
+                   avoidance=False, rectangle=False)
 
 
 @dataclass

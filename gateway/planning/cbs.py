@@ -5,8 +5,9 @@ The high level is best-first on ``SOC + h`` with these improvements, each switch
 
 * conflict choice: cardinal first, then semi-cardinal, then earliest, with conflicts classified
   on the agents' MDDs (multi-valued decision diagrams of their cheapest paths);
-* ``h``: the minimum vertex cover of the cardinal-conflict graph (CG heuristic), admissible
-  because each cardinal edge forces one of its two agents to pay at least one more step;
+* ``h``: the minimum vertex cover of the graph of agent pairs that have a cardinal conflict or
+  whose MDDs hold no conflict-free pair of paths (DG heuristic), admissible because each such
+  edge forces one of its two agents to pay at least one more step;
 * bypassing: a child that keeps the cost and has fewer conflicts replaces the parent's path;
 * target reasoning: a conflict with an agent parked on its goal splits on that agent's arrival
   time (see :mod:`gateway.planning.cbs_conflicts`);
@@ -26,6 +27,7 @@ from gateway.planning.low_level import (
     AvoidanceTable,
     build_mdd,
     mdd_always_visits,
+    mdds_compatible,
     space_time_astar,
 )
 from gateway.planning.plan import Deadline, NoSolution, Plan, Solution
@@ -40,6 +42,7 @@ class CBSOptions:
 
     cardinal: bool = True
     heuristic: bool = True
+    dependency: bool = True
     rectangle: bool = True
     bypass: bool = True
     target: bool = True
@@ -50,8 +53,8 @@ class _Node:
     """A high-level node: constraints (a chain to the root), paths and their conflicts."""
 
     __slots__ = (
-        "best", "branch", "conflicts", "costs", "g", "h", "h_done", "mdds", "nconf", "parent",
-        "paths",
+        "best", "branch", "conflicts", "costs", "deps", "g", "h", "h_done", "mdds", "nconf",
+        "parent", "paths",
     )
 
     def __init__(
@@ -74,6 +77,7 @@ class _Node:
         self.nconf = sum(len(c) for c in conflicts.values())
         self.mdds = mdds
         self.best = best
+        self.deps: dict[tuple[int, int], bool] = {}
 
 
 class _Search:
@@ -211,6 +215,7 @@ class _Search:
         mdds = {a: m for a, m in node.mdds.items() if a != agent}
         best = {pair: v for pair, v in node.best.items() if agent not in pair}
         ch = _Node(node, branch, paths, conflicts, mdds, best)
+        ch.deps = {pair: v for pair, v in node.deps.items() if agent not in pair}
         ch.h = max(0, node.h - (ch.g - node.g))
         return ch
 
@@ -286,8 +291,21 @@ class _Search:
 
     def heuristic(self, node: _Node) -> int:
         """Minimum vertex cover of the pairs that have a cardinal conflict."""
-        edges = [pair for pair in node.conflicts if self.pair_best(node, pair)[0] == CARDINAL]
+        edges = [
+            pair for pair in node.conflicts
+            if self.pair_best(node, pair)[0] == CARDINAL
+            or (self.options.dependency and self.dependent(node, pair))
+        ]
         return min_vertex_cover(edges)
+
+    def dependent(self, node: _Node, pair: tuple[int, int]) -> bool:
+        """True if no two paths at the agents' current costs avoid each other (cached)."""
+        got = node.deps.get(pair)
+        if got is None:
+            a, b = pair
+            got = not mdds_compatible(self.model, self._mdd(node, a), self._mdd(node, b))
+            node.deps[pair] = got
+        return got
 
     # ----- high level ------------------------------------------------------------------------
 
@@ -339,6 +357,7 @@ class _Search:
         node.conflicts = ch.conflicts
         node.nconf = ch.nconf
         node.best = {pair: v for pair, v in node.best.items() if agent not in pair}
+        node.deps = {pair: v for pair, v in node.deps.items() if agent not in pair}
         node.h_done = False
 
     def solution(self, node: _Node) -> Solution:

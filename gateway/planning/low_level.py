@@ -204,3 +204,36 @@ def mdd_always_visits(
         layer = mdd[t]
         cur = {u for s in cur for u in succ[s] if u in layer and cells[u] != cell}
     return not cur
+
+
+def mdds_compatible(
+    model: OmniModel, mdd_a: list[frozenset[int]], mdd_b: list[frozenset[int]]
+) -> bool:
+    """True if some path of each MDD (each staying on its goal after its end) make a
+    conflict-free pair under the 1-robust rule; False means one of the two agents must pay
+    more than its current cost."""
+    succ = model.succ
+    cells = model.cells
+    last = max(len(mdd_a), len(mdd_b)) - 1
+    frontier = {(s, u) for s in mdd_a[0] for u in mdd_b[0] if cells[s] != cells[u]}
+    for t in range(1, last + 1):
+        la = mdd_a[min(t, len(mdd_a) - 1)]
+        lb = mdd_b[min(t, len(mdd_b) - 1)]
+        nxt: set[tuple[int, int]] = set()
+        for s, u in frontier:
+            cs, cu = cells[s], cells[u]
+            for s2 in succ[s]:
+                if s2 not in la:
+                    continue
+                c2 = cells[s2]
+                if c2 == cu:
+                    continue  # a enters the cell b just left
+                for u2 in succ[u]:
+                    if u2 in lb:
+                        d2 = cells[u2]
+                        if d2 != c2 and d2 != cs:
+                            nxt.add((s2, u2))
+        if not nxt:
+            return False
+        frontier = nxt
+    return True

@@ -21,7 +21,8 @@ from tests.planning.support_planning import (
 )
 
 PLAIN = CBSOptions(
-    cardinal=False, heuristic=False, bypass=False, target=False, avoidance=False, rectangle=False
+    cardinal=False, heuristic=False, dependency=False, bypass=False, target=False,
+    avoidance=False, rectangle=False,
 )
 SETTINGS = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
