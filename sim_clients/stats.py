@@ -163,10 +163,16 @@ def bootstrap_ci(values: Sequence[float], *, seed: int = 0, resamples: int = 200
 
 
 def describe_mean(values: Sequence[float], *, seed: int, resamples: int = 2000) -> JsonDict:
-    """``{"n", "mean", "ci95"}`` of some values (mean and interval None when empty)."""
+    """``{"n", "mean", "ci95", "median"}`` of some values (None but n when empty).
+
+    The median is there because a ratio such as the mitigation has a heavy tail: one replan
+    that stops a large fleet for seconds against a small intruder influence moves the mean.
+    """
     ci = bootstrap_ci(values, seed=seed, resamples=resamples)
-    return {"n": len(values), "mean": float(np.mean(values)) if len(values) else None,
-            "ci95": list(ci) if ci else None}
+    empty = len(values) == 0
+    return {"n": len(values), "mean": None if empty else float(np.mean(values)),
+            "ci95": list(ci) if ci else None,
+            "median": None if empty else float(np.median(values))}
 
 
 def describe_times(values: Sequence[float]) -> JsonDict:

@@ -79,6 +79,9 @@ def test_summary_numbers_by_hand() -> None:
     # T_D replanned: (-2000 + 1500) / 2; not replanned: (-500 + 0 - 200) / 3.
     assert g["soc_difference_ms"]["replanned"]["mean"] == -250
     assert g["soc_difference_ms"]["not_replanned"]["mean"] == pytest.approx(-700 / 3)
+    # Medians: of (-2000, 1500) and of (-500, 0, -200).
+    assert g["soc_difference_ms"]["replanned"]["median"] == -250
+    assert g["soc_difference_ms"]["not_replanned"]["median"] == -200
     # Outliers E3 and E4 are left out of the mitigation; among the rest only E1 replanned.
     mit = g["mitigation"]
     assert mit["slack_replanned"]["slack"]["mean"] == 0.75
