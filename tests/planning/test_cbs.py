@@ -24,7 +24,7 @@ PLAIN = CBSOptions(
     cardinal=False, heuristic=False, dependency=False, bypass=False, target=False,
     avoidance=False, rectangle=False,
 )
-SETTINGS = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def check_against_oracle(
