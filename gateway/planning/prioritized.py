@@ -135,7 +135,8 @@ def solve_prioritized(
     attempts: int = 20,
     seed: int = 0,
 ) -> Solution:
-    """A valid 1-robust plan by prioritised planning (``optimal=False``).
+    """A valid 1-robust plan by prioritised planning (``optimal=False``; ``expanded_nodes`` is
+    the number of orders tried).
 
     The first order plans the agents with the longest distance first; agents that fail move to
     the front. Raises ``NoSolution``
