@@ -1,9 +1,10 @@
 """Load benchmark: R simulated robots over websockets against one gateway in another process.
 
 Workload: an open grid with ~1 robot per 8 cells and a 1-robust plan of ``S`` steps per robot
-(prioritised random walks toward random goals, built by ``bench/monitor.py``'s
-``robust_walks``: nearly every step is a move and robots cross, so Type 2 edges abound). Every
-action lasts 1000 ms, so the fleet offers R actions/s for about S seconds. The gateway runs in
+(``tests/sim/random_plans.random_plan``: at every step each robot moves to a free neighbour
+that nobody stood on the step before, or waits; robots cross all the time, so Type 2 edges
+abound). Waits are actions too and every action lasts 1000 ms, so the fleet offers ~R actions/s
+for about S seconds. The gateway runs in
 a child process (``--serve``, optionally under cProfile) and starts when every robot is there;
 the robots (``sim_clients.fleet``) run in this process.
 
@@ -43,7 +44,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from monitor import robust_walks  # bench/monitor.py (this script's directory is on sys.path)
 
 from gateway.execution.adg import ADG
 from gateway.planning.grid import Grid
@@ -55,6 +55,9 @@ from gateway.server.planner import Problem
 from sim_clients.cmd_demo import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for tests/
+from tests.sim.random_plans import open_grid, random_plan
+
 P99_LIMIT_MS = 50.0
 BASELINE_ROBOTS = 10
 
@@ -62,7 +65,7 @@ BASELINE_ROBOTS = 10
 def workload(robots: int, steps: int, seed: int) -> tuple[int, Plan]:
     """Grid side and a 1-robust plan of ``robots`` walkers over ``steps`` steps."""
     size = max(8, math.ceil(math.sqrt(robots * 8)))
-    return size, Plan.of(robust_walks(size, robots, steps, random.Random(seed)))
+    return size, random_plan(open_grid(size, size), robots, steps, random.Random(seed))
 
 
 def _raise_fd_limit() -> None:
