@@ -16,7 +16,9 @@ The high level is best-first on ``SOC + h`` with these improvements, each switch
 
 from __future__ import annotations
 
+from collections import defaultdict
 from collections.abc import Sequence
+from copy import copy
 from dataclasses import dataclass
 from heapq import heappop, heappush
 
@@ -34,6 +36,9 @@ from gateway.planning.plan import Deadline, NoSolution, Plan, Solution
 from gateway.planning.problem import Forbidden, Problem
 
 NON_CARDINAL, SEMI_CARDINAL, CARDINAL = 0, 1, 2
+
+DENSE_AVOIDANCE = 1 << 21
+"""Largest (cells x timesteps) for which the conflict-avoidance table is a flat list."""
 
 
 @dataclass(frozen=True)
@@ -130,7 +135,11 @@ class _Search:
         """Conflict counts of a visit to every (cell, time) against all the given paths."""
         size = self.size
         horizon = max((len(p) for p in paths if p is not None), default=0)
-        counts = [0] * ((horizon + 1) * size)
+        counts: list[int] | defaultdict[int, int]
+        if (horizon + 1) * size <= DENSE_AVOIDANCE:
+            counts = [0] * ((horizon + 1) * size)
+        else:
+            counts = defaultdict(int)
         stays: dict[int, int] = {}
         for p in paths:
             if p is not None:
@@ -138,7 +147,9 @@ class _Search:
                 stays[p[-1]] = max(len(p) - 2, 0)
         return AvoidanceTable(counts, stays, horizon)
 
-    def _count(self, counts: list[int], path: tuple[int, ...], sign: int) -> None:
+    def _count(
+        self, counts: list[int] | defaultdict[int, int], path: tuple[int, ...], sign: int
+    ) -> None:
         """Add (sign 1) or remove (sign -1) one path's 1-robust footprint: cell v at times
         t-1, t, t+1 for each step t before its end (its goal stay is in ``stays``)."""
         size = self.size
@@ -151,7 +162,7 @@ class _Search:
 
     def _avoidance(self, everyone: AvoidanceTable, path: tuple[int, ...]) -> AvoidanceTable:
         """``everyone``'s table without the agent whose current path is ``path``."""
-        counts = everyone.counts[:]
+        counts = copy(everyone.counts)
         self._count(counts, path, -1)
         stays = dict(everyone.stays)
         del stays[path[-1]]

@@ -7,6 +7,7 @@ number ``(cell, heading)`` pairs and map each to its cell through ``cells``.
 
 from __future__ import annotations
 
+from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from heapq import heappop, heappush
@@ -55,11 +56,12 @@ class AvoidanceTable:
     """Other agents' occupancy, used only to break ties towards fewer conflicts.
 
     ``counts[t * size + cell]`` is how many other agents a visit of ``cell`` at ``t`` conflicts
-    with (times past the list's end count 0); ``stays[cell]`` is the time from which an agent
+    with (a list, dense, where times past its end count 0; or a defaultdict, sparse, for large
+    maps); ``stays[cell]`` is the time from which an agent
     parked on ``cell`` conflicts with a visit; after ``horizon`` nothing changes.
     """
 
-    counts: list[int]
+    counts: list[int] | defaultdict[int, int]
     stays: dict[int, int]
     horizon: int
 
@@ -91,7 +93,7 @@ def space_time_astar(
     if goal_block >= INF or h[start] < 0 or table.forbids(cells[start], 0):
         return None
     counts = avoid.counts if avoid is not None else []
-    ncounts = len(counts)
+    ncounts = len(counts) if isinstance(counts, list) else INF
     stays = avoid.stays if avoid is not None else {}
     horizon = max(table.horizon, avoid.horizon if avoid is not None else 0, goal_block + 1)
     nstates = len(succ)

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from gateway.planning import cbs as cbs_module
 from gateway.planning.cbs import CBSOptions, solve_cbs
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import NeverExpires, NoSolution
@@ -186,3 +187,12 @@ def test_malformed_instances_raise_value_error(
 ) -> None:
     with pytest.raises(ValueError, match=message):
         solve_cbs(grid_of("..."), starts, goals, deadline=NeverExpires())
+
+
+def test_sparse_avoidance_table_gives_the_same_optimum(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Large maps use a dict instead of a flat list for the conflict-avoidance counts.
+    monkeypatch.setattr(cbs_module, "DENSE_AVOIDANCE", 0)
+    grid = grid_of(".....", "..@..", ".....")
+    starts = [(0, 0), (1, 0), (2, 0), (3, 2), (4, 2)]
+    goals = [(4, 0), (1, 0), (0, 2), (3, 2), (2, 2)]
+    check_against_oracle(grid, starts[:3], goals[:3], [])
