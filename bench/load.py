@@ -3,8 +3,9 @@
 Workload: an open grid with ~1 robot per 8 cells and a 1-robust plan of ``S`` steps per robot
 (``tests/sim/random_plans.random_plan``: at every step each robot moves to a free neighbour
 that nobody stood on the step before, or waits; robots cross all the time, so Type 2 edges
-abound). Waits are actions too and every action lasts 1000 ms, so the fleet offers ~R actions/s
-for about S seconds. The gateway runs in
+abound). Waits are actions too and an action lasts 1000 ms +- ``--jitter`` (default 20 %, seeded per
+robot: real robots are never in lockstep, and a lockstep fleet would send R finishes in the
+same millisecond), so the fleet offers ~R actions/s for about S seconds. The gateway runs in
 a child process (``--serve``, optionally under cProfile) and starts when every robot is there;
 the robots (``sim_clients.fleet``) run in this process.
 
@@ -145,12 +146,13 @@ def _percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
-async def _drive(port: int, plan: Plan, deadline_s: float) -> tuple[FleetStats, float, int]:
+async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
+                 ) -> tuple[FleetStats, float, int]:
     """Run the fleet until every action was finished (or the deadline); returns the stats,
     the execution's wall time and the number of plan actions."""
     total = sum(len(p) - 1 for p in plan.paths)
     fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(len(plan.paths)),
-                     send_state=True, reconnect_delay_s=1.0)
+                     send_state=True, reconnect_delay_s=1.0, duration_jitter=jitter)
     await fleet.start()
     try:
         await fleet.wait_connected(timeout=120.0)
@@ -165,8 +167,8 @@ async def _drive(port: int, plan: Plan, deadline_s: float) -> tuple[FleetStats, 
         await fleet.stop()
 
 
-def run_once(robots: int, seconds: int, seed: int, profile: Path | None = None
-             ) -> dict[str, Any]:
+def run_once(robots: int, seconds: int, seed: int, jitter: float,
+             profile: Path | None = None) -> dict[str, Any]:
     """One gateway process + one fleet; the measurements as a dict."""
     size, plan = workload(robots, seconds, seed)
     with tempfile.TemporaryDirectory() as tmp:
@@ -180,7 +182,8 @@ def run_once(robots: int, seconds: int, seed: int, profile: Path | None = None
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
             cpu0 = time.process_time()
-            stats, wall_s, total = asyncio.run(_drive(port, plan, 3.0 * seconds + 60.0))
+            stats, wall_s, total = asyncio.run(_drive(port, plan, 3.0 * seconds + 60.0,
+                                                      jitter))
             robots_cpu = time.process_time() - cpu0
             gateway = json.loads(gw.stdout.readline() or "{}")
             gw.wait(timeout=60)
@@ -212,13 +215,14 @@ def holds(result: dict[str, Any]) -> bool:
             and result["duplicated"] == 0 and result["errors"] == 0)
 
 
-def find_max(seconds: int, seed: int, start: int, limit: int) -> tuple[int, list[dict[str, Any]]]:
+def find_max(seconds: int, seed: int, jitter: float, start: int, limit: int
+             ) -> tuple[int, list[dict[str, Any]]]:
     """Largest fleet (to within 10 %) that holds: double from ``start``, then bisect."""
     runs: list[dict[str, Any]] = []
     good, bad = 0, None
     r = start
     while r <= limit:
-        res = run_once(r, seconds, seed)
+        res = run_once(r, seconds, seed, jitter)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if not holds(res):
@@ -227,7 +231,7 @@ def find_max(seconds: int, seed: int, start: int, limit: int) -> tuple[int, list
         good, r = r, r * 2
     while bad is not None and bad - good > max(50, good // 10):
         mid = (good + bad) // 2
-        res = run_once(mid, seconds, seed)
+        res = run_once(mid, seconds, seed, jitter)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if holds(res):
@@ -243,6 +247,8 @@ def main() -> int:
     p.add_argument("--robots", type=int, default=500)
     p.add_argument("--seconds", type=int, default=30, help="plan steps (~ run seconds)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--jitter", type=float, default=0.2,
+                   help="actions last 1000 ms x U(1-J, 1+J) (default 0.2; 0 = lockstep)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON line")
     p.add_argument("--find-max", action="store_true",
                    help="search the largest fleet with p99 <= 50 ms, 0 lost, 0 duplicated")
@@ -254,13 +260,13 @@ def main() -> int:
         serve_main(args.serve, args.profile)
         return 0
     _raise_fd_limit()
-    baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed)
+    baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter)
     if args.find_max:
-        best, runs = find_max(args.seconds, args.seed, 250, args.max_robots)
+        best, runs = find_max(args.seconds, args.seed, args.jitter, 250, args.max_robots)
         result = next((r for r in runs if r["robots"] == best), baseline)
         result = {"max_robots": best, **result}
     else:
-        result = run_once(args.robots, args.seconds, args.seed, args.profile)
+        result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.profile)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99

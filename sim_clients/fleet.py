@@ -159,6 +159,8 @@ class FleetRobot:
         self._seq = itertools.count()
         self._timer: asyncio.TimerHandle | None = None
         self._state_period_ms = 5000.0
+        self._state_timer: asyncio.TimerHandle | None = None
+        self._rng = random.Random(f"{fleet.seed}/{robot_id}")  # state phase, duration jitter
 
     # ------------------------------------------------------------------ placement
     @property
@@ -303,19 +305,24 @@ class FleetRobot:
             self._action(action)
         self._feed()
         if self.fleet.send_state:
-            self._schedule_state()
+            self._schedule_state(first=True)
 
-    def _schedule_state(self) -> None:
-        loop = asyncio.get_running_loop()
-        delay = self._state_period_ms / self.fleet.clock.speed / 1000.0
+    def _schedule_state(self, first: bool = False) -> None:
+        """The next ``state`` report; the first at a random phase of the period, so that a
+        fleet that connected at once does not report all at once."""
+        if self._state_timer is not None:
+            self._state_timer.cancel()
+        period = self._state_period_ms * (self._rng.random() if first else 1.0)
+        delay = period / self.fleet.clock.speed / 1000.0
 
         def fire() -> None:
+            self._state_timer = None
             if self._conn is None or self.fleet.stopping:
                 return
             self._send(self._state())
             self._schedule_state()
 
-        loop.call_later(delay, fire)
+        self._state_timer = asyncio.get_running_loop().call_later(delay, fire)
 
     def _state(self) -> State:
         sim = self.sim
@@ -395,7 +402,9 @@ class FleetRobot:
             sim = self.sim
             assert sim is not None
         d = Dispatch(plan, robot, index, action.src.cell, action.dst.cell, action.duration_ms)
-        self._emit(sim.dispatch(d, self._now()))
+        jitter = self.fleet.duration_jitter
+        extra = action.duration_ms * self._rng.uniform(-jitter, jitter) if jitter else 0.0
+        self._emit(sim.dispatch(d, self._now(), extra))
         self._reschedule()
 
     def _now(self) -> float:
@@ -444,7 +453,8 @@ class SimFleet:
     """Many simulated robots on one shared :class:`World`, plus the "world" connection.
 
     ``robots`` are the robot ids to run; ``connect(token)`` opens a connection. ``clock``
-    should be the gateway's clock when both run in one process. ``oracle`` enables the
+    should be the gateway's clock when both run in one process. ``duration_jitter`` makes
+    action durations vary (seeded per robot). ``oracle`` enables the
     automatic intruder (DESIGN section 2: appears at ``intruder_config.appear_ms``); its
     random choices use ``seed`` exactly as the discrete-event driver does.
     """
@@ -455,8 +465,15 @@ class SimFleet:
                  oracle: IntruderOracle | None = None, seed: int = 0,
                  intruder_config: IntruderConfig | None = None,
                  recheck_ms: float = RECHECK_MS, reconnect_delay_s: float = 0.2,
-                 send_state: bool = True, external_poll: bool = False) -> None:
+                 send_state: bool = True, external_poll: bool = False,
+                 duration_jitter: float = 0.0) -> None:
+        if not 0.0 <= duration_jitter < 1.0:
+            raise ValueError(f"duration_jitter must be in [0, 1), got {duration_jitter}")
         self.connect = connect
+        self.seed = seed
+        self.duration_jitter = duration_jitter
+        """Each action lasts its duration x U(1 - j, 1 + j) (0: exactly; a real fleet's
+        robots are never in lockstep)."""
         self.token = token
         self.clock = clock if clock is not None else LoopClock()
         self.world = World()
