@@ -141,6 +141,21 @@ def cpu_pressure() -> float | None:
     return float(fields["avg60"])
 
 
+_SLEEPER = """
+import sys, time
+late = []
+end = time.perf_counter() + float(sys.argv[1])
+while time.perf_counter() < end:
+    t = time.perf_counter()
+    time.sleep(0.002)
+    late.append((time.perf_counter() - t - 0.002) * 1000.0)
+late.sort()
+print(late[int(0.99 * (len(late) - 1))])
+"""
+"""A process that only sleeps 2 ms at a time: its 99th percentile of lateness is the
+machine's wake-up noise floor during the run (what any latency measured here includes)."""
+
+
 def _percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
@@ -178,6 +193,8 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float,
         if profile is not None:
             cmd += ["--profile", str(profile)]
         gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        sleeper = subprocess.Popen([sys.executable, "-c", _SLEEPER, str(seconds)],
+                                   stdout=subprocess.PIPE, text=True)
         try:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
@@ -187,10 +204,12 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float,
             robots_cpu = time.process_time() - cpu0
             gateway = json.loads(gw.stdout.readline() or "{}")
             gw.wait(timeout=60)
+            floor = float(sleeper.communicate(timeout=60)[0] or "nan")
         finally:
-            if gw.poll() is None:
-                gw.kill()
-                gw.wait()
+            for proc in (gw, sleeper):
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
     lat = latencies_ms(plan, stats)
     offered = total / plan.makespan  # actions per second if nobody is ever late
     achieved = total / wall_s if wall_s > 0 else 0.0
@@ -202,7 +221,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float,
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
             "gateway_cpu_ms_per_action": round(1000.0 * gateway.get("cpu_s", 0.0) / total, 3),
-            "cpu_pressure_pct": cpu_pressure(),
+            "cpu_pressure_pct": cpu_pressure(), "os_wakeup_p99_ms": round(floor, 2),
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
             "rate_ratio": round(achieved / offered, 4) if offered else None}
