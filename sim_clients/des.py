@@ -84,6 +84,8 @@ class SimConfig:
     action_ms: float = 1000.0
     extra_delay: ExtraDelay | None = None
     max_replans: int = 1
+    lookahead: int = 0
+    """Actions the executor may queue on a robot beyond its current one (see Executor)."""
     stall_ms: float = 600_000.0
     """Give up (SimulationError) this long after the last robot finished or started an action."""
 
@@ -96,6 +98,8 @@ class SimConfig:
             raise ValueError(f"solver_time must be finite and >= 0 ms, got {self.solver_time}")
         if self.threshold_ms < 0 or self.action_ms <= 0 or self.stall_ms <= 0:
             raise ValueError("threshold_ms must be >= 0, action_ms and stall_ms > 0")
+        if self.lookahead < 0:
+            raise ValueError(f"lookahead must be >= 0, got {self.lookahead}")
         if len(self.plan.paths) == 0:
             raise ValueError("the plan has no robots")
         for k, path in enumerate(self.plan.paths):
@@ -164,7 +168,7 @@ class _Simulation:
         self.robots = [SimRobot(k, self.world, cell) for k, cell in enumerate(starts)]
         self.executor = Executor(config.plan, policy=policy_for(config),
                                  action_ms=config.action_ms, max_replans=config.max_replans,
-                                 record=config.trace)
+                                 record=config.trace, lookahead=config.lookahead)
         self.intruder = Intruder(self.world, config.intruder_config) if config.intruder else None
         self.rng = random.Random(derive_seed(config.seed, "intruder"))
         self.heap: list[tuple[float, int, int, int]] = []

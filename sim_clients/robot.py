@@ -7,10 +7,15 @@ checks the :class:`~sim_clients.world.World`: if the target is free the robot st
 holds both cells until it arrives ``duration`` later; if not, it reports ``blocked`` and looks
 again every 100 ms, then reports ``unblocked`` and ``started`` together. A wait (target equal to
 source) needs no check. While blocked, a matching ``Cancel`` returns it to idle.
+
+Lookahead dispatch: a busy robot queues further dispatches (each must start where the previous
+one ends) and runs them strictly in order, the next one at the instant the current one finishes.
+A ``Cancel`` of a queued action drops it and every action queued behind it.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
@@ -64,6 +69,7 @@ class SimRobot:
         self.recheck_ms = recheck_ms
         self._current: Dispatch | None = None
         self._duration = 0.0
+        self._queue: deque[tuple[Dispatch, float]] = deque()  # (action, extra_ms) not begun
         self._wake: float | None = None
         self._last: tuple[int, int] | None = None
 
@@ -72,32 +78,50 @@ class SimRobot:
         """The action being executed or waited for, None when idle."""
         return self._current
 
+    @property
+    def queued(self) -> tuple[Dispatch, ...]:
+        """Actions dispatched behind the current one, in the order they will run."""
+        return tuple(d for d, _ in self._queue)
+
     def next_wakeup_ms(self) -> float | None:
         """When :meth:`wake` has something to do: arrival, or the next look at a taken cell."""
         return self._wake
 
     def dispatch(self, d: Dispatch, now_ms: float, extra_ms: float = 0.0) -> list[RobotEvent]:
-        """Begin ``d`` at ``now_ms``; it lasts ``d.duration_ms + extra_ms`` once it starts.
+        """Begin ``d`` at ``now_ms`` (or queue it behind the actions the robot holds); it lasts
+        ``d.duration_ms + extra_ms`` once it starts.
 
-        A repeat of the current or the last action is ignored (the protocol resends after a
+        A repeat of a held or the last action is ignored (the protocol resends after a
         reconnect). Raises :class:`SimRobotError` for another robot's action, a source cell that
-        is not where the robot stands, or a new action while busy.
+        is not where the robot stands (or where its last held action ends), an action index not
+        after the last held one, or a negative duration.
         """
         key = (d.plan, d.action)
-        if self._current is not None and key == (self._current.plan, self._current.action):
+        held = [x for x, _ in self._queue]
+        if self._current is not None:
+            held.insert(0, self._current)
+        if any(key == (x.plan, x.action) for x in held):
             return []
         if key == self._last and self._current is None:
             return []
         if d.robot != self.robot:
             raise SimRobotError(f"robot {self.robot} got a dispatch for robot {d.robot}")
-        if self.state is not RobotState.IDLE:
-            raise SimRobotError(f"robot {self.robot} is {self.state.value} with action "
-                                f"{self._current}, got {d}")
-        if d.src != self.cell:
-            raise SimRobotError(f"robot {self.robot} is on {self.cell}, dispatch starts at {d.src}")
+        end = held[-1].dst if held else self.cell
+        if d.src != end:
+            where = f"its last held action ends on {end}" if held else f"robot is on {end}"
+            raise SimRobotError(f"robot {self.robot}: {where}, dispatch starts at {d.src}")
+        if held and (d.plan, d.action) <= (held[-1].plan, held[-1].action):
+            raise SimRobotError(f"robot {self.robot} holds {held[-1]}; {d} does not come after")
         duration = d.duration_ms + extra_ms
         if duration < 0:
             raise SimRobotError(f"action duration {duration} ms is negative")
+        if held:
+            self._queue.append((d, extra_ms))
+            return []
+        return self._begin(d, duration, now_ms)
+
+    def _begin(self, d: Dispatch, duration: float, now_ms: float) -> list[RobotEvent]:
+        """Make ``d`` the current action at ``now_ms``: start it or wait for its cell."""
         self._current = d
         self._duration = duration
         if d.dst == d.src or self.world.is_free(d.dst):
@@ -107,11 +131,19 @@ class SimRobot:
         return [RobotEvent("blocked", self.robot, d.plan, d.action, now_ms)]
 
     def cancel(self, plan: int, action: int, now_ms: float) -> list[RobotEvent]:
-        """Drop action ``action`` of ``plan`` if the robot is still waiting for its cell.
+        """Drop action ``action`` of ``plan`` if the robot is still waiting for its cell, or has
+        it queued; every action queued behind it is dropped too (one ``cancelled`` each).
 
         A moving robot finishes its action as usual; a cancel for anything else is stale and
         ignored.
         """
+        keys = [(x.plan, x.action) for x, _ in self._queue]
+        if (plan, action) in keys:
+            pos = keys.index((plan, action))
+            dropped = keys[pos:]
+            for _ in dropped:
+                self._queue.pop()
+            return [RobotEvent("cancelled", self.robot, p, a, now_ms) for p, a in dropped]
         d = self._current
         if self.state is not RobotState.BLOCKED or d is None or (d.plan, d.action) != (
                 plan, action):
@@ -120,7 +152,11 @@ class SimRobot:
         self._current = None
         self._wake = None
         self._last = None  # a cancelled action may be dispatched again (replan abandoned)
-        return [RobotEvent("cancelled", self.robot, plan, action, now_ms)]
+        events = [RobotEvent("cancelled", self.robot, plan, action, now_ms)]
+        while self._queue:
+            q, _ = self._queue.popleft()
+            events.append(RobotEvent("cancelled", self.robot, q.plan, q.action, now_ms))
+        return events
 
     def wake(self, now_ms: float) -> list[RobotEvent]:
         """Arrive, or look at the taken cell again; nothing if called before it is due."""
@@ -136,7 +172,11 @@ class SimRobot:
             self._current = None
             self._wake = None
             self._last = (d.plan, d.action)
-            return [RobotEvent("finished", self.robot, d.plan, d.action, now_ms)]
+            events = [RobotEvent("finished", self.robot, d.plan, d.action, now_ms)]
+            if self._queue:
+                nxt, extra = self._queue.popleft()
+                events += self._begin(nxt, nxt.duration_ms + extra, now_ms)
+            return events
         if not self.world.is_free(d.dst):
             self._wake = now_ms + self.recheck_ms
             return []

@@ -5,6 +5,8 @@ re-derives each adopted plan's action dependency graph (Type 1 and Type 2 edges 
 section 2 defines them), replays the events in order and reports
 
 * an action that started before all its ADG predecessors had finished (or without dispatch),
+  or was dispatched before its Type 2 predecessors finished and its robot's previous action
+  was dispatched (lookahead dispatch may queue an action behind the robot's current one),
 * two robots, or a robot and the intruder, on one cell at once (a moving robot holds both
   its cells),
 * an action of the final plan that did not run exactly once, or any started action that never
@@ -271,7 +273,10 @@ class _Replay:
             if a in st.dispatched and a not in st.cancelled:
                 self.error(where, f"action {a} dispatched twice")
             st.cancelled.discard(a)
-            missing = [p for p in st.graph.preds[a] if p not in st.finished]
+            # lookahead dispatch: the robot's own previous action (Type 1) need only be
+            # dispatched (the robot runs its queue in order); Type 2 predecessors must be done
+            missing = [p for p in st.graph.preds[a] if p not in st.finished and not (
+                p[0] == k and p in st.dispatched and p not in st.cancelled)]
             if missing:
                 self.error(where, f"action {a} dispatched before {missing} finished")
             st.dispatched.add(a)

@@ -1,19 +1,39 @@
 """The retiming executor and its replanning state machine (DESIGN section 2), sans-I/O.
 
 Drivers feed robot events with the current time and take commands from :meth:`Executor.drain`.
-An action is dispatched only when all its incoming ADG edges are done. A replan goes
+With ``lookahead=0`` (classic retiming) an action is dispatched only when all its incoming ADG
+edges are done. A replan goes
 RUNNING -> STOPPING (no new dispatches; running actions finish; dispatched, unstarted ones are
 cancelled) -> SOLVING (``SolveRequest`` emitted once every robot is idle) -> RUNNING (after
 ``adopt_plan`` with plan id + 1, or ``abandon_replan`` which resumes the old plan).
 
 Replan budget: every decided replan counts against ``max_replans``, whoever decided it (policy or
 operator) and whether or not a plan was then adopted.
+
+Lookahead dispatch (``lookahead=N > 0``, pipelining as a VDA 5050 order releases the part a robot
+may drive): besides the action a robot runs or waits for, up to ``N`` further actions of the same
+robot may be dispatched (queued on the robot). Action ``a_{i+1}`` of robot k is released as soon
+as (1) every incoming Type 2 edge of ``a_{i+1}`` is done and (2) ``a_i`` is dispatched to robot k
+(queued, running or finished), and the robot holds fewer than ``1 + N`` unfinished actions.
+
+Safety: the ADG guarantee is about when an action STARTS, not when it is dispatched. An action's
+incoming edges are its Type 2 edges and the Type 1 edge from its predecessor. (1) makes every
+Type 2 edge done before dispatch, so before the start; done edges never become undone within a
+plan. The Type 1 edge is enforced by the robot itself: the protocol requires a robot to execute
+its actions strictly in the order of their index and to start ``a_{i+1}`` only after finishing
+``a_i``, and this executor refuses (``ExecutionError``) a ``started`` (or ``blocked``,
+``unblocked``, ``finished``) of any action but the first unfinished one of the robot's queue, or
+of an action whose predecessor has not finished. So at every accepted start all incoming edges
+are done, exactly as with classic retiming; the monitor only learns starts and finishes, so its
+estimates do not depend on the lookahead. Replanning cancels queued actions like blocked ones
+(none of them has started), and ``SolveRequest`` waits until every queue is empty.
 """
 
 from __future__ import annotations
 
 import enum
 import math
+from collections import deque
 from collections.abc import Callable
 
 from gateway.execution.adg import ADG
@@ -57,11 +77,15 @@ class Executor:
 
     def __init__(self, plan: Plan, *, policy: ReplanPolicy | None = None,
                  action_ms: float = 1000.0, drop_waits: bool = False,
-                 max_replans: int = 1, record: Record | None = None) -> None:
+                 max_replans: int = 1, record: Record | None = None,
+                 lookahead: int = 0) -> None:
         if not (math.isfinite(action_ms) and action_ms > 0):
             raise ExecutionError(f"action_ms must be a positive number, got {action_ms}")
         if max_replans < 0:
             raise ExecutionError(f"max_replans must be >= 0, got {max_replans}")
+        if lookahead < 0:
+            raise ExecutionError(f"lookahead must be >= 0, got {lookahead}")
+        self.lookahead = lookahead
         self.policy: ReplanPolicy = policy if policy is not None else NoReplan()
         self.action_ms = float(action_ms)
         self.drop_waits = drop_waits
@@ -85,8 +109,9 @@ class Executor:
         self._status = bytearray(adg.n_vertices)
         self._blocked = bytearray(adg.n_vertices)
         self._cancelling = bytearray(adg.n_vertices)
-        self._current = [-1] * adg.n_robots  # dispatched or started vertex per robot
-        self._busy = 0
+        # per robot: its dispatched, not finished (nor cancelled) vertices, in index order
+        self._queue: list[deque[int]] = [deque() for _ in range(adg.n_robots)]
+        self._busy = 0  # vertices in all queues
         self._left = adg.n_vertices
 
     # ------------------------------------------------------------------ queries
@@ -154,10 +179,16 @@ class Executor:
                 f"but plan {self.plan_id} is being executed"
             )
         v = self.adg.vertex(robot, action)
-        if self._current[robot] != v:
+        queue = self._queue[robot]
+        if v not in queue:
             state = ("finished" if self._status[v] == _DONE else "not dispatched")
             raise ExecutionError(
                 f"{kind} of robot {robot} action {action} (plan {plan}): that action is {state}"
+            )
+        if kind != "cancelled" and v != queue[0]:
+            raise ExecutionError(
+                f"{kind} of robot {robot} action {action} (plan {plan}): it is queued behind "
+                f"action {self.adg.step_of[queue[0]]}, which has not finished"
             )
         return v
 
@@ -182,6 +213,9 @@ class Executor:
         """The robot began to move (after any wait for its target cell)."""
         v = self._event_vertex("start", robot, plan, action, now_ms)
         self._expect(self._status[v] == _DISPATCHED, "start", robot, action, "already started")
+        p = self.adg.t1_pred(v)
+        self._expect(p < 0 or self._status[p] == _DONE, "start", robot, action,
+                     f"its predecessor action {self.adg.step_of[p]} has not finished")
         self._advance(now_ms)
         self._status[v] = _STARTED
         self._blocked[v] = self._cancelling[v] = 0
@@ -195,15 +229,18 @@ class Executor:
                      "it has not started (no start reported)")
         self._advance(now_ms)
         self._status[v] = _DONE
-        self._current[robot] = -1
+        self._queue[robot].popleft()
         self._busy -= 1
         self._left -= 1
         self._cells[robot] = self.adg.dst[v]
         self._completion[robot] = self._now
-        ready = self.monitor.action_finished(v, now_ms)
+        self.monitor.action_finished(v, now_ms)
         self._trace("finish", robot, action)
         if self.mode is Mode.RUNNING:
-            self._dispatch(sorted(ready, key=self.adg.robot_of.__getitem__))
+            adg = self.adg
+            heads = adg.t2_succ[adg.t2_succ_ptr[v]:adg.t2_succ_ptr[v + 1]]
+            for r in sorted({robot, *(adg.robot_of[w] for w in heads)}):
+                self._fill(r)
             if self._left == 0:
                 self._complete()
         elif self.mode is Mode.STOPPING:
@@ -236,7 +273,7 @@ class Executor:
         self._advance(now_ms)
         self._status[v] = _PENDING
         self._blocked[v] = self._cancelling[v] = 0
-        self._current[robot] = -1
+        self._queue[robot].remove(v)
         self._busy -= 1
         self._trace("cancel", robot, action)
         self._maybe_solve()
@@ -317,23 +354,31 @@ class Executor:
         self._dispatch_ready()
 
     def _dispatch_ready(self) -> None:
-        """Dispatch every robot's next action if it is ready (robot order)."""
-        adg, ready = self.adg, []
-        for r in range(adg.n_robots):
-            if self._current[r] < 0:
-                v = self.monitor.next_vertex(r)
-                if v >= 0 and self.monitor.is_ready(v):
-                    ready.append(v)
-        self._dispatch(ready)
+        """Dispatch what every robot may get now (robot order)."""
+        for r in range(self.adg.n_robots):
+            self._fill(r)
         if self._left == 0:
             self._complete()
 
-    def _dispatch(self, vertices: list[int]) -> None:
-        adg = self.adg
-        for v in vertices:
-            robot = adg.robot_of[v]
+    def _releasable(self, v: int) -> bool:
+        """Every Type 2 edge into ``v`` is done, and its Type 1 predecessor is done, or (with
+        lookahead) dispatched to the robot."""
+        adg, status = self.adg, self._status
+        p = adg.t1_pred(v)
+        if p >= 0 and status[p] != _DONE and not (self.lookahead and status[p] != _PENDING):
+            return False
+        return all(status[u] == _DONE
+                   for u in adg.t2_pred[adg.t2_pred_ptr[v]:adg.t2_pred_ptr[v + 1]])
+
+    def _fill(self, robot: int) -> None:
+        """Dispatch the robot's next actions while releasable, up to 1 + lookahead held."""
+        adg, queue = self.adg, self._queue[robot]
+        while len(queue) <= self.lookahead:
+            v = queue[-1] + 1 if queue else self.monitor.next_vertex(robot)
+            if v < 0 or v >= adg.first[robot + 1] or not self._releasable(v):
+                return
             self._status[v] = _DISPATCHED
-            self._current[robot] = v
+            queue.append(v)
             self._busy += 1
             self._out.append(Dispatch(self.plan_id, robot, adg.step_of[v], adg.src[v],
                                       adg.dst[v], self.action_ms))
@@ -353,10 +398,10 @@ class Executor:
                           "fleet_slack_ms": slack})
         adg = self.adg
         for r in range(adg.n_robots):
-            v = self._current[r]
-            if v >= 0 and self._status[v] == _DISPATCHED:
-                self._cancelling[v] = 1
-                self._out.append(Cancel(self.plan_id, r, adg.step_of[v]))
+            for v in self._queue[r]:
+                if self._status[v] == _DISPATCHED:
+                    self._cancelling[v] = 1
+                    self._out.append(Cancel(self.plan_id, r, adg.step_of[v]))
         self._maybe_solve()
 
     def _maybe_solve(self) -> None:
