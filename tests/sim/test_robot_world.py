@@ -103,8 +103,39 @@ def test_bad_dispatches_are_refused_and_duplicates_dropped() -> None:
     d = Dispatch(0, 0, 0, (0, 0), (1, 0), 1000.0)
     r.dispatch(d, 0.0)
     assert r.dispatch(d, 10.0) == []  # resent: ignored
-    with pytest.raises(SimRobotError, match="moving"):
-        r.dispatch(Dispatch(0, 0, 1, (1, 0), (2, 0), 1000.0), 10.0)
+    # a busy robot queues an action only where its last held one ends, and only a later one
+    with pytest.raises(SimRobotError, match=r"last held action ends on \(1, 0\)"):
+        r.dispatch(Dispatch(0, 0, 1, (0, 0), (0, 1), 1000.0), 10.0)
     r.wake(1000.0)
     assert r.dispatch(d, 1000.0) == []  # the action just finished: a late duplicate
     assert r.state is RobotState.IDLE
+
+
+def test_a_queue_runs_in_order_and_a_cancel_drops_the_tail() -> None:
+    w = World([(0, 0), (3, 0)])
+    r = SimRobot(0, w, (0, 0))
+    a0 = Dispatch(0, 0, 0, (0, 0), (1, 0), 1000.0)
+    a1 = Dispatch(0, 0, 1, (1, 0), (2, 0), 1000.0)
+    a2 = Dispatch(0, 0, 2, (2, 0), (3, 0), 1000.0)  # (3, 0) is held by robot 1
+    assert kinds(r.dispatch(a0, 0.0)) == [("started", 0.0)]
+    assert r.dispatch(a1, 5.0) == [] and r.dispatch(a1, 6.0) == []  # queued; resend ignored
+    assert r.queued == (a1,)
+    with pytest.raises(SimRobotError, match="does not come after"):
+        r.dispatch(Dispatch(-1, 0, 5, (2, 0), (3, 0), 1000.0), 7.0)  # an older plan's
+    # a1 begins the instant a0 finishes (no round trip through the executor)
+    assert [(e.kind, e.action, e.t_ms) for e in r.wake(1000.0)] == [
+        ("finished", 0, 1000.0), ("started", 1, 1000.0)]
+    assert r.dispatch(a2, 1200.0) == []
+    assert [(e.kind, e.action) for e in r.wake(2000.0)] == [("finished", 1), ("blocked", 2)]
+    assert [(e.kind, e.action) for e in r.cancel(0, 2, 2100.0)] == [("cancelled", 2)]
+    assert r.state is RobotState.IDLE and r.cell == (2, 0)
+    # a cancel of a queued action drops it and everything behind it; the current one runs on
+    r2 = SimRobot(1, World([(0, 0), (5, 5)]), (5, 5))
+    b = [Dispatch(0, 1, i, (5 + i, 5), (6 + i, 5), 100.0) for i in range(3)]
+    for x in b:
+        r2.dispatch(x, 0.0)
+    assert [(e.kind, e.action) for e in r2.cancel(0, 1, 10.0)] == [
+        ("cancelled", 1), ("cancelled", 2)]
+    assert r2.cancel(0, 2, 10.0) == []  # already dropped: stale
+    assert [(e.kind, e.action) for e in r2.wake(100.0)] == [("finished", 0)]
+    assert r2.state is RobotState.IDLE and r2.queued == ()
