@@ -256,28 +256,9 @@ class Driver:
                 self.plans.append(_PlanLog(paths, now, brute_predecessors(paths, ex.drop_waits)))
                 self.plans[-1].delta0 = self._oracle(self.plans[-1], now).delta
             elif isinstance(cmd, Dispatch):
-                log = self.plans[cmd.plan]
-                key = (cmd.robot, cmd.action)
-                assert cmd.plan == len(self.plans) - 1
-                assert all(p in log.finished for p in log.preds[key]), "dispatched too early"
-                assert key not in log.started
-                done = [a for (r, a) in log.finished if r == cmd.robot]
-                assert all(a < cmd.action for a in done), "robot's actions out of order"
-                log.dispatched.append(key)
-                self.robot_token[cmd.robot] += 1
-                token = self.robot_token[cmd.robot]
-                begin = now + self.rng.choice([0, 0, 0, 30, 400])
-                if self.rng.random() < 0.2:
-                    self._at(now, "blocked", cmd.robot, cmd.plan, cmd.action, token)
-                    begin += self.rng.choice([200, 1500, 3500])
-                    if self.rng.random() < 0.5:
-                        self._at(begin, "unblocked", cmd.robot, cmd.plan, cmd.action, token)
-                self._at(begin, "start", cmd.robot, cmd.plan, cmd.action, token)
+                self._on_dispatch(cmd, now)
             elif isinstance(cmd, Cancel):
-                if not self.robot_begun[cmd.robot] and self.rng.random() < 0.8:
-                    self.robot_token[cmd.robot] += 1
-                    self._at(now + self.rng.choice([0, 50]), "cancelled", cmd.robot, cmd.plan,
-                             cmd.action, self.robot_token[cmd.robot])
+                self._on_cancel(cmd, now)
             elif isinstance(cmd, SolveRequest):
                 assert list(cmd.starts) == [ex.robot_cell(r) for r in range(len(cmd.starts))]
                 self._at(now + self.rng.choice([0, 100, 250]), "solve", self._shifted(cmd))
@@ -288,6 +269,37 @@ class Driver:
         if self.check_monitor:
             assert ex.monitor.now_ms <= ex.now_ms
             self.check_monitor_state(ex.monitor.now_ms)
+
+    def _on_dispatch(self, cmd: Dispatch, now: float) -> None:
+        """Check a dispatch and schedule the robot's reports for it."""
+        log = self.plans[cmd.plan]
+        key = (cmd.robot, cmd.action)
+        assert cmd.plan == len(self.plans) - 1
+        assert all(p in log.finished for p in log.preds[key]), "dispatched too early"
+        assert key not in log.started
+        done = [a for (r, a) in log.finished if r == cmd.robot]
+        assert all(a < cmd.action for a in done), "robot's actions out of order"
+        log.dispatched.append(key)
+        self._begin(cmd.robot, cmd.plan, cmd.action, now)
+
+    def _begin(self, robot: int, plan_id: int, action: int, now: float) -> None:
+        """The robot takes up the action: it may wait a while (blocked or not), then starts."""
+        self.robot_token[robot] += 1
+        token = self.robot_token[robot]
+        begin = now + self.rng.choice([0, 0, 0, 30, 400])
+        if self.rng.random() < 0.2:
+            self._at(now, "blocked", robot, plan_id, action, token)
+            begin += self.rng.choice([200, 1500, 3500])
+            if self.rng.random() < 0.5:
+                self._at(begin, "unblocked", robot, plan_id, action, token)
+        self._at(begin, "start", robot, plan_id, action, token)
+
+    def _on_cancel(self, cmd: Cancel, now: float) -> None:
+        """Honour a cancel (mostly) if the robot has not begun to move."""
+        if not self.robot_begun[cmd.robot] and self.rng.random() < 0.8:
+            self.robot_token[cmd.robot] += 1
+            self._at(now + self.rng.choice([0, 50]), "cancelled", cmd.robot, cmd.plan,
+                     cmd.action, self.robot_token[cmd.robot])
 
     def _shifted(self, request: SolveRequest) -> Plan:
         """Each robot's remaining path from where it stands (same goals)."""
