@@ -41,17 +41,33 @@ def set_speed(page: Page, speed: float) -> None:
     page.wait_for_function(f"window.fleetgate.model.snap.speed === {speed}")
 
 
-def intruder_target(page: Page, ahead: int = 3) -> Cell:
-    """A cell the robot with the longest way to go will enter in ``ahead`` moves, on which no
-    robot stands now."""
-    rs = robots(page)
-    occupied = {(r["cell"][0], r["cell"][1]) for r in rs}
-    for r in sorted(rs, key=lambda r: -len(r["remaining"])):
-        if len(r["remaining"]) > ahead + 1:
-            cell = (r["remaining"][ahead][0], r["remaining"][ahead][1])
-            if cell not in occupied:
-                return cell
-    raise AssertionError(f"no robot has {ahead + 1} moves ahead: {rs}")
+def intruder_target(page: Page, seconds: float) -> Cell:
+    """Where an intruder placed now for ``seconds`` of plan time surely delays the fleet: a
+    cell robot r enters at step k in 4-9 that no robot is on or enters before step 4 (so the
+    intruder takes it at once, even if placing it takes a while).
+
+    r then waits about ``seconds - k`` steps there, and every robot that enters a cell r
+    leaves afterwards waits too (the ADG's Type 2 edges): ``i + 1 + seconds - k - m`` steps
+    if r leaves the cell at step i + 1 and the other robot enters it at step m (steps counted
+    from now, 1 s of plan time each). Among the cells where that makes another robot wait at
+    least 2 s (so that the fleet slack clearly rises), the one r reaches last is chosen.
+    """
+    paths = [[(c[0], c[1]) for c in r["remaining"]] for r in robots(page)]
+    near = {c for p in paths for c in p[:4]}
+    best: tuple[int, float, Cell] | None = None
+    for r, p in enumerate(paths):
+        for k in range(4, min(10, len(p))):
+            if p[k] in near or p[k] == p[k - 1]:
+                continue
+            wait = max((i + 1 + seconds - k - m
+                        for i in range(k, len(p) - 1) if p[i] != p[i + 1]
+                        for o, q in enumerate(paths) if o != r
+                        for m in range(i + 1, len(q)) if q[m] == p[i] != q[m - 1]),
+                       default=0.0)
+            if wait >= 2 and (best is None or (k, wait, p[k]) > best):
+                best = (k, wait, p[k])
+    assert best is not None, f"no intruder cell delays another robot by 2 s: {paths}"
+    return best[2]
 
 
 def place_intruder(page: Page, cell: Cell, seconds: float) -> None:

@@ -2,7 +2,7 @@
 
 Usage: ``.venv/bin/python -m tests.gui.screenshot [OUT.png]``. Runs the demo (lab map, 16
 robots, slack policy, threshold 2 s) at speed 1, places an intruder from the GUI on a cell
-that many robots' paths cross, and takes the picture once the slack-triggered replan
+that several robots' paths cross, and takes the picture once the slack-triggered replan
 has been adopted and the robots are on their way again.
 """
 
@@ -12,23 +12,14 @@ import sys
 import time
 from pathlib import Path
 
-from playwright.sync_api import Page, sync_playwright
+from playwright.sync_api import sync_playwright
 
 from tests.gui.demo_process import CHROMIUM, CHROMIUM_ARGS, DemoProcess
-from tests.gui.gui_page import Cell, place_intruder, robots
+from tests.gui.gui_page import intruder_target, place_intruder
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 AFTER_S = 1.2
 """How long after the new plan the picture is taken (seconds)."""
-
-
-def busiest_cell(page: Page) -> Cell:
-    """A free cell that some robot enters within 2-4 moves and that most robots' paths cross."""
-    rs = robots(page)
-    occupied = {(r["cell"][0], r["cell"][1]) for r in rs}
-    soon = {(c[0], c[1]) for r in rs for c in r["remaining"][2:5]} - occupied
-    crossing = {c: sum(1 for r in rs if list(c) in r["remaining"]) for c in soon}
-    return max(sorted(crossing), key=lambda c: crossing[c])
 
 
 def main(out: Path) -> None:
@@ -40,7 +31,7 @@ def main(out: Path) -> None:
         page.goto(demo.url)
         page.wait_for_function("window.fleetgate && window.fleetgate.status() === 'running'"
                                " && window.fleetgate.model.now() > 1500", timeout=20_000)
-        place_intruder(page, busiest_cell(page), 10)
+        place_intruder(page, intruder_target(page, 10), 10)
         page.wait_for_function("window.fleetgate.plan() >= 1", timeout=20_000)
         time.sleep(AFTER_S)
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,8 @@ from tests.gui.gui_page import (
 
 pytestmark = pytest.mark.gui
 
+INTRUDER_S = 12.0
+"""Plan seconds the test's intruder stays (4 s of wall time at speed 3)."""
 ACTIVE = "['running', 'paused', 'replanning'].includes(window.fleetgate.status())"
 
 
@@ -120,15 +122,16 @@ def test_pause_stops_and_resume_restarts(page: Page) -> None:
 
 
 def test_intruder_click_blocks_a_robot_and_slack_rises(page: Page) -> None:
-    """Policy none; an intruder clicked onto a cell a robot is about to enter blocks it and
-    the fleet slack Δ̄F in the chart's series goes above zero (no replan hides it)."""
+    """Policy none; an intruder clicked onto a cell a robot is about to enter (and others
+    pass later) blocks it and the fleet slack Δ̄F in the chart's series rises (no replan
+    hides it)."""
     page.get_by_label("Policy").select_option("none")
     page.wait_for_function("window.fleetgate.model.snap.policy === 'none'")
     fresh_run(page)
-    target = intruder_target(page)
+    target = intruder_target(page, INTRUDER_S)
     # real-time jitter leaves Δ̄F at a few ms at most before the intruder
     assert max((v for _, v in page.evaluate("window.fleetgate.slack()")), default=0.0) < 100
-    place_intruder(page, target, 6)
+    place_intruder(page, target, INTRUDER_S)
     page.wait_for_function(
         "window.fleetgate.robots().some(r => r.activity === 'blocked')", timeout=6_000)
     page.wait_for_function(
