@@ -28,6 +28,7 @@ export class MapView {
     this.oy = 0;
     this.hover = null;
     this.dpr = 1;
+    this.gridImage = null; // the static map, drawn once per size (large maps stay fast)
     new ResizeObserver(() => this.resize()).observe(wrap);
   }
 
@@ -60,6 +61,7 @@ export class MapView {
       this.ox = (w - this.cell * this.width) / 2;
       this.oy = (h - this.cell * this.height) / 2;
     }
+    this.gridImage = null;
   }
 
   isFree(x, y) {
@@ -89,7 +91,10 @@ export class MapView {
       ctx.fillText("No instance loaded", 16, 28);
       return;
     }
-    this.drawGrid();
+    if (!this.gridImage) this.gridImage = this.renderGrid();
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.drawImage(this.gridImage, 0, 0);
+    ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
     const s = model.snap;
     for (const r of robots) this.drawGoal(r);
     for (const r of robots) this.drawPath(r);
@@ -105,8 +110,13 @@ export class MapView {
     for (const r of robots) this.drawRobot(r);
   }
 
-  drawGrid() {
-    const { ctx, cell } = this;
+  renderGrid() {
+    const image = document.createElement("canvas");
+    image.width = this.canvas.width;
+    image.height = this.canvas.height;
+    const ctx = image.getContext("2d");
+    ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
+    const { cell } = this;
     ctx.fillStyle = COLORS.free;
     ctx.fillRect(this.ox, this.oy, cell * this.width, cell * this.height);
     ctx.fillStyle = COLORS.wall;
@@ -132,6 +142,7 @@ export class MapView {
       }
       ctx.stroke();
     }
+    return image;
   }
 
   drawGoal(r) {
