@@ -200,3 +200,20 @@ def test_load_instance_then_run(page: Page) -> None:
     page.get_by_label("Robots", exact=True).fill("10")
     page.get_by_role("button", name="Load").click()
     expect(page.locator("#status")).to_have_text("loaded", timeout=15_000)
+
+
+def test_tablet_portrait_layout(page: Page) -> None:
+    """At 820 x 1180 (a tablet held upright) the page is one column without sideways
+    scrolling: the map card ends above the run controls, which come next and are at least
+    44 px tall (touch targets)."""
+    page.set_viewport_size({"width": 820, "height": 1180})
+    page.wait_for_function("document.querySelector('#map').getBoundingClientRect().width < 800")
+    assert page.evaluate("document.documentElement.scrollWidth") <= 820
+    map_card = page.get_by_role("region", name="Fleet map").bounding_box()
+    run_card = page.get_by_role("region", name="Run").bounding_box()
+    assert map_card is not None and run_card is not None
+    assert map_card["y"] + map_card["height"] <= run_card["y"]
+    assert map_card["height"] > 500
+    for name in ("Start", "Pause", "Resume", "Replan now", "Place intruder"):
+        box = page.get_by_role("button", name=name).bounding_box()
+        assert box is not None and box["height"] >= 44, name
