@@ -21,8 +21,6 @@ import time
 from collections.abc import Callable, Coroutine
 from typing import Any, Literal, TypeVar
 
-import looptime
-
 T = TypeVar("T")
 
 SolverTime = Literal["measured", "zero"] | float
@@ -100,6 +98,8 @@ class VirtualClock(LoopClock):
 
     def reset(self) -> None:
         """Make now 0 ms; refuses to run on a loop without virtual time."""
+        import looptime  # imported here: it pulls in pytest, ~0.5 s at every CLI start
+
         loop = asyncio.get_running_loop()
         if not isinstance(loop, looptime.LoopTimeEventLoop) or not loop.looptime_on:
             raise RuntimeError("VirtualClock needs a looptime event loop: use run_virtual()")
@@ -136,5 +136,7 @@ Clock = RealClock | VirtualClock
 
 def run_virtual(main: Coroutine[Any, Any, T]) -> T:
     """Run ``main`` to completion on a fresh event loop in virtual time (starting at 0 s)."""
+    import looptime
+
     with asyncio.Runner(loop_factory=lambda: looptime.new_event_loop(start=0.0)) as runner:
         return runner.run(main)
