@@ -36,13 +36,7 @@ Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], Non
 def _registrars() -> list[Register]:
     found: list[Register] = []
     for name in GATEWAY_COMMANDS:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue
-        found.append(module.register)
+        found.append(importlib.import_module(name).register)
     for ep in sorted(entry_points(group="fleetgate.commands"), key=lambda e: e.name):
         found.append(ep.load())
     return found

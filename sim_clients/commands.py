@@ -14,12 +14,6 @@ SIM_COMMANDS: tuple[str, ...] = (
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add every sim_clients subcommand that exists to the ``fleetgate`` parser."""
+    """Add every sim_clients subcommand to the ``fleetgate`` parser."""
     for name in SIM_COMMANDS:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue
-        module.register(sub)
+        importlib.import_module(name).register(sub)
