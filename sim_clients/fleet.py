@@ -363,13 +363,14 @@ class FleetRobot:
     def _cancel(self, aid: str) -> None:
         """Drop a held action that has not started moving and confirm; a moving robot
         finishes instead. A cancelled action may be dispatched again (an abandoned replan),
-        so it is no longer a duplicate."""
-        for action in self.pending:
-            if action.action_id == aid:
-                self.pending.remove(action)
-                self.seen.discard(aid)
-                self._report_one("cancelled", aid)
-                return
+        so it is no longer a duplicate. The actions queued behind a dropped one cannot run
+        without it: they are dropped too, and confirmed when their own cancel arrives (the
+        gateway cancels every queued action of a robot at once)."""
+        ids = [a.action_id for a in self.pending]
+        if aid in ids:
+            self._drop_pending(ids.index(aid))
+            self._report_one("cancelled", aid)
+            return
         sim = self.sim
         if sim is not None and sim.current is not None:
             d = sim.current
@@ -377,12 +378,18 @@ class FleetRobot:
                 events = sim.cancel(d.plan, d.action, self._now())
                 if events:
                     self.seen.discard(aid)
+                    self._drop_pending(0)
                 self._emit(events)
                 self._reschedule()
                 self._feed()
                 return
         if aid not in self.seen:  # not held here (e.g. the robot restarted): confirm
             self._report_one("cancelled", aid)
+
+    def _drop_pending(self, first: int) -> None:
+        """Forget the pending actions from position ``first`` on."""
+        while len(self.pending) > first:
+            self.seen.discard(self.pending.pop().action_id)
 
     def _feed(self) -> None:
         """Hand the next pending action to the robot if it is idle and may move."""

@@ -62,6 +62,9 @@ class GatewayConfig(BaseSettings):
     max_replans: int = Field(default=1, ge=0)
     action_ms: float = Field(default=1000.0, gt=0)
     drop_waits: bool = False
+    dispatch_lookahead: int = Field(default=1, ge=0)
+    """Actions queued on a robot beyond its current one (0: dispatch only when all ADG edges
+    are done; 1: release the next action early so the robot need not wait for a round trip)."""
     solver_time_limit_s: float = Field(default=10.0, gt=0)
     speed: float = Field(default=1.0, gt=0, le=100)
 

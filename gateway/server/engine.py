@@ -722,7 +722,8 @@ class Engine:
         self.executor = Executor(plan, policy=self._make_policy(plan),
                                  action_ms=self.config.action_ms,
                                  drop_waits=self.config.drop_waits,
-                                 max_replans=self.config.max_replans, record=self._record)
+                                 max_replans=self.config.max_replans, record=self._record,
+                                 lookahead=self.config.dispatch_lookahead)
         self.executor.start(0.0)
         self._status_changed()
         self._route(self.executor.drain())

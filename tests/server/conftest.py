@@ -23,8 +23,12 @@ Connect = Callable[..., Awaitable[ClientConnection]]
 
 
 def make_config(**overrides: Any) -> GatewayConfig:
-    """A loopback test configuration (ephemeral port, demo tokens, short close timeout)."""
-    return GatewayConfig(**{"port": 0, "close_timeout_s": 1.0, **overrides})
+    """A loopback test configuration (ephemeral port, demo tokens, short close timeout).
+
+    Classic dispatch (``dispatch_lookahead=0``) unless overridden: these tests script exact
+    message sequences and counts; lookahead has its own tests (test_lookahead.py)."""
+    return GatewayConfig(**{"port": 0, "close_timeout_s": 1.0, "dispatch_lookahead": 0,
+                            **overrides})
 
 
 @pytest.fixture

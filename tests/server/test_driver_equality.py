@@ -33,9 +33,10 @@ def lab(scen: str, agents: int) -> tuple[Instance, Plan]:
 
 
 def driver2(inst: Instance, plan: Plan, seed: int, intruder: bool, policy: PolicyName,
-            trace: Path | None = None) -> RunResult:
+            trace: Path | None = None, lookahead: int = 1) -> RunResult:
     """One run through the gateway: in-memory links, virtual clock, simulated fleet."""
-    config = GatewayConfig(port=0, map=None, policy=policy, threshold_ms=2000.0, trace=trace)
+    config = GatewayConfig(port=0, map=None, policy=policy, threshold_ms=2000.0, trace=trace,
+                           dispatch_lookahead=lookahead)
 
     async def main() -> RunResult:
         async with Gateway(config, clock=VirtualClock(solver_time=SOLVER_MS)) as gw:
@@ -58,14 +59,18 @@ CASES = [
 ]
 
 
+# lookahead dispatch (the gateway's default 1) and classic retiming (0) on both sides: in
+# virtual time a queued action starts exactly when a dispatched one would, so all are equal
+@pytest.mark.parametrize("lookahead", [1, 0])
 @pytest.mark.parametrize(("scen", "agents", "seed", "intruder", "policy"), CASES)
 def test_driver2_equals_driver3(scen: str, agents: int, seed: int, intruder: bool,
-                                policy: PolicyName, tmp_path: Path) -> None:
+                                policy: PolicyName, lookahead: int, tmp_path: Path) -> None:
     inst, plan = lab(scen, agents)
     des = run_simulation(SimConfig(inst.grid, plan, seed=seed, intruder=intruder, policy=policy,
-                                   threshold_ms=2000.0, solver_time=SOLVER_MS))
+                                   threshold_ms=2000.0, solver_time=SOLVER_MS,
+                                   lookahead=lookahead))
     trace = tmp_path / "driver2.jsonl"
-    gw = driver2(inst, plan, seed, intruder, policy, trace)
+    gw = driver2(inst, plan, seed, intruder, policy, trace, lookahead)
     assert gw.summary() == des.summary()
     assert gw.makespan_ms == des.makespan_ms
     if policy == "slack" and intruder:
