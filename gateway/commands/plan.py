@@ -38,15 +38,19 @@ def solution_json(instance: Instance, solution: Solution, runtime_s: float) -> d
 
 
 def _plan(args: argparse.Namespace) -> int:
-    if args.time_limit is not None and args.time_limit <= 0:
-        raise UsageError(f"--time-limit must be positive, got {args.time_limit}")
+    for flag, value in (("--time-limit", args.time_limit), ("--fallback", args.fallback)):
+        if value is not None and value <= 0:
+            raise UsageError(f"{flag} must be positive, got {value}")
     instance = instance_from_args(args)
     deadline = WallDeadline(args.time_limit)
+    fallback = WallDeadline(args.time_limit + args.fallback) if args.fallback else None
     try:
-        solution = solve(instance.grid, instance.starts, instance.goals, deadline=deadline)
+        solution = solve(instance.grid, instance.starts, instance.goals, deadline=deadline,
+                         fallback=fallback)
     except NoSolution as exc:
         runtime = deadline.elapsed()
-        why = (f"no solution within the time limit of {args.time_limit:g} s" if exc.timed_out
+        limit = args.time_limit + (args.fallback or 0.0)
+        why = (f"no solution within the time limit of {limit:g} s" if exc.timed_out
                else f"no solution: {exc}")
         print(f"fleetgate: {why} ({runtime:.3f} s)", file=sys.stderr)
         return EXIT_NO_SOLUTION
@@ -74,4 +78,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument("--time-limit", type=float, default=DEFAULT_TIME_LIMIT, metavar="SEC",
                         help=f"give up after SEC seconds of wall time "
                              f"(default {DEFAULT_TIME_LIMIT:g})")
+    parser.add_argument("--fallback", type=float, default=None, metavar="SEC",
+                        help="if CBS runs out of time, spend up to SEC more seconds on the fast "
+                             "prioritised planner (the output then says \"optimal\": false)")
     parser.set_defaults(func=_plan)

@@ -44,6 +44,19 @@ def test_plan_lab_15_agents_json() -> None:
     assert out["optimal"] is True
 
 
+def test_fallback_gives_a_valid_plan_marked_not_optimal() -> None:
+    # 20 robots on lab-random-3: CBS cannot finish in 0.3 s (it needs several seconds), so
+    # without --fallback this exits 3; with it the prioritised planner answers.
+    args = ("plan", "--map", "lab", "--scen", "lab-random-3", "--agents", "20", "--json",
+            "--time-limit", "0.3")
+    assert call(*args).returncode == 3
+    done = call(*args, "--fallback", "30")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    _check_solution(out, load_instance(SHIPPED / "lab.map", SHIPPED / "lab-random-3.scen", 20))
+    assert out["optimal"] is False
+
+
 def test_plan_human_summary() -> None:
     done = call("plan", "--map", "lab", "--scen", "lab-random-2", "--agents", "5")
     assert done.returncode == 0, done.stderr
