@@ -13,6 +13,9 @@ Three tasks share one event loop:
   ``finished`` again), honours cancel / pause / resume and sends a ``state`` snapshot every
   ``welcome.state_period_ms``. When the link is lost it reconnects with exponential backoff.
 
+Actions are held in a queue (the gateway may release the next action before the current one
+finishes) and executed strictly in the order of their index, each after the previous finished.
+
 On link loss the running action is completed (its ``finished`` is remembered and reported in
 the next ``hello``) and no further action starts until the gateway has welcomed the robot back.
 """
@@ -329,12 +332,18 @@ class RobotClient:
         await self._send(ws, Ack, action_id=msg.action_id)
 
     async def _on_cancel(self, ws: ClientConnection, action_id: str) -> None:
-        for action in self.held:
-            if action.action_id == action_id:
-                self.held.remove(action)
-                await self._send(ws, Cancelled, action_id=action_id, pose=self.wire_pose())
-                return
-        # Running (it completes and reports finished) or already finished: nothing to do.
+        """Drop a held (not started) action and every action queued behind it (they cannot
+        run without it; the gateway cancels all of a robot's queued actions at once) and
+        confirm each. A dropped action may be dispatched again (an abandoned replan)."""
+        ids = [a.action_id for a in self.held]
+        if action_id not in ids:
+            return  # running (it completes and reports finished), finished or dropped already
+        dropped = ids[ids.index(action_id):]
+        for _ in dropped:
+            self.held.pop()
+        for aid in dropped:
+            self.known.discard(aid)
+            await self._send(ws, Cancelled, action_id=aid, pose=self.wire_pose())
 
 
 def build_client(settings: RobotSettings, base: KobukiSerial,

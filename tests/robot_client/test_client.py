@@ -234,6 +234,29 @@ async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     assert not conn.of_type(Blocked) and not conn.of_type(Unblocked)
 
 
+async def test_a_cancel_drops_the_queued_actions_behind_it(robot: Robot) -> None:
+    # lookahead dispatch: the robot holds a queue; a cancelled action takes the ones queued
+    # behind it along (they cannot run without it), and each is confirmed
+    conn, _ = await handshake(robot, paused=True, state_period_ms=60000.0)
+    cells = [(1, 1), (2, 1), (3, 1), (4, 1)]
+    for i in range(3):
+        await conn.send(Action, **action(i, cells[i], cells[i + 1], "E", "E"))
+        await conn.expect(Ack, f"0.3.{i}")
+    assert [a.action_id for a in robot.client.held] == ["0.3.0", "0.3.1", "0.3.2"]
+    await conn.send(CancelAction, action_id="0.3.1")
+    await conn.expect(Cancelled, "0.3.1")
+    await conn.expect(Cancelled, "0.3.2")
+    await conn.send(CancelAction, action_id="0.3.2")  # the gateway's own cancel: stale
+    assert [a.action_id for a in robot.client.held] == ["0.3.0"]
+    # an abandoned replan dispatches a cancelled action again: it is held again, in order
+    await conn.send(Action, **action(1, cells[1], cells[2], "E", "E"))
+    await conn.expect(Ack, "0.3.1")
+    assert [a.action_id for a in robot.client.held] == ["0.3.0", "0.3.1"]
+    await asyncio.sleep(0.2)
+    assert [m.action_id for m in conn.of_type(Cancelled)] == ["0.3.1", "0.3.2"]
+    assert not conn.of_type(Started) and robot.at((1, 1)) < 0.005  # paused: nothing moved
+
+
 @pytest.mark.parametrize("robot", ["wrong-token"], indirect=True)
 async def test_a_refused_token_is_retried_with_backoff_and_never_moves(robot: Robot) -> None:
     await asyncio.sleep(0.8)

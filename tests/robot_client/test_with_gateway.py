@@ -142,15 +142,21 @@ async def test_link_cut_mid_action_robot_finishes_offline_and_gateway_catches_up
             while s.client.body.runner.action is None:
                 await asyncio.sleep(0.02)
         assert s.client.body.runner.action.action_id == "0.0.0"
+        # lookahead dispatch (the gateway's default): action 1 is released at once and queued
+        async with asyncio.timeout(10):
+            while "0.0.1" not in s.client.known:
+                await asyncio.sleep(0.02)
         s.proxy.refuse = True
         s.proxy.cut()
-        # Offline, the robot completes its move, then stands still with nothing to do.
+        # Offline, the robot completes its move, then stands still: it holds action 1 but
+        # starts nothing until the gateway has welcomed it back.
         async with asyncio.timeout(10):
             while "0.0.0" not in s.client.finished:
                 await asyncio.sleep(0.05)
         assert s.client.link is None and s.at((2, 1)) < ARRIVED_M
         await asyncio.sleep(0.5)
-        assert s.at((2, 1)) < ARRIVED_M and not s.client.held
+        assert s.at((2, 1)) < ARRIVED_M
+        assert [a.action_id for a in s.client.held] == ["0.0.1"]
         # Back online: its hello reports the finish, the gateway applies it and dispatches on.
         s.proxy.refuse = False
         await asyncio.wait_for(s.gateway.wait_done(), 30)
