@@ -20,6 +20,11 @@ plus the gateway's own finish-received -> dispatch-queued p99, the achieved/offe
 rate, and ``p99_ratio``: p99 against a 10-robot baseline run measured in the same invocation.
 ``--find-max`` searches the largest fleet with p99 <= 50 ms, nothing lost or duplicated.
 
+The gateway runs with classic dispatch (``--lookahead 0``, the default here; the gateway's own
+default is 1): with lookahead an action whose only dependency is its robot's previous action is
+released before that action finishes, so finish-to-dispatch latency would be negative or not
+measured at all for it. The result line says which lookahead was used.
+
     .venv/bin/python bench/load.py --robots 500 --seconds 30 --json
     .venv/bin/python bench/load.py --find-max --seconds 20 --json
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --profile /tmp/gw.prof
@@ -76,7 +81,7 @@ def _raise_fd_limit() -> None:
 
 
 # ------------------------------------------------------------------ the gateway process
-async def _serve(plan_file: Path) -> dict[str, Any]:
+async def _serve(plan_file: Path, lookahead: int) -> dict[str, Any]:
     data = json.loads(plan_file.read_text())
     plan = Plan.of(data["paths"])
     size = int(data["size"])
@@ -84,7 +89,8 @@ async def _serve(plan_file: Path) -> dict[str, Any]:
     inst = Instance(grid, tuple(p[0] for p in plan.paths), tuple(p[-1] for p in plan.paths),
                     "load")
     config = GatewayConfig(port=0, map=None, autostart=True, policy="none",
-                           ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING")
+                           ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING",
+                           dispatch_lookahead=lookahead)
     async with Gateway(config) as gw:
         gw.engine.load(Problem(inst, "load", plan))
         port = await gw.listen()
@@ -97,7 +103,7 @@ async def _serve(plan_file: Path) -> dict[str, Any]:
                 "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
 
 
-def serve_main(plan_file: Path, profile: Path | None) -> None:
+def serve_main(plan_file: Path, profile: Path | None, lookahead: int) -> None:
     """``--serve``: run the gateway until the plan is executed; print its port, then a
     JSON line of its own measurements."""
     _raise_fd_limit()
@@ -106,7 +112,7 @@ def serve_main(plan_file: Path, profile: Path | None) -> None:
     profiler = cProfile.Profile(time.process_time) if profile is not None else None
     if profiler is not None:
         profiler.enable()
-    result = asyncio.run(_serve(plan_file))
+    result = asyncio.run(_serve(plan_file, lookahead))
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(str(profile))
@@ -182,14 +188,15 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
         await fleet.stop()
 
 
-def run_once(robots: int, seconds: int, seed: int, jitter: float,
+def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
              profile: Path | None = None) -> dict[str, Any]:
     """One gateway process + one fleet; the measurements as a dict."""
     size, plan = workload(robots, seconds, seed)
     with tempfile.TemporaryDirectory() as tmp:
         plan_file = Path(tmp) / "plan.json"
         plan_file.write_text(json.dumps({"size": size, "paths": [list(p) for p in plan.paths]}))
-        cmd = [sys.executable, __file__, "--serve", str(plan_file)]
+        cmd = [sys.executable, __file__, "--serve", str(plan_file),
+               "--lookahead", str(lookahead)]
         if profile is not None:
             cmd += ["--profile", str(profile)]
         gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
@@ -213,7 +220,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float,
     lat = latencies_ms(plan, stats)
     offered = total / plan.makespan  # actions per second if nobody is ever late
     achieved = total / wall_s if wall_s > 0 else 0.0
-    return {"robots": robots, "actions": len(stats.received),
+    return {"robots": robots, "lookahead": lookahead, "actions": len(stats.received),
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
             "lost": total - len(stats.received), "duplicated": stats.duplicates,
@@ -234,14 +241,14 @@ def holds(result: dict[str, Any]) -> bool:
             and result["duplicated"] == 0 and result["errors"] == 0)
 
 
-def find_max(seconds: int, seed: int, jitter: float, start: int, limit: int
+def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int, limit: int
              ) -> tuple[int, list[dict[str, Any]]]:
     """Largest fleet (to within 10 %) that holds: double from ``start``, then bisect."""
     runs: list[dict[str, Any]] = []
     good, bad = 0, None
     r = start
     while r <= limit:
-        res = run_once(r, seconds, seed, jitter)
+        res = run_once(r, seconds, seed, jitter, lookahead)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if not holds(res):
@@ -250,7 +257,7 @@ def find_max(seconds: int, seed: int, jitter: float, start: int, limit: int
         good, r = r, r * 2
     while bad is not None and bad - good > max(50, good // 10):
         mid = (good + bad) // 2
-        res = run_once(mid, seconds, seed, jitter)
+        res = run_once(mid, seconds, seed, jitter, lookahead)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if holds(res):
@@ -272,20 +279,28 @@ def main() -> int:
     p.add_argument("--find-max", action="store_true",
                    help="search the largest fleet with p99 <= 50 ms, 0 lost, 0 duplicated")
     p.add_argument("--max-robots", type=int, default=4000, help="upper bound of --find-max")
+    p.add_argument("--lookahead", type=int, default=0,
+                   help="the gateway's dispatch_lookahead (default 0: classic dispatch, so that "
+                   "every dispatch after the first is unlocked by a finish and measured)")
     p.add_argument("--profile", type=Path, help="cProfile the gateway process into this file")
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.serve is not None:
-        serve_main(args.serve, args.profile)
+        serve_main(args.serve, args.profile, args.lookahead)
         return 0
     _raise_fd_limit()
-    baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter)
+    if args.lookahead < 0:
+        p.error("--lookahead must be >= 0")
+    baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
+                        args.lookahead)
     if args.find_max:
-        best, runs = find_max(args.seconds, args.seed, args.jitter, 250, args.max_robots)
+        best, runs = find_max(args.seconds, args.seed, args.jitter, args.lookahead, 250,
+                              args.max_robots)
         result = next((r for r in runs if r["robots"] == best), baseline)
         result = {"max_robots": best, **result}
     else:
-        result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.profile)
+        result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
+                          args.profile)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99
@@ -297,7 +312,11 @@ def main() -> int:
         print(f"{result['robots']} robots, {result['actions']} actions: p50 "
               f"{result['p50_ms']} ms, p99 {result['p99_ms']} ms ({result['p99_ratio']}x the "
               f"{BASELINE_ROBOTS}-robot p99), lost {result['lost']}, duplicated "
-              f"{result['duplicated']}, achieved/offered rate {result['rate_ratio']}")
+              f"{result['duplicated']}, achieved/offered rate {result['rate_ratio']}; gateway "
+              f"dispatch lookahead {args.lookahead}"
+              + (" (0 = classic dispatch: every latency is finish -> the dispatch it unlocks)"
+                 if args.lookahead == 0 else
+                 " (Type 1 unlocks happen before the finish: latencies are not comparable)"))
     if args.profile is not None and args.profile.exists():
         pstats.Stats(str(args.profile), stream=sys.stderr).sort_stats("tottime").print_stats(25)
     return 0

@@ -22,15 +22,23 @@ cancel/pause/resume, state snapshots that make reconnecting simple, coded reject
       unblocked(action_id, pose)            -->
       started(action_id, pose)              -->   begins to move
       finished(action_id, pose)             -->   arrived; applied once per action_id
-                                          <-- action(...)  next one, once its ADG deps are done
+                                          <-- action(...)  next one (see "Action queue")
                                           <-- cancel(action_id)   replan: drop it if not moving
       cancelled(action_id, pose)            -->   (or finished, if it was already moving)
                                           <-- pause / resume
       state(robot_id, pose, activity, current) every welcome.state_period_ms
                                           <-- error(code, ref=offending msg_id, detail)
 
-An action is sent only when its ADG dependencies are done; the gateway resends, in
-``welcome.resend``, every dispatched action it has no ``finished`` for. On link loss a robot
+Action queue (lookahead dispatch, as a VDA 5050 order releases the part a robot may drive): a
+robot may hold a queue of actions. The gateway sends action i+1 of a robot once its
+dependencies on other robots are done and action i has been sent (``dispatch_lookahead`` caps
+how many are held beyond the current one; 0 = only when action i has finished). A robot MUST
+execute its actions strictly in the order of their index and start action i+1 only after it
+finished action i; the gateway refuses (``rejected``) a report about an action queued behind
+one that has not finished. A ``cancel`` of a queued action also voids every action queued
+behind it (the gateway cancels all of them at once; each is confirmed with ``cancelled``).
+The gateway resends, in ``welcome.resend``, every dispatched action it has no ``finished`` for,
+in index order. On link loss a robot
 finishes its current move and stops; the gateway holds that robot's ADG steps until it is back.
 A ``finished`` for an action already applied gets ``error(duplicate)`` and changes nothing;
 ``hello.finished`` lets a robot report finishes whose messages were lost.
