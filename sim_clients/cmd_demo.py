@@ -141,7 +141,8 @@ def _run(args: argparse.Namespace) -> int:
         config = load_config(None, host=args.host, port=args.port, map=None, speed=args.speed,
                              policy=args.policy, threshold_ms=args.threshold_ms,
                              policy_seed=derive_seed(args.seed, "replan"), trace=args.trace,
-                             solver_time_limit_s=args.time_limit, log_level=args.log_level)
+                             solver_time_limit_s=args.time_limit, log_level=args.log_level,
+                             dispatch_lookahead=args.lookahead)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     configure_logging(config.log_level)
@@ -189,4 +190,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="planner time limit per solve in seconds (default 30)")
     p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"],
                    default="WARNING", help="gateway log level on stderr (default WARNING)")
+    p.add_argument("--lookahead", metavar="N", type=int, default=1,
+                   help="actions queued on a robot beyond its current one (default 1: the next "
+                        "action is released early, so a robot need not wait for a round trip; "
+                        "0 = classic dispatch)")
     p.set_defaults(func=_run)
