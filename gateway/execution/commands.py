@@ -15,7 +15,11 @@ from gateway.planning.plan import Plan
 
 @dataclass(frozen=True, slots=True)
 class Dispatch:
-    """Robot ``robot`` may now execute action ``action`` (index i of a_i^k) of plan ``plan``."""
+    """Robot ``robot`` may now execute action ``action`` (index i of a_i^k) of plan ``plan``.
+
+    With lookahead dispatch it may be queued behind the robot's previous action: the robot
+    starts it only after finishing that one (actions run strictly in index order).
+    """
 
     plan: int
     robot: int
