@@ -101,50 +101,67 @@ class Monitor:
         predecessor's t_c. Successors are re-evaluated only if t_c changed.
         """
         adg = self.adg
-        topo, queued = adg.topo, self._queued
+        step_of, queued = adg.step_of, self._queued
         pred_ptr, pred, succ_ptr, succ = adg.pred_ptr, adg.pred, adg.succ_ptr, adg.succ
         t2_ptr, t2, is_first, robot_of = adg.t2_pred_ptr, adg.t2_pred, adg.is_first, adg.robot_of
         state, remaining, release = self._state, self._remaining, self.release_ms
         ts_of, tc_of, delta = self._ts, self._tc, self._delta
         now, tx = self.now_ms, self.action_ms
-        heap: list[tuple[int, int]] = []
+        # Every edge goes from a plan step to a later one (ADG.order), so visiting the dirty
+        # vertices step by step is a topological order; a bucket per step and a heap of the
+        # steps that have one is much cheaper than a heap of vertices (a tick re-clamps
+        # every late frontier action and moves most of the plan's future).
+        buckets: dict[int, list[int]] = {}
+        steps: list[int] = []
         for v in seeds:
             if not queued[v]:
                 queued[v] = 1
-                heap.append((topo[v], v))
-        heapq.heapify(heap)
-        while heap:
-            _, v = heapq.heappop(heap)
-            queued[v] = 0
-            st = state[v]
-            if st == DONE:
-                tc = tc_of[v]
-            elif st == STARTED:
-                tc = ts_of[v] + tx
-                if tc < now:
-                    tc = now
-            else:
-                lo, hi = pred_ptr[v], pred_ptr[v + 1]
-                ts = max([tc_of[p] for p in pred[lo:hi]]) if lo < hi else release[robot_of[v]]
-                if ts < now and remaining[v] == 0:
-                    ts = now
-                ts_of[v] = ts
-                tc = ts + tx
-            lo, hi = t2_ptr[v], t2_ptr[v + 1]
-            if lo < hi:
-                prev = release[robot_of[v]] if is_first[v] else tc_of[v - 1]
-                d = max([tc_of[u] for u in t2[lo:hi]]) - prev
-                if d < 0.0:
-                    d = 0.0
-                if d != delta[v]:
-                    delta[v] = d
-                    self._push_slack(v)
-            if tc != tc_of[v]:
-                tc_of[v] = tc
-                for w in succ[succ_ptr[v] : succ_ptr[v + 1]]:
-                    if not queued[w]:
-                        queued[w] = 1
-                        heapq.heappush(heap, (topo[w], w))
+                bucket = buckets.get(step_of[v])
+                if bucket is None:
+                    buckets[step_of[v]] = [v]
+                    steps.append(step_of[v])
+                else:
+                    bucket.append(v)
+        heapq.heapify(steps)
+        while steps:
+            for v in buckets.pop(heapq.heappop(steps)):
+                queued[v] = 0
+                st = state[v]
+                if st == DONE:
+                    tc = tc_of[v]
+                elif st == STARTED:
+                    tc = ts_of[v] + tx
+                    if tc < now:
+                        tc = now
+                else:
+                    lo, hi = pred_ptr[v], pred_ptr[v + 1]
+                    ts = max([tc_of[p] for p in pred[lo:hi]]) if lo < hi \
+                        else release[robot_of[v]]
+                    if ts < now and remaining[v] == 0:
+                        ts = now
+                    ts_of[v] = ts
+                    tc = ts + tx
+                lo, hi = t2_ptr[v], t2_ptr[v + 1]
+                if lo < hi:
+                    prev = release[robot_of[v]] if is_first[v] else tc_of[v - 1]
+                    d = max([tc_of[u] for u in t2[lo:hi]]) - prev
+                    if d < 0.0:
+                        d = 0.0
+                    if d != delta[v]:
+                        delta[v] = d
+                        if not state[v]:  # NOT_STARTED: only those count for the slack
+                            self._push_slack(v)
+                if tc != tc_of[v]:
+                    tc_of[v] = tc
+                    for w in succ[succ_ptr[v] : succ_ptr[v + 1]]:
+                        if not queued[w]:
+                            queued[w] = 1
+                            bucket = buckets.get(step_of[w])
+                            if bucket is None:
+                                buckets[step_of[w]] = [w]
+                                heapq.heappush(steps, step_of[w])
+                            else:
+                                bucket.append(w)
 
     def _flush(self) -> None:
         """Propagate the deferred starts and finishes (before any estimate is read)."""

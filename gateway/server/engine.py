@@ -121,6 +121,7 @@ class Engine:
         self.planning = False
         self.paused = False
         self.robots: dict[int, RobotRecord] = {}
+        self._online: set[int] = set()  # robots with a live session (O(1) autostart check)
         self.operators: set[Session] = set()
         self.worlds: set[Session] = set()
         self.policy_name: PolicyName = config.policy
@@ -167,7 +168,7 @@ class Engine:
 
     def connected_robots(self) -> int:
         """How many robots are connected (said hello on a live connection)."""
-        return sum(1 for rec in self.robots.values() if rec.session is not None)
+        return len(self._online)
 
     def robot(self, r: int) -> RobotRecord:
         """The record of robot ``r`` (created on first use)."""
@@ -274,6 +275,7 @@ class Engine:
             rec = self.robot(peer.robot_id)
             if rec.session is session:
                 rec.session = None
+                self._online.discard(peer.robot_id)
                 self.metrics.connected_robots.dec()
                 self._broadcast_event("connection", self.clock.now_ms(), robot=peer.robot_id,
                                       state="off")
@@ -313,6 +315,7 @@ class Engine:
                 rec.session.close(4000, "replaced by a new connection of the same robot")
             self.metrics.connected_robots.dec()
         rec.session = None  # dispatches unlocked below are resent in the welcome
+        self._online.discard(r)
         if msg.pose is not None:
             rec.pose = msg.pose
         now = self.now_ms()
@@ -333,6 +336,7 @@ class Engine:
         if self.executor is not None:
             self._route(self.executor.drain())  # unlocked actions go into the resend list
         rec.session = session
+        self._online.add(r)
         self.metrics.connected_robots.inc()
         resend = [Action(msg_id=f"resend-{aid}", seq=0, **h.fields)
                   for aid, h in rec.held.items()]
@@ -698,7 +702,8 @@ class Engine:
         if not self.config.autostart or self.status != "loaded" or self.problem is None:
             return
         n = self.problem.instance.num_agents
-        if all(self.robot(r).session is not None for r in range(n)):
+        # counting first: checking every robot on each hello would be O(n^2) per fleet
+        if len(self._online) >= n and all(r in self._online for r in range(n)):
             self.start()
 
     def start(self) -> None:
