@@ -64,7 +64,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"fleetgate: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

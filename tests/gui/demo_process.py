@@ -22,7 +22,7 @@ class DemoProcess:
 
     def __init__(self, *args: str, timeout_s: float = 30.0) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "gateway.cli", "demo", "--port", "0", *args],
+            [sys.executable, "-m", "gateway", "demo", "--port", "0", *args],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         self.lines: list[str] = []
         self._found = threading.Event()

@@ -125,7 +125,7 @@ def test_plots_are_written(full: Path, tmp_path: Path) -> None:
 
 def test_cli_writes_results_summary_and_plots(full: Path, tmp_path: Path) -> None:
     out = tmp_path / "cli"
-    # The console script (``python -m gateway.cli`` would load a second copy of gateway.cli).
+    # The console script, as a user runs it.
     cmd = [str(Path(sys.executable).with_name("fleetgate")), "experiment", "--maps", "lab",
            "--agents", "5", "--instances", "2", "--seeds", "2", "--solver-time", "zero",
            "--plan-time-limit", "20", "--out", str(out), "--workers", "2", "--no-progress"]

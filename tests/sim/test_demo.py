@@ -14,7 +14,7 @@ from pathlib import Path
 from sim_clients.trace import read_trace
 from sim_clients.tracecheck import check_trace
 
-FLEETGATE = [sys.executable, "-m", "gateway.cli"]
+FLEETGATE = [sys.executable, "-m", "gateway"]
 
 
 def demo(*args: str, timeout: float = 90.0) -> dict[str, object]:
@@ -63,6 +63,20 @@ def test_intruder_and_slack_policy_stay_safe(tmp_path: Path) -> None:
     assert report.plans == 1 + int(out["replans"])  # type: ignore[call-overload]
     assert report.soc_ms == out["soc_ms"]
     assert any(r["type"] == "intruder" and r["state"] == "on" for r in records)
+
+
+def test_default_demo_replans_when_the_slack_crosses_the_threshold(tmp_path: Path) -> None:
+    # The zero-setup demo (lab-random-4, 10 robots, seed-0 intruder, slack policy): in virtual
+    # time the fleet slack passes 2000 ms at 7100 ms (and 3000 ms at 8100 ms, so the crossing is
+    # not marginal) and the replan adopts plan 1; real time shifts it by milliseconds.
+    trace = tmp_path / "demo.jsonl"
+    out = demo("--speed", "5", "--trace", str(trace))
+    assert out["replans"] == 1
+    assert 7000 <= float(out["replan_at_ms"]) <= 8200  # type: ignore[arg-type]
+    triggers = [r for r in read_trace(trace) if r["type"] == "trigger"]
+    assert [t["policy"] for t in triggers] == ["slack"]
+    assert float(triggers[0]["fleet_slack_ms"]) > 2000  # type: ignore[arg-type]
+    assert check_trace(read_trace(trace)).errors == []
 
 
 def test_without_headless_it_keeps_serving_until_ctrl_c() -> None:

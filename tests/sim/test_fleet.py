@@ -185,7 +185,7 @@ def test_fleetgate_sim_drives_a_gateway_over_websockets() -> None:
             gw.engine.load(problem())
             port = await gw.listen()
             proc = await asyncio.create_subprocess_exec(
-                sys.executable, "-m", "gateway.cli", "sim", "--connect",
+                sys.executable, "-m", "gateway", "sim", "--connect",
                 f"ws://127.0.0.1:{port}/ws", "--robots", "2",
                 stderr=subprocess.PIPE)
             try:
