@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="fleet slack threshold of the slack policy (default 2000)")
     p.add_argument("--solver-time", metavar="measured|zero|MS", type=_solver_time,
                    default="measured",
-                   help="virtual time charged for a replan's solver: its wall time (default), "
+                   help="virtual time charged for a replan's solver: its CPU time (default), "
                         "nothing, or fixed milliseconds (zero or MS make runs reproducible)")
     p.add_argument("--time-limit", metavar="SEC", type=float, default=60.0,
                    help="planner time limit per solve in seconds (default 60)")

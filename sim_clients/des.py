@@ -6,14 +6,13 @@ and optionally the intruder (:mod:`sim_clients.intruder`). Time jumps from event
 heap; the executor is ticked at every multiple of ``MONITOR_PERIOD_MS``. Events at one instant
 run in a fixed order (arrivals, then blocked robots looking again, the intruder, a finished
 solver, a policy wake-up, the monitor tick), so a run is a function of its configuration and
-seed, except for the solver's wall time when ``solver_time="measured"``.
+seed, except for the solver's CPU time when ``solver_time="measured"``.
 """
 
 from __future__ import annotations
 
 import heapq
 import random
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
@@ -32,6 +31,7 @@ from gateway.execution.policies import ReplanPolicy, make_policy
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import NoSolution, Plan
 from gateway.planning.solver import solve
+from gateway.server.clock import SolverTime, run_charged
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
 from sim_clients.robot import RobotEvent, RobotState, SimRobot
 from sim_clients.trace import TraceSink, intruder_record, summary_record
@@ -39,8 +39,6 @@ from sim_clients.world import INTRUDER, World
 
 PolicyName = Literal["none", "random", "slack"]
 POLICIES: tuple[str, ...] = ("none", "random", "slack")
-SolverTime = Literal["measured", "zero"] | float
-"""How a replan's solver time is charged in virtual time: its wall time, nothing, or fixed ms."""
 ExtraDelay = Callable[[int, int, int], float]
 """``(plan, robot, action) -> extra ms`` added to an action's duration (delay injection)."""
 
@@ -301,16 +299,14 @@ class _Simulation:
             self.push(wake, _POLICY, -1)
 
     def solve(self, request: SolveRequest, now: float) -> None:
-        began = time.perf_counter()
-        try:
-            solution = solve(self.cfg.grid, request.starts, request.goals,
-                             deadline=WallDeadline(self.cfg.solver_time_limit_s))
-            self.pending_plan = solution.plan
-        except NoSolution:
-            self.pending_plan = None
-        wall_ms = (time.perf_counter() - began) * 1000.0
-        st = self.cfg.solver_time
-        charged = wall_ms if st == "measured" else 0.0 if st == "zero" else float(st)
+        def plan() -> Plan | None:
+            try:
+                return solve(self.cfg.grid, request.starts, request.goals,
+                             deadline=WallDeadline(self.cfg.solver_time_limit_s)).plan
+            except NoSolution:
+                return None
+
+        self.pending_plan, charged = run_charged(plan, self.cfg.solver_time)
         self.solver_ms += charged
         self.last_progress = now + charged
         self.push(now + charged, _SOLVED, -1)
