@@ -15,6 +15,7 @@ if [ ! -x /usr/bin/chromium ]; then
 fi
 ruff check .
 mypy
+mypy bench
 set +e
 python -m pytest -n 2 -q "$@"
 rc=$?
