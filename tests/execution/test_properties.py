@@ -8,9 +8,12 @@ force from the definition) have finished and that the robot's actions come in or
 
 from __future__ import annotations
 
+from unittest import mock
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.execution import monitor
 from gateway.execution.executor import Executor
 from gateway.execution.policies import SlackReplan
 from gateway.planning.plan import Plan
@@ -79,3 +82,20 @@ def test_runs_with_replans_terminate_and_stay_consistent(
     # every robot ends on its goal; SOC counts the stop and the solver time
     assert [ex.robot_cell(k) for k in range(len(plan.paths))] == [p[-1] for p in plan.paths]
     assert done.soc_ms == sum(driver.last_finish)
+
+
+@settings(max_examples=100, deadline=None)
+@given(paths=plans(), seed=st.integers(0, 10**6), drop_waits=st.booleans(),
+       replan_at=st.integers(0, 8000), slack=st.booleans())
+def test_vectorised_ticks_equal_algorithm1(
+        paths: list[list[tuple[int, int]]], seed: int, drop_waits: bool, replan_at: int,
+        slack: bool) -> None:
+    # large fleets re-clamp at ticks with a numpy pass over every vertex instead of the
+    # incremental propagation; force it on these small plans (the Driver compares the monitor
+    # with the full Algorithm 1 recomputation after every event, exactly)
+    plan = Plan.of(paths)
+    policy = SlackReplan(500) if slack else None
+    with mock.patch.multiple(monitor, VECTOR_MIN_VERTICES=0, VECTOR_MIN_ACTIVE=0):
+        ex = Executor(plan, drop_waits=drop_waits, max_replans=2, policy=policy)
+        Driver(ex, seed, replan_at_ms=replan_at, abandon_prob=0.5).run()
+    assert ex.done
