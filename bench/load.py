@@ -36,6 +36,7 @@ import argparse
 import asyncio
 import contextlib
 import cProfile
+import gc
 import json
 import math
 import pstats
@@ -80,6 +81,29 @@ def _raise_fd_limit() -> None:
         resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
 
 
+class GcPauses:
+    """Longest and total pause of this process's cyclic garbage collector since created or
+    :meth:`reset` (the execution: the connection phase does not count)."""
+
+    def __init__(self) -> None:
+        self.max_ms = 0.0
+        self.total_ms = 0.0
+        self._t0 = 0.0
+        gc.callbacks.append(self._on_gc)
+
+    def reset(self) -> None:
+        """Forget the pauses so far."""
+        self.max_ms = self.total_ms = 0.0
+
+    def _on_gc(self, phase: str, _info: dict[str, int]) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+            return
+        pause = (time.perf_counter() - self._t0) * 1000.0
+        self.max_ms = max(self.max_ms, pause)
+        self.total_ms += pause
+
+
 # ------------------------------------------------------------------ the gateway process
 async def _serve(plan_file: Path, lookahead: int) -> dict[str, Any]:
     data = json.loads(plan_file.read_text())
@@ -91,7 +115,10 @@ async def _serve(plan_file: Path, lookahead: int) -> dict[str, Any]:
     config = GatewayConfig(port=0, map=None, autostart=True, policy="none",
                            ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING",
                            dispatch_lookahead=lookahead)
+    pauses = GcPauses()
     async with Gateway(config) as gw:
+        gw.engine.status_listeners.append(lambda status: pauses.reset()
+                                          if status == "running" else None)
         gw.engine.load(Problem(inst, "load", plan))
         port = await gw.listen()
         print(port, flush=True)
@@ -99,6 +126,7 @@ async def _serve(plan_file: Path, lookahead: int) -> dict[str, Any]:
         soc, _ = await gw.wait_done()
         lat = sorted(gw.latencies_ms)
         return {"soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time() - cpu0,
+                "gc_max_ms": round(pauses.max_ms, 1),
                 "gateway_p50_ms": statistics.median(lat) if lat else None,
                 "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
 
@@ -168,22 +196,26 @@ def _percentile(values: list[float], q: float) -> float:
 
 
 async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
-                 ) -> tuple[FleetStats, float, int]:
+                 ) -> tuple[FleetStats, float, int, float]:
     """Run the fleet until every action was finished (or the deadline); returns the stats,
-    the execution's wall time and the number of plan actions."""
+    the execution's wall time, the number of plan actions and the longest GC pause."""
     total = sum(len(p) - 1 for p in plan.paths)
     fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(len(plan.paths)),
                      send_state=True, reconnect_delay_s=1.0, duration_jitter=jitter)
     await fleet.start()
     try:
         await fleet.wait_connected(timeout=120.0)
+        # the fleet's objects live until the end: keep the collector's full passes off them
+        # (at 2,000 robots one took ~240 ms, a stall every robot's latency would include)
+        gc.freeze()
+        pauses = GcPauses()
         t0 = time.perf_counter()
         end = t0 + deadline_s
         while len(fleet.stats.finish_sent) < total and time.perf_counter() < end:
             await asyncio.sleep(0.2)
         first = min(fleet.stats.received.values(), default=t0)
         last = max(fleet.stats.finish_sent.values(), default=t0)
-        return fleet.stats, last - first, total
+        return fleet.stats, last - first, total, pauses.max_ms
     finally:
         await fleet.stop()
 
@@ -206,8 +238,8 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
             cpu0 = time.process_time()
-            stats, wall_s, total = asyncio.run(_drive(port, plan, 3.0 * seconds + 60.0,
-                                                      jitter))
+            stats, wall_s, total, robots_gc_ms = asyncio.run(
+                _drive(port, plan, 3.0 * seconds + 60.0, jitter))
             robots_cpu = time.process_time() - cpu0
             gateway = json.loads(gw.stdout.readline() or "{}")
             gw.wait(timeout=60)
@@ -228,6 +260,8 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
             "gateway_cpu_ms_per_action": round(1000.0 * gateway.get("cpu_s", 0.0) / total, 3),
+            "gateway_gc_max_ms": gateway.get("gc_max_ms"),
+            "robots_gc_max_ms": round(robots_gc_ms, 1),
             "cpu_pressure_pct": cpu_pressure(), "os_wakeup_p99_ms": round(floor, 2),
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),

@@ -300,7 +300,7 @@ class FleetRobot:
         if self.sim is None and msg.start is not None:
             self.place(msg.start.cell)
         self.connected.set()
-        self.fleet.on_connected()
+        self.fleet.on_connected(self.robot_id)
         for action in msg.resend:
             self._action(action)
         self._feed()
@@ -503,6 +503,7 @@ class SimFleet:
         self._external_poll = external_poll
         self._tasks: list[asyncio.Task[None]] = []
         self._all_connected = asyncio.Event()
+        self._welcomed: set[int] = set()  # robots that got a welcome at least once
         self._failure: str | None = None
         self._ids = list(robots)
 
@@ -539,10 +540,11 @@ class SimFleet:
         if self._failure is not None:
             raise RuntimeError(self._failure)
 
-    def on_connected(self) -> None:
-        """A robot was welcomed (counts each robot once)."""
-        n = sum(1 for r in self.robots.values() if r.connected.is_set())
-        if n >= len(self.robots):
+    def on_connected(self, robot_id: int) -> None:
+        """Robot ``robot_id`` was welcomed (counts each robot once; O(1), not a scan of the
+        fleet per welcome)."""
+        self._welcomed.add(robot_id)
+        if len(self._welcomed) >= len(self.robots):
             self._all_connected.set()
 
     def fail(self, reason: str) -> None:
