@@ -748,17 +748,19 @@ class Engine:
     def _record(self, rec: dict[str, object]) -> None:
         """The executor's trace records: to the trace file and to operators as events."""
         self._write_trace(rec)
-        fields: dict[str, Any] = {k: v for k, v in rec.items()
-                                  if k not in ("type", "t_ms", "agents")}
-        agents: Any = rec.get("agents")
-        if agents is not None:
-            fields["paths"] = [a["path"] for a in agents]
         t_ms: Any = rec["t_ms"]
         kind = str(rec["type"])
         if kind == "trigger":
             self.replan_marks.append({"trigger_ms": float(t_ms), "policy": str(rec["policy"])})
         elif kind == "plan" and rec.get("plan") and self.replan_marks:
             self.replan_marks[-1].update(plan=rec["plan"], adopted_ms=float(t_ms))
+        if not self.operators:
+            return  # several records per action: build no event nobody would receive
+        fields: dict[str, Any] = {k: v for k, v in rec.items()
+                                  if k not in ("type", "t_ms", "agents")}
+        agents: Any = rec.get("agents")
+        if agents is not None:
+            fields["paths"] = [a["path"] for a in agents]
         self._broadcast_event(kind, float(t_ms), **fields)
 
     def _broadcast_event(self, kind: str, t_ms: float, **fields: Any) -> None:
