@@ -60,6 +60,7 @@ from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
 from gateway.planning.plan import Plan
 from gateway.server.config import GatewayConfig
+from gateway.server.engine import GC_THRESHOLDS
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
 from sim_clients.cmd_demo import websocket_connector
@@ -212,8 +213,10 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
     try:
         await fleet.wait_connected(timeout=120.0)
         # the fleet's objects live until the end: keep the collector's full passes off them
-        # (at 2,000 robots one took ~240 ms, a stall every robot's latency would include)
+        # (at 2,000 robots one took ~240 ms, a stall every robot's latency would include),
+        # and collect rarely, as the gateway does during a run
         gc.freeze()
+        gc.set_threshold(*GC_THRESHOLDS)
         pauses = GcPauses()
         t0 = time.perf_counter()
         end = t0 + deadline_s

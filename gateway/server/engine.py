@@ -98,6 +98,10 @@ log = logging.getLogger("fleetgate.engine")
 
 ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled"]
 
+GC_THRESHOLDS = (100_000, 50, 100)
+"""The process's garbage-collector thresholds once a run starts (Python's default: 700, 10,
+10): a young-generation pass after 100,000 net new container objects instead of 700."""
+
 
 class CommandError(Exception):
     """An operator command is refused with ``code``."""
@@ -738,8 +742,11 @@ class Engine:
         # The plan, ADG, monitor and connections live as long as the run: move them out of
         # the cyclic collector's reach, or its full passes over a large fleet's objects stall
         # the owner (~150 ms at 2,000 robots). Only what exists now is frozen; what the run
-        # allocates later is collected as usual.
+        # allocates later is collected, but rarely (GC_THRESHOLDS): nearly all of it is freed
+        # by reference counting, and with the default thresholds the collector ran every 700
+        # allocations, ~25 % of the gateway's CPU and 30-60 ms pauses at 2,000 robots.
         gc.freeze()
+        gc.set_threshold(*GC_THRESHOLDS)
         self.executor.start(0.0)
         self._status_changed()
         self._route(self.executor.drain())
