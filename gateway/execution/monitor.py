@@ -14,7 +14,10 @@ Slack: for a Type 2 edge ``e = (a_i^{r1} -> a_j^{r2})``,
 none is left).
 
 :class:`Monitor` keeps all of this up to date by re-evaluating only the descendants of what
-changed, in topological order, and stops where values do not change. :func:`algorithm1` is the
+changed, in topological order, and stops where values do not change. On a large plan a tick that
+re-clamps many late frontier actions instead recomputes every vertex with numpy, plan step by
+plan step (the same operations, so the same values); fleet and robot slack are numpy maxima
+over the not-started vertices. :func:`algorithm1` is the
 plain full recomputation (the paper's Algorithm 1, timestep by timestep); tests use it as the
 oracle and ``bench/monitor.py`` as the baseline.
 """
