@@ -17,7 +17,7 @@ from gateway.execution.policies import OperatorOnly, SlackReplan
 from gateway.planning.plan import Plan
 from tests.execution.support import Driver, random_robust_plan, snapshot
 from tests.execution.test_adg import CORRIDOR, CROSSING
-from tests.execution.test_properties import _kept, plans
+from tests.execution.test_properties import _kept, check_replanned_run, plans
 
 A, B = 0, 1
 
@@ -218,17 +218,7 @@ def test_queued_execution_with_replans_terminates_and_stays_consistent(
     ex = Executor(plan, drop_waits=drop_waits, max_replans=max_replans, policy=policy,
                   lookahead=1)
     driver = QueueDriver(ex, seed, replan_at_ms=replan_at, abandon_prob=abandon)
-    done = driver.run()
-    assert ex.done and ex.replans <= max_replans and len(driver.triggers) == ex.replans
-    assert set(driver.plans[-1].finished) == _kept(Plan.of(driver.plans[-1].paths), drop_waits)
-    for log in driver.plans:  # each plan ran a prefix of each robot's actions, each once
-        assert set(log.finished) == set(log.started)
-        for k in range(len(plan.paths)):
-            mine = sorted(a for (r, a) in log.finished if r == k)
-            kept = sorted(a for (r, a) in _kept(Plan.of(log.paths), drop_waits) if r == k)
-            assert mine == kept[: len(mine)]
-    assert [ex.robot_cell(k) for k in range(len(plan.paths))] == [p[-1] for p in plan.paths]
-    assert done.soc_ms == sum(driver.last_finish)
+    check_replanned_run(ex, driver, plan, drop_waits, max_replans)
 
 
 def test_the_queue_driver_really_queues_and_replans() -> None:

@@ -67,6 +67,13 @@ def test_runs_with_replans_terminate_and_stay_consistent(
     policy = SlackReplan(500) if slack else None
     ex = Executor(plan, drop_waits=drop_waits, max_replans=max_replans, policy=policy)
     driver = Driver(ex, seed, replan_at_ms=replan_at, abandon_prob=abandon)
+    check_replanned_run(ex, driver, plan, drop_waits, max_replans)
+
+
+def check_replanned_run(ex: Executor, driver: Driver, plan: Plan, drop_waits: bool,
+                        max_replans: int) -> None:
+    """Run ``driver`` to the end and check a run with replans: it terminated within the replan
+    budget, each plan ran a prefix of every robot's actions, the last one all of them."""
     done = driver.run()
     assert ex.done and ex.replans <= max_replans
     assert len(driver.triggers) == ex.replans
