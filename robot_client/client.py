@@ -7,52 +7,38 @@ Three tasks share one event loop:
   ``state`` with activity ``blocked``, see :meth:`RobotClient._report`), and starts the next
   held action when the robot is idle, connected and not paused;
 * camera: reads frames in a worker thread, measures tag fixes there and applies them;
-* link: connects with the robot's token, says ``hello`` (pose, held and finished action ids,
-  current activity), takes the ``welcome``, then acknowledges every action (a duplicate action
-  id is acknowledged again but never executed twice; a duplicate of a finished action gets its
-  ``finished`` again), honours cancel / pause / resume and sends a ``state`` snapshot every
-  ``welcome.state_period_ms``. When the link is lost it reconnects with exponential backoff.
+* link: connects with the robot's token, runs the protocol session and sends a ``state``
+  snapshot every ``welcome.state_period_ms``. When the link is lost it reconnects with
+  exponential backoff.
 
-Actions are held in a queue (the gateway may release the next action before the current one
-finishes) and executed strictly in the order of their index, each after the previous finished.
-
-On link loss the running action is completed (its ``finished`` is remembered and reported in
-the next ``hello``) and no further action starts until the gateway has welcomed the robot back.
+The protocol's rules (hello, acknowledgements, duplicates, the action queue, cancel, pause,
+what a reconnect reports) are the sans-I/O :class:`protocol.robot_session.RobotSession`, shared
+with the simulated robots; this module only moves its messages and its body. Time comes from an
+injectable :class:`RobotClock` (monotonic by default; tests run the client in virtual time).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import uuid
-from collections import deque
-from typing import Any
+from collections.abc import Awaitable, Callable
+from typing import Protocol
 
-from websockets.asyncio.client import ClientConnection, backoff, connect
-from websockets.exceptions import ConnectionClosed, InvalidHandshake
+from websockets.asyncio.client import backoff, connect
+from websockets.exceptions import ConnectionClosed, ConnectionClosedOK, InvalidHandshake
 
-from protocol import (
-    MAX_MESSAGE_BYTES,
-    Ack,
-    Action,
-    Activity,
-    AnyMessage,
-    CancelAction,
-    Cancelled,
-    Error,
-    Finished,
-    Hello,
-    Pause,
-    ProtocolError,
-    Resume,
-    Started,
-    State,
-    Welcome,
-    decode,
-    encode,
-)
+from protocol import MAX_MESSAGE_BYTES, Action, Error, ProtocolError, Welcome, decode, encode
 from protocol import Pose as WirePose
-from protocol.messages import RobotActivity
+from protocol.robot_session import (
+    Abort,
+    GatewayError,
+    Refused,
+    RobotSession,
+    Send,
+    Welcomed,
+)
 from robot_client.apriltag_localiser import Localiser, TagLocator
 from robot_client.body import RobotBody
 from robot_client.config import RobotSettings
@@ -67,12 +53,55 @@ log = logging.getLogger("fleetgate.robot")
 BATTERY_EMPTY_V, BATTERY_FULL_V = 13.2, 16.5
 """Kobuki pack voltages taken as 0 % and 100 % for the rough ``state.battery`` figure."""
 
-_REPORTS: dict[str, type[Started | Finished]] = {"started": Started, "finished": Finished}
 _LINK_ERRORS = (OSError, TimeoutError, InvalidHandshake, ConnectionClosed, ProtocolError)
 
 
 class SessionRefused(Exception):
     """The gateway did not welcome the robot."""
+
+
+class Connection(Protocol):
+    """What the client needs of a link: a websockets client connection, or an in-memory one."""
+
+    async def send(self, message: str) -> None:
+        """Send one text frame."""
+        ...
+
+    async def recv(self) -> str | bytes:
+        """The next frame; raises ``websockets.ConnectionClosed`` once closed."""
+        ...
+
+    async def close(self, code: int = 1000, reason: str = "") -> None:
+        """Close the connection."""
+        ...
+
+
+Connector = Callable[[RobotSettings], Awaitable[Connection]]
+"""Opens an authenticated connection to the gateway (default: :func:`websocket_connect`)."""
+
+
+async def websocket_connect(s: RobotSettings) -> Connection:
+    """A websocket to ``s.gateway_url`` with the robot's bearer token and keepalive pings."""
+    headers = {"Authorization": f"Bearer {s.token.get_secret_value()}"}
+    return await connect(s.gateway_url, additional_headers=headers, proxy=None,
+                         open_timeout=s.ping_timeout_s * 2, ping_interval=s.ping_interval_s,
+                         ping_timeout=s.ping_timeout_s, max_size=MAX_MESSAGE_BYTES)
+
+
+class RobotClock(Protocol):
+    """The robot's time source (the body's control ticks and camera frames use it)."""
+
+    def now_ms(self) -> float:
+        """Milliseconds on a monotonic scale."""
+        ...
+
+
+class MonotonicClock:
+    """Real time: :func:`robot_client.frames.monotonic_ms`."""
+
+    def now_ms(self) -> float:
+        """Monotonic milliseconds."""
+        return monotonic_ms()
 
 
 def grid_action(msg: Action) -> GridAction:
@@ -81,27 +110,56 @@ def grid_action(msg: Action) -> GridAction:
                       msg.dst.heading, msg.duration_ms)
 
 
+def _check_action(msg: Action) -> None:
+    grid_action(msg).validate()
+
+
 class RobotClient:
-    """One robot's connection to the gateway (see module doc). ``run`` until ``stop``."""
+    """One robot's connection to the gateway (see module doc). ``run`` until ``stop``.
+
+    ``clock`` gives the time (monotonic by default); all waiting is on the event loop, so on
+    a virtual-time loop with a clock that reads it the whole client runs in virtual time.
+    ``connect`` opens the link (a websocket by default).
+    """
 
     def __init__(self, settings: RobotSettings, body: RobotBody,
-                 frames: FrameSource | None = None) -> None:
+                 frames: FrameSource | None = None, *, clock: RobotClock | None = None,
+                 connect: Connector = websocket_connect) -> None:
         self.settings = settings
         self.body = body
         self.frames = frames
+        self.clock: RobotClock = clock if clock is not None else MonotonicClock()
         self.floor = settings.floor()
-        self.held: deque[GridAction] = deque()
-        self.known: set[str] = set()
-        self.finished: deque[str] = deque(maxlen=256)
-        self.paused = False
-        self.link: ClientConnection | None = None
-        self.state_period_ms = 5000.0
-        self.sessions = 0
-        self.gateway_errors: deque[Error] = deque(maxlen=100)
-        self._seq = 0
+        self.session = RobotSession(settings.robot_id, msg_prefix=f"{uuid.uuid4().hex[:12]}-",
+                                    check=_check_action)
+        self.link: Connection | None = None
+        self.gateway_errors: list[Error] = []
+        self._connect = connect
         self._send_lock = asyncio.Lock()
         self._stop = asyncio.Event()
         self._moved = False
+
+    # ---------------------------------------------------------------- what it holds
+    @property
+    def held(self) -> list[GridAction]:
+        """Actions received and not started, in the order they will run."""
+        return [grid_action(a) for a in self.session.queue]
+
+    @property
+    def known(self) -> set[str]:
+        """Ids of the actions held, running or recently finished."""
+        ids = {a.action_id for a in self.session.queue} | set(self.session.finished)
+        return ids | ({self.session.current} if self.session.current else set())
+
+    @property
+    def finished(self) -> list[str]:
+        """The recently finished action ids, oldest first."""
+        return self.session.finished
+
+    @property
+    def sessions(self) -> int:
+        """How many times the gateway welcomed the robot."""
+        return self.session.welcomes
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -137,17 +195,6 @@ class RobotClient:
         row = min(max(row, 0), self.floor.height - 1)
         return WirePose(cell=(col, row), heading=nearest_heading(p.theta))
 
-    def current(self) -> Activity | None:
-        """The action the robot holds and what it does with it."""
-        running = self.body.runner.action
-        if running is not None:
-            if self.body.runner.paused:
-                return Activity(action_id=running.action_id, state="blocked")
-            return Activity(action_id=running.action_id, state="running")
-        if self.held:
-            return Activity(action_id=self.held[0].action_id, state="received")
-        return None
-
     def _battery(self) -> float | None:
         latest = self.body.base.latest
         if latest is None:
@@ -155,19 +202,27 @@ class RobotClient:
         frac = (latest.battery_v - BATTERY_EMPTY_V) / (BATTERY_FULL_V - BATTERY_EMPTY_V)
         return min(1.0, max(0.0, frac))
 
-    # ---------------------------------------------------------------- sending
+    # ---------------------------------------------------------------- session effects
 
-    async def _send(self, ws: ClientConnection, cls: type[AnyMessage], **fields: Any) -> bool:
-        """Build (with this connection's next seq) and send one message; False if the link
-        is gone."""
+    async def _flush(self) -> None:
+        """Carry out what the session asks, in order: send its messages on the link."""
         async with self._send_lock:
-            msg = cls(msg_id=uuid.uuid4().hex, seq=self._seq, **fields)
-            self._seq += 1
-            try:
-                await ws.send(encode(msg))
-            except ConnectionClosed:
-                return False
-        return True
+            for effect in self.session.drain():
+                if isinstance(effect, Send):
+                    if self.link is not None:
+                        with contextlib.suppress(ConnectionClosed):
+                            await self.link.send(encode(effect.message))
+                elif isinstance(effect, Welcomed):
+                    self._welcome(effect.welcome)
+                elif isinstance(effect, GatewayError):
+                    err = effect.error
+                    self.gateway_errors.append(err)
+                    del self.gateway_errors[:-100]
+                    log.warning("gateway error %s (ref %s): %s", err.code, err.ref, err.detail)
+                elif isinstance(effect, Refused):
+                    log.error("refusing action %s: %s", effect.action.action_id, effect.reason)
+                elif isinstance(effect, Abort):  # only a blocked action; the runner has none
+                    log.warning("cannot abort %s: it is under way", effect.action_id)
 
     async def _report(self, event: RunnerEvent) -> None:
         """Tell the gateway about a runner event.
@@ -178,17 +233,14 @@ class RobotClient:
         bumper pause is reported as an immediate ``state`` snapshot (activity ``blocked``, then
         ``running`` again) instead.
         """
-        if event.kind == "finished":
-            self.finished.append(event.action_id)
         if event.kind == "started":
             self._moved = True
-        if self.link is None:
-            return
-        if event.kind in _REPORTS:
-            await self._send(self.link, _REPORTS[event.kind], action_id=event.action_id,
-                             pose=self.wire_pose())
+        if event.kind in ("started", "finished"):
+            self.session.report(event.kind, event.action_id, self.wire_pose())
         else:
-            await self._send_state(self.link)
+            self.session.state(self.wire_pose(), battery=self._battery(),
+                               held_up=event.kind == "blocked")
+        await self._flush()
 
     # ---------------------------------------------------------------- control
 
@@ -197,14 +249,15 @@ class RobotClient:
         period = self.settings.control_period_ms / 1000.0
         deadline = loop.time()
         while True:
-            now = monotonic_ms()
+            now = self.clock.now_ms()
             for event in self.body.tick(now):
                 await self._report(event)
-            if not self.body.runner.busy and self.held and self.link is not None \
-                    and not self.paused:
-                action = self.held.popleft()
-                log.info("starting %s (%s)", action.action_id, action.kind)
-                self.body.start(action, now)
+            if not self.body.runner.busy:
+                action = self.session.take()
+                if action is not None:
+                    grid = grid_action(action)
+                    log.info("starting %s (%s)", grid.action_id, grid.kind)
+                    self.body.start(grid, now)
             deadline += period
             await asyncio.sleep(max(0.0, deadline - loop.time()))
 
@@ -225,58 +278,55 @@ class RobotClient:
 
     async def _link_loop(self) -> None:
         s = self.settings
-        headers = {"Authorization": f"Bearer {s.token.get_secret_value()}"}
         delays = None
         while True:
             welcomed = self.sessions
             try:
-                async with connect(s.gateway_url, additional_headers=headers, proxy=None,
-                                   open_timeout=s.ping_timeout_s * 2,
-                                   ping_interval=s.ping_interval_s,
-                                   ping_timeout=s.ping_timeout_s,
-                                   max_size=MAX_MESSAGE_BYTES) as ws:
-                    await self._session(ws)
+                conn = await self._connect(s)
+                try:
+                    await self._session(conn)
+                finally:
+                    await conn.close()
                 log.warning("gateway closed the link")
             except (*_LINK_ERRORS, SessionRefused) as exc:
                 log.warning("link to %s lost or refused: %s", s.gateway_url, exc)
-            self.link = None
             if self.sessions != welcomed or delays is None:
                 delays = backoff(s.reconnect_min_s, s.reconnect_min_s, s.reconnect_max_s)
             await asyncio.sleep(next(delays))
 
-    async def _session(self, ws: ClientConnection) -> None:
+    async def _session(self, conn: Connection) -> None:
         """One connection: hello, welcome, then messages until the link closes."""
-        self._seq = 0
-        held = [a.action_id for a in self.held]
-        running = self.body.runner.action
-        await self._send(ws, Hello, robot_id=self.settings.robot_id, pose=self.wire_pose(),
-                         acked=([running.action_id] if running else []) + held,
-                         finished=list(self.finished), current=self.current())
-        first = decode(await asyncio.wait_for(ws.recv(), self.settings.ping_timeout_s * 2))
-        if not isinstance(first, Welcome):
-            detail = f" {first.code}: {first.detail}" if isinstance(first, Error) else ""
-            raise SessionRefused(f"expected welcome, got {first.type}{detail}")
-        self.sessions += 1
-        self._welcome(first)
-        for action in first.resend:
-            await self._on_action(ws, action)
-        self.link = ws
-        state_task = asyncio.create_task(self._state_loop(ws))
+        self.link = conn
+        state_task: asyncio.Task[None] | None = None
         try:
-            async for raw in ws:
+            self.session.connected(self.wire_pose())
+            await self._flush()
+            first = decode(await asyncio.wait_for(conn.recv(), self.settings.ping_timeout_s * 2))
+            if not isinstance(first, Welcome):
+                detail = f" {first.code}: {first.detail}" if isinstance(first, Error) else ""
+                raise SessionRefused(f"expected welcome, got {first.type}{detail}")
+            self.session.receive(first)
+            await self._flush()
+            state_task = asyncio.create_task(self._state_loop())
+            while True:
+                try:
+                    raw = await conn.recv()
+                except ConnectionClosedOK:
+                    return
                 try:
                     msg = decode(raw)
                 except ProtocolError as exc:
                     log.warning("undecodable message from the gateway: %s", exc)
                     continue
-                await self._on_message(ws, msg)
+                self.session.receive(msg)
+                await self._flush()
         finally:
             self.link = None
-            state_task.cancel()
+            self.session.disconnected()
+            if state_task is not None:
+                state_task.cancel()
 
     def _welcome(self, msg: Welcome) -> None:
-        self.state_period_ms = msg.state_period_ms
-        self.paused = msg.paused
         loc: Localiser = self.body.localiser
         if msg.start is not None and loc.last_fix is None and not self._moved:
             x, y = self.floor.centre(msg.start.cell)
@@ -284,66 +334,12 @@ class RobotClient:
             loc.pose = Pose(x, y, theta)
         log.info("welcomed (plan %s, %d to resend)", msg.plan, len(msg.resend))
 
-    async def _send_state(self, ws: ClientConnection) -> None:
-        await self._send(ws, State, robot_id=self.settings.robot_id, pose=self.wire_pose(),
-                         activity=self._activity(), current=self.current(),
-                         battery=self._battery())
-
-    async def _state_loop(self, ws: ClientConnection) -> None:
+    async def _state_loop(self) -> None:
         while True:
-            await self._send_state(ws)
-            await asyncio.sleep(self.state_period_ms / 1000.0)
-
-    def _activity(self) -> RobotActivity:
-        cur = self.current()
-        if cur is not None:
-            return cur.state
-        return "paused" if self.paused else "idle"
-
-    async def _on_message(self, ws: ClientConnection, msg: AnyMessage) -> None:
-        if isinstance(msg, Action):
-            await self._on_action(ws, msg)
-        elif isinstance(msg, CancelAction):
-            await self._on_cancel(ws, msg.action_id)
-        elif isinstance(msg, Pause):
-            self.paused = True
-        elif isinstance(msg, Resume):
-            self.paused = False
-        elif isinstance(msg, Error):
-            self.gateway_errors.append(msg)
-            log.warning("gateway error %s (ref %s): %s", msg.code, msg.ref, msg.detail)
-        else:
-            log.warning("ignoring unexpected %s message", msg.type)
-
-    async def _on_action(self, ws: ClientConnection, msg: Action) -> None:
-        if msg.action_id in self.known:
-            await self._send(ws, Ack, action_id=msg.action_id)
-            if msg.action_id in self.finished:
-                await self._send(ws, Finished, action_id=msg.action_id, pose=self.wire_pose())
-            return
-        action = grid_action(msg)
-        try:
-            action.validate()
-        except ValueError as exc:
-            log.error("refusing action %s: %s", msg.action_id, exc)
-            return
-        self.known.add(msg.action_id)
-        self.held.append(action)
-        await self._send(ws, Ack, action_id=msg.action_id)
-
-    async def _on_cancel(self, ws: ClientConnection, action_id: str) -> None:
-        """Drop a held (not started) action and every action queued behind it (they cannot
-        run without it; the gateway cancels all of a robot's queued actions at once) and
-        confirm each. A dropped action may be dispatched again (an abandoned replan)."""
-        ids = [a.action_id for a in self.held]
-        if action_id not in ids:
-            return  # running (it completes and reports finished), finished or dropped already
-        dropped = ids[ids.index(action_id):]
-        for _ in dropped:
-            self.held.pop()
-        for aid in dropped:
-            self.known.discard(aid)
-            await self._send(ws, Cancelled, action_id=aid, pose=self.wire_pose())
+            self.session.state(self.wire_pose(), battery=self._battery(),
+                               held_up=self.body.runner.paused)
+            await self._flush()
+            await asyncio.sleep(self.session.state_period_ms / 1000.0)
 
 
 def build_client(settings: RobotSettings, base: KobukiSerial,

@@ -2,11 +2,12 @@
 
 Every robot of a :class:`SimFleet` is the sans-I/O :class:`~sim_clients.robot.SimRobot` of the
 discrete-event driver, driven by timers of the running event loop: it checks its target cell
-in the fleet's one shared :class:`~sim_clients.world.World`, acknowledges every action, drops
-duplicates, reports started / finished / blocked / unblocked / cancelled, sends a ``state``
-every ``state_period_ms`` and reconnects (``hello`` with what it holds and what it finished)
-when its link drops. A fleet may also open the "world" connection: it receives
-``place_intruder`` (and ``set_speed``) and reports ``intruder`` on/off.
+in the fleet's one shared :class:`~sim_clients.world.World`; the protocol (acknowledgements,
+duplicates, the action queue, cancel, pause, the ``hello`` of a reconnect) is the shared
+:class:`~protocol.robot_session.RobotSession`, the same as the real robot's. A robot sends a
+``state`` every ``state_period_ms`` and reconnects when its link drops. A fleet may also open
+the "world" connection: it receives ``place_intruder`` (and ``set_speed``) and reports
+``intruder`` on/off.
 
 Time: robots read plan time from a :class:`~gateway.server.clock.LoopClock` (the gateway's own
 in one process, so both agree on "now" and on ``speed``). The automatic intruder of DESIGN
@@ -24,7 +25,6 @@ import itertools
 import logging
 import random
 import time
-from collections import deque
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar, cast
@@ -39,31 +39,31 @@ from gateway.server.engine import Engine
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
 from protocol import (
-    Ack,
     Action,
-    Activity,
     AnyMessage,
-    Blocked,
-    CancelAction,
-    Cancelled,
     Error,
     Finished,
-    Hello,
     IntruderReport,
-    Pause,
     PlaceIntruder,
     Pose,
     ProtocolError,
-    Resume,
     SetSpeed,
     Start,
-    Started,
-    State,
-    Unblocked,
     Welcome,
     decode,
     encode,
     parse_action_id,
+)
+from protocol.robot_session import (
+    Abort,
+    GatewayError,
+    Received,
+    Refused,
+    ReportKind,
+    RobotEffect,
+    RobotSession,
+    Send,
+    Welcomed,
 )
 from sim_clients.des import derive_seed
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
@@ -136,29 +136,22 @@ class FleetStats:
     """``code: detail`` of every ``error`` a robot was sent."""
 
 
-_RUNNING = {RobotState.MOVING: "running", RobotState.BLOCKED: "blocked"}
-
-
 class FleetRobot:
-    """One simulated robot and its connection."""
+    """One simulated robot and its connection: a :class:`SimRobot` body driven by the shared
+    protocol session (:class:`~protocol.robot_session.RobotSession`)."""
 
     def __init__(self, fleet: SimFleet, robot_id: int) -> None:
         self.fleet = fleet
         self.robot_id = robot_id
         self.sim: SimRobot | None = None
-        self.seen: set[str] = set()
-        self.pending: deque[Action] = deque()
-        self.finished_ids: deque[str] = deque(maxlen=64)
-        self.paused = False
+        self.session = RobotSession(robot_id)
         self.connected = asyncio.Event()
         self.plan = -1
         """Plan of the latest started action (with :attr:`next_action`: first not started)."""
         self.next_action = 0
         self._conn: ClientConnection | None = None
         self._outbox: asyncio.Queue[str | None] = asyncio.Queue()
-        self._seq = itertools.count()
         self._timer: asyncio.TimerHandle | None = None
-        self._state_period_ms = 5000.0
         self._state_timer: asyncio.TimerHandle | None = None
         self._rng = random.Random(f"{fleet.seed}/{robot_id}")  # state phase, duration jitter
 
@@ -183,14 +176,15 @@ class FleetRobot:
 
     def place(self, cell: Cell) -> None:
         """Put the robot on ``cell`` for a new run: forget every action of the previous one."""
+        self._put(cell)
+        self.session.reset()
+        self.plan, self.next_action = -1, 0
+
+    def _put(self, cell: Cell) -> None:
         self.unplace()
         world = self.fleet.world
         world.occupy(cell, self.robot_id, self.fleet.clock.now_ms())
         self.sim = SimRobot(self.robot_id, world, cell, recheck_ms=self.fleet.recheck_ms)
-        self.seen.clear()
-        self.pending.clear()
-        self.finished_ids.clear()
-        self.plan, self.next_action = -1, 0
 
     # ------------------------------------------------------------------ connection
     async def run(self) -> None:
@@ -209,12 +203,14 @@ class FleetRobot:
             self._conn = conn
             writer = asyncio.create_task(self._write(conn))
             try:
-                self._send(self._hello())
+                self.session.connected(self._pose())
+                self._pump()
                 await self._read(conn)
             except ConnectionClosed:
                 pass
             finally:
                 self._conn = None
+                self.session.disconnected()
                 self.connected.clear()
                 self._outbox.put_nowait(None)
                 await writer
@@ -229,36 +225,9 @@ class FleetRobot:
         if self._conn is not None:
             await self._conn.close(1011, "simulated link loss")
 
-    def _hello(self) -> Hello:
-        sim = self.sim
-        current = None
-        if sim is not None and sim.current is not None and sim.state in _RUNNING:
-            d = sim.current
-            current = Activity(action_id=f"{d.plan}.{d.robot}.{d.action}",
-                               state=_RUNNING[sim.state])  # type: ignore[arg-type]
-        held = [a.action_id for a in self.pending]
-        if current is not None:
-            held.insert(0, current.action_id)
-        return self._message(Hello, robot_id=self.robot_id, pose=self._pose(),
-                             acked=held[-256:], finished=list(self.finished_ids),
-                             current=current)
-
     def _pose(self) -> Pose | None:
         cell = self.cell
         return Pose(cell=cell) if cell is not None else None
-
-    def _message(self, kind: type[M], **fields: Any) -> M:
-        """A message with this robot's next msg_id/seq; not validated again (the fields are
-        built here from validated values), which halves the robot's cost per message."""
-        seq = next(self._seq)
-        return cast(M, kind.model_construct(msg_id=f"r{self.robot_id}-{seq}", seq=seq,
-                                            **fields))
-
-    def _send(self, message: AnyMessage) -> None:
-        """Queue a message on the live connection (dropped while disconnected: the next
-        ``hello`` carries what matters)."""
-        if self._conn is not None:
-            self._outbox.put_nowait(encode(message))
 
     async def _write(self, conn: ClientConnection) -> None:
         while True:
@@ -276,136 +245,106 @@ class FleetRobot:
             except ProtocolError as exc:
                 self.fleet.stats.errors.append(f"robot {self.robot_id} got a bad message: {exc}")
                 continue
-            self._on_message(msg)
+            self._before(msg)
+            self.session.receive(msg)
+            self._pump()
 
-    def _on_message(self, msg: AnyMessage) -> None:
-        match msg:
-            case Welcome():
-                self._welcome(msg)
-            case Action():
-                self._action(msg)
-            case CancelAction():
-                self._cancel(msg.action_id)
-            case Pause():
-                self.paused = True
-            case Resume():
-                self.paused = False
-                self._feed()
-            case Error():
-                self.fleet.stats.errors.append(f"robot {self.robot_id}: {msg.code}: {msg.detail}")
+    def _before(self, msg: AnyMessage) -> None:
+        """Place the robot before the session takes ``msg``: at its start on a first welcome,
+        and afresh when a new run's first action arrives."""
+        if isinstance(msg, Welcome):
+            if self.sim is None and msg.start is not None:
+                self.place(msg.start.cell)
+            actions = msg.resend
+        else:
+            actions = [msg] if isinstance(msg, Action) else []
+        for action in actions:
+            if action.sequence == 0 and parse_action_id(action.action_id)[0] == 0 \
+                    and self._new_run(action):
+                self.place(action.src.cell)
 
-    def _welcome(self, msg: Welcome) -> None:
-        self._state_period_ms = msg.state_period_ms
-        self.paused = msg.paused
-        if self.sim is None and msg.start is not None:
-            self.place(msg.start.cell)
-        self.connected.set()
-        self.fleet.on_connected(self.robot_id)
-        for action in msg.resend:
-            self._action(action)
-        self._feed()
-        if self.fleet.send_state:
-            self._schedule_state(first=True)
+    def _new_run(self, action: Action) -> bool:
+        """A first action of plan 0 arriving after this robot did anything, or before it was
+        placed, starts a new run (the operator loaded and started another instance)."""
+        s = self.session
+        return self.sim is None or (
+            self.sim.current is None and bool(s.finished or s.queue)
+            and not s.knows(action.action_id))
+
+    # ------------------------------------------------------------------ session effects
+    def _pump(self) -> None:
+        """Start what may start, and carry out the session's effects until there are none."""
+        while True:
+            self._feed()
+            effects = self.session.drain()
+            if not effects:
+                return
+            for effect in effects:
+                self._effect(effect)
+
+    def _effect(self, effect: RobotEffect) -> None:
+        stats = self.fleet.stats
+        match effect:
+            case Send(message=msg):
+                if self._conn is not None:
+                    self._outbox.put_nowait(encode(msg))
+                    if isinstance(msg, Finished):
+                        stats.finish_sent[msg.action_id] = time.perf_counter()
+            case Received(action=action, duplicate=duplicate):
+                if duplicate:
+                    stats.duplicates += 1
+                else:
+                    stats.received.setdefault(action.action_id, time.perf_counter())
+            case Welcomed():
+                self.connected.set()
+                self.fleet.on_connected(self.robot_id)
+                if self.fleet.send_state:
+                    self._schedule_state(first=True)
+            case Abort(action_id=aid):
+                sim = self.sim
+                if sim is not None and sim.current is not None:
+                    plan, _, index = parse_action_id(aid)
+                    sim.cancel(plan, index, self._now())  # its "cancelled" is the session's
+                    self._reschedule()
+            case GatewayError(error=err):
+                stats.errors.append(f"robot {self.robot_id}: {err.code}: {err.detail}")
+            case Refused(action=action, reason=reason):
+                stats.errors.append(f"robot {self.robot_id} refused {action.action_id}: "
+                                    f"{reason}")
 
     def _schedule_state(self, first: bool = False) -> None:
         """The next ``state`` report; the first at a random phase of the period, so that a
         fleet that connected at once does not report all at once."""
         if self._state_timer is not None:
             self._state_timer.cancel()
-        period = self._state_period_ms * (self._rng.random() if first else 1.0)
+        period = self.session.state_period_ms * (self._rng.random() if first else 1.0)
         delay = period / self.fleet.clock.speed / 1000.0
 
         def fire() -> None:
             self._state_timer = None
             if self._conn is None or self.fleet.stopping:
                 return
-            self._send(self._state())
+            self.session.state(self._pose())
+            self._pump()
             self._schedule_state()
 
         self._state_timer = asyncio.get_running_loop().call_later(delay, fire)
 
-    def _state(self) -> State:
-        sim = self.sim
-        activity: Any = "idle"
-        current = None
-        if self.paused:
-            activity = "paused"
-        elif sim is not None and sim.current is not None and sim.state in _RUNNING:
-            d = sim.current
-            activity = _RUNNING[sim.state]
-            current = Activity(action_id=f"{d.plan}.{d.robot}.{d.action}", state=activity)
-        elif self.pending:
-            activity = "received"
-        return self._message(State, robot_id=self.robot_id, pose=self._pose(),
-                             activity=activity, current=current)
-
-    # ------------------------------------------------------------------ actions
-    def _action(self, action: Action) -> None:
-        aid = action.action_id
-        self._send(self._message(Ack, action_id=aid))
-        stats = self.fleet.stats
-        if aid in self.seen:
-            stats.duplicates += 1
-            return
-        if action.sequence == 0 and parse_action_id(aid)[0] == 0 and self._new_run(action):
-            self.place(action.src.cell)
-        self.seen.add(aid)
-        stats.received.setdefault(aid, time.perf_counter())
-        self.pending.append(action)
-        self._feed()
-
-    def _new_run(self, action: Action) -> bool:
-        """A first action of plan 0 arriving after this robot did anything, or before it was
-        placed, starts a new run (the operator loaded and started another instance)."""
-        return self.sim is None or (
-            self.sim.current is None and bool(self.seen) and action.action_id not in self.seen)
-
-    def _cancel(self, aid: str) -> None:
-        """Drop a held action that has not started moving and confirm; a moving robot
-        finishes instead. A cancelled action may be dispatched again (an abandoned replan),
-        so it is no longer a duplicate. The actions queued behind a dropped one cannot run
-        without it: they are dropped too, and confirmed when their own cancel arrives (the
-        gateway cancels every queued action of a robot at once)."""
-        ids = [a.action_id for a in self.pending]
-        if aid in ids:
-            self._drop_pending(ids.index(aid))
-            self._report_one("cancelled", aid)
-            return
-        sim = self.sim
-        if sim is not None and sim.current is not None:
-            d = sim.current
-            if f"{d.plan}.{d.robot}.{d.action}" == aid:
-                events = sim.cancel(d.plan, d.action, self._now())
-                if events:
-                    self.seen.discard(aid)
-                    self._drop_pending(0)
-                self._emit(events)
-                self._reschedule()
-                self._feed()
-                return
-        if aid not in self.seen:  # not held here (e.g. the robot restarted): confirm
-            self._report_one("cancelled", aid)
-
-    def _drop_pending(self, first: int) -> None:
-        """Forget the pending actions from position ``first`` on."""
-        while len(self.pending) > first:
-            self.seen.discard(self.pending.pop().action_id)
-
+    # ------------------------------------------------------------------ the body
     def _feed(self) -> None:
-        """Hand the next pending action to the robot if it is idle and may move."""
+        """Hand the next action to the robot if it is idle and the session lets it start."""
         sim = self.sim
-        if (sim is None or sim.state is not RobotState.IDLE or not self.pending or self.paused
-                or self._conn is None):
+        if sim is None or sim.state is not RobotState.IDLE:
             return
-        action = self.pending.popleft()
+        action = self.session.take()
+        if action is None:
+            return
         plan, robot, index = parse_action_id(action.action_id)
         if sim.cell != action.src.cell:
             self.fleet.stats.errors.append(
                 f"robot {self.robot_id} is on {sim.cell} but {action.action_id} starts at "
                 f"{action.src.cell}: moved there")
-            seen = set(self.seen)
-            self.place(action.src.cell)  # a simulated robot follows the plan it is given
-            self.seen = seen
+            self._put(action.src.cell)  # a simulated robot follows the plan it is given
             sim = self.sim
             assert sim is not None
         d = Dispatch(plan, robot, index, action.src.cell, action.dst.cell, action.duration_ms)
@@ -436,24 +375,15 @@ class FleetRobot:
             return
         self._emit(sim.wake(max(due, self._now())))
         self._reschedule()
-        self._feed()
+        self._pump()
 
     def _emit(self, events: list[RobotEvent]) -> None:
+        pose = self._pose()
         for e in events:
-            aid = f"{e.plan}.{e.robot}.{e.action}"
             if e.kind == "started" and e.plan >= self.plan:
                 self.plan, self.next_action = e.plan, e.action + 1
-            elif e.kind == "finished":
-                self.finished_ids.append(aid)
-            self._report_one(e.kind, aid)
-
-    def _report_one(self, kind: str, aid: str) -> None:
-        kinds: dict[str, type[AnyMessage]] = {
-            "started": Started, "finished": Finished, "blocked": Blocked,
-            "unblocked": Unblocked, "cancelled": Cancelled}
-        self._send(self._message(kinds[kind], action_id=aid, pose=self._pose()))
-        if kind == "finished" and self._conn is not None:
-            self.fleet.stats.finish_sent[aid] = time.perf_counter()
+            self.session.report(cast(ReportKind, e.kind), f"{e.plan}.{e.robot}.{e.action}",
+                                pose)
 
 
 class SimFleet:

@@ -1,0 +1,312 @@
+"""The robot's side of protocol v1 as a sans-I/O state machine (no I/O, no clock, no asyncio).
+
+A driver (the real robot's :mod:`robot_client.client`, the simulated robots of
+:mod:`sim_clients.fleet`) owns the link and the body. It tells the session when a link is up
+(:meth:`RobotSession.connected`) or gone (:meth:`RobotSession.disconnected`), feeds it every
+message from the gateway (:meth:`RobotSession.receive`) and every report of the body
+(:meth:`RobotSession.report`), asks it for the next action to execute
+(:meth:`RobotSession.take`), and sends / carries out what :meth:`RobotSession.drain` returns, in
+order. The rules, written once here for every robot:
+
+* ``hello`` on every new link: pose, the actions held (acknowledged, not finished), the recent
+  finishes (:data:`HISTORY` of them: their reports may have been lost) and the current activity;
+* every ``action`` is acknowledged; a duplicate (held, current or recently finished) is
+  acknowledged again but never executed twice, and a duplicate of a finished action gets its
+  ``finished`` again (the gateway resends an action only if it has no finish for it);
+* actions are held in a queue and executed strictly in index order, one after the other, and
+  only while the robot is welcomed on a live link and not paused (on link loss the current
+  action completes, nothing new starts);
+* ``cancel`` of a queued action drops it and every action queued behind it (they cannot run
+  without it), each confirmed with ``cancelled`` and forgotten (an abandoned replan may
+  dispatch it again); ``cancel`` of the current action drops it only while it waits for its
+  cell (``blocked``): a moving robot finishes; a cancel of anything else is stale and ignored;
+* ``pause`` / ``resume`` stop and allow new starts (a running move completes);
+* reports (``started``, ``finished``, ``blocked``, ``unblocked``) are sent while a link is up;
+  what a link loss swallows is carried by the next ``hello``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar
+
+from protocol.messages import (
+    Ack,
+    Action,
+    Activity,
+    AnyMessage,
+    Blocked,
+    CancelAction,
+    Cancelled,
+    Error,
+    Finished,
+    Hello,
+    Pause,
+    Pose,
+    Resume,
+    RobotActivity,
+    RobotMessage,
+    Started,
+    State,
+    Unblocked,
+    Welcome,
+)
+
+HISTORY = 256
+"""How many finished action ids a robot remembers (for ``hello`` and duplicate detection); the
+longest list a ``hello`` may carry."""
+
+ReportKind = Literal["started", "finished", "blocked", "unblocked"]
+_REPORTS: dict[str, type[Started | Finished | Blocked | Unblocked | Cancelled]] = {
+    "started": Started, "finished": Finished, "blocked": Blocked, "unblocked": Unblocked,
+    "cancelled": Cancelled}
+
+M = TypeVar("M", bound=AnyMessage)
+
+
+@dataclass(frozen=True, slots=True)
+class Send:
+    """Send ``message`` to the gateway (in the order drained)."""
+
+    message: RobotMessage
+
+
+@dataclass(frozen=True, slots=True)
+class Abort:
+    """The body must drop its current action ``action_id`` (it waits for its cell and has not
+    moved); the session already confirmed it with ``cancelled``."""
+
+    action_id: str
+
+
+@dataclass(frozen=True, slots=True)
+class Welcomed:
+    """The gateway welcomed the robot on this link."""
+
+    welcome: Welcome
+
+
+@dataclass(frozen=True, slots=True)
+class Received:
+    """An action arrived; ``duplicate`` if the robot held or finished it already."""
+
+    action: Action
+    duplicate: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Refused:
+    """An action the robot's body cannot execute (``reason``): not acknowledged, not held."""
+
+    action: Action
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class GatewayError:
+    """The gateway refused one of the robot's messages."""
+
+    error: Error
+
+
+RobotEffect = Send | Abort | Welcomed | Received | Refused | GatewayError
+"""What :meth:`RobotSession.drain` hands to the driver."""
+
+
+class RobotSession:
+    """One robot's protocol state across links (see module doc).
+
+    ``check`` may refuse an action the body cannot execute (raise ValueError with the reason).
+    Messages get ``msg_id`` ``"<msg_prefix><n>"`` (``n`` counts every message of the session,
+    so ids stay unique across links) and ``seq`` counting from 0 on each link.
+    """
+
+    def __init__(self, robot_id: int, *, msg_prefix: str | None = None,
+                 check: Callable[[Action], None] | None = None) -> None:
+        self.robot_id = robot_id
+        self.pose: Pose | None = None
+        """The latest pose the driver gave (sent in messages that need one)."""
+        self.link_up = False
+        self.welcomed = False
+        """Welcomed on the current link (actions start only then)."""
+        self.paused = False
+        self.state_period_ms = 5000.0
+        self.welcomes = 0
+        self.duplicates = 0
+        self.queue: deque[Action] = deque()
+        """Actions acknowledged and not started, in index order."""
+        self.current: str | None = None
+        """The action taken by the body and not finished (or dropped)."""
+        self.phase: Literal["received", "running", "blocked"] = "received"
+        self._finished: dict[str, None] = {}  # insertion-ordered, at most HISTORY
+        self._queued: set[str] = set()
+        self._check = check
+        self._prefix = msg_prefix if msg_prefix is not None else f"r{robot_id}-"
+        self._ids = itertools.count()
+        self._seq = 0
+        self._out: list[RobotEffect] = []
+
+    # ------------------------------------------------------------------ what it holds
+    @property
+    def finished(self) -> list[str]:
+        """The recently finished action ids, oldest first (at most :data:`HISTORY`)."""
+        return list(self._finished)
+
+    def knows(self, action_id: str) -> bool:
+        """Whether ``action_id`` is held, current or recently finished (a duplicate)."""
+        return (action_id in self._queued or action_id == self.current
+                or action_id in self._finished)
+
+    def activity(self) -> Activity | None:
+        """The action the robot holds and what it does with it."""
+        if self.current is not None:
+            return Activity(action_id=self.current, state=self.phase)
+        if self.queue:
+            return Activity(action_id=self.queue[0].action_id, state="received")
+        return None
+
+    def reset(self) -> None:
+        """Forget every action (a new run starts from scratch); the link stays as it is."""
+        self.queue.clear()
+        self._queued.clear()
+        self._finished.clear()
+        self.current = None
+        self.phase = "received"
+
+    # ------------------------------------------------------------------ link
+    def connected(self, pose: Pose | None = None) -> None:
+        """A new link is up: say ``hello`` with a snapshot of what the robot holds and did."""
+        if pose is not None:
+            self.pose = pose
+        self.link_up, self.welcomed, self._seq = True, False, 0
+        held = [a.action_id for a in self.queue]
+        if self.current is not None:
+            held.insert(0, self.current)
+        self._send(Hello, robot_id=self.robot_id, pose=self.pose, acked=held[-HISTORY:],
+                   finished=list(self._finished), current=self.activity())
+
+    def disconnected(self) -> None:
+        """The link is gone: nothing is sent and nothing new starts until the next welcome."""
+        self.link_up = self.welcomed = False
+
+    # ------------------------------------------------------------------ from the gateway
+    def receive(self, msg: AnyMessage) -> None:
+        """Handle one message from the gateway."""
+        if isinstance(msg, Action):
+            self._action(msg)
+        elif isinstance(msg, CancelAction):
+            self._cancel(msg.action_id)
+        elif isinstance(msg, Welcome):
+            self.welcomed = self.link_up
+            self.welcomes += 1
+            self.paused = msg.paused
+            self.state_period_ms = msg.state_period_ms
+            self._out.append(Welcomed(msg))
+            for action in msg.resend:
+                self._action(action)
+        elif isinstance(msg, Pause):
+            self.paused = True
+        elif isinstance(msg, Resume):
+            self.paused = False
+        elif isinstance(msg, Error):
+            self._out.append(GatewayError(msg))
+
+    def _action(self, msg: Action) -> None:
+        aid = msg.action_id
+        if self.knows(aid):
+            self.duplicates += 1
+            self._out.append(Received(msg, True))
+            self._send(Ack, action_id=aid)
+            if aid in self._finished:
+                self._send(Finished, action_id=aid, pose=self.pose)
+            return
+        if self._check is not None:
+            try:
+                self._check(msg)
+            except ValueError as exc:
+                self._out.append(Refused(msg, str(exc)))
+                return
+        self.queue.append(msg)
+        self._queued.add(aid)
+        self._out.append(Received(msg, False))
+        self._send(Ack, action_id=aid)
+
+    def _cancel(self, aid: str) -> None:
+        if aid in self._queued:
+            ids = [a.action_id for a in self.queue]
+            self._drop_queue(ids.index(aid))
+        elif aid == self.current and self.phase == "blocked":
+            self._out.append(Abort(aid))
+            self.current = None
+            self._confirm(aid)
+            self._drop_queue(0)
+
+    def _drop_queue(self, first: int) -> None:
+        """Drop the queued actions from position ``first`` on, each confirmed."""
+        dropped = [self.queue.pop().action_id for _ in range(len(self.queue) - first)]
+        for aid in reversed(dropped):
+            self._queued.discard(aid)
+            self._confirm(aid)
+
+    def _confirm(self, aid: str) -> None:
+        self._send(Cancelled, action_id=aid, pose=self.pose)
+
+    # ------------------------------------------------------------------ from the body
+    def take(self) -> Action | None:
+        """The next action for an idle body, if it may start one now (welcomed on a live
+        link, not paused, nothing current); it becomes the current action."""
+        if (self.current is not None or not self.queue or not self.welcomed
+                or self.paused):
+            return None
+        action = self.queue.popleft()
+        self._queued.discard(action.action_id)
+        self.current, self.phase = action.action_id, "received"
+        return action
+
+    def report(self, kind: ReportKind, action_id: str, pose: Pose | None = None) -> None:
+        """The body reports ``kind`` about its current action (sent if a link is up)."""
+        if pose is not None:
+            self.pose = pose
+        if kind == "finished":
+            if action_id == self.current:
+                self.current = None
+            self._finished[action_id] = None
+            if len(self._finished) > HISTORY:
+                del self._finished[next(iter(self._finished))]
+        elif action_id == self.current:
+            self.phase = "running" if kind == "started" else (
+                "blocked" if kind == "blocked" else "received")
+        self._send(_REPORTS[kind], action_id=action_id, pose=self.pose)
+
+    def state(self, pose: Pose | None = None, *, battery: float | None = None,
+              held_up: bool = False) -> None:
+        """Send a ``state`` snapshot; ``held_up``: the current move is paused by the body (a
+        bumper), reported as activity ``blocked``."""
+        if pose is not None:
+            self.pose = pose
+        current = self.activity()
+        if held_up and self.current is not None:
+            current = Activity(action_id=self.current, state="blocked")
+        activity: RobotActivity = current.state if current is not None else (
+            "paused" if self.paused else "idle")
+        self._send(State, robot_id=self.robot_id, pose=self.pose, activity=activity,
+                   current=current, battery=battery)
+
+    # ------------------------------------------------------------------ effects
+    def _send(self, kind: type[M], **fields: Any) -> None:
+        """Queue a message if a link is up. Built without validating again (every field comes
+        from validated values), which halves a simulated robot's cost per message."""
+        if not self.link_up:
+            return
+        n = next(self._ids)
+        message = kind.model_construct(msg_id=f"{self._prefix}{n}", seq=self._seq, **fields)
+        self._seq += 1
+        self._out.append(Send(message))  # type: ignore[arg-type]
+
+    def drain(self) -> list[RobotEffect]:
+        """What the driver must do, in order, since the last call (then forgotten)."""
+        out, self._out = self._out, []
+        return out
