@@ -15,7 +15,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from protocol import (
-    Ack,
     Action,
     AnyMessage,
     CancelAction,
