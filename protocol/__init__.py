@@ -9,6 +9,10 @@ Roles are fixed at the websocket handshake by the token (``Authorization: Bearer
 ``?token=``): a robot token is bound to one ``robot_id``; operator and world tokens have their
 own role. A message that its sender's role may not send is refused with ``forbidden``.
 
+Both ends of the robot session are sans-I/O state machines in this package, written once:
+:class:`protocol.robot_session.RobotSession` (every robot implementation) and
+:class:`protocol.gateway_session.GatewaySession` (the gateway, one per robot).
+
 Robot session (borrowed from VDA 5050: release only what may be driven now, explicit
 cancel/pause/resume, state snapshots that make reconnecting simple, coded rejections)::
 
@@ -37,8 +41,10 @@ execute its actions strictly in the order of their index and start action i+1 on
 finished action i; the gateway refuses (``rejected``) a report about an action queued behind
 one that has not finished. A ``cancel`` of a queued action also voids every action queued
 behind it (the gateway cancels all of them at once; each is confirmed with ``cancelled``).
-The gateway resends, in ``welcome.resend``, every dispatched action it has no ``finished`` for,
-in index order. On link loss a robot
+The gateway resends, in ``welcome.resend`` and in index order, only the dispatched actions it has
+no ``finished`` for that the robot's ``hello`` does not report holding (``acked`` or
+``current``): an acknowledged action the robot still holds is never sent twice, one it lost is.
+On link loss a robot
 finishes its current move and stops; the gateway holds that robot's ADG steps until it is back.
 A ``finished`` for an action already applied gets ``error(duplicate)`` and changes nothing;
 ``hello.finished`` lets a robot report finishes whose messages were lost.

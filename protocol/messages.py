@@ -99,7 +99,7 @@ class Hello(Envelope):
 
     ``acked`` are ids of actions it holds (received, not finished); ``finished`` ids of actions
     it finished (at least those whose ``finished`` report may have been lost). The gateway
-    applies missing finishes and answers with ``welcome``.
+    applies missing finishes and answers with ``welcome``, resending only what it does not hold.
     """
 
     type: Literal["hello"] = "hello"
@@ -192,9 +192,10 @@ class Action(Envelope):
 class Welcome(Envelope):
     """Answer to ``hello``: the robot's assigned start and the actions it must (re)execute.
 
-    ``resend`` holds every dispatched action the gateway has no ``finished`` for, in order
-    (each with ``msg_id`` ``"resend-<action_id>"`` and ``seq`` 0); the robot executes those it
-    does not hold yet and drops the others. Cancels still owed follow as ``cancel`` messages.
+    ``resend`` holds, in order, every dispatched action the gateway has no ``finished`` for and
+    that the ``hello`` did not report held (``acked``, ``current``), each with ``msg_id``
+    ``"resend-<action_id>"`` and ``seq`` 0; a robot drops any it holds already. Cancels still
+    owed follow as ``cancel`` messages.
     """
 
     type: Literal["welcome"] = "welcome"

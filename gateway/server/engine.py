@@ -6,9 +6,10 @@ and routes what the executor drains into the sessions' send queues. It also tick
 every ``MONITOR_PERIOD_MS`` while running, and runs the planner off-loop (the clock decides how)
 while events keep queueing; the result comes back as a queue item.
 
-Robot bookkeeping kept here (the executor knows none of it): which actions each robot holds
-(dispatched, not finished or cancelled), which it acknowledged, and which were applied, so a
-second ``finished`` is refused as a duplicate and a reconnecting robot is resent what it holds.
+The robot side of the protocol (handshake, acknowledgements, duplicates, what a reconnect
+catches up and resends) is one :class:`~protocol.gateway_session.GatewaySession` per robot; the
+engine only routes its effects: messages to the robot's connection, refusals to the sender,
+reports to the executor (answering the session whether the executor took them).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import IO, Any, Literal
+from typing import IO, Any, Literal, cast
 
 from gateway.execution.commands import (
     Cancel,
@@ -56,14 +57,11 @@ from gateway.server.planner import (
     problem_from_paths,
     resolve_instance,
 )
-from gateway.server.robots import Held, RobotRecord
 from gateway.server.session import Session
 from gateway.server.views import snapshot_fields
 from protocol import (
     Ack,
-    Action,
     Blocked,
-    CancelAction,
     Cancelled,
     ErrorCode,
     Event,
@@ -88,15 +86,12 @@ from protocol import (
     Started,
     State,
     Unblocked,
-    Welcome,
     action_id,
-    parse_action_id,
 )
+from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot
 from protocol.messages import GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
-
-ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled"]
 
 GC_THRESHOLDS = (100_000, 50, 100)
 """The process's garbage-collector thresholds once a run starts (Python's default: 700, 10,
@@ -127,7 +122,7 @@ class Engine:
         self.executor: Executor | None = None
         self.planning = False
         self.paused = False
-        self.robots: dict[int, RobotRecord] = {}
+        self.robots: dict[int, GatewaySession] = {}
         self._online: set[int] = set()  # robots with a live session (O(1) autostart check)
         self.operators: set[Session] = set()
         self.worlds: set[Session] = set()
@@ -177,12 +172,12 @@ class Engine:
         """How many robots are connected (said hello on a live connection)."""
         return len(self._online)
 
-    def robot(self, r: int) -> RobotRecord:
-        """The record of robot ``r`` (created on first use)."""
-        rec = self.robots.get(r)
-        if rec is None:
-            rec = self.robots[r] = RobotRecord()
-        return rec
+    def robot(self, r: int) -> GatewaySession:
+        """The protocol session of robot ``r`` (created on first use)."""
+        gs = self.robots.get(r)
+        if gs is None:
+            gs = self.robots[r] = GatewaySession(r)
+        return gs
 
     # -------------------------------------------------------------------------- the loop
     async def run(self) -> None:
@@ -283,15 +278,12 @@ class Engine:
         self.metrics.connections.labels(peer.role).dec()
         self.operators.discard(session)
         self.worlds.discard(session)
-        if peer.robot_id is not None:
-            rec = self.robot(peer.robot_id)
-            if rec.session is session:
-                rec.session = None
-                self._online.discard(peer.robot_id)
-                self.metrics.connected_robots.dec()
-                self._broadcast_event("connection", self.clock.now_ms(), robot=peer.robot_id,
-                                      state="off")
-                log.info("robot disconnected", extra={"robot": peer.robot_id})
+        r = peer.robot_id
+        if r is not None and r in self.robots and self.robots[r].disconnected(session):
+            self._online.discard(r)
+            self.metrics.connected_robots.dec()
+            self._broadcast_event("connection", self.clock.now_ms(), robot=r, state="off")
+            log.info("robot disconnected", extra={"robot": r})
 
     # -------------------------------------------------------------------------- inbound
     def _inbound(self, item: Inbound) -> None:
@@ -300,66 +292,44 @@ class Engine:
             case Hello():
                 self._hello(session, msg)
             case Ack():
-                self._ack(session, msg.action_id, msg.msg_id)
+                gs = self._sender(session)
+                gs.ack(msg.action_id, msg.msg_id, session)
+                self._flush(gs, session)
             case Started() | Finished() | Blocked() | Unblocked() | Cancelled():
                 self._report(session, msg, item.received, item.at_ms)
             case State():
-                r = self._robot_of(session)
-                if r is not None and msg.pose is not None:
-                    self.robot(r).pose = msg.pose
+                self._sender(session).state(msg.pose, session)
             case IntruderReport():
                 self._intruder(msg)
             case _:
                 self._command(msg, session)  # type: ignore[arg-type]
 
-    def _robot_of(self, session: Session) -> int | None:
-        """The robot a session speaks for, if it said hello and was not replaced since."""
+    def _sender(self, session: Session) -> GatewaySession:
+        """The protocol session of the robot a connection speaks for."""
         r = session.peer.robot_id
-        if r is None or self.robot(r).session is not session:
-            return None
-        return r
+        assert r is not None, "only robots send robot messages"
+        return self.robot(r)
 
     def _hello(self, session: Session, msg: Hello) -> None:
         r = msg.robot_id
-        rec = self.robot(r)
-        if rec.session is not None:  # a reconnect, or a second hello on this connection
-            if rec.session is not session:
-                rec.session.close(4000, "replaced by a new connection of the same robot")
+        gs = self.robot(r)
+        old = gs.link
+        if old is not None:  # a reconnect, or a second hello on this connection
+            if old is not session:
+                cast(Session, old).close(4000, "replaced by a new connection of the same robot")
+            self._online.discard(r)
             self.metrics.connected_robots.dec()
-        rec.session = None  # dispatches unlocked below are resent in the welcome
-        self._online.discard(r)
-        if msg.pose is not None:
-            rec.pose = msg.pose
         now = self.now_ms()
-        for aid in msg.finished:
-            if aid in rec.held:
-                self._catch_up(r, rec, aid, "finished", now)
-        running = msg.current.action_id if msg.current and msg.current.state == "running" \
-            else None
-        if msg.current is not None and msg.current.action_id in rec.held:
-            h = rec.held[msg.current.action_id]
-            if msg.current.state == "running" and h.phase != "running":
-                self._catch_up(r, rec, msg.current.action_id, "started", now)
-            elif msg.current.state == "blocked" and h.phase == "dispatched":
-                self._catch_up(r, rec, msg.current.action_id, "blocked", now)
-        for aid, h in list(rec.held.items()):
-            if h.cancel and h.phase != "running" and aid != running:
-                self._catch_up(r, rec, aid, "cancelled", now)
-        if self.executor is not None:
-            self._route(self.executor.drain())  # unlocked actions go into the resend list
-        rec.session = session
+        gs.hello(msg, now)
+        self._flush(gs, session)  # catch-ups; what they unlock is held for the resend
+        resent = gs.welcome(session, start=self._start_pose(r),
+                            plan=self.executor.plan_id if self.executor else None,
+                            state_period_ms=self.config.state_period_ms, paused=self.paused)
+        self._flush(gs, session)
         self._online.add(r)
         self.metrics.connected_robots.inc()
-        resend = [Action(msg_id=f"resend-{aid}", seq=0, **h.fields)
-                  for aid, h in rec.held.items()]
-        session.send(Welcome, robot_id=r, start=self._start_pose(r),
-                     plan=self.executor.plan_id if self.executor else None, resend=resend,
-                     state_period_ms=self.config.state_period_ms, paused=self.paused)
-        for aid, h in rec.held.items():
-            if h.cancel:
-                session.send(CancelAction, action_id=aid)
         self._broadcast_event("connection", now, robot=r, state="on")
-        log.info("robot connected", extra={"robot": r, "resent": len(resend)})
+        log.info("robot connected", extra={"robot": r, "resent": resent})
         self._maybe_autostart()
 
     def _start_pose(self, r: int) -> Pose | None:
@@ -369,87 +339,52 @@ class Engine:
             return None
         return Pose(cell=plan.paths[r][0])
 
-    def _catch_up(self, r: int, rec: RobotRecord, aid: str, kind: ReportKind,
-                  now: float) -> None:
-        """Apply what a reconnecting robot reports it did while it was away."""
-        try:
-            if kind == "finished" and rec.held[aid].phase != "running":
-                self._apply(r, rec, aid, "started", now)
-            self._apply(r, rec, aid, kind, now)
-        except ExecutionError as exc:
-            log.warning("hello: cannot apply %s of %s: %s", kind, aid, exc)
-
-    def _ack(self, session: Session, aid: str, ref: str) -> None:
-        r = self._robot_of(session)
-        if r is None:
-            session.error(ErrorCode.BAD_STATE, ref, "say hello first")
-            return
-        rec = self.robot(r)
-        if aid in rec.held:
-            rec.held[aid].acked = True
-        elif aid not in rec.applied:
-            session.error(ErrorCode.UNKNOWN_ACTION, ref,
-                          f"action {aid} was never dispatched to robot {r}")
-
     def _report(self, session: Session,
                 msg: Started | Finished | Blocked | Unblocked | Cancelled,
                 received: float, at_ms: float | None = None) -> None:
-        kind: ReportKind = msg.type
-        r = self._robot_of(session)
-        if r is None:
-            session.error(ErrorCode.BAD_STATE, msg.msg_id, "say hello first")
-            return
-        rec = self.robot(r)
-        if msg.pose is not None:
-            rec.pose = msg.pose
-        aid: str = msg.action_id
-        if aid in rec.applied:
-            session.error(ErrorCode.DUPLICATE, msg.msg_id,
-                          f"{kind} of {aid}: the action was already {rec.applied[aid]}")
-            return
-        held = rec.held.get(aid)
-        if held is None or self.executor is None:
-            session.error(ErrorCode.UNKNOWN_ACTION, msg.msg_id,
-                          f"{kind} of {aid}: never dispatched to robot {r}")
-            return
-        if (kind, held.phase) in (("started", "running"), ("blocked", "blocked")):
-            session.error(ErrorCode.DUPLICATE, msg.msg_id, f"{aid} is already {held.phase}")
-            return
+        gs = self._sender(session)
+        ex = self.executor
+        now = self.now_ms() if at_ms is None or ex is None else max(at_ms, ex.now_ms)
         try:
-            self._unlocked_at = received if kind == "finished" else None
-            now = self.now_ms() if at_ms is None else max(at_ms, self.executor.now_ms)
-            self._apply(r, rec, aid, kind, now)
-            self._route(self.executor.drain())
-        except ExecutionError as exc:
-            session.error(ErrorCode.REJECTED, msg.msg_id, str(exc))
+            self._unlocked_at = received if msg.type == "finished" else None
+            gs.report(msg.type, msg.action_id, msg.msg_id, session, now, msg.pose)
+            self._flush(gs, session)
         finally:
             self._unlocked_at = None
 
-    def _apply(self, r: int, rec: RobotRecord, aid: str, kind: ReportKind, now: float) -> None:
-        """Feed one robot event to the executor and update the robot's record."""
+    def _flush(self, gs: GatewaySession, sender: Session | None = None) -> None:
+        """Carry out a robot session's effects: messages to its connection, refusals to the
+        ``sender`` of the message being handled, reports to the executor."""
+        while effects := gs.drain():
+            for e in effects:
+                if isinstance(e, ToRobot):
+                    if gs.link is not None:
+                        cast(Session, gs.link).send(e.kind, **e.fields)
+                elif isinstance(e, Refuse):
+                    if sender is not None:
+                        sender.error(e.code, e.ref, e.detail)
+                else:
+                    self._apply(gs, e)
+
+    def _apply(self, gs: GatewaySession, r: Report) -> None:
+        """Feed one robot report to the executor; tell the session whether it was taken."""
         ex = self.executor
-        assert ex is not None
-        plan, _, index = parse_action_id(aid)
-        held = rec.held[aid]
-        if kind == "started":
-            ex.started(r, plan, index, now)
-            held.phase = "running"
-        elif kind == "blocked":
-            ex.blocked(r, plan, index, now)
-            held.phase = "blocked"
-        elif kind == "unblocked":
-            ex.unblocked(r, plan, index, now)
-            held.phase = "dispatched"
-        elif kind == "finished":
-            ex.finished(r, plan, index, now)
-            del rec.held[aid]
-            rec.applied[aid] = "finished"
-            rec.next_index = max(rec.next_index, index + 1)
+        if ex is None:
+            gs.rejected(r, "no execution is running")
+            return
+        apply = {"started": ex.started, "finished": ex.finished, "blocked": ex.blocked,
+                 "unblocked": ex.unblocked, "cancelled": ex.cancelled}[r.kind]
+        try:
+            apply(r.robot, r.plan, r.index, r.t_ms)
+        except ExecutionError as exc:
+            if r.ref is None:
+                log.warning("hello: cannot apply %s of %s: %s", r.kind, r.action_id, exc)
+            gs.rejected(r, str(exc))
+            return
+        gs.accepted(r)
+        if r.kind == "finished":
             self.metrics.finished.inc()
-        else:
-            ex.cancelled(r, plan, index, now)
-            del rec.held[aid]
-            rec.applied[aid] = "cancelled"
+        self._route(ex.drain())
 
     def _intruder(self, msg: IntruderReport) -> None:
         cell = (int(msg.cell[0]), int(msg.cell[1]))
@@ -469,12 +404,9 @@ class Engine:
             if isinstance(c, Dispatch):
                 self._dispatch(c)
             elif isinstance(c, Cancel):
-                aid = action_id(c.plan, c.robot, c.action)
-                rec = self.robot(c.robot)
-                if aid in rec.held:
-                    rec.held[aid].cancel = True
-                if rec.session is not None:
-                    rec.session.send(CancelAction, action_id=aid)
+                gs = self.robot(c.robot)
+                gs.cancel(action_id(c.plan, c.robot, c.action))
+                self._flush(gs)
             elif isinstance(c, Trigger):
                 self.metrics.replans.inc()
                 log.info("replan triggered", extra={"policy": c.policy,
@@ -484,8 +416,8 @@ class Engine:
                 assert self.problem is not None
                 self._spawn_solver("replan", self.problem, c.starts, c.goals, None, None)
             elif isinstance(c, PlanAdopted):
-                for rec in self.robots.values():
-                    rec.next_index = 0
+                for gs in self.robots.values():
+                    gs.plan_adopted()
                 self._status_changed()
             elif isinstance(c, Completed):
                 self._completed(c)
@@ -496,11 +428,10 @@ class Engine:
             "action_id": aid, "sequence": c.action, "src": Pose(cell=c.src),
             "dst": Pose(cell=c.dst), "duration_ms": c.duration_ms,
         }
-        rec = self.robot(c.robot)
-        rec.held[aid] = Held(fields)
+        gs = self.robot(c.robot)
+        gs.dispatch(fields)
+        self._flush(gs)
         self.metrics.dispatched.inc()
-        if rec.session is not None:
-            rec.session.send(Action, **fields)
         if self._unlocked_at is not None:
             latency = (time.perf_counter() - self._unlocked_at) * 1000.0
             self.latencies_ms.append(latency)
@@ -674,12 +605,9 @@ class Engine:
 
     def _set_paused(self, paused: bool) -> None:
         self.paused = paused
-        for rec in self.robots.values():
-            if rec.session is not None:
-                if paused:
-                    rec.session.send(Pause, reason="operator")
-                else:
-                    rec.session.send(Resume)
+        for gs in self.robots.values():
+            gs.set_paused(paused)
+            self._flush(gs)
         self._status_changed()
 
     def _make_policy(self, plan: Plan) -> ReplanPolicy:
@@ -701,10 +629,8 @@ class Engine:
         self._spawn_solver("load", problem, inst.starts, inst.goals, reply, ref)
 
     def _loaded(self) -> None:
-        for rec in self.robots.values():
-            rec.held.clear()
-            rec.applied.clear()
-            rec.next_index = 0
+        for gs in self.robots.values():
+            gs.new_run()
         self.slack_series.clear()
         self.summary = None
         self._status_changed()
@@ -726,10 +652,8 @@ class Engine:
                 "loaded", "done"):
             raise CommandError(ErrorCode.BAD_STATE, f"cannot start while {self.status}")
         plan = self.problem.plan
-        for rec in self.robots.values():
-            rec.held.clear()
-            rec.applied.clear()
-            rec.next_index = 0
+        for gs in self.robots.values():
+            gs.new_run()
         self.slack_series.clear()
         self.replan_marks.clear()
         self.summary = None

@@ -49,7 +49,7 @@ def snapshot_fields(engine: Engine) -> dict[str, Any]:
             counts[h.phase] += 1
         counts["finished"] += rec.next_index if ex is not None else 0
         robots.append(RobotView(
-            robot_id=r, connected=rec.session is not None, cell=cell,
+            robot_id=r, connected=rec.connected, cell=cell,
             heading=rec.pose.heading if rec.pose is not None else None,
             activity=rec.activity(), action_id=held[0] if held else None, goal=goals[r],
             remaining=list(path[min(rec.next_index, len(path) - 1):]),

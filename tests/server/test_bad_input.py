@@ -64,7 +64,7 @@ def fingerprint(gw: Gateway) -> tuple[Any, ...]:
     assert ex is not None
     return (ex.plan_id, ex.mode, ex.replans, ex.robot_cell(0), ex.completion_ms(0),
             {k: (h.phase, h.acked, h.cancel) for k, h in rec.held.items()},
-            dict(rec.applied), rec.next_index, rec.session is not None)
+            dict(rec.applied), rec.next_index, rec.link is not None)
 
 
 def _msg(**fields: Any) -> str:
@@ -161,7 +161,7 @@ async def test_repeated_abuse_closes_the_connection(fleet: Fleet) -> None:
     assert codes == [ErrorCode.MALFORMED] * limit
     # the others finish their paths; robot 0's steps stay held (it vanished)
     await asyncio.wait_for(_until(lambda: [len(r.finished) for r in fleet.others] == [3, 2]), 10)
-    assert fleet.gw.engine.robot(0).session is None
+    assert fleet.gw.engine.robot(0).link is None
     assert "0.0.0" in fleet.gw.engine.robot(0).held
     assert fleet.gw.status == "running"
 

@@ -85,7 +85,7 @@ async def test_reconnect_resends_the_unacknowledged_action(gateway: Gateway) -> 
     await gw.command(Start(msg_id="s", seq=1))
     first = await robot.expect(Action)
     await robot.link.close()
-    await asyncio.wait_for(_until(lambda: gw.engine.robot(0).session is None), 5)
+    await asyncio.wait_for(_until(lambda: gw.engine.robot(0).link is None), 5)
     held = gw.engine.robot(0).held
     assert list(held) == [first.action_id] and not held[first.action_id].acked
     again = TestRobot(await ws(gw, "demo-robot-0"), 0)
@@ -107,7 +107,7 @@ async def test_finish_lost_with_the_link_is_recovered_from_hello(gateway: Gatewa
     await robot.expect(Action)
     await robot.send(Started, action_id="0.0.0")
     await robot.link.close()  # the finished report never makes it
-    await asyncio.wait_for(_until(lambda: gw.engine.robot(0).session is None), 5)
+    await asyncio.wait_for(_until(lambda: gw.engine.robot(0).link is None), 5)
     again = TestRobot(await ws(gw, "demo-robot-0"), 0)
     welcome = await again.hello(finished=["0.0.0"])
     assert [a.action_id for a in welcome.resend] == ["0.0.1"]
@@ -160,7 +160,7 @@ async def _silent_robot_is_dropped(gw: Gateway) -> None:
     await r0.expect(Action)
     r0.link.transport.pause_reading()  # type: ignore[attr-defined]  # pongs stop coming back
     # a ping every 0.5 s, 0.5 s to answer: the gateway gives up and holds the steps
-    await asyncio.wait_for(_until(lambda: gw.engine.robot(0).session is None), 10)
+    await asyncio.wait_for(_until(lambda: gw.engine.robot(0).link is None), 10)
     assert list(gw.engine.robot(0).held) == ["0.0.0"]
     assert gw.status == "running"
 

@@ -77,7 +77,7 @@ async def test_reconnect_resends_both_held_actions_in_order() -> None:
         assert first == ["0.0.0", "0.0.1"]
         await robot.send(Started, action_id="0.0.0")
         await robot.link.close()  # the finished report of 0.0.0 is lost with the link
-        await asyncio.wait_for(_until(lambda: gw.engine.robot(0).session is None), 5)
+        await asyncio.wait_for(_until(lambda: gw.engine.robot(0).link is None), 5)
         held = gw.engine.robot(0).held
         assert list(held) == first and not any(h.acked for h in held.values())
         again = TestRobot(await ws(gw, "demo-robot-0"), 0)

@@ -102,7 +102,7 @@ async def test_client_close_is_seen_by_the_gateway(transport: Transport) -> None
     async with asyncio.timeout(5):
         while transport.gw.engine.connected_robots():
             await asyncio.sleep(0.01)
-    assert transport.gw.engine.robot(1).session is None
+    assert transport.gw.engine.robot(1).link is None
 
 
 async def test_gateway_close_after_abuse_flushes_errors_first(transport: Transport) -> None:

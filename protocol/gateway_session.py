@@ -1,0 +1,302 @@
+"""The gateway's side of protocol v1 for one robot, as a sans-I/O state machine.
+
+One :class:`GatewaySession` per robot lives across that robot's connections. The driver (the
+gateway's engine) feeds it the robot's messages with the current plan time and the handle of
+the connection they came on, the executor's dispatches and cancels, and hands back what
+:meth:`GatewaySession.drain` returns, in order:
+
+* :class:`ToRobot`: a message for the robot's current connection;
+* :class:`Refuse`: an ``error`` reply to the sender of the message being handled;
+* :class:`Report`: a robot event for the executor. The driver applies it and answers
+  :meth:`GatewaySession.accepted` or :meth:`GatewaySession.rejected` (the bookkeeping changes
+  only once the executor took the event, so a refused report changes nothing).
+
+The rules, written once here:
+
+* a robot speaks after its ``hello`` on the connection it said it on; a new ``hello`` replaces
+  the old connection;
+* ``hello`` catches up what the robot did while away: its ``finished`` ids (a missing
+  ``started`` is applied first), its current action running or blocked, and the cancels it can
+  no longer confirm (it no longer holds the action); then the driver asks for the ``welcome``;
+* the ``welcome`` resends, in index order, ONLY the dispatched actions the robot does not hold:
+  those neither acknowledged in its ``hello`` (``acked``, ``current``) nor finished. An action
+  acknowledged on an earlier connection but missing from the ``hello`` was lost by the robot (a
+  restart) and is resent too. Cancels still owed for actions the robot holds follow the
+  welcome as ``cancel`` messages;
+* each ``ack`` is recorded; an ``ack`` of an action never dispatched is refused
+  (``unknown_action``);
+* a report about an applied action is a ``duplicate`` (a completion reported twice is applied
+  once), a report about an action never dispatched is ``unknown_action``, a repeated
+  ``started`` / ``blocked`` is a ``duplicate``; everything else goes to the executor, which may
+  still reject it (``rejected``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from protocol.messages import (
+    Action,
+    CancelAction,
+    ErrorCode,
+    Hello,
+    Pause,
+    Pose,
+    Resume,
+    RobotActivity,
+    ToRobotMessage,
+    Welcome,
+    parse_action_id,
+)
+
+ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled"]
+Phase = Literal["dispatched", "running", "blocked"]
+
+
+@dataclass(frozen=True, slots=True)
+class ToRobot:
+    """Send a message of type ``kind`` with ``fields`` on the robot's current connection."""
+
+    kind: type[ToRobotMessage]
+    fields: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class Refuse:
+    """Reply ``error(code, ref, detail)`` to the sender of the message being handled."""
+
+    code: ErrorCode
+    ref: str | None
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class Report:
+    """Robot ``robot`` reports ``kind`` of action ``index`` of plan ``plan`` at ``t_ms``;
+    ``ref`` is the report's msg_id (None for what a ``hello`` caught up)."""
+
+    kind: ReportKind
+    robot: int
+    plan: int
+    index: int
+    action_id: str
+    t_ms: float
+    ref: str | None
+
+
+GatewayEffect = ToRobot | Refuse | Report
+"""What :meth:`GatewaySession.drain` hands to the driver."""
+
+
+@dataclass
+class Held:
+    """An action the robot holds: dispatched, not finished or cancelled."""
+
+    fields: dict[str, Any]
+    phase: Phase = "dispatched"
+    acked: bool = False
+    cancel: bool = False
+
+
+@dataclass
+class GatewaySession:
+    """What the gateway knows about one robot, and its protocol rules (see module doc)."""
+
+    robot_id: int
+    link: object | None = None
+    """The driver's handle of the connection the robot said ``hello`` on (None: offline)."""
+    pose: Pose | None = None
+    held: dict[str, Held] = field(default_factory=dict)
+    applied: dict[str, str] = field(default_factory=dict)
+    """Action id -> "finished" / "cancelled", for the current run."""
+    next_index: int = 0
+    """Actions of the current plan finished."""
+    _out: list[GatewayEffect] = field(default_factory=list)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def connected(self) -> bool:
+        """Whether the robot is on a live connection."""
+        return self.link is not None
+
+    def activity(self) -> RobotActivity:
+        """What the robot is doing, as far as the gateway knows."""
+        if self.link is None:
+            return "disconnected"
+        for h in self.held.values():
+            return "received" if h.phase == "dispatched" else h.phase
+        return "idle"
+
+    def new_run(self) -> None:
+        """Forget the actions of the previous run."""
+        self.held.clear()
+        self.applied.clear()
+        self.next_index = 0
+
+    def drain(self) -> list[GatewayEffect]:
+        """What the driver must do, in order, since the last call (then forgotten)."""
+        out, self._out = self._out, []
+        return out
+
+    # ------------------------------------------------------------------ connections
+    def hello(self, msg: Hello, t_ms: float) -> None:
+        """The robot said hello (on a new connection): queue the catch-up reports. The driver
+        applies them, routes what the executor dispatches (:meth:`dispatch`, held for the
+        resend), then calls :meth:`welcome` with the connection."""
+        self.link = None
+        if msg.pose is not None:
+            self.pose = msg.pose
+        holds = set(msg.acked)
+        current = msg.current
+        if current is not None:
+            holds.add(current.action_id)
+        for aid in msg.finished:
+            h = self.held.get(aid)
+            if h is not None:
+                if h.phase != "running":
+                    self._report("started", aid, t_ms, None)
+                self._report("finished", aid, t_ms, None)
+        if current is not None and current.action_id in self.held:
+            h = self.held[current.action_id]
+            if current.state == "running" and h.phase != "running":
+                self._report("started", current.action_id, t_ms, None)
+            elif current.state == "blocked" and h.phase == "dispatched":
+                self._report("blocked", current.action_id, t_ms, None)
+        finished = set(msg.finished)
+        for aid, h in self.held.items():
+            if aid in finished:
+                continue
+            if aid in holds:
+                h.acked = True
+            elif h.cancel and h.phase != "running":
+                self._report("cancelled", aid, t_ms, None)  # nothing left to confirm it
+            else:
+                h.acked = False  # resent: it was never received, or was lost
+
+    def welcome(self, link: object, *, start: Pose | None, plan: int | None,
+                state_period_ms: float, paused: bool) -> int:
+        """Welcome the robot on ``link``: resend what it does not hold, then the cancels it
+        owes. Returns how many actions were resent."""
+        self.link = link
+        resend = [Action(msg_id=f"resend-{aid}", seq=0, **h.fields)
+                  for aid, h in self.held.items() if not h.acked and not h.cancel]
+        self._send(Welcome, robot_id=self.robot_id, start=start, plan=plan, resend=resend,
+                   state_period_ms=state_period_ms, paused=paused)
+        for aid, h in self.held.items():
+            if h.cancel:
+                self._send(CancelAction, action_id=aid)
+        return len(resend)
+
+    def disconnected(self, link: object) -> bool:
+        """Connection ``link`` closed; True if it was the robot's current one."""
+        if self.link is not link or link is None:
+            return False
+        self.link = None
+        return True
+
+    # ------------------------------------------------------------------ from the robot
+    def ack(self, aid: str, ref: str, link: object) -> None:
+        """The robot acknowledged action ``aid``."""
+        if not self._linked(link, ref):
+            return
+        h = self.held.get(aid)
+        if h is not None:
+            h.acked = True
+        elif aid not in self.applied:
+            self._refuse(ErrorCode.UNKNOWN_ACTION, ref,
+                         f"action {aid} was never dispatched to robot {self.robot_id}")
+
+    def report(self, kind: ReportKind, aid: str, ref: str, link: object, t_ms: float,
+               pose: Pose | None = None) -> None:
+        """A ``started`` / ``finished`` / ``blocked`` / ``unblocked`` / ``cancelled`` report."""
+        if not self._linked(link, ref):
+            return
+        if pose is not None:
+            self.pose = pose
+        if aid in self.applied:
+            self._refuse(ErrorCode.DUPLICATE, ref,
+                         f"{kind} of {aid}: the action was already {self.applied[aid]}")
+            return
+        h = self.held.get(aid)
+        if h is None:
+            self._refuse(ErrorCode.UNKNOWN_ACTION, ref,
+                         f"{kind} of {aid}: never dispatched to robot {self.robot_id}")
+            return
+        if (kind, h.phase) in (("started", "running"), ("blocked", "blocked")):
+            self._refuse(ErrorCode.DUPLICATE, ref, f"{aid} is already {h.phase}")
+            return
+        self._report(kind, aid, t_ms, ref)
+
+    def state(self, pose: Pose | None, link: object) -> None:
+        """A periodic ``state``: only the pose is kept."""
+        if link is self.link and link is not None and pose is not None:
+            self.pose = pose
+
+    def accepted(self, r: Report) -> None:
+        """The executor took report ``r``: update the bookkeeping."""
+        h = self.held.get(r.action_id)
+        if h is None:
+            return
+        if r.kind == "started":
+            h.phase = "running"
+        elif r.kind == "blocked":
+            h.phase = "blocked"
+        elif r.kind == "unblocked":
+            h.phase = "dispatched"
+        else:
+            del self.held[r.action_id]
+            self.applied[r.action_id] = r.kind
+            if r.kind == "finished":
+                self.next_index = max(self.next_index, r.index + 1)
+
+    def rejected(self, r: Report, reason: str) -> None:
+        """The executor refused report ``r`` (nothing changes; the sender is told)."""
+        if r.ref is not None:
+            self._refuse(ErrorCode.REJECTED, r.ref, reason)
+
+    # ------------------------------------------------------------------ from the executor
+    def dispatch(self, fields: dict[str, Any]) -> None:
+        """The executor released an action (``fields`` of an ``action`` message); it is sent
+        now if the robot is online, else in the next welcome."""
+        self.held[fields["action_id"]] = Held(fields)
+        if self.link is not None:
+            self._send(Action, **fields)
+
+    def cancel(self, aid: str) -> None:
+        """The executor cancels ``aid`` (a replan): tell the robot if it is online; a robot
+        that is not owes the confirmation at its next hello."""
+        h = self.held.get(aid)
+        if h is not None:
+            h.cancel = True
+        if self.link is not None:
+            self._send(CancelAction, action_id=aid)
+
+    def set_paused(self, paused: bool) -> None:
+        """The operator paused (or resumed) the fleet: tell the robot if it is online."""
+        if self.link is not None:
+            if paused:
+                self._send(Pause, reason="operator")
+            else:
+                self._send(Resume)
+
+    def plan_adopted(self) -> None:
+        """A new plan starts from index 0."""
+        self.next_index = 0
+
+    # ------------------------------------------------------------------ helpers
+    def _linked(self, link: object, ref: str) -> bool:
+        if link is None or link is not self.link:
+            self._refuse(ErrorCode.BAD_STATE, ref, "say hello first")
+            return False
+        return True
+
+    def _report(self, kind: ReportKind, aid: str, t_ms: float, ref: str | None) -> None:
+        plan, _, index = parse_action_id(aid)
+        self._out.append(Report(kind, self.robot_id, plan, index, aid, t_ms, ref))
+
+    def _refuse(self, code: ErrorCode, ref: str | None, detail: str) -> None:
+        self._out.append(Refuse(code, ref, detail))
+
+    def _send(self, kind: type[ToRobotMessage], **fields: Any) -> None:
+        self._out.append(ToRobot(kind, fields))

@@ -1,0 +1,278 @@
+"""The gateway's side of protocol v1 (protocol.gateway_session), by hand and wired to the
+robot's side (protocol.robot_session) over a lossy link.
+
+The property test runs both sans-I/O sessions against each other: the gateway dispatches a
+robot's actions in index order and cancels queued ones at random, messages in flight are
+delivered one at a time or lost with the link, the robot reconnects, duplicates are injected.
+Oracle: at the end every dispatched action was applied exactly once (finished or cancelled,
+never both), the robot executed exactly the finished ones, once each and in index order.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from protocol import (
+    Action,
+    AnyMessage,
+    Cancelled,
+    ErrorCode,
+    Finished,
+    Hello,
+    Pose,
+    Welcome,
+)
+from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot
+from protocol.robot_session import Abort, RobotSession, Send
+
+_n = iter(range(10**9))
+
+
+def fields(i: int) -> dict[str, Any]:
+    return {"action_id": f"0.0.{i}", "sequence": i, "src": Pose(cell=(i, 0)),
+            "dst": Pose(cell=(i + 1, 0)), "duration_ms": 1000.0}
+
+
+def hello(**kw: Any) -> Hello:
+    n = next(_n)
+    return Hello(msg_id=f"h{n}", seq=0, robot_id=0, **kw)
+
+
+def welcome_of(effects: list[Any]) -> Welcome:
+    (w,) = [e.fields for e in effects if isinstance(e, ToRobot) and e.kind is Welcome]
+    return Welcome(msg_id="w", seq=0, **w)
+
+
+def accept_all(gs: GatewaySession) -> list[Any]:
+    """Drain, applying every report (an executor that takes everything)."""
+    out = []
+    while effects := gs.drain():
+        for e in effects:
+            if isinstance(e, Report):
+                gs.accepted(e)
+            out.append(e)
+    return out
+
+
+def test_hello_catches_up_and_the_welcome_resends_only_what_the_robot_lacks() -> None:
+    gs = GatewaySession(0)
+    link = object()
+    gs.hello(hello(), 0.0)
+    gs.welcome(link, start=None, plan=0, state_period_ms=100.0, paused=False)
+    accept_all(gs)
+    for i in range(3):
+        gs.dispatch(fields(i))
+    assert [type(e.kind) for e in gs.drain()] == [type(Action)] * 3
+    gs.ack("0.0.0", "m1", link)
+    gs.ack("0.0.1", "m2", link)
+    gs.report("started", "0.0.0", "m3", link, 5.0)
+    assert [(r.kind, r.action_id) for r in accept_all(gs)] == [("started", "0.0.0")]
+    assert gs.disconnected(link) and not gs.connected
+    # the finish of 0.0.0 and the ack of 0.0.2 were lost; the robot holds 0.0.1 and 0.0.2
+    gs.hello(hello(finished=["0.0.0"], acked=["0.0.1", "0.0.2"]), 9.0)
+    reports = [e for e in accept_all(gs) if isinstance(e, Report)]
+    assert [(r.kind, r.action_id, r.t_ms, r.ref) for r in reports] == [
+        ("finished", "0.0.0", 9.0, None)]
+    gs.welcome(object(), start=None, plan=0, state_period_ms=100.0, paused=False)
+    assert welcome_of(gs.drain()).resend == []
+    assert gs.applied == {"0.0.0": "finished"} and gs.next_index == 1
+    assert all(h.acked for h in gs.held.values())
+
+
+def test_a_lost_action_is_resent_and_owed_cancels_are_settled() -> None:
+    gs = GatewaySession(0)
+    link = object()
+    gs.hello(hello(), 0.0)
+    gs.welcome(link, start=None, plan=0, state_period_ms=100.0, paused=False)
+    for i in range(3):
+        gs.dispatch(fields(i))
+        gs.ack(f"0.0.{i}", f"a{i}", link)
+    gs.drain()
+    gs.disconnected(link)
+    gs.cancel("0.0.1")  # a replan while it is away
+    gs.cancel("0.0.2")
+    assert gs.drain() == []  # offline: nothing sent
+    # it restarted: holds 0.0.2 only (it lost 0.0.0 and 0.0.1 although it acked them)
+    gs.hello(hello(acked=["0.0.2"]), 3.0)
+    reports = [(e.kind, e.action_id) for e in accept_all(gs) if isinstance(e, Report)]
+    assert reports == [("cancelled", "0.0.1")]  # it no longer holds it: nobody else confirms
+    link2 = object()
+    gs.welcome(link2, start=None, plan=0, state_period_ms=100.0, paused=False)
+    effects = gs.drain()
+    assert [a.action_id for a in welcome_of(effects).resend] == ["0.0.0"]
+    assert [e.fields for e in effects if isinstance(e, ToRobot) and e.kind.__name__ ==
+            "CancelAction"] == [{"action_id": "0.0.2"}]  # it holds it: it confirms itself
+
+
+def test_refusals_duplicates_and_unknown_actions() -> None:
+    gs = GatewaySession(0)
+    link = object()
+    gs.report("finished", "0.0.0", "early", link, 0.0)
+    assert gs.drain() == [Refuse(ErrorCode.BAD_STATE, "early", "say hello first")]
+    gs.hello(hello(), 0.0)
+    gs.welcome(link, start=None, plan=0, state_period_ms=100.0, paused=False)
+    gs.drain()
+    gs.dispatch(fields(0))
+    gs.drain()
+    gs.ack("0.0.7", "x", link)
+    gs.report("started", "0.0.7", "y", link, 1.0)
+    assert [(e.code, e.ref) for e in gs.drain() if isinstance(e, Refuse)] == [
+        (ErrorCode.UNKNOWN_ACTION, "x"), (ErrorCode.UNKNOWN_ACTION, "y")]
+    gs.report("started", "0.0.0", "s1", link, 1.0)
+    (r,) = gs.drain()
+    assert isinstance(r, Report)
+    gs.rejected(r, "out of order")  # the executor refused it: nothing changed
+    assert gs.held["0.0.0"].phase == "dispatched"
+    assert gs.drain() == [Refuse(ErrorCode.REJECTED, "s1", "out of order")]
+    gs.report("started", "0.0.0", "s2", link, 1.0)
+    accept_all(gs)
+    gs.report("started", "0.0.0", "s3", link, 1.5)
+    gs.report("finished", "0.0.0", "f1", link, 2.0)
+    accept_all(gs)
+    gs.report("finished", "0.0.0", "f2", link, 2.5)
+    codes = [(e.code, e.ref) for e in gs.drain() if isinstance(e, Refuse)]
+    assert codes == [(ErrorCode.DUPLICATE, "f2")]
+    assert gs.applied == {"0.0.0": "finished"}
+
+
+# ---------------------------------------------------------------------------- property test
+OPS = st.lists(st.sampled_from(
+    ["dispatch", "dispatch", "to_robot", "to_robot", "to_gateway", "to_gateway", "step",
+     "step", "duplicate", "cancel", "cut", "reconnect"]), max_size=80)
+
+
+class Wire:
+    """Both sessions, the link between them and the robot's body."""
+
+    def __init__(self, n: int) -> None:
+        self.robot = RobotSession(0)
+        self.gw = GatewaySession(0)
+        self.n, self.next = n, 0
+        self.link: object | None = None
+        self.to_robot: deque[AnyMessage] = deque()
+        self.to_gw: deque[AnyMessage] = deque()
+        self.body: str | None = None
+        self.executed: list[int] = []
+        self.applied: list[tuple[str, str]] = []
+
+    def pump(self) -> None:
+        for e in self.robot.drain():
+            if isinstance(e, Send) and self.link is not None:
+                self.to_gw.append(e.message)
+            elif isinstance(e, Abort):
+                assert self.body == e.action_id
+                self.body = None
+        while effects := self.gw.drain():
+            for g in effects:
+                if isinstance(g, ToRobot) and self.link is not None:
+                    n = next(_n)
+                    self.to_robot.append(g.kind(msg_id=f"g{n}", seq=n, **g.fields))
+                elif isinstance(g, Report):
+                    self.gw.accepted(g)
+                    if g.kind in ("finished", "cancelled"):
+                        self.applied.append((g.action_id, g.kind))
+                elif isinstance(g, Refuse):
+                    assert g.code is ErrorCode.DUPLICATE, g
+
+    def connect(self) -> None:
+        self.to_robot.clear()
+        self.to_gw.clear()
+        self.link = object()
+        self.robot.connected()
+        (msg,) = [e.message for e in self.robot.drain() if isinstance(e, Send)]
+        assert isinstance(msg, Hello)
+        self.gw.hello(msg, 0.0)
+        self.pump()
+        self.gw.welcome(self.link, start=None, plan=0, state_period_ms=1e3, paused=False)
+        self.pump()
+
+    def cut(self) -> None:
+        self.gw.disconnected(self.link)
+        self.robot.disconnected()
+        self.link = None
+        self.to_robot.clear()
+        self.to_gw.clear()
+
+    def op(self, op: str) -> None:
+        if op == "dispatch" and self.next < self.n:
+            self.gw.dispatch(fields(self.next))
+            self.next += 1
+        elif op == "to_robot" and self.to_robot:
+            self.robot.receive(self.to_robot.popleft())
+        elif op == "to_gateway" and self.to_gw:
+            msg = self.to_gw.popleft()
+            kind = msg.type
+            if kind == "ack":
+                self.gw.ack(msg.action_id, msg.msg_id, self.link)  # type: ignore[union-attr]
+            elif kind in ("started", "finished", "blocked", "unblocked", "cancelled"):
+                self.gw.report(kind, msg.action_id, msg.msg_id,  # type: ignore[union-attr]
+                               self.link, 0.0)
+        elif op == "duplicate" and self.link is not None:  # a resend of a held action (the
+            # gateway never sends one it is cancelling: a later copy would revive it)
+            held = [h for h in self.gw.held.values() if not h.cancel]
+            if held:
+                n = next(_n)
+                self.to_robot.append(Action(msg_id=f"d{n}", seq=n, **held[-1].fields))
+        elif op == "cancel":  # a replan: every queued action of the robot at once
+            for aid in reversed([a for a, h in self.gw.held.items() if h.phase != "running"]):
+                self.gw.cancel(aid)
+        elif op == "step":
+            self.step()
+        elif op == "cut" and self.link is not None:
+            self.cut()
+        elif op == "reconnect" and self.link is None:
+            self.connect()
+        self.pump()
+
+    def step(self) -> None:
+        if self.body is not None:
+            self.robot.report("finished", self.body)
+            self.executed.append(int(self.body.split(".")[2]))
+            self.body = None
+        elif (a := self.robot.take()) is not None:
+            self.body = a.action_id
+            self.robot.report("started", a.action_id)
+
+
+@settings(max_examples=120, deadline=None)
+@given(OPS)
+def test_random_interleavings_never_lose_or_double_an_action(ops: list[str]) -> None:
+    w = Wire(8)
+    w.connect()
+    for op in ops:
+        w.op(op)
+    # settle: link up, everything dispatched, delivered and executed
+    if w.link is None:
+        w.connect()
+    while w.next < w.n:
+        w.op("dispatch")
+    for _ in range(500):
+        if not (w.to_robot or w.to_gw or w.body or w.robot.queue):
+            break
+        for op in ("to_robot", "to_gateway", "step"):
+            w.op(op)
+    assert not w.gw.held, w.gw.held
+    ids = [aid for aid, _ in w.applied]
+    assert len(ids) == len(set(ids)) == w.n  # every action applied exactly once
+    finished = sorted(int(a.split(".")[2]) for a, k in w.applied if k == "finished")
+    assert w.executed == finished  # executed once each, in index order, only those
+
+
+def test_the_wire_detects_a_robot_that_forgets_to_confirm() -> None:
+    # the oracle can fail: a robot whose cancels are never confirmed leaves actions held
+    w = Wire(3)
+    w.connect()
+    for op in ["dispatch", "dispatch", "cancel"]:
+        w.op(op)
+    w.to_robot.clear()  # the cancels are lost, the link stays up
+    w.pump()
+    assert set(w.gw.held) == {"0.0.0", "0.0.1"} and all(h.cancel for h in w.gw.held.values())
+    assert not any(isinstance(m, Cancelled | Finished) for m in w.to_gw)
+    assert w.robot.activity() is None  # it never got them: only a hello can settle this
+    w.cut()
+    w.connect()
+    assert not w.gw.held and [k for _, k in w.applied] == ["cancelled", "cancelled"]
