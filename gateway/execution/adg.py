@@ -12,7 +12,7 @@ tails of the Type 2 edges into ``v`` and ``t2_succ[...]`` the heads of those out
 from __future__ import annotations
 
 from bisect import bisect_right
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 
 from gateway.execution.actions import ActionKind, action_kind
 from gateway.execution.errors import ExecutionError
@@ -36,19 +36,17 @@ class ADG:
 
     With ``drop_waits`` the wait actions get no vertex (Hönig's original graph); the action
     numbers seen from outside stay the path indices ``i`` of ``a_i^k`` either way.
-    ``headings[k][t]`` (turning motion model) is robot k's heading at timestep t; a turn is
-    never dropped.
+    A ``turning`` plan (``plan.headings``) makes its turns actions; a turn is never dropped.
     """
 
-    def __init__(self, plan: Plan, *, drop_waits: bool = False,
-                 headings: Sequence[Sequence[int]] | None = None) -> None:
+    def __init__(self, plan: Plan, *, drop_waits: bool = False) -> None:
         paths = plan.paths
         self.n_robots = len(paths)
         self.drop_waits = drop_waits
-        if headings is not None and len(headings) != len(paths):
-            raise ExecutionError(f"{len(headings)} heading sequences for {len(paths)} robots")
-        self.headings: tuple[tuple[int, ...], ...] | None = None if headings is None else \
-            tuple(tuple(h) for h in headings)
+        self.headings = plan.headings
+        if self.headings is not None and len(self.headings) != len(paths):
+            raise ExecutionError(f"{len(self.headings)} heading sequences for {len(paths)} "
+                                 "robots")
         self.first: list[int] = [0]
         self.robot_of: list[int] = []
         self.step_of: list[int] = []

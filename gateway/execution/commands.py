@@ -80,12 +80,10 @@ class SolveRequest:
 
 @dataclass(frozen=True, slots=True)
 class PlanAdopted:
-    """Plan number ``plan`` (0 for the first) is now being executed (``headings`` as in
-    :class:`~gateway.execution.adg.ADG`, None under ``omni``)."""
+    """Plan number ``plan`` (0 for the first) is now being executed."""
 
     plan: int
     paths: Plan
-    headings: tuple[tuple[int, ...], ...] | None = None
 
 
 @dataclass(frozen=True, slots=True)

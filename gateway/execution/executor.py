@@ -76,8 +76,7 @@ class Mode(enum.Enum):
 class Executor:
     """Executes a plan on a fleet through its ADG: retiming, monitoring, replanning.
 
-    ``headings`` (turning motion model: robot k's heading at each timestep of its path) make
-    turns actions of their own; without them the plan is ``omni``. ``durations`` is the
+    A ``turning`` plan (with ``plan.headings``) makes turns actions of their own. ``durations`` is the
     expected duration of each action kind, for every robot or per robot (its model); by
     default every action takes ``action_ms``.
     """
@@ -85,7 +84,7 @@ class Executor:
     def __init__(self, plan: Plan, *, policy: ReplanPolicy | None = None,
                  action_ms: float = 1000.0, drop_waits: bool = False,
                  max_replans: int = 1, record: Record | None = None,
-                 lookahead: int = 0, headings: Sequence[Sequence[int]] | None = None,
+                 lookahead: int = 0,
                  durations: ActionDurations | Sequence[ActionDurations] | None = None
                  ) -> None:
         if not (math.isfinite(action_ms) and action_ms > 0):
@@ -103,7 +102,7 @@ class Executor:
         self._record = record
         self._out: list[Command] = []
         self._now = 0.0
-        adg = ADG(plan, drop_waits=drop_waits, headings=headings)
+        adg = ADG(plan, drop_waits=drop_waits)
         self.durations = per_robot(
             ActionDurations.uniform(action_ms) if durations is None else durations, adg.n_robots)
         self._goals: tuple[Cell, ...] = tuple(p[-1] for p in plan.paths)
@@ -322,8 +321,7 @@ class Executor:
         self.monitor.advance(self._now)
         self._trigger("operator")
 
-    def adopt_plan(self, plan: Plan, now_ms: float,
-                   headings: Sequence[Sequence[int]] | None = None) -> None:
+    def adopt_plan(self, plan: Plan, now_ms: float) -> None:
         """Answer to ``SolveRequest``: execute ``plan`` (from the robots' cells and, turning,
         their headings to the goals; a goal heading is free)."""
         self._check_time(now_ms)
@@ -332,6 +330,7 @@ class Executor:
         n = self.adg.n_robots
         if len(plan.paths) != n:
             raise ExecutionError(f"the new plan has {len(plan.paths)} paths for {n} robots")
+        headings = plan.headings
         if (headings is None) != (self._headings is None):
             raise ExecutionError("the new plan must have headings exactly when the current "
                                  "one has (the motion model cannot change)")
@@ -352,7 +351,7 @@ class Executor:
                 raise ExecutionError(
                     f"robot {r}: the new path ends at {path[-1]} but its goal is {self._goals[r]}"
                 )
-        adg = ADG(plan, drop_waits=self.drop_waits, headings=headings)
+        adg = ADG(plan, drop_waits=self.drop_waits)
         self._advance(now_ms)
         self._install(plan, adg, self.plan_id + 1, self._now)
         self.mode = Mode.RUNNING
@@ -380,7 +379,7 @@ class Executor:
     def _adopted(self) -> None:
         """Announce the current plan and dispatch what is ready."""
         adg = self.adg
-        self._out.append(PlanAdopted(self.plan_id, self.plan, adg.headings))
+        self._out.append(PlanAdopted(self.plan_id, self.plan))
         if self._record is not None:
             agents: list[dict[str, object]] = []
             default = ActionDurations()

@@ -121,6 +121,16 @@ def turning_expand(paths: Sequence[Sequence[Cell]],
     return cells_out, heads_out
 
 
+def turning_plan(paths: Sequence[Sequence[Cell]], headings: Sequence[Sequence[int]]) -> Plan:
+    """A turning plan of cells and headings, trailing repeats of the last pose trimmed."""
+    cells, heads = [list(p) for p in paths], [list(h) for h in headings]
+    for c, h in zip(cells, heads, strict=True):
+        while len(c) > 1 and (c[-1], h[-1]) == (c[-2], h[-2]):
+            c.pop()
+            h.pop()
+    return Plan(tuple(tuple(c) for c in cells), tuple(tuple(h) for h in heads))
+
+
 def brute_type2(paths: Sequence[Sequence[Cell]]) -> list[tuple[int, int, int, int]]:
     """Type 2 edges straight from the definition, comparing all pairs of actions."""
     out = []
@@ -249,12 +259,12 @@ class Driver:
                 ex.request_replan(t)
             return
         if kind == "solve":
-            plan, headings = args
+            (plan,) = args
             assert isinstance(plan, Plan)
             if self.rng.random() < self.abandon_prob:
                 ex.abandon_replan(t)
             else:
-                ex.adopt_plan(plan, t, headings)  # type: ignore[arg-type]
+                ex.adopt_plan(plan, t)
             return
         robot, plan_id, action, token = args
         assert isinstance(robot, int) and isinstance(plan_id, int) and isinstance(action, int)
@@ -287,7 +297,8 @@ class Driver:
             if isinstance(cmd, PlanAdopted):
                 paths = [list(p) for p in cmd.paths.paths]
                 assert cmd.plan == len(self.plans)
-                heads = None if cmd.headings is None else [list(h) for h in cmd.headings]
+                heads = None if cmd.paths.headings is None else [
+                    list(h) for h in cmd.paths.headings]
                 self.plans.append(_PlanLog(paths, now,
                                            brute_predecessors(paths, ex.drop_waits, heads),
                                            heads))
@@ -298,7 +309,7 @@ class Driver:
                 self._on_cancel(cmd, now)
             elif isinstance(cmd, SolveRequest):
                 assert list(cmd.starts) == [ex.robot_cell(r) for r in range(len(cmd.starts))]
-                self._at(now + self.rng.choice([0, 100, 250]), "solve", *self._shifted(cmd))
+                self._at(now + self.rng.choice([0, 100, 250]), "solve", self._shifted(cmd))
             elif isinstance(cmd, Trigger):
                 self.triggers.append(cmd)
             elif isinstance(cmd, Completed):
@@ -344,7 +355,7 @@ class Driver:
             self._at(now + self.rng.choice([0, 50]), "cancelled", cmd.robot, cmd.plan,
                      cmd.action, self.robot_token[cmd.robot])
 
-    def _shifted(self, request: SolveRequest) -> tuple[Plan, list[list[int]] | None]:
+    def _shifted(self, request: SolveRequest) -> Plan:
         """Each robot's remaining path (and headings) from where it stands (same goals)."""
         log = self.plans[-1]
         paths, heads = [], []
@@ -358,11 +369,10 @@ class Driver:
                 assert request.headings is not None
                 assert log.headings[r][cut] == request.headings[r]
                 heads.append(log.headings[r][cut:])
-        plan = Plan.of(paths)
         if log.headings is None:
             assert request.headings is None
-            return plan, None
-        return plan, [h[:len(p)] for h, p in zip(heads, plan.paths, strict=True)]
+            return Plan.of(paths)
+        return turning_plan(paths, heads)
 
     def _oracle(self, log: _PlanLog, now: float) -> Estimate:
         adg = self.ex.adg
