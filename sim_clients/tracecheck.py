@@ -20,7 +20,8 @@ section 2 defines them), replays the events in order and reports
 
 and it recomputes the fleet slack (Algorithm 1 plus DESIGN's slack definitions) at any moment,
 in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move", "turn",
-"wait"}``, each 1000 ms if absent) are its actions' expected durations ``t_x``. Run it as ``python -m sim_clients.tracecheck FILE``.
+"wait"}``, each 1000 ms if absent) are its actions' expected durations ``t_x``. Run it as
+``python -m sim_clients.tracecheck FILE``.
 """
 
 from __future__ import annotations

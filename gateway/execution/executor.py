@@ -76,9 +76,9 @@ class Mode(enum.Enum):
 class Executor:
     """Executes a plan on a fleet through its ADG: retiming, monitoring, replanning.
 
-    A ``turning`` plan (with ``plan.headings``) makes turns actions of their own. ``durations`` is the
-    expected duration of each action kind, for every robot or per robot (its model); by
-    default every action takes ``action_ms``.
+    A ``turning`` plan (with ``plan.headings``) makes turns actions of their own.
+    ``durations`` is the expected duration of each action kind, for every robot or per robot
+    (its model); by default every action takes ``action_ms``.
     """
 
     def __init__(self, plan: Plan, *, policy: ReplanPolicy | None = None,

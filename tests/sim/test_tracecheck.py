@@ -194,7 +194,7 @@ def test_turning_trace_passes_with_kinds_and_durations() -> None:
     # with robot 0's turn still running at 2000 (t_c clamped to 2000), its moves end at 3000
     # and 4000; robot 1's first wait (started at 1000) ends at 2000, its second at 3000, so its
     # move (not started) waits Δ = 4000 - 3000 = 1000: Δ̄F = 1000 - 500 = 500
-    partial = [r for r in trace if r.get("t_ms", 1e9) < 1500 and r["type"] != "finish"
+    partial = [r for r in trace if (r.get("t_ms", 1e9) < 1500 and r["type"] != "finish")
                or r["type"] == "plan" or (r["type"] == "finish" and r["robot"] == 1
                                           and r["t_ms"] <= 1000)]
     assert slack_series(partial, [0.0, 2000.0]) == [0.0, 500.0]
