@@ -60,8 +60,8 @@ from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
 from gateway.planning.plan import Plan
 from gateway.server.config import GatewayConfig
-from gateway.server.engine import GC_THRESHOLDS
 from gateway.server.gateway import Gateway
+from gateway.server.gc_tuning import GC_THRESHOLDS
 from gateway.server.planner import Problem
 from sim_clients.cmd_demo import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import gc
 import json
 import logging
 import math
@@ -58,7 +57,7 @@ from gateway.server.planner import (
     resolve_instance,
 )
 from gateway.server.session import Session
-from gateway.server.views import snapshot_fields
+from gateway.server.views import FleetView, snapshot_fields
 from protocol import (
     Ack,
     Blocked,
@@ -92,13 +91,6 @@ from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot
 from protocol.messages import GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
-
-GC_THRESHOLDS = (100_000, 50, 100)
-"""The process's garbage-collector thresholds once a run starts (Python's default: 700, 10,
-10): a young-generation pass after 100,000 net new container objects instead of 700."""
-GC_DEFAULT_THRESHOLDS = gc.get_threshold()
-"""The thresholds restored when a run is complete."""
-
 
 class CommandError(Exception):
     """An operator command is refused with ``code``."""
@@ -145,6 +137,9 @@ class Engine:
         tick (a simulated world in the same process steps its intruder here, in the order of
         the discrete-event driver: robot events, then the world, then the tick)."""
         self.solver_ms = 0.0  # planner time charged for replans of the current run
+        self.before_start: list[Callable[[], None]] = []
+        """Called when a run's objects exist, just before its time 0 (the process driver
+        tunes the garbage collector here; what they take is not charged to the run)."""
 
     # -------------------------------------------------------------------------- status
     @property
@@ -438,8 +433,6 @@ class Engine:
             self.metrics.latency.observe(latency / 1000.0)
 
     def _completed(self, c: Completed) -> None:
-        gc.unfreeze()
-        gc.set_threshold(*GC_DEFAULT_THRESHOLDS)
         self.summary = (c.soc_ms, c.makespan_ms)
         self._write_trace({"type": "summary", "soc_ms": c.soc_ms, "makespan_ms": c.makespan_ms})
         self._close_trace()
@@ -666,17 +659,8 @@ class Engine:
                                  drop_waits=self.config.drop_waits,
                                  max_replans=self.config.max_replans, record=self._record,
                                  lookahead=self.config.dispatch_lookahead)
-        # The plan, ADG, monitor and connections live as long as the run: move them out of
-        # the cyclic collector's reach, or its full passes over a large fleet's objects stall
-        # the owner (~150 ms at 2,000 robots). Only what exists now is frozen; what the run
-        # allocates later is collected, but rarely (GC_THRESHOLDS): nearly all of it is freed
-        # by reference counting, and with the default thresholds the collector ran every 700
-        # allocations, ~25 % of the gateway's CPU and 30-60 ms pauses at 2,000 robots.
-        # The tuning lasts for the run only (undone in _completed): collect first, so that no
-        # garbage of an earlier run is frozen, and a gateway serving many runs does not grow.
-        gc.collect()
-        gc.freeze()
-        gc.set_threshold(*GC_THRESHOLDS)
+        for hook in self.before_start:
+            hook()
         self.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
         self.executor.start(0.0)
         self._status_changed()
@@ -728,7 +712,15 @@ class Engine:
 
     def send_snapshot(self, session: Session) -> None:
         """Send the whole fleet state to one operator."""
-        session.send(Snapshot, **snapshot_fields(self))
+        session.send(Snapshot, **snapshot_fields(self.read_model()))
+
+    def read_model(self) -> FleetView:
+        """What operators are shown, read-only (see :mod:`gateway.server.views`)."""
+        return FleetView(
+            t_ms=self.clock.now_ms(), status=self.status, threshold_ms=self.threshold_ms,
+            policy=self.policy_name, speed=self.clock.speed, slack_series=self.slack_series,
+            intruders=self.intruders, replan_marks=self.replan_marks, problem=self.problem,
+            executor=self.executor, robots=self.robots)
 
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""

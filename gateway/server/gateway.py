@@ -31,6 +31,7 @@ from types import TracebackType
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
+from gateway.server import gc_tuning
 from gateway.server.auth import Authenticator, AuthError, Peer, request_token
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
@@ -70,6 +71,11 @@ ALLOWED: dict[str, frozenset[str]] = {
 """Which message types each role may send."""
 
 
+def _restore_gc_when_done(status: str) -> None:
+    if status == "done":
+        gc_tuning.restore_defaults()
+
+
 class Gateway:
     """The fleetgate gateway server; see the module docstring for how to run it."""
 
@@ -80,6 +86,8 @@ class Gateway:
         self.metrics = Metrics()
         self.auth = Authenticator(self.config.tokens)
         self.engine = Engine(self.config, self.clock, self.metrics)
+        self.engine.before_start.append(gc_tuning.tune_for_run)
+        self.engine.status_listeners.append(_restore_gc_when_done)
         self._owner: asyncio.Task[None] | None = None
         self._server: Server | None = None
         self._ws_peers: dict[ServerConnection, Peer] = {}

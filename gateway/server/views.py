@@ -1,14 +1,36 @@
-"""What operators see: the fields of a ``snapshot`` message, built from the engine's state."""
+"""What operators see: the fields of a ``snapshot`` message, built from a :class:`FleetView`,
+the read model the engine hands over (this module knows nothing of the engine)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
 
-from gateway.planning.grid import Grid
+from gateway.execution.executor import Executor
+from gateway.planning.grid import Cell, Grid
+from gateway.server.planner import Problem
 from protocol import ActionCounts, ReplanMark, RobotView, WaitEdge
+from protocol.gateway_session import GatewaySession
+from protocol.messages import GatewayStatus, PolicyName
 
-if TYPE_CHECKING:
-    from gateway.server.engine import Engine
+
+@dataclass(frozen=True)
+class FleetView:
+    """The state a snapshot shows, read-only: the run (``problem``, ``executor``), the robots'
+    protocol sessions, and the operator-facing settings and series."""
+
+    t_ms: float
+    status: GatewayStatus
+    threshold_ms: float
+    policy: PolicyName
+    speed: float
+    slack_series: Sequence[tuple[float, float]]
+    intruders: Collection[Cell]
+    replan_marks: Sequence[Mapping[str, Any]]
+    problem: Problem | None
+    executor: Executor | None
+    robots: Mapping[int, GatewaySession]
 
 
 def map_rows(grid: Grid) -> list[str]:
@@ -16,18 +38,18 @@ def map_rows(grid: Grid) -> list[str]:
     return ["".join("." if f else "@" for f in row) for row in grid.free.tolist()]
 
 
-def snapshot_fields(engine: Engine) -> dict[str, Any]:
+def snapshot_fields(view: FleetView) -> dict[str, Any]:
     """Everything a ``snapshot`` carries except msg_id/seq."""
-    problem, ex = engine.problem, engine.executor
+    problem, ex = view.problem, view.executor
     out: dict[str, Any] = {
-        "t_ms": engine.clock.now_ms() if ex is not None else 0.0,
-        "status": engine.status,
-        "threshold_ms": engine.threshold_ms,
-        "policy": engine.policy_name,
-        "speed": engine.clock.speed,
-        "fleet_slack": list(engine.slack_series),
-        "intruders": sorted(engine.intruders),
-        "replan_marks": [ReplanMark(**m) for m in engine.replan_marks],
+        "t_ms": view.t_ms if ex is not None else 0.0,
+        "status": view.status,
+        "threshold_ms": view.threshold_ms,
+        "policy": view.policy,
+        "speed": view.speed,
+        "fleet_slack": list(view.slack_series),
+        "intruders": sorted(view.intruders),
+        "replan_marks": [ReplanMark(**m) for m in view.replan_marks],
     }
     if problem is None:
         return out
@@ -40,7 +62,7 @@ def snapshot_fields(engine: Engine) -> dict[str, Any]:
     counts = {"dispatched": 0, "running": 0, "blocked": 0, "finished": 0}
     robots = []
     for r in range(problem.instance.num_agents):
-        rec = engine.robot(r)
+        rec = view.robots.get(r) or GatewaySession(r)
         path = plan.paths[r] if plan is not None else (problem.instance.starts[r],)
         cell = rec.pose.cell if rec.pose is not None else (
             ex.robot_cell(r) if ex is not None else path[0])
