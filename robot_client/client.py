@@ -342,13 +342,16 @@ class RobotClient:
             await asyncio.sleep(self.session.state_period_ms / 1000.0)
 
 
-def build_client(settings: RobotSettings, base: KobukiSerial,
-                 frames: FrameSource | None) -> RobotClient:
-    """Assemble localiser, runner, body and client from the settings."""
+def build_client(settings: RobotSettings, base: KobukiSerial, frames: FrameSource | None, *,
+                 clock: RobotClock | None = None,
+                 connect: Connector = websocket_connect) -> RobotClient:
+    """Assemble localiser, runner, body and client from the settings (``clock`` and
+    ``connect`` as in :class:`RobotClient`)."""
     floor = settings.floor()
     x, y = floor.centre((settings.start_x, settings.start_y))
     localiser = Localiser(TagLocator(floor, settings.camera()),
                           Pose(x, y, HEADING_ANGLE[settings.start_heading]),
                           tag_gain=settings.tag_gain)
     runner = ActionRunner(floor, settings.runner_params())
-    return RobotClient(settings, RobotBody(base, localiser, runner), frames)
+    return RobotClient(settings, RobotBody(base, localiser, runner), frames, clock=clock,
+                       connect=connect)
