@@ -7,6 +7,7 @@ timings are exact. Simulated: the Kobuki's motors (tests/robot_client/kobuki_sid
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import os
 from collections.abc import AsyncIterator
@@ -127,7 +128,7 @@ def test_link_cut_mid_action_in_virtual_time() -> None:
             # it kept trying with backoff: 0.1 s growing to 0.3 s between tries (the first
             # after a random delay below 0.1 s), then reconnected at once
             tries = [t for t in s.attempts if t >= cut_at]
-            gaps = [round(b - a, 4) for a, b in zip(tries, tries[1:], strict=False)]
+            gaps = [round(b - a, 4) for a, b in itertools.pairwise(tries)]
             assert len(tries) >= 5 and gaps[:3] == [0.1, 0.1618, 0.2618]
             assert set(gaps[3:]) <= {0.3}
             # the hello reported 0.0.1 held: it was not resent (acknowledged, not lost)
@@ -151,6 +152,6 @@ def test_a_refused_robot_retries_with_backoff_in_virtual_time() -> None:
     # backoff(0.1, 0.1, 0.3): a random first delay r in [0, 0.1), then 0.1, 0.1618, 0.2618,
     # 0.3, ...: tries at 0, r, r + 0.1, r + 0.2618, r + 0.5236; the next one at r + 0.8236
     assert len(attempts) == 5
-    gaps = [b - a for a, b in zip(attempts[1:], attempts[2:], strict=False)]
+    gaps = [b - a for a, b in itertools.pairwise(attempts[1:])]
     assert [round(g, 4) for g in gaps] == [0.1, 0.1618, 0.2618]
     assert away < 0.001 and sim.command == (0, 0)
