@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import sys
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlsplit
 
 from gateway.conformance.checklist import Checklist
@@ -50,8 +51,7 @@ def _ws_url(value: str) -> str:
     return value
 
 
-def _only(value: str | None, checklist: Checklist[object] | Checklist[Target] | Checklist[
-        RobotOptions]) -> set[str] | None:
+def _only(value: str | None, checklist: Checklist[Any]) -> set[str] | None:
     if value is None:
         return None
     names = {n.strip() for n in value.split(",") if n.strip()}
@@ -62,7 +62,7 @@ def _only(value: str | None, checklist: Checklist[object] | Checklist[Target] | 
     return names
 
 
-def _list(checklist: Checklist[Target] | Checklist[RobotOptions]) -> int:
+def _list(checklist: Checklist[Any]) -> int:
     for c in checklist.checks:
         kind = "required" if c.required else "optional"
         print(f"{c.name:36} {c.rule:11} {kind:8}  {c.doc}")

@@ -4,6 +4,7 @@ tiny plans) against it. Each check cites its rule in docs/protocol.md."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 from typing import Any
 
@@ -337,11 +338,9 @@ async def _huge(t: Target) -> None:
     """A frame far over the limit closes the connection with 1009."""
     robot = await t.robot(hello=False)
     try:
-        try:
+        with contextlib.suppress(ConnectionClosed):
             await robot.conn.send_raw(_raw("huge", type="state", robot_id=robot.id,
                                            pad="x" * HARD_FRAME))
-        except ConnectionClosed:
-            pass
         code = await robot.conn.closed()
         if code != 1009:
             raise CheckFailed(f"closed with {code}, expected 1009")
@@ -391,7 +390,7 @@ async def _rate(t: Target) -> None:
         await robot.conn.close()
 
 
-@check("ping-answered", "WS-2")
+@check("gateway-answers-ping", "WS-2")
 async def _ping(t: Target) -> None:
     """A websocket ping is answered with a pong."""
     robot = await t.robot(hello=False)
@@ -423,7 +422,7 @@ async def _dispatch_fields(t: Target) -> None:
     """The first action: id ``<plan>.<robot>.0``, sequence 0, src/dst the path's first step."""
     async with _Started(t) as (_, robot, first):
         lane = _lane(t)
-        plan, r, index = parse_action_id(first.action_id)
+        _plan, r, index = parse_action_id(first.action_id)
         problems = []
         if (r, index) != (robot.id, 0):
             problems.append(f"action_id {first.action_id} is not action 0 of robot {robot.id}")

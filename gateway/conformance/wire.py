@@ -175,6 +175,7 @@ class Conn:
             msg = await self.expect(what, match, seconds)
         except CheckFailed:
             return
+        self._unclaimed.insert(0, msg)  # still there for whoever waits for it
         raise CheckFailed(f"unexpected {what}: {encode(msg)[:200]}")
 
     async def closed(self, timeout: float = 5.0) -> int:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+import socket
 import subprocess
 import sys
 import threading
@@ -27,6 +28,13 @@ KNOWN_FAILURES = {"no-resend-of-acknowledged"}
 """Required checks fleetgate's gateway fails today, each with the reason: the gateway resends
 acknowledged actions until the acknowledgement-based resend of issue 10 (proto) lands; remove
 the name then (this set is compared exactly, so the test says when)."""
+
+
+def free_port() -> int:
+    """An ephemeral port that was free a moment ago (for a listener started elsewhere)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 @pytest.fixture(scope="module")
