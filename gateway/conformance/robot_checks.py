@@ -201,8 +201,8 @@ class FakeGateway:
         def note(msg: AnyMessage) -> None:
             if isinstance(msg, (*_REPORTS, Ack)):
                 r = parse_action_id(msg.action_id)[1]
-                if r != self.robot_id or msg.action_id not in self.dispatched and not (
-                        isinstance(msg, Cancelled) and msg.action_id in self.cancels):
+                if r != self.robot_id or (msg.action_id not in self.dispatched and not (
+                        isinstance(msg, Cancelled) and msg.action_id in self.cancels)):
                     self.foreign.append(f"{msg.type} of {msg.action_id}")
                 if isinstance(msg, Ack):
                     self.acks.add(msg.action_id)

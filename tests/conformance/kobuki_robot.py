@@ -15,10 +15,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from robot_client.client import build_client  # noqa: E402
-from robot_client.config import load_settings  # noqa: E402
-from robot_client.kobuki import KobukiSerial  # noqa: E402
-from tests.robot_client.kobuki_side import SimulatedBase, run_realtime  # noqa: E402
+from robot_client.client import build_client
+from robot_client.config import load_settings
+from robot_client.kobuki import KobukiSerial
+from tests.robot_client.kobuki_side import SimulatedBase, run_realtime
 
 CELL_M = 0.15
 """A small floor grid (5 x 1 cells) so that moves are quick."""
