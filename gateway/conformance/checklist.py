@@ -40,8 +40,8 @@ class Checklist(Generic[C]):
         def register(fn: Callable[[C], Awaitable[None]]) -> Callable[[C], Awaitable[None]]:
             if any(c.name == name for c in self.checks):
                 raise ValueError(f"check {name!r} is registered twice")
-            doc = (fn.__doc__ or "").strip().splitlines()
-            self.checks.append(Check(name, rule, required, fn, doc[0] if doc else ""))
+            doc = " ".join((fn.__doc__ or "").split()).replace("``", "`")
+            self.checks.append(Check(name, rule, required, fn, doc))
             return fn
 
         return register
