@@ -77,9 +77,11 @@ def run_summary(engine: Engine) -> str:
 
 
 async def show_status(engine: Engine, status: StatusLine) -> None:
-    """Redraw the status line until cancelled."""
+    """Redraw the status line until cancelled (on a terminal; elsewhere it returns)."""
     import asyncio
 
+    if not status.live:
+        return
     try:
         while True:
             status.set(status_text(engine))
