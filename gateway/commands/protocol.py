@@ -8,13 +8,13 @@ import sys
 from pathlib import Path
 
 from gateway.cli import EXIT_OK, UsageError
-from gateway.conformance.doc import StaleDocument, render
-from protocol import json_schema
 
 
 def _schema(args: argparse.Namespace) -> int:
     if args.markdown is not None:
         return _markdown(Path(args.markdown))
+    from protocol import json_schema
+
     text = json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
     if args.output is None:
         sys.stdout.write(text)
@@ -27,6 +27,8 @@ def _schema(args: argparse.Namespace) -> int:
 
 
 def _markdown(path: Path) -> int:
+    from gateway.conformance.doc import StaleDocument, render
+
     try:
         path.write_text(render(path.read_text()))
     except OSError as exc:

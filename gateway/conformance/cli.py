@@ -7,14 +7,11 @@ target that cannot be reached (one line on stderr, never a traceback).
 from __future__ import annotations
 
 import argparse
-import asyncio
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
-from gateway.conformance.checklist import Checklist
-from gateway.conformance.gateway_checks import GATEWAY_CHECKS
 from gateway.conformance.report import (
     EXIT_USAGE,
     CheckResult,
@@ -24,20 +21,9 @@ from gateway.conformance.report import (
     exit_code,
     write_junit,
 )
-from gateway.conformance.robot_checks import ROBOT_CHECKS, RobotOptions, run_robot_checks
-from gateway.conformance.target import Options, Target
 
-
-async def run_gateway_checks(options: Options, only: set[str] | None = None
-                             ) -> list[CheckResult]:
-    """Run the gateway checklist against ``options.url``; UsageProblem if it cannot start."""
-    target = Target(options)
-    await target.probe()
-    await target.setup()
-    try:
-        return await GATEWAY_CHECKS.run(target, only=only)
-    finally:
-        await target.teardown()
+if TYPE_CHECKING:  # the checks (websockets, pydantic) are imported when a mode runs
+    from gateway.conformance.checklist import Checklist
 
 
 def _ws_url(value: str) -> str:
@@ -80,6 +66,11 @@ def _output(results: list[CheckResult], args: argparse.Namespace, target: str) -
 
 
 def _gateway(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from gateway.conformance.gateway_checks import GATEWAY_CHECKS, run_gateway_checks
+    from gateway.conformance.target import Options
+
     if args.list:
         return _list(GATEWAY_CHECKS)
     if args.url is None or args.token is None:
@@ -97,6 +88,10 @@ def _gateway(args: argparse.Namespace) -> int:
 
 
 def _robot(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from gateway.conformance.robot_checks import ROBOT_CHECKS, RobotOptions, run_robot_checks
+
     if args.list:
         return _list(ROBOT_CHECKS)
     if (args.url is None) == (args.command is None):

@@ -11,8 +11,8 @@ from typing import Any
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from gateway.conformance.checklist import Checklist
-from gateway.conformance.report import CheckFailed
-from gateway.conformance.target import Cell, Robot, Run, Target
+from gateway.conformance.report import CheckFailed, CheckResult
+from gateway.conformance.target import Cell, Options, Robot, Run, Target
 from protocol import (
     MAX_MESSAGE_BYTES,
     Ack,
@@ -790,3 +790,15 @@ async def _ids(t: Target) -> None:
 async def _text(t: Target) -> None:
     """The gateway sent text frames only."""
     t.breaches.verdict("WS-1")
+
+
+async def run_gateway_checks(options: Options, only: set[str] | None = None
+                             ) -> list[CheckResult]:
+    """Run the gateway checklist against ``options.url``; UsageProblem if it cannot start."""
+    target = Target(options)
+    await target.probe()
+    await target.setup()
+    try:
+        return await GATEWAY_CHECKS.run(target, only=only)
+    finally:
+        await target.teardown()
