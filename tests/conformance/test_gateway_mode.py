@@ -24,10 +24,9 @@ from gateway.server.session import Session
 from protocol import AnyMessage, Hello, ProtocolError, decode
 from tests.server.conftest import make_config
 
-KNOWN_FAILURES = {"no-resend-of-acknowledged"}
-"""Required checks fleetgate's gateway fails today, each with the reason: the gateway resends
-acknowledged actions until the acknowledgement-based resend of issue 10 (proto) lands; remove
-the name then (this set is compared exactly, so the test says when)."""
+KNOWN_FAILURES: set[str] = set()
+"""Required checks fleetgate's gateway fails today, each with the reason (this set is compared
+exactly, so the test says when one is fixed)."""
 
 
 def free_port() -> int:
