@@ -21,12 +21,15 @@ from protocol import (
     Cancelled,
     Error,
     ErrorCode,
+    Event,
     Finished,
     Hello,
     IntruderReport,
+    LoadPlan,
     Pause,
     ReplanNow,
     Resume,
+    Snapshot,
     Start,
     Started,
     State,
@@ -765,6 +768,35 @@ async def _new_plan(t: Target) -> None:
                               f"{_lane(t)[1]}")
     finally:
         await run.__aexit__(None, None, None)
+
+
+# ---------------------------------------------------------------------- operator channel
+@check("operator-gets-snapshot", "OP-1")
+async def _op_snapshot(t: Target) -> None:
+    """An operator gets a `snapshot` on connect."""
+    t.need_operator()
+    conn = await t.open(t.options.operator_token, "op2", ignore=(Event,))
+    try:
+        await conn.expect_type(Snapshot, 5.0)
+    finally:
+        await conn.close()
+
+
+@check("operator-bad-request", "OP-2")
+async def _op_bad_request(t: Target) -> None:
+    """A plan that is not a plan (a jump between cells) gets `bad_request`."""
+    op, layout = t.need_operator()
+    lane = layout.lane
+    ref = await op.conn.send(LoadPlan, map=t.options.map, paths=[[lane[0], lane[2]]])
+    await op.conn.error_for(ref, ErrorCode.BAD_REQUEST)
+
+
+@check("operator-bad-state", "OP-2")
+async def _op_bad_state(t: Target) -> None:
+    """`resume` while nothing is paused gets `bad_state`."""
+    op, _ = t.need_operator()
+    ref = await op.conn.send(Resume)
+    await op.conn.error_for(ref, ErrorCode.BAD_STATE)
 
 
 # ---------------------------------------------------------------------- envelope (passive)
