@@ -1,28 +1,28 @@
 """The owner task: the only code that touches the :class:`Executor` (single writer, no locks).
 
 Connection handlers only validate messages and put them on :attr:`Engine.queue`; the owner
-task (:meth:`Engine.run`) takes one item at a time, feeds the executor with the clock's time,
-and routes what the executor drains into the sessions' send queues. It also ticks the executor
-every ``MONITOR_PERIOD_MS`` while running, and runs the planner off-loop (the clock decides how)
+task (:meth:`Engine.run`) takes one item at a time and routes it: a robot's message to that
+robot's protocol session (:class:`~protocol.gateway_session.GatewaySession`: the handshake,
+acknowledgements, duplicates, what a reconnect catches up and resends), whose effects go to the
+robot's connection, the sender (refusals) or the executor (reports, applied with the clock's
+time); the executor's commands back to the sessions (dispatch, cancel), to the planner and to
+the operator feed; operator commands to the run. It also ticks the executor every
+``MONITOR_PERIOD_MS`` while running, and runs the planner off-loop (the clock decides how)
 while events keep queueing; the result comes back as a queue item.
 
-The robot side of the protocol (handshake, acknowledgements, duplicates, what a reconnect
-catches up and resends) is one :class:`~protocol.gateway_session.GatewaySession` per robot; the
-engine only routes its effects: messages to the robot's connection, refusals to the sender,
-reports to the executor (answering the session whether the executor took them).
+Elsewhere: what operators and the trace file are told (:mod:`gateway.server.operator_feed`),
+what a snapshot shows (:mod:`gateway.server.views`, from a read model), the process's garbage
+collector (:mod:`gateway.server.gc_tuning`, hooked by the :class:`~gateway.server.gateway.Gateway`).
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import json
 import logging
 import math
 import time
-from collections import deque
 from collections.abc import Callable
-from typing import IO, Any, Literal, cast
+from typing import Any, Literal, cast
 
 from gateway.execution.commands import (
     Cancel,
@@ -49,6 +49,7 @@ from gateway.server.items import (
     SolverDone,
 )
 from gateway.server.metrics import Metrics
+from gateway.server.operator_feed import OperatorFeed
 from gateway.server.planner import (
     InstanceError,
     Problem,
@@ -63,7 +64,6 @@ from protocol import (
     Blocked,
     Cancelled,
     ErrorCode,
-    Event,
     Finished,
     GetSnapshot,
     Hello,
@@ -116,19 +116,14 @@ class Engine:
         self.paused = False
         self.robots: dict[int, GatewaySession] = {}
         self._online: set[int] = set()  # robots with a live session (O(1) autostart check)
-        self.operators: set[Session] = set()
+        self.feed = OperatorFeed(config.slack_series_len, config.trace)
         self.worlds: set[Session] = set()
         self.policy_name: PolicyName = config.policy
         self.policy_seed = config.policy_seed
         self.threshold_ms = config.threshold_ms
-        self.slack_series: deque[tuple[float, float]] = deque(maxlen=config.slack_series_len)
-        self.replan_marks: list[dict[str, Any]] = []
-        """The current run's replans for operators (fields of protocol.ReplanMark)."""
-        self.intruders: set[Cell] = set()
         self.latencies_ms: list[float] = []
         self.summary: tuple[float, float] | None = None
         self.finished_event = asyncio.Event()
-        self._trace: IO[str] | None = None
         self._tasks: set[asyncio.Task[None]] = set()
         self._unlocked_at: float | None = None  # perf_counter of the finish being applied
         self.status_listeners: list[Callable[[GatewayStatus], None]] = []
@@ -251,10 +246,7 @@ class Engine:
         ex.tick(now)
         slack = ex.monitor.fleet_slack()
         self.metrics.fleet_slack.set(slack)
-        if not self.slack_series or self.slack_series[-1][1] != slack \
-                or now - self.slack_series[-1][0] >= 1000.0:
-            self.slack_series.append((now, slack))
-            self._broadcast_event("slack", now, fleet_slack_ms=slack)
+        self.feed.slack(now, slack)
         self._route(ex.drain())
 
     # -------------------------------------------------------------------------- connections
@@ -262,7 +254,7 @@ class Engine:
         role = session.peer.role
         self.metrics.connections.labels(role).inc()
         if role == "operator":
-            self.operators.add(session)
+            self.feed.operators.add(session)
             self.send_snapshot(session)
         elif role == "world":
             self.worlds.add(session)
@@ -271,13 +263,13 @@ class Engine:
     def _disconnected(self, session: Session) -> None:
         peer = session.peer
         self.metrics.connections.labels(peer.role).dec()
-        self.operators.discard(session)
+        self.feed.operators.discard(session)
         self.worlds.discard(session)
         r = peer.robot_id
         if r is not None and r in self.robots and self.robots[r].disconnected(session):
             self._online.discard(r)
             self.metrics.connected_robots.dec()
-            self._broadcast_event("connection", self.clock.now_ms(), robot=r, state="off")
+            self.feed.event("connection", self.clock.now_ms(), robot=r, state="off")
             log.info("robot disconnected", extra={"robot": r})
 
     # -------------------------------------------------------------------------- inbound
@@ -323,7 +315,7 @@ class Engine:
         self._flush(gs, session)
         self._online.add(r)
         self.metrics.connected_robots.inc()
-        self._broadcast_event("connection", now, robot=r, state="on")
+        self.feed.event("connection", now, robot=r, state="on")
         log.info("robot connected", extra={"robot": r, "resent": resent})
         self._maybe_autostart()
 
@@ -382,15 +374,7 @@ class Engine:
         self._route(ex.drain())
 
     def _intruder(self, msg: IntruderReport) -> None:
-        cell = (int(msg.cell[0]), int(msg.cell[1]))
-        if msg.state == "on":
-            self.intruders.add(cell)
-        else:
-            self.intruders.discard(cell)
-        now = self.clock.now_ms()
-        self._write_trace({"t_ms": now, "type": "intruder", "cell": list(cell),
-                           "state": msg.state})
-        self._broadcast_event("intruder", now, cell=cell, state=msg.state)
+        self.feed.intruder(self.clock.now_ms(), (int(msg.cell[0]), int(msg.cell[1])), msg.state)
 
     # -------------------------------------------------------------------------- routing
     def _route(self, commands: list[Command]) -> None:
@@ -434,9 +418,10 @@ class Engine:
 
     def _completed(self, c: Completed) -> None:
         self.summary = (c.soc_ms, c.makespan_ms)
-        self._write_trace({"type": "summary", "soc_ms": c.soc_ms, "makespan_ms": c.makespan_ms})
-        self._close_trace()
-        self._broadcast_event("summary", self.now_ms(), soc_ms=c.soc_ms,
+        self.feed.write_trace({"type": "summary", "soc_ms": c.soc_ms,
+                               "makespan_ms": c.makespan_ms})
+        self.feed.close_trace()
+        self.feed.event("summary", self.now_ms(), soc_ms=c.soc_ms,
                               makespan_ms=c.makespan_ms)
         self._status_changed()
         self.finished_event.set()
@@ -624,10 +609,10 @@ class Engine:
     def _loaded(self) -> None:
         for gs in self.robots.values():
             gs.new_run()
-        self.slack_series.clear()
+        self.feed.slack_series.clear()
         self.summary = None
         self._status_changed()
-        for op in self.operators:
+        for op in self.feed.operators:
             self.send_snapshot(op)
         self._maybe_autostart()
 
@@ -647,17 +632,15 @@ class Engine:
         plan = self.problem.plan
         for gs in self.robots.values():
             gs.new_run()
-        self.slack_series.clear()
-        self.replan_marks.clear()
         self.summary = None
         self.solver_ms = 0.0
         self.finished_event.clear()
         self.paused = False
-        self._open_trace()
+        self.feed.new_run()
         self.executor = Executor(plan, policy=self._make_policy(plan),
                                  action_ms=self.config.action_ms,
                                  drop_waits=self.config.drop_waits,
-                                 max_replans=self.config.max_replans, record=self._record,
+                                 max_replans=self.config.max_replans, record=self.feed.record,
                                  lookahead=self.config.dispatch_lookahead)
         for hook in self.before_start:
             hook()
@@ -667,48 +650,11 @@ class Engine:
         self._route(self.executor.drain())
 
     # -------------------------------------------------------------------------- outputs
-    def _record(self, rec: dict[str, object]) -> None:
-        """The executor's trace records: to the trace file and to operators as events."""
-        self._write_trace(rec)
-        t_ms: Any = rec["t_ms"]
-        kind = str(rec["type"])
-        if kind == "trigger":
-            self.replan_marks.append({"trigger_ms": float(t_ms), "policy": str(rec["policy"])})
-        elif kind == "plan" and rec.get("plan") and self.replan_marks:
-            self.replan_marks[-1].update(plan=rec["plan"], adopted_ms=float(t_ms))
-        if not self.operators:
-            return  # several records per action: build no event nobody would receive
-        fields: dict[str, Any] = {k: v for k, v in rec.items()
-                                  if k not in ("type", "t_ms", "agents")}
-        agents: Any = rec.get("agents")
-        if agents is not None:
-            fields["paths"] = [a["path"] for a in agents]
-        self._broadcast_event(kind, float(t_ms), **fields)
-
-    def _broadcast_event(self, kind: str, t_ms: float, **fields: Any) -> None:
-        for op in list(self.operators):
-            op.send(Event, event=kind, t_ms=t_ms, **fields)
-
     def _status_changed(self) -> None:
         status = self.status
-        self._broadcast_event("status", self.clock.now_ms(), status=status)
+        self.feed.event("status", self.clock.now_ms(), status=status)
         for listener in self.status_listeners:
             listener(status)
-
-    def _open_trace(self) -> None:
-        self._close_trace()
-        if self.config.trace is not None:
-            self._trace = self.config.trace.open("w")
-
-    def _write_trace(self, rec: dict[str, object]) -> None:
-        if self._trace is not None:
-            self._trace.write(json.dumps(rec) + "\n")
-
-    def _close_trace(self) -> None:
-        if self._trace is not None:
-            with contextlib.suppress(OSError):
-                self._trace.close()
-            self._trace = None
 
     def send_snapshot(self, session: Session) -> None:
         """Send the whole fleet state to one operator."""
@@ -716,14 +662,15 @@ class Engine:
 
     def read_model(self) -> FleetView:
         """What operators are shown, read-only (see :mod:`gateway.server.views`)."""
+        feed = self.feed
         return FleetView(
             t_ms=self.clock.now_ms(), status=self.status, threshold_ms=self.threshold_ms,
-            policy=self.policy_name, speed=self.clock.speed, slack_series=self.slack_series,
-            intruders=self.intruders, replan_marks=self.replan_marks, problem=self.problem,
+            policy=self.policy_name, speed=self.clock.speed, slack_series=feed.slack_series,
+            intruders=feed.intruders, replan_marks=feed.replan_marks, problem=self.problem,
             executor=self.executor, robots=self.robots)
 
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""
         for task in list(self._tasks):
             task.cancel()
-        self._close_trace()
+        self.feed.close_trace()

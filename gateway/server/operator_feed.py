@@ -1,0 +1,91 @@
+"""What a run tells the outside: the operators' event stream and series, and the trace file.
+
+The engine hands every executor trace record, status change, fleet-slack sample, connection
+change and intruder report to one :class:`OperatorFeed`; it writes the run's trace (DESIGN
+section 3) and sends operators their events, and keeps what a snapshot shows besides the
+executor (the slack series, the replan marks, the intruders).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections import deque
+from pathlib import Path
+from typing import IO, Any
+
+from gateway.planning.grid import Cell
+from gateway.server.session import Session
+from protocol import Event
+
+
+class OperatorFeed:
+    """Operators' events and series, and the trace file of the current run."""
+
+    def __init__(self, slack_series_len: int, trace: Path | None) -> None:
+        self.operators: set[Session] = set()
+        self.slack_series: deque[tuple[float, float]] = deque(maxlen=slack_series_len)
+        self.replan_marks: list[dict[str, Any]] = []
+        """The current run's replans (fields of protocol.ReplanMark)."""
+        self.intruders: set[Cell] = set()
+        self._trace_path = trace
+        self._trace: IO[str] | None = None
+
+    def event(self, kind: str, t_ms: float, **fields: Any) -> None:
+        """Send every operator an ``event``."""
+        for op in list(self.operators):
+            op.send(Event, event=kind, t_ms=t_ms, **fields)
+
+    def new_run(self) -> None:
+        """A run starts: fresh series and marks, a fresh trace file (if configured)."""
+        self.slack_series.clear()
+        self.replan_marks.clear()
+        self.close_trace()
+        if self._trace_path is not None:
+            self._trace = self._trace_path.open("w")
+
+    def record(self, rec: dict[str, object]) -> None:
+        """An executor trace record: to the trace file, and to operators as an event."""
+        self.write_trace(rec)
+        t_ms: Any = rec["t_ms"]
+        kind = str(rec["type"])
+        if kind == "trigger":
+            self.replan_marks.append({"trigger_ms": float(t_ms), "policy": str(rec["policy"])})
+        elif kind == "plan" and rec.get("plan") and self.replan_marks:
+            self.replan_marks[-1].update(plan=rec["plan"], adopted_ms=float(t_ms))
+        if not self.operators:
+            return  # several records per action: build no event nobody would receive
+        fields: dict[str, Any] = {k: v for k, v in rec.items()
+                                  if k not in ("type", "t_ms", "agents")}
+        agents: Any = rec.get("agents")
+        if agents is not None:
+            fields["paths"] = [a["path"] for a in agents]
+        self.event(kind, float(t_ms), **fields)
+
+    def slack(self, t_ms: float, slack_ms: float) -> None:
+        """A fleet-slack sample: kept (on change, or once a second) and sent."""
+        series = self.slack_series
+        if not series or series[-1][1] != slack_ms or t_ms - series[-1][0] >= 1000.0:
+            series.append((t_ms, slack_ms))
+            self.event("slack", t_ms, fleet_slack_ms=slack_ms)
+
+    def intruder(self, t_ms: float, cell: Cell, state: str) -> None:
+        """The world reports an intruder on (or off) ``cell``."""
+        if state == "on":
+            self.intruders.add(cell)
+        else:
+            self.intruders.discard(cell)
+        self.write_trace({"t_ms": t_ms, "type": "intruder", "cell": list(cell), "state": state})
+        self.event("intruder", t_ms, cell=cell, state=state)
+
+    def write_trace(self, rec: dict[str, object]) -> None:
+        """One record to the trace file (if one is open)."""
+        if self._trace is not None:
+            self._trace.write(json.dumps(rec) + "\n")
+
+    def close_trace(self) -> None:
+        """Close the trace file (the run is complete, or the gateway stops)."""
+        if self._trace is not None:
+            with contextlib.suppress(OSError):
+                self._trace.close()
+            self._trace = None
