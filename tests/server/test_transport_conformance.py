@@ -140,7 +140,7 @@ async def test_a_slow_client_never_stalls_the_others(name: str) -> None:
                 ref = await fast.send(SetThreshold, threshold_ms=float(i))
                 while not isinstance(msg := await fast.recv(), Ok) or msg.ref != ref:
                     pass
-            while len(t.gw.engine.operators) != 1:  # the slow one was dropped
+            while len(t.gw.engine.feed.operators) != 1:  # the slow one was dropped
                 await asyncio.sleep(0.01)
         with pytest.raises(ConnectionClosed):
             async with asyncio.timeout(10):
