@@ -26,6 +26,13 @@ Cell = tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=0)]]
 Heading = Literal["E", "N", "W", "S"]
 """Compass heading of a robot (only meaningful for the ``turning`` motion model)."""
 
+HEADINGS: tuple[Heading, ...] = ("E", "S", "W", "N")
+"""The compass heading of a plan's heading number (0 east (+x), 1 south (+y), 2 west, 3 north:
+DESIGN's ``turning`` motion model), e.g. ``HEADINGS[1] == "S"``."""
+
+PlanHeading = Annotated[int, Field(ge=0, le=3)]
+"""A plan's heading number (see :data:`HEADINGS`)."""
+
 RobotId = Annotated[int, Field(ge=0)]
 """A robot is the agent with this index in the instance."""
 
@@ -422,6 +429,8 @@ class Snapshot(Envelope):
     rows: list[str] = Field(default_factory=list)
     plan: int | None = None
     paths: list[list[Cell]] = Field(default_factory=list)
+    headings: list[list[PlanHeading]] = Field(default_factory=list)
+    """Under the ``turning`` motion model each path's headings (one per cell), else empty."""
     robots: list[RobotView] = Field(default_factory=list)
     actions: ActionCounts = Field(default_factory=ActionCounts)
     fleet_slack: list[tuple[float, float]] = Field(default_factory=list)
@@ -450,7 +459,7 @@ class Event(Envelope):
     Fields beyond ``event`` and ``t_ms`` are set as the kind needs: dispatch..cancel use
     plan/robot/action; plan uses plan/paths; trigger policy/fleet_slack_ms; slack
     fleet_slack_ms; intruder cell/state; summary soc_ms/makespan_ms; status status;
-    connection robot/state ("on"/"off").
+    connection robot/state ("on"/"off"). A ``turning`` plan's event also has ``headings``.
     """
 
     type: Literal["event"] = "event"
@@ -460,6 +469,7 @@ class Event(Envelope):
     robot: RobotId | None = None
     action: int | None = None
     paths: list[list[Cell]] | None = None
+    headings: list[list[PlanHeading]] | None = None
     policy: str | None = None
     fleet_slack_ms: float | None = None
     cell: Cell | None = None

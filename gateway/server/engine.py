@@ -92,7 +92,7 @@ from protocol import (
     action_id,
     parse_action_id,
 )
-from protocol.messages import GatewayStatus, PolicyName
+from protocol.messages import HEADINGS, GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
 
@@ -493,8 +493,12 @@ class Engine:
     def _dispatch(self, c: Dispatch) -> None:
         aid = action_id(c.plan, c.robot, c.action)
         fields: dict[str, Any] = {
-            "action_id": aid, "sequence": c.action, "src": Pose(cell=c.src),
-            "dst": Pose(cell=c.dst), "duration_ms": c.duration_ms,
+            "action_id": aid, "sequence": c.action,
+            "src": Pose(cell=c.src, heading=None if c.src_heading is None
+                        else HEADINGS[c.src_heading]),
+            "dst": Pose(cell=c.dst, heading=None if c.dst_heading is None
+                        else HEADINGS[c.dst_heading]),
+            "duration_ms": c.duration_ms,
         }
         rec = self.robot(c.robot)
         rec.held[aid] = Held(fields)
@@ -771,10 +775,12 @@ class Engine:
         if not self.operators:
             return  # several records per action: build no event nobody would receive
         fields: dict[str, Any] = {k: v for k, v in rec.items()
-                                  if k not in ("type", "t_ms", "agents")}
+                                  if k not in ("type", "t_ms", "agents", "motion")}
         agents: Any = rec.get("agents")
         if agents is not None:
-            fields["paths"] = [a["path"] for a in agents]
+            fields["paths"] = [[c[:2] for c in a["path"]] for a in agents]
+            if rec.get("motion") == "turning":
+                fields["headings"] = [[c[2] for c in a["path"]] for a in agents]
         self._broadcast_event(kind, float(t_ms), **fields)
 
     def _broadcast_event(self, kind: str, t_ms: float, **fields: Any) -> None:
