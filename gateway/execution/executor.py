@@ -161,6 +161,13 @@ class Executor:
         self._check_robot(robot)
         return None if self._headings is None else self._headings[robot]
 
+    def has_started(self, robot: int, plan: int, action: int) -> bool:
+        """True if ``a_action^robot`` of the current plan ``plan`` started (or finished)."""
+        self._check_robot(robot)
+        if plan != self.plan_id:
+            return False
+        return self._status[self.adg.vertex(robot, action)] in (_STARTED, _DONE)
+
     def completion_ms(self, robot: int) -> float:
         """Finish time of the robot's latest action (0 if it has none)."""
         self._check_robot(robot)
