@@ -318,8 +318,7 @@ class FakeGateway:
     async def idle(self) -> None:
         """Let pending reports and acks of the last step arrive and drop them."""
         await asyncio.sleep(0.05)
-        c = self.c()
-        c._unclaimed[:] = [m for m in c._unclaimed if not isinstance(m, Ack | State)]
+        self.c().take((Ack, State))
 
 
 ROBOT_CHECKS: Checklist[FakeGateway] = Checklist(time_limit_s=45.0)
