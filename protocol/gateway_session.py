@@ -28,7 +28,10 @@ The rules, written once here:
 * a report about an applied action is a ``duplicate`` (a completion reported twice is applied
   once), a report about an action never dispatched is ``unknown_action``, a repeated
   ``started`` / ``blocked`` is a ``duplicate``; everything else goes to the executor, which may
-  still reject it (``rejected``).
+  still reject it (``rejected``);
+* protocol v2 (the version of the robot's ``hello``): a ``blocked`` of a move under way is a
+  stop on the way (a bumper), told to the executor as ``stopped``; its ``unblocked`` resumes
+  the move.
 """
 
 from __future__ import annotations
@@ -37,12 +40,14 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from protocol.messages import (
+    PROTOCOL_VERSION,
     Action,
     CancelAction,
     ErrorCode,
     Hello,
     Pause,
     Pose,
+    ProtocolVersion,
     Resume,
     RobotActivity,
     ToRobotMessage,
@@ -51,6 +56,9 @@ from protocol.messages import (
 )
 
 ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled"]
+"""What a robot reports."""
+ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked", "cancelled"]
+"""What the executor is told: a v2 robot's ``blocked`` of a move under way is ``stopped``."""
 Phase = Literal["dispatched", "running", "blocked"]
 
 
@@ -76,7 +84,7 @@ class Report:
     """Robot ``robot`` reports ``kind`` of action ``index`` of plan ``plan`` at ``t_ms``;
     ``ref`` is the report's msg_id (None for what a ``hello`` caught up)."""
 
-    kind: ReportKind
+    kind: ExecutorEvent
     robot: int
     plan: int
     index: int
@@ -97,6 +105,8 @@ class Held:
     phase: Phase = "dispatched"
     acked: bool = False
     cancel: bool = False
+    moved: bool = False
+    """It started (a later ``blocked`` / ``unblocked`` is a stop on the way and its end)."""
 
 
 @dataclass
@@ -107,6 +117,8 @@ class GatewaySession:
     link: object | None = None
     """The driver's handle of the connection the robot said ``hello`` on (None: offline)."""
     pose: Pose | None = None
+    version: int = PROTOCOL_VERSION
+    """The protocol version of the robot's latest ``hello``."""
     held: dict[str, Held] = field(default_factory=dict)
     applied: dict[str, str] = field(default_factory=dict)
     """Action id -> "finished" / "cancelled", for the current run."""
@@ -145,6 +157,7 @@ class GatewaySession:
         applies them, routes what the executor dispatches (:meth:`dispatch`, held for the
         resend), then calls :meth:`welcome` with the connection."""
         self.link = None
+        self.version = msg.v
         if msg.pose is not None:
             self.pose = msg.pose
         holds = set(msg.acked)
@@ -174,12 +187,12 @@ class GatewaySession:
             else:
                 h.acked = False  # resent: it was never received, or was lost
 
-    def welcome(self, link: object, *, start: Pose | None, plan: int | None,
-                state_period_ms: float, paused: bool) -> int:
-        """Welcome the robot on ``link``: resend what it does not hold, then the cancels it
-        owes. Returns how many actions were resent."""
+    def welcome(self, link: object, *, version: ProtocolVersion, start: Pose | None,
+                plan: int | None, state_period_ms: float, paused: bool) -> int:
+        """Welcome the robot on ``link`` (speaking ``version``): resend what it does not hold,
+        then the cancels it owes. Returns how many actions were resent."""
         self.link = link
-        resend = [Action(msg_id=f"resend-{aid}", seq=0, **h.fields)
+        resend = [Action(v=version, msg_id=f"resend-{aid}", seq=0, **h.fields)
                   for aid, h in self.held.items() if not h.acked and not h.cancel]
         self._send(Welcome, robot_id=self.robot_id, start=start, plan=plan, resend=resend,
                    state_period_ms=state_period_ms, paused=paused)
@@ -226,7 +239,10 @@ class GatewaySession:
         if (kind, h.phase) in (("started", "running"), ("blocked", "blocked")):
             self._refuse(ErrorCode.DUPLICATE, ref, f"{aid} is already {h.phase}")
             return
-        self._report(kind, aid, t_ms, ref)
+        if kind == "blocked" and h.phase == "running" and self.version >= 2:
+            self._report("stopped", aid, t_ms, ref)
+        else:
+            self._report(kind, aid, t_ms, ref)
 
     def state(self, pose: Pose | None, link: object) -> None:
         """A periodic ``state``: only the pose is kept."""
@@ -239,11 +255,11 @@ class GatewaySession:
         if h is None:
             return
         if r.kind == "started":
-            h.phase = "running"
-        elif r.kind == "blocked":
+            h.phase, h.moved = "running", True
+        elif r.kind in ("blocked", "stopped"):
             h.phase = "blocked"
         elif r.kind == "unblocked":
-            h.phase = "dispatched"
+            h.phase = "running" if h.moved else "dispatched"
         else:
             del self.held[r.action_id]
             self.applied[r.action_id] = r.kind
@@ -291,7 +307,7 @@ class GatewaySession:
             return False
         return True
 
-    def _report(self, kind: ReportKind, aid: str, t_ms: float, ref: str | None) -> None:
+    def _report(self, kind: ExecutorEvent, aid: str, t_ms: float, ref: str | None) -> None:
         plan, _, index = parse_action_id(aid)
         self._out.append(Report(kind, self.robot_id, plan, index, aid, t_ms, ref))
 

@@ -88,7 +88,7 @@ from protocol import (
     action_id,
 )
 from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot
-from protocol.messages import GatewayStatus, PolicyName
+from protocol.messages import HEADINGS, GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
 
@@ -299,6 +299,15 @@ class Engine:
 
     def _hello(self, session: Session, msg: Hello) -> None:
         r = msg.robot_id
+        session.version = msg.v  # answer in the robot's protocol version
+        plan = self.executor.plan if self.executor is not None else (
+            self.problem.plan if self.problem is not None else None)
+        if msg.v < 2 and plan is not None and plan.headings is not None:
+            session.error(ErrorCode.UNSUPPORTED_VERSION, msg.msg_id,
+                          "the plan is for turning robots: protocol v2 needed (a v1 robot "
+                          "moves omni-directionally)")
+            session.close(1008, "protocol v1 robot on a turning plan")
+            return
         gs = self.robot(r)
         old = gs.link
         if old is not None:  # a reconnect, or a second hello on this connection
@@ -309,7 +318,7 @@ class Engine:
         now = self.now_ms()
         gs.hello(msg, now)
         self._flush(gs, session)  # catch-ups; what they unlock is held for the resend
-        resent = gs.welcome(session, start=self._start_pose(r),
+        resent = gs.welcome(session, version=session.version, start=self._start_pose(r),
                             plan=self.executor.plan_id if self.executor else None,
                             state_period_ms=self.config.state_period_ms, paused=self.paused)
         self._flush(gs, session)
@@ -360,7 +369,8 @@ class Engine:
             gs.rejected(r, "no execution is running")
             return
         apply = {"started": ex.started, "finished": ex.finished, "blocked": ex.blocked,
-                 "unblocked": ex.unblocked, "cancelled": ex.cancelled}[r.kind]
+                 "stopped": ex.stopped, "unblocked": ex.unblocked,
+                 "cancelled": ex.cancelled}[r.kind]
         try:
             apply(r.robot, r.plan, r.index, r.t_ms)
         except ExecutionError as exc:
@@ -404,8 +414,12 @@ class Engine:
     def _dispatch(self, c: Dispatch) -> None:
         aid = action_id(c.plan, c.robot, c.action)
         fields: dict[str, Any] = {
-            "action_id": aid, "sequence": c.action, "src": Pose(cell=c.src),
-            "dst": Pose(cell=c.dst), "duration_ms": c.duration_ms,
+            "action_id": aid, "sequence": c.action,
+            "src": Pose(cell=c.src, heading=None if c.src_heading is None
+                        else HEADINGS[c.src_heading]),
+            "dst": Pose(cell=c.dst, heading=None if c.dst_heading is None
+                        else HEADINGS[c.dst_heading]),
+            "duration_ms": c.duration_ms,
         }
         gs = self.robot(c.robot)
         gs.dispatch(fields)

@@ -56,10 +56,12 @@ class OperatorFeed:
         if not self.operators:
             return  # several records per action: build no event nobody would receive
         fields: dict[str, Any] = {k: v for k, v in rec.items()
-                                  if k not in ("type", "t_ms", "agents")}
+                                  if k not in ("type", "t_ms", "agents", "motion")}
         agents: Any = rec.get("agents")
         if agents is not None:
-            fields["paths"] = [a["path"] for a in agents]
+            fields["paths"] = [[c[:2] for c in a["path"]] for a in agents]
+            if rec.get("motion") == "turning":
+                fields["headings"] = [[c[2] for c in a["path"]] for a in agents]
         self.event(kind, float(t_ms), **fields)
 
     def slack(self, t_ms: float, slack_ms: float) -> None:

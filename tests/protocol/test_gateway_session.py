@@ -62,7 +62,7 @@ def test_hello_catches_up_and_the_welcome_resends_only_what_the_robot_lacks() ->
     gs = GatewaySession(0)
     link = object()
     gs.hello(hello(), 0.0)
-    gs.welcome(link, start=None, plan=0, state_period_ms=100.0, paused=False)
+    gs.welcome(link, version=2, start=None, plan=0, state_period_ms=100.0, paused=False)
     accept_all(gs)
     for i in range(3):
         gs.dispatch(fields(i))
@@ -77,7 +77,7 @@ def test_hello_catches_up_and_the_welcome_resends_only_what_the_robot_lacks() ->
     reports = [e for e in accept_all(gs) if isinstance(e, Report)]
     assert [(r.kind, r.action_id, r.t_ms, r.ref) for r in reports] == [
         ("finished", "0.0.0", 9.0, None)]
-    gs.welcome(object(), start=None, plan=0, state_period_ms=100.0, paused=False)
+    gs.welcome(object(), version=2, start=None, plan=0, state_period_ms=100.0, paused=False)
     assert welcome_of(gs.drain()).resend == []
     assert gs.applied == {"0.0.0": "finished"} and gs.next_index == 1
     assert all(h.acked for h in gs.held.values())
@@ -87,7 +87,7 @@ def test_a_lost_action_is_resent_and_owed_cancels_are_settled() -> None:
     gs = GatewaySession(0)
     link = object()
     gs.hello(hello(), 0.0)
-    gs.welcome(link, start=None, plan=0, state_period_ms=100.0, paused=False)
+    gs.welcome(link, version=2, start=None, plan=0, state_period_ms=100.0, paused=False)
     for i in range(3):
         gs.dispatch(fields(i))
         gs.ack(f"0.0.{i}", f"a{i}", link)
@@ -101,7 +101,7 @@ def test_a_lost_action_is_resent_and_owed_cancels_are_settled() -> None:
     reports = [(e.kind, e.action_id) for e in accept_all(gs) if isinstance(e, Report)]
     assert reports == [("cancelled", "0.0.1")]  # it no longer holds it: nobody else confirms
     link2 = object()
-    gs.welcome(link2, start=None, plan=0, state_period_ms=100.0, paused=False)
+    gs.welcome(link2, version=2, start=None, plan=0, state_period_ms=100.0, paused=False)
     effects = gs.drain()
     assert [a.action_id for a in welcome_of(effects).resend] == ["0.0.0"]
     assert [e.fields for e in effects if isinstance(e, ToRobot) and e.kind.__name__ ==
@@ -114,7 +114,7 @@ def test_refusals_duplicates_and_unknown_actions() -> None:
     gs.report("finished", "0.0.0", "early", link, 0.0)
     assert gs.drain() == [Refuse(ErrorCode.BAD_STATE, "early", "say hello first")]
     gs.hello(hello(), 0.0)
-    gs.welcome(link, start=None, plan=0, state_period_ms=100.0, paused=False)
+    gs.welcome(link, version=2, start=None, plan=0, state_period_ms=100.0, paused=False)
     gs.drain()
     gs.dispatch(fields(0))
     gs.drain()
@@ -187,7 +187,7 @@ class Wire:
         assert isinstance(msg, Hello)
         self.gw.hello(msg, 0.0)
         self.pump()
-        self.gw.welcome(self.link, start=None, plan=0, state_period_ms=1e3, paused=False)
+        self.gw.welcome(self.link, version=2, start=None, plan=0, state_period_ms=1e3, paused=False)
         self.pump()
 
     def cut(self) -> None:
