@@ -276,3 +276,22 @@ def test_the_wire_detects_a_robot_that_forgets_to_confirm() -> None:
     w.cut()
     w.connect()
     assert not w.gw.held and [k for _, k in w.applied] == ["cancelled", "cancelled"]
+
+
+def test_a_v2_blocked_of_a_move_under_way_is_a_stop_on_the_way() -> None:
+    for version, told in ((2, "stopped"), (1, "blocked")):
+        gs = GatewaySession(0)
+        link = object()
+        n = next(_n)
+        gs.hello(Hello(v=version, msg_id=f"h{n}", seq=0, robot_id=0), 0.0)
+        gs.welcome(link, version=version, start=None, plan=0, state_period_ms=1e3,
+                   paused=False)
+        gs.dispatch(fields(0))
+        gs.report("started", "0.0.0", "s", link, 1.0)
+        accept_all(gs)
+        gs.report("blocked", "0.0.0", "b", link, 2.0)  # a bumper
+        (r,) = [e for e in accept_all(gs) if isinstance(e, Report)]
+        assert r.kind == told and gs.held["0.0.0"].phase == "blocked"
+        gs.report("unblocked", "0.0.0", "u", link, 3.0)
+        accept_all(gs)
+        assert gs.held["0.0.0"].phase == "running"  # it drives on
