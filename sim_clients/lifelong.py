@@ -39,6 +39,9 @@ TICK_MS = 100.0
 """LoRR's default execution tick (``actionMoveTimeLimit``)."""
 PLAN_PERIOD_MS = 1000.0
 """LoRR's default minimum time between plan updates (``planCommTimeLimit``)."""
+EXACT_SCHEDULING_WORK = 4_000_000
+"""The scheduler uses exact distances (a search from each free robot) while free robots x
+free cells stays below this; Manhattan distances beyond (a large fleet's first call)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -178,9 +181,14 @@ def run_lifelong(cfg: LifelongConfig,
     sum_of_cost = 0
     max_pending = 0
     width = grid.width
+    n_free = int(grid.free.sum())
 
-    def distance_from(cells: Sequence[int]) -> np.ndarray:
-        return distance_tables(grid, [grid.cell(c) for c in cells])
+    def distance_from(cells: Sequence[int], targets: Sequence[int]) -> npt.NDArray[np.int64]:
+        tgt = np.asarray(targets, dtype=np.int64)
+        if len(cells) * n_free <= EXACT_SCHEDULING_WORK:
+            return distance_tables(grid, [grid.cell(c) for c in cells])[:, tgt].astype(np.int64)
+        src = np.asarray(cells, dtype=np.int64)[:, None]
+        return np.abs(src % width - tgt % width) + np.abs(src // width - tgt // width)
 
     def errand_reached(r: int, task_id: int, t: int) -> None:
         task = pool.tasks[task_id]

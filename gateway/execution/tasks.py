@@ -75,8 +75,8 @@ class TaskPool:
         return True
 
 
-DistanceFrom = Callable[[Sequence[int]], npt.NDArray[np.int32]]
-"""``f(cells)[i, c]``: moves from ``cells[i]`` to cell c (-1: unreachable)."""
+DistanceFrom = Callable[[Sequence[int], Sequence[int]], npt.NDArray[np.int64]]
+"""``f(cells, targets)[i, j]``: moves from ``cells[i]`` to ``targets[j]`` (-1: unreachable)."""
 
 
 class Scheduler(Protocol):
@@ -93,10 +93,9 @@ def greedy_nearest(free: Sequence[tuple[int, int]], pool: TaskPool,
     """Each free robot in turn takes the open task whose first errand is nearest to it."""
     if not free or not pool.open:
         return {}
-    dist = distance_from([cell for _, cell in free]).astype(np.int64)
     ids = np.fromiter(pool.open, np.int64, len(pool.open))
-    first = np.fromiter((pool.open[int(i)].errands[0] for i in ids), np.int64, ids.size)
-    cost = dist[:, first]
+    first = [pool.open[int(i)].errands[0] for i in ids]
+    cost = distance_from([cell for _, cell in free], first).astype(np.int64)
     cost[cost < 0] = np.iinfo(np.int32).max
     out: dict[int, int] = {}
     taken = np.zeros(ids.size, dtype=bool)
@@ -116,11 +115,10 @@ def min_cost(free: Sequence[tuple[int, int]], pool: TaskPool,
     smallest distance to the first errand (a greedy matching, better than robot order)."""
     if not free or not pool.open:
         return {}
-    dist = distance_from([cell for _, cell in free]).astype(np.int64)
     ids = np.fromiter(pool.open, np.int64, len(pool.open))
-    first = np.fromiter((pool.open[int(i)].errands[0] for i in ids), np.int64, ids.size)
+    first = [pool.open[int(i)].errands[0] for i in ids]
     big = np.iinfo(np.int64).max // 4
-    cost = dist[:, first]
+    cost = distance_from([cell for _, cell in free], first).astype(np.int64)
     cost[cost < 0] = big
     out: dict[int, int] = {}
     flat = np.argsort(cost, axis=None, kind="stable")

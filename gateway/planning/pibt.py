@@ -151,7 +151,10 @@ class StateSpace:
 
     def prefetch(self, goals: Sequence[int]) -> None:
         """Compute the missing tables of ``goals`` together (one batched search)."""
-        missing = sorted({g for g in goals if g not in self._cache})
+        cache = self._cache
+        missing = sorted({g for g in goals if g not in cache})
+        if not missing:
+            return
         for i in range(0, len(missing), 32):
             chunk = missing[i : i + 32]
             if self.turning:
@@ -199,7 +202,7 @@ class WindowedPIBT:
         cur = list(states)
         if len({cell_of[s] for s in cur}) != n:
             raise ValueError("two robots stand on the same cell")
-        space.prefetch([c for g in goals for c in g])
+        space.prefetch([g[0] for g in goals if g])
         progress = [0] * n
         reached: list[list[int]] = [[] for _ in range(n)]
         for r in range(n):
@@ -209,6 +212,7 @@ class WindowedPIBT:
         for r, s in enumerate(cur):
             occupant[cell_of[s]] = r
         for step in range(1, steps + 1):
+            space.prefetch([g[progress[r]] for r, g in enumerate(goals) if progress[r] < len(g)])
             tables = [space.distances(g[progress[r]]) if progress[r] < len(g) else None
                       for r, g in enumerate(goals)]
             nxt = self._step(cur, tables, frozen)
