@@ -81,3 +81,10 @@ def test_compress_path_runs_and_windows() -> None:
     row, col = divmod(loc, p.grid.width)
     text = compress_path(p.grid, [(loc, 0, 0), (loc, 1, 1)], "WWFFRW", 4)
     assert text == f"[(0,{row},{col},0,0):(W 2,F 2)][(4,{row},{col},1,1):(R 1,W 1)]"
+
+
+def test_cli_offers_the_schedulers() -> None:
+    from gateway.execution.tasks import SCHEDULERS
+    from sim_clients.cmd_lifelong import SCHEDULER_CHOICES
+
+    assert sorted(SCHEDULER_CHOICES) == sorted(SCHEDULERS)
