@@ -180,6 +180,7 @@ def run_lifelong(cfg: LifelongConfig,
     next_call = 0
     sum_of_cost = 0
     max_pending = 0
+    idle = [0, 0, 0]  # robot-ticks delayed, waiting for a dependency, without committed work
     width = grid.width
     n_free = int(grid.free.sum())
 
@@ -236,7 +237,8 @@ def run_lifelong(cfg: LifelongConfig,
                      else () for r in range(n)]
             starts = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
             # a robot with a period's work committed waits in this window: backlogs stay short
-            frozen = [adg.pending(r) * counter - progress[r] >= cfg.period for r in range(n)]
+            frozen = [adg.pending(r) * counter - progress[r] >= cfg.period + counter
+                      for r in range(n)]
             win = planner.plan(starts, goals, window, frozen)
             tasks_of = list(plan_task)
             for r in range(n):
@@ -267,6 +269,12 @@ def run_lifelong(cfg: LifelongConfig,
             p = progress[r]
             if p == 0 or delayed[r]:
                 letters[r].append(87)  # "W"
+                if delayed[r]:
+                    idle[0] += 1
+                elif adg.pending(r):
+                    idle[1] += 1
+                else:
+                    idle[2] += 1
                 continue
             a = adg.head(r)
             assert a is not None
@@ -291,7 +299,9 @@ def run_lifelong(cfg: LifelongConfig,
         ticks=cfg.ticks, finished=pool.finished, letters=letters, snapshots=snapshots,
         events=events, tasks=released, planner_times=planner_times,
         delay_intervals=delays.intervals, starts=starts_out, sum_of_cost=sum_of_cost,
-        max_pending=max_pending, calls=len(planner_times))
+        max_pending=max_pending, calls=len(planner_times),
+        extra={"delayed": idle[0] / (n * cfg.ticks), "waiting": idle[1] / (n * cfg.ticks),
+               "no_work": idle[2] / (n * cfg.ticks)})
 
 
 def lorr_output(cfg: LifelongConfig, res: LifelongResult) -> dict[str, object]:
