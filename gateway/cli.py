@@ -1,8 +1,8 @@
 """The ``fleetgate`` command.
 
 Gateway subcommands live in :mod:`gateway.commands`; packages the gateway must not import
-(``sim_clients``) contribute theirs through the ``fleetgate.commands`` entry-point group.
-Exit codes: 0 success, 2 bad input (one-line reason on stderr), 3 no solution within the limit.
+(``sim_clients``, ``experiments``) contribute theirs through the ``fleetgate.commands``
+entry-point group. Exit codes and :class:`UsageError` live in :mod:`gateway.runtime.exits`.
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 
+from gateway.runtime.exits import EXIT_BAD_INPUT, UsageError
+
 GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.plan",
     "gateway.commands.maps",
@@ -20,15 +22,6 @@ GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.protocol",
 )
 """Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
-
-EXIT_OK = 0
-EXIT_BAD_INPUT = 2
-EXIT_NO_SOLUTION = 3
-
-
-class UsageError(Exception):
-    """Bad input: the CLI prints ``fleetgate: <message>`` and exits with code 2."""
-
 
 Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
 

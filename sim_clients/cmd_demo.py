@@ -17,21 +17,18 @@ import signal
 import sys
 from pathlib import Path
 
-from websockets.asyncio.client import connect as ws_connect
-
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
-from gateway.commands.deadline import WallDeadline
 from gateway.commands.instance_args import add_instance_arguments, instance_from_args
 from gateway.planning.plan import NoSolution
 from gateway.planning.solver import solve
+from gateway.runtime.deadline import WallDeadline
+from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
 from gateway.server.config import ConfigError, GatewayConfig, load_config
 from gateway.server.gateway import Gateway
 from gateway.server.logs import configure_logging
 from gateway.server.planner import Problem
+from sim_clients.connect import websocket_connector
 from sim_clients.des import derive_seed
 from sim_clients.fleet import (
-    ClientConnection,
-    Connect,
     RunResult,
     SimFleet,
     fleet_for,
@@ -42,16 +39,6 @@ DEFAULT_MAP, DEFAULT_SCEN, DEFAULT_AGENTS = "lab", "lab-random-4", 10
 """The zero-setup demo: 10 robots on the shipped lab map. Its seed-0 intruder blocks a robot
 that others queue behind, the fleet slack passes 2 s at about 7.1 s and the replan saves about
 3 s of SOC (virtual time: 95.2 s against 98.3 s without replanning), robustly in real time too."""
-
-
-def websocket_connector(url: str) -> Connect:
-    """Opens ``url`` with a bearer token (no proxy, no compression: loopback)."""
-
-    async def connect(token: str) -> ClientConnection:
-        return await ws_connect(url, additional_headers={"Authorization": f"Bearer {token}"},
-                                proxy=None, compression=None, max_queue=None)
-
-    return connect
 
 
 def _follow_runs(gateway: Gateway, fleet: SimFleet) -> None:

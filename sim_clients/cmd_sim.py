@@ -16,8 +16,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from gateway.cli import EXIT_OK, UsageError
-from sim_clients.cmd_demo import websocket_connector
+from gateway.runtime.exits import EXIT_OK, UsageError
+from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 
 

@@ -6,13 +6,13 @@ import argparse
 import json
 import sys
 
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
-from gateway.commands.deadline import WallDeadline
 from gateway.commands.instance_args import add_instance_arguments, instance_from_args
 from gateway.planning.plan import NoSolution
 from gateway.planning.solver import solve
+from gateway.runtime.deadline import WallDeadline
+from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from gateway.runtime.trace import JsonlWriter
 from sim_clients.des import POLICIES, SimConfig, SolverTime, parse_solver_time, run_simulation
-from sim_clients.trace import JsonlWriter
 
 
 def _solver_time(text: str) -> SolverTime:

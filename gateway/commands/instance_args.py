@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from gateway.cli import UsageError
-from gateway.commands import mapstore
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
 from gateway.planning.movingai import MapFormatError
+from gateway.runtime import mapstore
+from gateway.runtime.exits import UsageError
 
 
 def add_instance_arguments(parser: argparse.ArgumentParser) -> None:

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.cli import EXIT_OK, UsageError
-from gateway.commands import mapstore
 from gateway.planning.generators import random_map, rooms_map, scenario_set, warehouse_map
 from gateway.planning.grid import Grid
 from gateway.planning.movingai import format_map, format_scen
+from gateway.runtime import mapstore
+from gateway.runtime.exits import EXIT_OK, UsageError
 
 
 def _list(args: argparse.Namespace) -> int:

@@ -7,13 +7,13 @@ import json
 import sys
 from typing import Any
 
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
-from gateway.commands.deadline import WallDeadline
 from gateway.commands.instance_args import add_instance_arguments, instance_from_args
 from gateway.planning.instance import Instance
 from gateway.planning.plan import NoSolution, Solution
 from gateway.planning.solver import solve
 from gateway.planning.validate import check_plan
+from gateway.runtime.deadline import WallDeadline
+from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
 
 DEFAULT_TIME_LIMIT = 60.0
 """Seconds the planner may take unless ``--time-limit`` says otherwise."""

@@ -8,7 +8,7 @@ import contextlib
 import signal
 import sys
 
-from gateway.cli import EXIT_OK, UsageError
+from gateway.runtime.exits import EXIT_OK, UsageError
 from gateway.server.config import ConfigError, GatewayConfig, load_config
 from gateway.server.gateway import Gateway
 from gateway.server.logs import configure_logging

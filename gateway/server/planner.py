@@ -7,8 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.commands import mapstore
-from gateway.commands.deadline import WallDeadline
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
@@ -16,6 +14,8 @@ from gateway.planning.movingai import MapFormatError, read_map
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve
 from gateway.planning.validate import plan_violations
+from gateway.runtime import mapstore
+from gateway.runtime.deadline import WallDeadline
 
 
 class InstanceError(ValueError):

@@ -16,9 +16,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from gateway.cli import EXIT_OK, UsageError
-from gateway.commands.mapstore import MapNotFound, resolve
-from sim_clients.campaign import (
+from experiments.campaign import (
     PAPER_GROUPS,
     PAPER_INSTANCES,
     PAPER_SEEDS,
@@ -28,9 +26,11 @@ from sim_clients.campaign import (
     open_executor,
     run_campaign,
 )
+from experiments.plots import plot_all
+from experiments.stats import OutlierRules, join_experiments, summarize
+from gateway.runtime.exits import EXIT_OK, UsageError
+from gateway.runtime.mapstore import MapNotFound, resolve
 from sim_clients.des import parse_solver_time
-from sim_clients.plots import plot_all
-from sim_clients.stats import OutlierRules, join_experiments, summarize
 
 JsonDict = dict[str, Any]
 
