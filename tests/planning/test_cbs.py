@@ -38,17 +38,19 @@ def check_against_oracle(
 ) -> None:
     """CBS agrees with the exhaustive optimum. Its budget counts deadline checks (no clock).
 
-    A timeout is not "no solution": it fails the example, or, with ``timeout_is_inconclusive``
-    (plain CBS, which may exhaust any budget on a hard 3-agent instance), discards it.
+    A timeout is not a proof of "no solution". On an unsolvable instance it is expected (CBS
+    rarely proves infeasibility); on a solvable one it fails the example, or, with
+    ``timeout_is_inconclusive`` (plain CBS, which can exhaust any budget on a 3-agent 4x4
+    instance), discards it.
     """
     best = optimal_soc(grid, starts, goals, forbidden, max_cost=80)
     try:
         sol = solve_cbs(grid, starts, goals, deadline=CountingDeadline(3000),
                         forbidden=forbidden, options=options)
     except NoSolution as exc:
-        if exc.timed_out:
+        if exc.timed_out and best is not None:
             assume(not timeout_is_inconclusive)
-            raise AssertionError(f"CBS ran out of its budget (optimum: {best})") from None
+            raise AssertionError(f"CBS ran out of its budget (optimum SOC {best})") from None
         assert best is None
         return
     assert_valid(grid, starts, goals, sol.plan, forbidden)
