@@ -19,7 +19,7 @@ PURE_FORBIDDEN = ("gateway.server", "gateway.runtime", "gateway.commands", "gate
                   "asyncio", "websockets", "pydantic", "time", "datetime", "sim_clients",
                   "experiments", "tracecheck", "protocol")
 CLI = ("gateway.cli", "gateway.commands", "gateway.__main__")
-"""The ``fleetgate`` command's own modules; plugins' command modules are listed by :func:`_is_cli`."""
+"""The ``fleetgate`` command's own modules (plugins' command modules: see :func:`_is_cli`)."""
 
 
 def _module_name(path: Path) -> str:
