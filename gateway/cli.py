@@ -2,7 +2,13 @@
 
 Gateway subcommands live in :mod:`gateway.commands`; packages the gateway must not import
 (``sim_clients``, ``experiments``) contribute theirs through the ``fleetgate.commands``
-entry-point group. Exit codes and :class:`UsageError` live in :mod:`gateway.runtime.exits`.
+entry-point group. Exit codes (0 success, 2 bad input with a one-line reason on stderr, 3 no
+solution within the limit, 130 interrupted) and :class:`UsageError` live in
+:mod:`gateway.runtime.exits`.
+
+Building the parser imports only the command modules' registration code: each command imports
+what it needs (numpy, pydantic, matplotlib...) when it runs, so ``--help`` and the first line
+of every command come at once.
 """
 
 from __future__ import annotations
@@ -12,8 +18,9 @@ import importlib
 import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
+from typing import Any
 
-from gateway.runtime.exits import EXIT_BAD_INPUT, UsageError
+from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_INTERRUPTED, UsageError
 
 GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.plan",
@@ -22,6 +29,25 @@ GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.protocol",
 )
 """Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
+
+class StrictParser(argparse.ArgumentParser):
+    """A parser that rejects unknown arguments itself, so a mistyped option of a subcommand
+    gets that subcommand's usage line, not the top-level one. Options are never abbreviated
+    (a typo that happens to be a prefix of an option must not run the command)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def parse_known_args(  # type: ignore[override]
+            self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None,
+    ) -> tuple[argparse.Namespace, list[str]]:
+        """Parse ``args``; any argument left over is an error of this parser."""
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed, extras
+
 
 Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
 
@@ -37,11 +63,12 @@ def _registrars() -> list[Register]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with every registered subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = StrictParser(
         prog="fleetgate",
         description="Execute multi-robot plans safely, monitor delays, replan when it pays off.",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub: argparse._SubParsersAction[argparse.ArgumentParser] = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=StrictParser)
     for register in _registrars():
         register(sub)
     return parser
@@ -56,4 +83,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"fleetgate: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("fleetgate: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return code
