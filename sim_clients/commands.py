@@ -9,6 +9,7 @@ SIM_COMMANDS: tuple[str, ...] = (
     "sim_clients.cmd_simulate",
     "sim_clients.cmd_sim",
     "sim_clients.cmd_demo",
+    "sim_clients.cmd_lifelong",
 )
 
 
