@@ -1,6 +1,7 @@
 """The independent trace checker (DESIGN section 3): it imports nothing of fleetgate.
 
-Run it as ``python -m tracecheck FILE.jsonl``.
+Run it as ``python -m tracecheck FILE.jsonl``. :mod:`tracecheck.lorr` checks LoRR output the
+same way.
 """
 
 from tracecheck.checker import build_graph, check_trace, main, slack_series
