@@ -628,7 +628,7 @@ class Engine:
             case LoadPlan():
                 self._idle("load a plan")
                 try:
-                    problem = problem_from_paths(msg.map, msg.paths)
+                    problem = problem_from_paths(msg.map, msg.paths, msg.headings)
                 except InstanceError as exc:
                     raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
                 self.executor = None
