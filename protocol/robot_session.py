@@ -22,7 +22,8 @@ order. The rules, written once here for every robot:
   cell (``blocked``): a moving robot finishes; a cancel of anything else is stale and ignored;
 * ``pause`` / ``resume`` stop and allow new starts (a running move completes);
 * reports (``started``, ``finished``, ``blocked``, ``unblocked``) are sent while a link is up;
-  what a link loss swallows is carried by the next ``hello``.
+  what a link loss swallows is carried by the next ``hello``. A ``blocked`` after ``started``
+  is a stop on the way (protocol v2, a bumper): ``unblocked`` makes the action run again.
 """
 
 from __future__ import annotations
@@ -141,6 +142,7 @@ class RobotSession:
         self.current: str | None = None
         """The action taken by the body and not finished (or dropped)."""
         self.phase: Literal["received", "running", "blocked"] = "received"
+        self._moved = False  # the current action started (a later blocked is a stop on the way)
         self._finished: dict[str, None] = {}  # insertion-ordered, at most HISTORY
         self._queued: set[str] = set()
         self._check = check
@@ -263,7 +265,7 @@ class RobotSession:
             return None
         action = self.queue.popleft()
         self._queued.discard(action.action_id)
-        self.current, self.phase = action.action_id, "received"
+        self.current, self.phase, self._moved = action.action_id, "received", False
         return action
 
     def report(self, kind: ReportKind, action_id: str, pose: Pose | None = None) -> None:
@@ -277,8 +279,9 @@ class RobotSession:
             if len(self._finished) > HISTORY:
                 del self._finished[next(iter(self._finished))]
         elif action_id == self.current:
-            self.phase = "running" if kind == "started" else (
-                "blocked" if kind == "blocked" else "received")
+            self._moved = self._moved or kind == "started"
+            self.phase = "blocked" if kind == "blocked" else (
+                "running" if self._moved else "received")
         self._send(_REPORTS[kind], action_id=action_id, pose=self.pose)
 
     def state(self, pose: Pose | None = None, *, battery: float | None = None,

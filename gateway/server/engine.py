@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Literal, cast
 
+from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import (
     Cancel,
     Command,
@@ -533,7 +534,7 @@ class Engine:
             case LoadPlan():
                 self._idle("load a plan")
                 try:
-                    problem = problem_from_paths(msg.map, msg.paths)
+                    problem = problem_from_paths(msg.map, msg.paths, msg.headings)
                 except InstanceError as exc:
                     raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
                 self.executor = None
@@ -602,6 +603,15 @@ class Engine:
             self._flush(gs)
         self._status_changed()
 
+    def _durations(self, robots: int) -> list[ActionDurations]:
+        """Each robot's t_x per action kind: its configured model, else ``action_ms``."""
+        cfg = self.config
+        models = {name: ActionDurations(m.move_ms, m.turn_ms, m.wait_ms)
+                  for name, m in cfg.robot_models.items()}
+        uniform = ActionDurations.uniform(cfg.action_ms)
+        return [models[cfg.robot_model[k]] if k in cfg.robot_model else uniform
+                for k in range(robots)]
+
     def _make_policy(self, plan: Plan) -> ReplanPolicy:
         return make_policy(self.policy_name, seed=self.policy_seed,
                            threshold_ms=self.threshold_ms,
@@ -655,7 +665,8 @@ class Engine:
                                  action_ms=self.config.action_ms,
                                  drop_waits=self.config.drop_waits,
                                  max_replans=self.config.max_replans, record=self.feed.record,
-                                 lookahead=self.config.dispatch_lookahead)
+                                 lookahead=self.config.dispatch_lookahead,
+                                 durations=self._durations(len(plan.paths)))
         for hook in self.before_start:
             hook()
         self.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
