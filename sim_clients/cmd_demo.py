@@ -5,6 +5,9 @@ Everything talks over real websockets on loopback in real time: the gateway list
 like remote ones would. Actions last ``1000 / speed`` ms of wall time; every reported time is
 plan time (wall time x speed). The first run starts by itself; without ``--headless`` the
 gateway keeps serving the GUI afterwards (load, start, pause, intruders...) until Ctrl-C.
+
+The operator token is random for each run and printed once, in the GUI's login URL
+(``/login#token=...``: the fragment never reaches a server or a log).
 """
 
 from __future__ import annotations
@@ -13,8 +16,11 @@ import argparse
 import asyncio
 import contextlib
 import json
+import secrets
 import signal
+import ssl
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from websockets.asyncio.client import connect as ws_connect
@@ -44,12 +50,15 @@ that others queue behind, the fleet slack passes 2 s at about 7.1 s and the repl
 3 s of SOC (virtual time: 95.2 s against 98.3 s without replanning), robustly in real time too."""
 
 
-def websocket_connector(url: str) -> Connect:
-    """Opens ``url`` with a bearer token (no proxy, no compression: loopback)."""
+def websocket_connector(url: str, tls: Callable[[str], ssl.SSLContext | None] | None = None
+                        ) -> Connect:
+    """Opens ``url`` with a bearer token (no proxy, no compression); for ``wss://``,
+    ``tls(token)`` is the SSL context of that token's connection (its client certificate)."""
 
     async def connect(token: str) -> ClientConnection:
+        context = tls(token) if tls is not None else None
         return await ws_connect(url, additional_headers={"Authorization": f"Bearer {token}"},
-                                proxy=None, compression=None, max_queue=None)
+                                proxy=None, compression=None, max_queue=None, ssl=context)
 
     return connect
 
@@ -89,7 +98,8 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         host = config.host
-        print(f"fleetgate demo: GUI at http://{host}:{port}/ "
+        token = config.tokens.operators[0]
+        print(f"fleetgate demo: GUI at http://{host}:{port}/login#token={token} "
               f"(robots and world on ws://{host}:{port}/ws)", file=sys.stderr, flush=True)
         fleet = fleet_for(gateway, problem.instance.num_agents,
                           websocket_connector(f"ws://{host}:{port}/ws"), seed=args.seed,
@@ -143,7 +153,8 @@ def _run(args: argparse.Namespace) -> int:
                              policy=args.policy, threshold_ms=args.threshold_ms,
                              policy_seed=derive_seed(args.seed, "replan"), trace=args.trace,
                              solver_time_limit_s=args.time_limit, log_level=args.log_level,
-                             dispatch_lookahead=args.lookahead)
+                             dispatch_lookahead=args.lookahead,
+                             tokens={"operators": [secrets.token_urlsafe(24)]})
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     configure_logging(config.log_level)

@@ -308,7 +308,7 @@ class Engine:
                 if r is not None and msg.pose is not None:
                     self.robot(r).pose = msg.pose
             case IntruderReport():
-                self._intruder(msg)
+                self._intruder(session, msg)
             case _:
                 self._command(msg, session)  # type: ignore[arg-type]
 
@@ -451,8 +451,17 @@ class Engine:
             del rec.held[aid]
             rec.applied[aid] = "cancelled"
 
-    def _intruder(self, msg: IntruderReport) -> None:
+    def _intruder(self, session: Session, msg: IntruderReport) -> None:
+        """Record a world's intruder report (trace and operators) if it is consistent: a free
+        cell of the loaded map, on only if it is off and off only if it is on."""
         cell = (int(msg.cell[0]), int(msg.cell[1]))
+        if self.problem is not None and not self.problem.instance.grid.is_free(cell):
+            session.error(ErrorCode.REJECTED, msg.msg_id, f"{list(cell)} is not a free cell")
+            return
+        if (cell in self.intruders) == (msg.state == "on"):
+            session.error(ErrorCode.DUPLICATE, msg.msg_id,
+                          f"the intruder on {list(cell)} is already {msg.state}")
+            return
         if msg.state == "on":
             self.intruders.add(cell)
         else:
