@@ -37,6 +37,7 @@ MAX_DIGITS = 32
 _LONG_NUMBER = re.compile(f"[0-9]{{{MAX_DIGITS + 1},}}")
 _JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
 _NOT_BRACKET = re.compile(r"[^\[\]{}]")
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
 
 def _types(union: Any) -> frozenset[str]:
     members = getattr(union, "__args__", (union,))
@@ -98,6 +99,25 @@ def _check_shape(text: str) -> None:
                 raise ProtocolError(ErrorCode.TOO_LARGE, f"nested deeper than {MAX_DEPTH}")
 
 
+def _has_surrogate(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return True
+    return False
+
+
+def _check_unicode(text: str) -> None:
+    """Refuse lone surrogates (``"\\ud800"`` is valid JSON but no character: it could not be
+    echoed back, logged or written to the trace as UTF-8)."""
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError:
+        return  # malformed: diagnosed later
+    if _has_surrogate(json.dumps(data, ensure_ascii=False)) or _has_surrogate(text):
+        raise ProtocolError(ErrorCode.MALFORMED, "a string holds a lone UTF-16 surrogate")
+
+
 def decode(raw: str | bytes) -> AnyMessage:
     """Parse one message; raise :class:`ProtocolError` with the matching code if it is bad.
 
@@ -113,6 +133,8 @@ def decode(raw: str | bytes) -> AnyMessage:
         except UnicodeDecodeError as exc:
             raise ProtocolError(ErrorCode.MALFORMED, f"not UTF-8: {exc}") from None
     _check_shape(raw)
+    if _SURROGATE_ESCAPE.search(raw) or (not raw.isascii() and _has_surrogate(raw)):
+        _check_unicode(raw)
     first: ValidationError | None = None
     try:  # fast path: parse and validate in one pass (pydantic-core), ~2x faster
         message = MESSAGE_ADAPTER.validate_json(raw, strict=True)

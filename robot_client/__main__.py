@@ -27,6 +27,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         settings = load_settings(rest, config_file=opts.config)
+        settings.ssl_context()  # refuse unreadable TLS files now, with a one-line reason
         base = KobukiSerial(settings.serial_port)
         frames: FrameSource | None = None
         if not settings.no_camera:
