@@ -30,9 +30,20 @@ def trim_path(path: Sequence[Cell]) -> Path:
 
 @dataclass(frozen=True)
 class Plan:
-    """One path per agent, indexed like the agents of the instance."""
+    """One path per agent, indexed like the agents of the instance.
+
+    ``paths`` are cells under either motion model (occupancy is on cells). A ``turning`` plan
+    also has ``headings[k][t]``, agent k's heading at timestep t, one per entry of
+    ``paths[k]``; an ``omni`` plan has ``headings is None``.
+    """
 
     paths: tuple[Path, ...]
+    headings: tuple[tuple[int, ...], ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.headings is not None and [len(h) for h in self.headings] != [
+                len(p) for p in self.paths]:
+            raise ValueError("a turning plan needs one heading per path entry")
 
     @staticmethod
     def of(paths: Sequence[Sequence[Cell]]) -> Plan:
