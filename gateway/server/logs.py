@@ -25,8 +25,11 @@ class JsonFormatter(logging.Formatter):
             "msg": record.getMessage(),
         }
         out.update({k: v for k, v in vars(record).items() if k not in _STANDARD})
-        if record.exc_info:
-            out["exc"] = self.formatException(record.exc_info)
+        if record.exc_info:  # a traceback for our own records, one line for libraries'
+            exc = record.exc_info[1]
+            out["exc"] = (self.formatException(record.exc_info)
+                          if record.name.startswith("fleetgate") or exc is None
+                          else f"{type(exc).__name__}: {exc}")
         return json.dumps(out, default=str)
 
 

@@ -196,3 +196,51 @@ def test_a_log_storm_becomes_a_few_lines_and_a_count() -> None:
     late = logger.makeRecord(logger.name, logging.ERROR, __file__, 1,
                              "socket.accept() out of system resource", (), None)
     assert limit.filter(late) and late.__dict__["suppressed"] == 997
+
+
+def test_out_of_file_descriptors_the_gateway_stays_quiet_and_recovers() -> None:
+    """A gateway whose hard limit is 100 open files gets 150 idle TCP connections: a few log
+    lines (not one per failed accept), and it serves again once they are gone."""
+    import re
+    import resource
+    import socket
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+    from pathlib import Path
+
+    def low_limit() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (100, 100))
+
+    fleetgate = Path(sys.executable).parent / "fleetgate"
+    proc = subprocess.Popen([str(fleetgate), "serve", "--port", "0", "--log-level", "WARNING"],
+                            stderr=subprocess.PIPE, text=True, preexec_fn=low_limit)
+    try:
+        assert proc.stderr is not None
+        port = int(re.findall(r":(\d+)/ws", proc.stderr.readline())[0])
+        idle = []
+        for _ in range(150):
+            try:
+                idle.append(socket.create_connection(("127.0.0.1", port), timeout=2))
+            except OSError:
+                break
+        time.sleep(3)
+        for s in idle:
+            s.close()
+        opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                with opener.open(f"http://127.0.0.1:{port}/healthz", timeout=2) as resp:
+                    assert resp.status == 200
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the gateway did not recover"
+                time.sleep(0.2)
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=10)
+    lines = err.splitlines()
+    assert len(lines) <= 25, lines[:30]
+    assert not any("Traceback" in line for line in lines)
