@@ -10,19 +10,20 @@ Ctrl-C.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import json
 import signal
-import ssl
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_OK, UsageError
-from protocol.tls import client_context
-from sim_clients.cmd_demo import websocket_connector
-from sim_clients.fleet import SimFleet
+from gateway.cli import EXIT_BAD_INPUT, EXIT_OK, UsageError
+
+if TYPE_CHECKING:
+    import ssl
+
+    from sim_clients.fleet import SimFleet
 
 
 def parse_robots(spec: str) -> list[int]:
@@ -78,6 +79,7 @@ def tls_contexts(args: argparse.Namespace, robots: list[int], tokens: Callable[[
         return None
     if args.key and not args.cert:
         raise ValueError("--key needs --cert")
+    from protocol.tls import client_context
 
     def load(r: int | None) -> ssl.SSLContext:
         cert = args.cert.replace("{id}", str(r)) if args.cert and r is not None else None
@@ -94,6 +96,8 @@ def tls_contexts(args: argparse.Namespace, robots: list[int], tokens: Callable[[
 
 
 async def _run_fleet(fleet: SimFleet) -> None:
+    import asyncio
+
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -119,6 +123,11 @@ async def _run_fleet(fleet: SimFleet) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from sim_clients.cmd_demo import websocket_connector
+    from sim_clients.fleet import SimFleet
+
     try:
         robots = parse_robots(args.robots)
         tokens = token_source(args.tokens)
@@ -145,7 +154,7 @@ def _run(args: argparse.Namespace) -> int:
         asyncio.run(main())
     except RuntimeError as exc:  # a robot's handshake was refused
         print(f"fleetgate sim: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     return EXIT_OK
 
 

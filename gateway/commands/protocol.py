@@ -8,10 +8,11 @@ import sys
 from pathlib import Path
 
 from gateway.cli import EXIT_OK, UsageError
-from protocol import json_schema
 
 
 def _schema(args: argparse.Namespace) -> int:
+    from protocol import json_schema
+
     text = json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
     if args.output is None:
         sys.stdout.write(text)

@@ -1,6 +1,7 @@
-"""Structured logs: one JSON object per line on stderr, rate-limited per message (a storm of
-identical records, e.g. ``accept()`` failing while the process is out of file descriptors,
-becomes a few lines and a count of the suppressed ones)."""
+"""Logs: readable lines (default) or one JSON object per line, on stderr or into a file;
+rate-limited per message (a storm of identical records, e.g. ``accept()`` failing while the
+process is out of file descriptors, becomes a few lines and a count of the suppressed ones),
+and one line per record from libraries (asyncio, websockets), without their tracebacks."""
 
 from __future__ import annotations
 
@@ -8,9 +9,16 @@ import json
 import logging
 import sys
 import time
-from typing import Any
+from pathlib import Path
+from typing import Any, Literal, TextIO
 
 _STANDARD = frozenset([*vars(logging.makeLogRecord({})), "message", "asctime"])
+
+LogFormat = Literal["text", "json"]
+
+
+def _extra(record: logging.LogRecord) -> dict[str, Any]:
+    return {k: v for k, v in vars(record).items() if k not in _STANDARD}
 
 
 class JsonFormatter(logging.Formatter):
@@ -24,13 +32,27 @@ class JsonFormatter(logging.Formatter):
             "logger": record.name,
             "msg": record.getMessage(),
         }
-        out.update({k: v for k, v in vars(record).items() if k not in _STANDARD})
-        if record.exc_info:  # a traceback for our own records, one line for libraries'
-            exc = record.exc_info[1]
-            out["exc"] = (self.formatException(record.exc_info)
-                          if record.name.startswith("fleetgate") or exc is None
-                          else f"{type(exc).__name__}: {exc}")
+        out.update(_extra(record))
+        if record.exc_info:
+            out["exc"] = self.formatException(record.exc_info)
         return json.dumps(out, default=str)
+
+
+class TextFormatter(logging.Formatter):
+    """Formats a record as ``HH:MM:SS WARNING fleetgate.x: message (key=value ...)``."""
+
+    def __init__(self) -> None:
+        super().__init__("%(asctime)s %(levelname)s %(name)s: %(message)s", "%H:%M:%S")
+
+    def format(self, record: logging.LogRecord) -> str:
+        """The record as one readable line (plus a traceback, if any)."""
+        text = super().format(record)
+        extra = _extra(record)
+        if extra:
+            fields = " ".join(f"{k}={v}" for k, v in extra.items())
+            head, sep, rest = text.partition("\n")
+            text = f"{head} ({fields}){sep}{rest}"
+        return text
 
 
 class RateLimit(logging.Filter):
@@ -61,12 +83,38 @@ class RateLimit(logging.Filter):
         return True
 
 
-def configure_logging(level: str = "INFO") -> None:
+class LibraryOneLine(logging.Filter):
+    """Makes a library's record (asyncio, websockets) one line, its exception folded into the
+    message: ``"...: OSError: [Errno 24] Too many open files"`` instead of a traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        """Always True (the record is changed in place)."""
+        if record.name.startswith("fleetgate"):
+            return True
+        text = " ".join(record.getMessage().split())
+        if record.exc_info:
+            exc = record.exc_info[1]
+            text = f"{text}: {type(exc).__name__}: {exc}"
+            record.exc_info = None
+            record.exc_text = None
+        record.msg, record.args = text, ()
+        return True
+
+
+def configure_logging(level: str = "INFO", fmt: LogFormat = "text", file: Path | None = None,
+                      stream: Any = None) -> None:
     """Send every ``fleetgate.*`` log record (and warnings of ``asyncio`` and ``websockets``)
-    to stderr as rate-limited JSON lines."""
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(JsonFormatter())
+    to ``file`` (appended), else to ``stream`` (default stderr), as readable lines or JSON
+    lines, rate-limited. Raises OSError if ``file`` cannot be opened."""
+    handler: logging.Handler
+    if file is not None:
+        handler = logging.FileHandler(file, encoding="utf-8")
+    else:
+        out: TextIO = stream if stream is not None else sys.stderr
+        handler = logging.StreamHandler(out)
+    handler.setFormatter(JsonFormatter() if fmt == "json" else TextFormatter())
     handler.addFilter(RateLimit())
+    handler.addFilter(LibraryOneLine())
     root = logging.getLogger("fleetgate")
     root.handlers[:] = [handler]
     root.setLevel(level)
