@@ -134,3 +134,23 @@ async def test_auth_matrix(tmp_path: Path) -> None:
         outcomes = {name: await _attempt(port, certs, row) for name, (row, _) in MATRIX.items()}
     assert outcomes == {name: expected for name, (_, expected) in MATRIX.items()}
     assert len(MATRIX) == 20
+
+
+async def test_robot_client_settings_speak_mutual_tls(tmp_path: Path) -> None:
+    from robot_client.config import load_settings
+
+    certs = make_certs(tmp_path)
+    async with Gateway(make_config(tls=certs.tls(), tokens=TOKENS)) as gw:
+        port = await gw.listen()
+        settings = load_settings(None, gateway_url=f"wss://127.0.0.1:{port}/ws", robot_id=1,
+                                 token="tok-r1", grid_width=4, grid_height=4,
+                                 ca_file=certs.ca, client_cert=certs.robots[1])
+        context = settings.ssl_context()
+        assert context is not None
+        async with connect(settings.gateway_url, ssl=context, proxy=None,
+                           additional_headers={"Authorization": "Bearer tok-r1"}) as ws:
+            await ws.send(encode(_hello(1)))
+            assert isinstance(decode(await ws.recv()), Welcome)
+        plain = load_settings(None, gateway_url="ws://127.0.0.1:1/ws", robot_id=1, token="t",
+                              grid_width=4, grid_height=4)
+        assert plain.ssl_context() is None
