@@ -15,7 +15,7 @@ from pydantic import TypeAdapter, ValidationError
 
 from protocol.messages import (
     MAX_MESSAGE_BYTES,
-    PROTOCOL_VERSION,
+    SUPPORTED_VERSIONS,
     AnyMessage,
     ErrorCode,
     Message,
@@ -151,11 +151,11 @@ def decode(raw: str | bytes) -> AnyMessage:
         raise ProtocolError(ErrorCode.MALFORMED, "a message must be a JSON object")
     ref = data.get("msg_id") if isinstance(data.get("msg_id"), str) else None
     version = data.get("v")
-    if type(version) is not int or version != PROTOCOL_VERSION:
+    if type(version) is not int or version not in SUPPORTED_VERSIONS:
         raise ProtocolError(
             ErrorCode.UNSUPPORTED_VERSION,
-            f"protocol version {version!r} not supported (this gateway speaks "
-            f"{PROTOCOL_VERSION})",
+            f"protocol version {version!r} not supported (this side speaks "
+            f"{' and '.join(map(str, SUPPORTED_VERSIONS))})",
             ref,
         )
     kind = data.get("type")
