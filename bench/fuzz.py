@@ -59,10 +59,10 @@ from pydantic import BaseModel
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
-from gateway.commands import mapstore
-from gateway.commands.deadline import WallDeadline
 from gateway.planning.instance import load_instance
 from gateway.planning.solver import solve
+from gateway.runtime import mapstore
+from gateway.runtime.deadline import WallDeadline
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
@@ -77,8 +77,7 @@ from protocol import (
     decode,
 )
 from sim_clients.fleet import fleet_for, run_in_process
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
+from tracecheck import check_trace, read_trace
 
 MAP, SCEN, AGENTS = "lab", "lab-random-1", 8
 FOREIGN_ROBOTS = range(100, 110)
