@@ -29,6 +29,8 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.execution.params import PAPER
+from gateway.execution.policies import POLICY_NAMES
 from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, EXIT_OK, UsageError
 
 if TYPE_CHECKING:
@@ -124,7 +126,8 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
 
     from gateway.server.gateway import Gateway
     from sim_clients.connect import websocket_connector
-    from sim_clients.fleet import RunResult, fleet_for, run_in_process
+    from sim_clients.fleet import fleet_for, run_in_process
+    from sim_clients.summary import RunSummary
 
     stop = _stop_on_signals()
     async with Gateway(config) as gateway:
@@ -145,7 +148,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
             if not run.done():
                 status.print("fleetgate demo: interrupted before the run completed")
                 return EXIT_INTERRUPTED
-            result: RunResult = run.result()
+            result: RunSummary = run.result()
             if args.json:
                 print(json.dumps(result.summary()), flush=True)
             else:
@@ -242,11 +245,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--speed", metavar="F", type=float, default=1.0,
                    help="the world runs F times faster than plan time (default 1)")
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
-                   help="the intruder appears at 3000 ms and leaves at 10000 ms (default: on)")
-    p.add_argument("--policy", choices=["none", "random", "slack", "operator"], default="slack",
+                   help=f"the intruder appears at {PAPER.intruder_appear_ms:g} ms and leaves at "
+                   f"{PAPER.intruder_leave_ms:g} ms (default: on)")
+    p.add_argument("--policy", choices=POLICY_NAMES, default="slack",
                    help="replanning policy (default slack)")
-    p.add_argument("--threshold-ms", metavar="MS", type=float, default=2000.0,
-                   help="fleet slack threshold of the slack policy (default 2000)")
+    p.add_argument("--threshold-ms", metavar="MS", type=float, default=PAPER.threshold_ms,
+                   help="fleet slack threshold of the slack policy "
+                   f"(default {PAPER.threshold_ms:g})")
     p.add_argument("--seed", metavar="K", type=int, default=0,
                    help="seed of the intruder's choice and the random policy (default 0)")
     add_planning_arguments(p, 30.0)

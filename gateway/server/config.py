@@ -20,6 +20,9 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from gateway.execution.params import PAPER
+from gateway.execution.policies import PolicyName
+
 
 class TokensConfig(BaseModel):
     """Who may connect: bearer token -> role (and robot id for robots)."""
@@ -57,9 +60,9 @@ class RobotModel(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    move_ms: float = Field(default=1000.0, gt=0)
-    turn_ms: float = Field(default=1000.0, gt=0)
-    wait_ms: float = Field(default=1000.0, gt=0)
+    move_ms: float = Field(default=PAPER.action_ms, gt=0)
+    turn_ms: float = Field(default=PAPER.action_ms, gt=0)
+    wait_ms: float = Field(default=PAPER.action_ms, gt=0)
 
 
 class ConfigError(ValueError):
@@ -89,11 +92,11 @@ class GatewayConfig(BaseSettings):
     generate_seed: int = 0
     autostart: bool = False
 
-    policy: Literal["none", "random", "slack", "operator"] = "slack"
+    policy: PolicyName = "slack"
     policy_seed: int = 0
-    threshold_ms: float = Field(default=2000.0, ge=0)
-    max_replans: int = Field(default=1, ge=0)
-    action_ms: float = Field(default=1000.0, gt=0)
+    threshold_ms: float = Field(default=PAPER.threshold_ms, ge=0)
+    max_replans: int = Field(default=PAPER.max_replans, ge=0)
+    action_ms: float = Field(default=PAPER.action_ms, gt=0)
     """t_x of every action of a robot that has no model in ``robot_model``."""
     robot_models: dict[str, RobotModel] = Field(default_factory=dict)
     """Named robot models: the monitor's t_x per action kind (move, turn, wait)."""

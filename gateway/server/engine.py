@@ -36,6 +36,7 @@ from gateway.execution.commands import (
 )
 from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
 from gateway.execution.policies import ReplanPolicy, SlackReplan, make_policy
+from gateway.execution.trace_records import intruder_record, summary_record
 from gateway.planning.grid import Cell
 from gateway.planning.plan import NoSolution, Plan
 from gateway.server.clock import Clock
@@ -482,8 +483,7 @@ class Engine:
         else:
             self.intruders.discard(cell)
         now = self.clock.now_ms()
-        self._write_trace({"t_ms": now, "type": "intruder", "cell": list(cell),
-                           "state": msg.state})
+        self._write_trace(intruder_record(now, cell, msg.state))
         self._broadcast_event("intruder", now, cell=cell, state=msg.state)
 
     # -------------------------------------------------------------------------- routing
@@ -538,7 +538,7 @@ class Engine:
         gc.unfreeze()
         gc.set_threshold(*GC_DEFAULT_THRESHOLDS)
         self.summary = (c.soc_ms, c.makespan_ms)
-        self._write_trace({"type": "summary", "soc_ms": c.soc_ms, "makespan_ms": c.makespan_ms})
+        self._write_trace(summary_record(c.soc_ms, c.makespan_ms))
         self._close_trace()
         self._broadcast_event("summary", self.now_ms(), soc_ms=c.soc_ms,
                               makespan_ms=c.makespan_ms)

@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from gateway.runtime.trace import (
-    JsonlWriter,
+from gateway.execution.trace_records import (
     event_record,
     intruder_record,
     plan_record,
     summary_record,
 )
+from gateway.runtime.trace import JsonlWriter
 from tracecheck import build_graph, check_trace, main, read_trace, slack_series
 
 # Robot 0 moves right twice; robot 1 waits twice then enters (1,0), which robot 0 leaves in
