@@ -86,7 +86,8 @@ async def websocket_connect(s: RobotSettings) -> Connection:
     headers = {"Authorization": f"Bearer {s.token.get_secret_value()}"}
     return await connect(s.gateway_url, additional_headers=headers, proxy=None,
                          open_timeout=s.ping_timeout_s * 2, ping_interval=s.ping_interval_s,
-                         ping_timeout=s.ping_timeout_s, max_size=MAX_MESSAGE_BYTES)
+                         ping_timeout=s.ping_timeout_s, max_size=MAX_MESSAGE_BYTES,
+                         ssl=s.ssl_context())
 
 
 class RobotClock(Protocol):

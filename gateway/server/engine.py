@@ -36,6 +36,7 @@ from gateway.execution.commands import (
 )
 from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
 from gateway.execution.policies import ReplanPolicy, SlackReplan, make_policy
+from gateway.execution.trace_records import summary_record
 from gateway.planning.grid import Cell
 from gateway.planning.plan import NoSolution, Plan
 from gateway.server.clock import Clock
@@ -288,7 +289,7 @@ class Engine:
             case State():
                 self._sender(session).state(msg.pose, session)
             case IntruderReport():
-                self._intruder(msg)
+                self._intruder(session, msg)
             case _:
                 self._command(msg, session)  # type: ignore[arg-type]
 
@@ -384,8 +385,18 @@ class Engine:
             self.metrics.finished.inc()
         self._route(ex.drain())
 
-    def _intruder(self, msg: IntruderReport) -> None:
-        self.feed.intruder(self.clock.now_ms(), (int(msg.cell[0]), int(msg.cell[1])), msg.state)
+    def _intruder(self, session: Session, msg: IntruderReport) -> None:
+        """Record a world's intruder report (trace and operators) if it is consistent: a free
+        cell of the loaded map, on only if it is off and off only if it is on."""
+        cell = (int(msg.cell[0]), int(msg.cell[1]))
+        if self.problem is not None and not self.problem.instance.grid.is_free(cell):
+            session.error(ErrorCode.REJECTED, msg.msg_id, f"{list(cell)} is not a free cell")
+            return
+        if (cell in self.feed.intruders) == (msg.state == "on"):
+            session.error(ErrorCode.DUPLICATE, msg.msg_id,
+                          f"the intruder on {list(cell)} is already {msg.state}")
+            return
+        self.feed.intruder(self.clock.now_ms(), cell, msg.state)
 
     # -------------------------------------------------------------------------- routing
     def _route(self, commands: list[Command]) -> None:
@@ -433,8 +444,7 @@ class Engine:
 
     def _completed(self, c: Completed) -> None:
         self.summary = (c.soc_ms, c.makespan_ms)
-        self.feed.write_trace({"type": "summary", "soc_ms": c.soc_ms,
-                               "makespan_ms": c.makespan_ms})
+        self.feed.write_trace(summary_record(c.soc_ms, c.makespan_ms))
         self.feed.close_trace()
         self.feed.event("summary", self.now_ms(), soc_ms=c.soc_ms,
                               makespan_ms=c.makespan_ms)

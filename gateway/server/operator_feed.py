@@ -14,6 +14,7 @@ from collections import deque
 from pathlib import Path
 from typing import IO, Any
 
+from gateway.execution.trace_records import intruder_record
 from gateway.planning.grid import Cell
 from gateway.server.session import Session
 from protocol import Event
@@ -77,7 +78,7 @@ class OperatorFeed:
             self.intruders.add(cell)
         else:
             self.intruders.discard(cell)
-        self.write_trace({"t_ms": t_ms, "type": "intruder", "cell": list(cell), "state": state})
+        self.write_trace(intruder_record(t_ms, cell, state))
         self.event("intruder", t_ms, cell=cell, state=state)
 
     def write_trace(self, rec: dict[str, object]) -> None:
