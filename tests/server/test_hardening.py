@@ -172,7 +172,7 @@ async def test_world_reports_are_checked_before_the_trace(tmp_path: Any) -> None
         await world.send(IntruderReport, cell=(0, 1), state="on")
         ref = await world.send(IntruderReport, cell=(0, 1), state="on")
         assert (await world.error_for(ref)).code is ErrorCode.DUPLICATE
-        assert gw.engine.intruders == {(0, 1)}
+        assert gw.engine.feed.intruders == {(0, 1)}
         ref = await world.send(Hello, robot_id=0)
         assert (await world.error_for(ref)).code is ErrorCode.FORBIDDEN
     records = [json.loads(line) for line in trace.read_text().splitlines()] \
