@@ -27,6 +27,7 @@ import json
 import logging
 import time
 from types import TracebackType
+from urllib.parse import urlsplit
 
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
@@ -190,15 +191,21 @@ class Gateway:
 
     def _process_request(self, connection: ServerConnection, request: Request
                          ) -> Response | None:
-        if request.headers.get("Upgrade", "").lower() != "websocket":
+        upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
+        if not upgrade and urlsplit(request.path).path != "/ws":
             return self.http(request.path)
         try:
             token = request_token(request.headers.get("Authorization"), request.path)
-            self._ws_peers[connection] = self.auth.identify(token)
+            peer = self.auth.identify(token)
         except AuthError as exc:
-            log.warning("handshake refused", extra={"status": exc.status, "why": exc.reason})
+            if upgrade:
+                log.warning("handshake refused", extra={"status": exc.status, "why": exc.reason})
             return response(exc.status, f"{exc.reason}\n".encode(),
                             extra=[("WWW-Authenticate", "Bearer")])
+        if not upgrade:  # a plain GET of /ws: how a browser learns why its websocket failed
+            return response(426, b"websocket upgrade required\n",
+                            extra=[("Upgrade", "websocket")])
+        self._ws_peers[connection] = peer
         return None
 
     async def _ws_handler(self, connection: ServerConnection) -> None:

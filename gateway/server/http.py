@@ -24,7 +24,7 @@ def response(status: int, body: bytes, content_type: str = "text/plain; charset=
              extra: list[tuple[str, str]] | None = None) -> Response:
     """A complete HTTP response."""
     reasons = {200: "OK", 404: "Not Found", 403: "Forbidden", 401: "Unauthorized",
-               405: "Method Not Allowed"}
+               405: "Method Not Allowed", 426: "Upgrade Required"}
     headers = Headers([("Content-Type", content_type), ("Content-Length", str(len(body))),
                        ("Cache-Control", "no-store"), *(extra or [])])
     return Response(status, reasons.get(status, "Error"), headers, body)
