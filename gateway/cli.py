@@ -24,6 +24,7 @@ GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.maps",
     "gateway.commands.serve",
     "gateway.commands.protocol",
+    "gateway.commands.conformance",
 )
 """Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
 
