@@ -272,8 +272,8 @@ async def _not_object(t: Target) -> None:
 
 @check("unsupported-version", "VER-1")
 async def _version(t: Target) -> None:
-    """``v`` 2 gets ``unsupported_version`` naming the msg_id."""
-    await _bad(t, _raw("x", type="state", robot_id=t.options.robot_id, v=2),
+    """``v`` 3 (not 1 or 2) gets ``unsupported_version`` naming the msg_id."""
+    await _bad(t, _raw("x", type="state", robot_id=t.options.robot_id, v=3),
                ErrorCode.UNSUPPORTED_VERSION, "x-raw")
 
 
@@ -558,11 +558,16 @@ async def _blocked_twice(t: Target) -> None:
 
 @check("blocked-after-start", "BLOCK-2")
 async def _blocked_late(t: Target) -> None:
-    """``blocked`` of a started action gets ``rejected``."""
+    """``blocked`` of a started move (v2: stopped on the way) is accepted, so a second one is
+    a ``duplicate``; of a started wait or turn it gets ``rejected``."""
     async with _Started(t) as (_, robot, first):
         await robot.report(Started, first.action_id)
         ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
-        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+        if first.src.cell == first.dst.cell:
+            await robot.conn.error_for(ref, ErrorCode.REJECTED)
+            return
+        ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
+        await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
 
 
 @check("unblocked-when-not-blocked", "BLOCK-2")
