@@ -310,11 +310,13 @@ class LoadInstance(Envelope):
 
 
 class LoadPlan(Envelope):
-    """Execute these paths (one per robot, ``path[t]`` its cell at step t) on map ``map``."""
+    """Execute these paths (one per robot, ``path[t]`` its cell at step t) on map ``map``;
+    with ``headings`` (one per cell of each path) a plan of the ``turning`` motion model."""
 
     type: Literal["load_plan"] = "load_plan"
     map: Annotated[str, Field(min_length=1, max_length=200)]
     paths: list[list[Cell]] = Field(min_length=1)
+    headings: list[list[PlanHeading]] | None = None
 
 
 class Start(Envelope):
