@@ -8,7 +8,6 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK
 from gateway.commands.instance_args import add_instance_arguments
 from gateway.commands.solving import (
     add_planning_arguments,
@@ -16,6 +15,7 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK
 
 if TYPE_CHECKING:
     from gateway.planning.instance import Instance

@@ -7,8 +7,8 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 from matplotlib.figure import Figure
 
-from sim_clients.plots import fleet_size_figure, plot_all, replan_decision_figure
-from sim_clients.stats import Experiment, OutlierRules, outlier_reasons
+from experiments.plots import fleet_size_figure, plot_all, replan_decision_figure
+from experiments.stats import Experiment, OutlierRules, outlier_reasons
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

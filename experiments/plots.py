@@ -25,7 +25,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from sim_clients.stats import Experiment, OutlierRules, map_order, outlier_reasons
+from experiments.stats import Experiment, OutlierRules, map_order, outlier_reasons
 
 REPLANNED_LABELS = ("Replan", "No Replan")
 
