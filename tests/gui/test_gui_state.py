@@ -14,7 +14,7 @@ from playwright.sync_api import Browser, Page, expect
 from tests.gui.conftest import SPEED
 from tests.gui.demo_process import DemoProcess
 from tests.gui.gui_page import cells, intruder_target, place_intruder, robots, set_speed
-from tests.gui.test_gui import INTRUDER_S, fresh_run
+from tests.gui.test_gui import ACTIVE, INTRUDER_S, fresh_run
 
 pytestmark = pytest.mark.gui
 
@@ -105,10 +105,14 @@ def test_pause_keeps_the_slack_live_and_a_cleared_block_does_not_replan(page: Pa
     page.get_by_label("Policy").select_option("slack")
     page.wait_for_function("window.fleetgate.model.snap.policy === 'slack'")
     try:
-        fresh_run(page)
-        target = intruder_target(page, INTRUDER_S)
-        set_speed(page, 1)
-        place_intruder(page, target, INTRUDER_S)
+        if page.evaluate(ACTIVE):
+            fresh_run(page)  # ends the run under way
+            finish_run(page)
+        set_speed(page, 1)  # slow enough that the robots are still far from the target
+        page.get_by_role("button", name="Start").click()
+        page.wait_for_function("window.fleetgate.status() === 'running'"
+                               " && window.fleetgate.plan() === 0")
+        place_intruder(page, intruder_target(page, INTRUDER_S), INTRUDER_S)
         page.wait_for_function(
             "window.fleetgate.robots().some(r => r.activity === 'blocked')", timeout=12_000)
         page.get_by_role("button", name="Pause").click()
