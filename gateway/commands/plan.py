@@ -27,20 +27,11 @@ DEFAULT_TIME_LIMIT = 60.0
 
 def solution_json(instance: Instance, solution: Solution, runtime_s: float) -> dict[str, Any]:
     """The solution object of DESIGN section 3 (``fleetgate plan --json``)."""
-    plan = solution.plan
-    return {
-        "map": instance.grid.name,
-        "motion": "omni",
-        "robust": 1,
-        "optimal": solution.optimal,
-        "soc": plan.soc,
-        "makespan": plan.makespan,
-        "runtime_s": round(runtime_s, 6),
-        "expanded_nodes": solution.expanded_nodes,
-        "agents": [{"start": list(s), "goal": list(g), "path": [list(c) for c in path]}
-                   for s, g, path in zip(instance.starts, instance.goals, plan.paths,
-                                         strict=True)],
-    }
+    from gateway.planning.solution_json import SolutionJson
+
+    return SolutionJson(instance.grid.name, tuple(instance.starts), tuple(instance.goals),
+                        solution.plan, solution.optimal, runtime_s,
+                        solution.expanded_nodes).to_json()
 
 
 def _plan(args: argparse.Namespace) -> int:
