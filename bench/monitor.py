@@ -140,7 +140,7 @@ def main() -> int:
             finishes += 1
             if finishes % sample_every == 0:
                 t0 = time.perf_counter()
-                oracle = algorithm1(adg, now_ms=ex.monitor.now_ms, action_ms=ex.action_ms,
+                oracle = algorithm1(adg, now_ms=ex.monitor.now_ms, action_ms=ex.monitor.tx,
                                     release_ms=[0.0] * adg.n_robots, started_ms=started,
                                     finished_ms=finished)
                 full.append(time.perf_counter() - t0)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from gateway.commands.deadline import WallDeadline
+from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import (
     Cancel,
     Completed,
@@ -80,6 +81,9 @@ class SimConfig:
     trace: TraceSink | None = None
     intruder_config: IntruderConfig = field(default_factory=IntruderConfig)
     action_ms: float = 1000.0
+    durations: ActionDurations | None = None
+    """Duration of each action kind (move, turn, wait); by default each takes ``action_ms``.
+    The simulated robots take exactly what the executor expects (plus ``extra_delay``)."""
     extra_delay: ExtraDelay | None = None
     max_replans: int = 1
     lookahead: int = 0
@@ -161,12 +165,16 @@ class _Simulation:
 
     def __init__(self, config: SimConfig) -> None:
         self.cfg = config
-        starts = [p[0] for p in config.plan.paths]
+        plan = config.plan
+        starts = [p[0] for p in plan.paths]
         self.world = World(starts)
-        self.robots = [SimRobot(k, self.world, cell) for k, cell in enumerate(starts)]
-        self.executor = Executor(config.plan, policy=policy_for(config),
+        self.robots = [SimRobot(k, self.world, cell,
+                                heading=None if plan.headings is None else plan.headings[k][0])
+                       for k, cell in enumerate(starts)]
+        self.executor = Executor(plan, policy=policy_for(config),
                                  action_ms=config.action_ms, max_replans=config.max_replans,
-                                 record=config.trace, lookahead=config.lookahead)
+                                 record=config.trace, lookahead=config.lookahead,
+                                 durations=config.durations)
         self.intruder = Intruder(self.world, config.intruder_config) if config.intruder else None
         self.rng = random.Random(derive_seed(config.seed, "intruder"))
         self.heap: list[tuple[float, int, int, int]] = []

@@ -5,8 +5,11 @@ current time, calls :meth:`SimRobot.wake` at :meth:`SimRobot.next_wakeup_ms`, an
 :class:`RobotEvent` values it gets back to the executor (or over a websocket). A move first
 checks the :class:`~sim_clients.world.World`: if the target is free the robot starts at once and
 holds both cells until it arrives ``duration`` later; if not, it reports ``blocked`` and looks
-again every 100 ms, then reports ``unblocked`` and ``started`` together. A wait (target equal to
-source) needs no check. While blocked, a matching ``Cancel`` returns it to idle.
+again every 100 ms, then reports ``unblocked`` and ``started`` together. A wait or a turn
+(target cell equal to source) needs no check and holds only its cell; a turn changes the
+robot's heading (turning motion model), and a dispatch that starts from another heading than
+the one the robot will hold is refused. While blocked, a matching ``Cancel`` returns it to
+idle.
 
 Lookahead dispatch: a busy robot queues further dispatches (each must start where the previous
 one ends) and runs them strictly in order, the next one at the instant the current one finishes.
@@ -58,13 +61,15 @@ class SimRobot:
     """One simulated robot on a :class:`World`."""
 
     def __init__(self, robot: int, world: World, cell: Cell, *,
-                 recheck_ms: float = RECHECK_MS) -> None:
+                 recheck_ms: float = RECHECK_MS, heading: int | None = None) -> None:
         if recheck_ms <= 0:
             raise ValueError(f"recheck_ms must be positive, got {recheck_ms}")
         self.robot = robot
         self.world = world
         self.cell = cell
         """Where the robot stands; while moving, the cell it is leaving."""
+        self.heading = heading
+        """Its heading (turning motion model; None for omni); while turning, the old one."""
         self.state = RobotState.IDLE
         self.recheck_ms = recheck_ms
         self._current: Dispatch | None = None
@@ -110,6 +115,10 @@ class SimRobot:
         if d.src != end:
             where = f"its last held action ends on {end}" if held else f"robot is on {end}"
             raise SimRobotError(f"robot {self.robot}: {where}, dispatch starts at {d.src}")
+        facing = held[-1].dst_heading if held else self.heading
+        if d.src_heading != facing:
+            raise SimRobotError(f"robot {self.robot} will face {facing}, but {d.kind} "
+                                f"{d.plan}.{d.robot}.{d.action} starts facing {d.src_heading}")
         if held and (d.plan, d.action) <= (held[-1].plan, held[-1].action):
             raise SimRobotError(f"robot {self.robot} holds {held[-1]}; {d} does not come after")
         duration = d.duration_ms + extra_ms
@@ -168,6 +177,7 @@ class SimRobot:
             if d.dst != d.src:
                 self.world.release(d.src, self.robot)
             self.cell = d.dst
+            self.heading = d.dst_heading
             self.state = RobotState.IDLE
             self._current = None
             self._wake = None

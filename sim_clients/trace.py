@@ -9,7 +9,7 @@ adds ``intruder`` records and the closing ``summary``. A sink is any callable ta
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
@@ -23,10 +23,23 @@ EVENT_TYPES = ("dispatch", "start", "finish", "blocked", "unblocked", "cancel")
 """Record types about one action of one robot."""
 
 
-def plan_record(t_ms: float, plan: int, paths: Sequence[Sequence[Cell]]) -> Record:
-    """``{"t_ms", "type": "plan", "plan", "agents": [{"path": [[x, y], ...]}]}``."""
-    return {"t_ms": t_ms, "type": "plan", "plan": plan,
-            "agents": [{"path": [[x, y] for x, y in path]} for path in paths]}
+def plan_record(t_ms: float, plan: int, paths: Sequence[Sequence[Cell]],
+                headings: Sequence[Sequence[int]] | None = None,
+                durations_ms: Sequence[Mapping[str, float] | None] | None = None) -> Record:
+    """``{"t_ms", "type": "plan", "plan", "agents": [{"path": [[x, y], ...]}]}``; a turning
+    plan (``headings``) adds ``"motion": "turning"`` and has ``[x, y, heading]`` entries; an
+    agent's ``durations_ms`` (``{"move", "turn", "wait"}``) is given where not None."""
+    agents: list[Record] = []
+    for k, path in enumerate(paths):
+        agent: Record = {"path": [[x, y] for x, y in path] if headings is None else
+                         [[x, y, h] for (x, y), h in zip(path, headings[k], strict=True)]}
+        if durations_ms is not None and durations_ms[k] is not None:
+            agent["durations_ms"] = dict(durations_ms[k] or {})
+        agents.append(agent)
+    record: Record = {"t_ms": t_ms, "type": "plan", "plan": plan, "agents": agents}
+    if headings is not None:
+        record["motion"] = "turning"
+    return record
 
 
 def event_record(t_ms: float, kind: str, plan: int, robot: int, action: int) -> Record:

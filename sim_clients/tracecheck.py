@@ -9,12 +9,19 @@ section 2 defines them), replays the events in order and reports
   was dispatched (lookahead dispatch may queue an action behind the robot's current one),
 * two robots, or a robot and the intruder, on one cell at once (a moving robot holds both
   its cells),
+* under the ``turning`` motion model (plan records with ``"motion": "turning"`` and path
+  entries ``[x, y, heading]``, heading 0 east (+x), 1 south (+y), 2 west, 3 north): a step
+  that is no legal action (a turn of other than 90 degrees, a move that is not one cell
+  forward along the held heading or that also turns), and a new plan whose start headings are
+  not the robots' headings; a turn holds its cell, so it enters none,
 * an action of the final plan that did not run exactly once, or any started action that never
   finished, and a new plan that does not start where the robots stand,
 * a summary whose SOC or makespan differs from the finish times in the trace,
 
 and it recomputes the fleet slack (Algorithm 1 plus DESIGN's slack definitions) at any moment,
-in particular at every ``trigger`` record. Run it as ``python -m sim_clients.tracecheck FILE``.
+in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move", "turn",
+"wait"}``, each 1000 ms if absent) are its actions' expected durations ``t_x``. Run it as
+``python -m sim_clients.tracecheck FILE``.
 """
 
 from __future__ import annotations
@@ -35,6 +42,29 @@ Act = tuple[int, int]
 
 ACTION_MS = 1000.0
 TOLERANCE_MS = 1e-6
+FORWARD: tuple[Pos, ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))
+"""The cell offset of one step forward for headings 0..3."""
+
+
+def step_kind(src: Pos, dst: Pos, h0: int | None, h1: int | None) -> str:
+    """"move", "turn" or "wait"; "illegal: <why>" for anything else."""
+    dx, dy = dst[0] - src[0], dst[1] - src[1]
+    if h0 is None or h1 is None:
+        if abs(dx) + abs(dy) > 1:
+            return f"illegal: {src} -> {dst} is no 4-neighbour step"
+        return "wait" if src == dst else "move"
+    if not (0 <= h0 <= 3 and 0 <= h1 <= 3):
+        return f"illegal: heading {h0} -> {h1} outside 0..3"
+    if src == dst:
+        if h0 == h1:
+            return "wait"
+        return "turn" if (h1 - h0) % 4 in (1, 3) else \
+            f"illegal: turn {h0} -> {h1} on {src} is not 90 degrees"
+    if h0 != h1:
+        return f"illegal: move {src} -> {dst} turns from {h0} to {h1}"
+    if (dx, dy) != FORWARD[h0]:
+        return f"illegal: move {src} -> {dst} is not one cell forward along heading {h0}"
+    return "move"
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,13 +79,17 @@ class SeenCollision:
 
 @dataclass
 class PlanGraph:
-    """One adopted plan: its paths, release time and re-derived ADG."""
+    """One adopted plan: its paths (and headings, turning), release time, re-derived ADG, and
+    each action's kind and expected duration."""
 
     plan: int
     release_ms: float
     paths: list[list[Pos]]
     preds: dict[Act, list[Act]]
     type2_in: dict[Act, list[Act]]
+    headings: list[list[int]] | None = None
+    kinds: dict[Act, str] = field(default_factory=dict)
+    tx: dict[Act, float] = field(default_factory=dict)
 
     def actions(self) -> Iterable[Act]:
         """Every action, ordered by index then robot (a topological order of the ADG)."""
@@ -66,17 +100,29 @@ class PlanGraph:
                     yield k, i
 
 
-def build_graph(plan: int, release_ms: float, paths: Sequence[Sequence[Pos]]) -> PlanGraph:
+def build_graph(plan: int, release_ms: float, paths: Sequence[Sequence[Pos]],
+                headings: Sequence[Sequence[int]] | None = None,
+                durations: Sequence[Mapping[str, float]] | None = None) -> PlanGraph:
     """The ADG of ``paths``: a_i^k -> a_{i+1}^k, and from every action leaving a cell u to
-    each other robot's first later action (j > i) entering u."""
+    each other robot's first later action (j > i) entering u (a turn leaves and enters
+    nothing). ``durations[k]`` maps robot k's action kinds to t_x (1000 ms if absent)."""
     plist = [list(p) for p in paths]
+    hlist = None if headings is None else [list(h) for h in headings]
     preds: dict[Act, list[Act]] = {}
     type2_in: dict[Act, list[Act]] = {}
+    kinds: dict[Act, str] = {}
+    tx: dict[Act, float] = {}
     enters: dict[Pos, dict[int, list[int]]] = {}
     for k, path in enumerate(plist):
+        hs = None if hlist is None else hlist[k]
         for i in range(len(path) - 1):
             preds[(k, i)] = [(k, i - 1)] if i > 0 else []
             type2_in[(k, i)] = []
+            kind = step_kind(path[i], path[i + 1], None if hs is None else hs[i],
+                             None if hs is None else hs[i + 1])
+            kinds[(k, i)] = kind
+            model = durations[k] if durations is not None else {}
+            tx[(k, i)] = float(model.get(kind, ACTION_MS))
             if path[i] != path[i + 1]:
                 enters.setdefault(path[i + 1], {}).setdefault(k, []).append(i)
     for k, path in enumerate(plist):
@@ -92,7 +138,7 @@ def build_graph(plan: int, release_ms: float, paths: Sequence[Sequence[Pos]]) ->
                     head = (k2, js[pos])
                     preds[head].append((k, i))
                     type2_in[head].append((k, i))
-    return PlanGraph(plan, release_ms, plist, preds, type2_in)
+    return PlanGraph(plan, release_ms, plist, preds, type2_in, hlist, kinds, tx)
 
 
 @dataclass
@@ -106,10 +152,10 @@ class ExecState:
     finished: dict[Act, float] = field(default_factory=dict)
 
 
-def estimates(state: ExecState, now_ms: float | None,
-              action_ms: float = ACTION_MS) -> tuple[dict[Act, float], dict[Act, float]]:
+def estimates(state: ExecState,
+              now_ms: float | None) -> tuple[dict[Act, float], dict[Act, float]]:
     """Algorithm 1 with real times and the present as a lower bound (``now_ms`` None: the
-    initial estimate). Returns ``(t_s, t_c)``."""
+    initial estimate), each action taking its own t_x. Returns ``(t_s, t_c)``."""
     g = state.graph
     ts: dict[Act, float] = {}
     tc: dict[Act, float] = {}
@@ -119,14 +165,14 @@ def estimates(state: ExecState, now_ms: float | None,
             tc[a] = state.finished[a]
         elif a in state.started:
             ts[a] = state.started[a]
-            tc[a] = ts[a] + action_ms if now_ms is None else max(ts[a] + action_ms, now_ms)
+            tc[a] = ts[a] + g.tx[a] if now_ms is None else max(ts[a] + g.tx[a], now_ms)
         else:
             preds = g.preds[a]
             start = max((tc[p] for p in preds), default=g.release_ms)
             if now_ms is not None and all(p in state.finished for p in preds):
                 start = max(start, now_ms)
             ts[a] = start
-            tc[a] = start + action_ms
+            tc[a] = start + g.tx[a]
     return ts, tc
 
 
@@ -139,12 +185,12 @@ def action_slacks(graph: PlanGraph, tc: Mapping[Act, float]) -> dict[Act, float]
     return out
 
 
-def fleet_slack(state: ExecState, now_ms: float, action_ms: float = ACTION_MS) -> float:
+def fleet_slack(state: ExecState, now_ms: float) -> float:
     """Δ̄F at ``now_ms``: the largest growth of Δ over the initial estimate among the actions
     not started yet (0 if every action started)."""
     g = state.graph
-    initial = action_slacks(g, estimates(ExecState(g), None, action_ms)[1])
-    current = action_slacks(g, estimates(state, now_ms, action_ms)[1])
+    initial = action_slacks(g, estimates(ExecState(g), None)[1])
+    current = action_slacks(g, estimates(state, now_ms)[1])
     return max((current[a] - initial[a] for a in current if a not in state.started), default=0.0)
 
 
@@ -174,12 +220,12 @@ def _who(occupant: int | str) -> str:
 class _Replay:
     """Replays records in order, keeping occupancy and per-plan execution state."""
 
-    def __init__(self, action_ms: float) -> None:
-        self.action_ms = action_ms
+    def __init__(self) -> None:
         self.report = TraceReport()
         self.states: list[ExecState] = []
         self.cells: dict[Pos, list[int | str]] = {}
         self.pos: list[Pos] = []
+        self.heading: list[int] | None = None
         self.running: dict[int, Act] = {}
         self.last_finish: dict[int, float] = {}
         self.intruder: Pos | None = None
@@ -232,7 +278,7 @@ class _Replay:
                 self.intruder = None
                 self.leave(cell, "intruder")
         elif kind == "trigger":
-            recomputed = fleet_slack(self.states[-1], t, self.action_ms) if self.states else 0.0
+            recomputed = fleet_slack(self.states[-1], t) if self.states else 0.0
             self.report.triggers.append((t, float(rec["fleet_slack_ms"]), recomputed))
         else:
             self.error(where, f"unknown record type {kind!r}")
@@ -241,7 +287,19 @@ class _Replay:
         number = int(rec["plan"])
         if number != len(self.states):
             self.error(where, f"plan {number} adopted, expected plan {len(self.states)}")
+        turning = rec.get("motion", "omni") == "turning"
+        if rec.get("motion", "omni") not in ("omni", "turning"):
+            self.error(where, f"unknown motion model {rec['motion']!r}")
+        width = 3 if turning else 2
+        bad = [k for k, a in enumerate(rec["agents"]) if any(len(c) != width for c in a["path"])]
+        if bad:
+            self.error(where, f"agents {bad}: path entries must be "
+                       f"{'[x, y, heading]' if turning else '[x, y]'}")
+            return
         paths = [[(int(c[0]), int(c[1])) for c in a["path"]] for a in rec["agents"]]
+        headings = [[int(c[2]) for c in a["path"]] for a in rec["agents"]] if turning else None
+        if (headings is None) != (self.heading is None) and self.states:
+            self.error(where, "the motion model changed between plans")
         if self.states:
             if len(paths) != len(self.pos):
                 self.error(where, f"plan has {len(paths)} robots, the fleet {len(self.pos)}")
@@ -251,11 +309,21 @@ class _Replay:
                 if path and path[0] != self.pos[k]:
                     self.error(where, f"robot {k} starts at {path[0]} but stands on "
                                f"{self.pos[k]}")
+                if headings is not None and self.heading is not None and \
+                        headings[k][0] != self.heading[k]:
+                    self.error(where, f"robot {k} starts with heading {headings[k][0]} but "
+                               f"holds {self.heading[k]}")
         else:
             self.pos = [p[0] for p in paths]
             for k, cell in enumerate(self.pos):
                 self.enter(cell, k, t)
-        self.states.append(ExecState(build_graph(number, t, paths)))
+        self.heading = None if headings is None else [h[0] for h in headings]
+        durations = [a.get("durations_ms", {}) for a in rec["agents"]]
+        graph = build_graph(number, t, paths, headings, durations)
+        for (k, i), kind in graph.kinds.items():
+            if kind.startswith("illegal"):
+                self.error(where, f"robot {k} action {i}: {kind[len('illegal: '):]}")
+        self.states.append(ExecState(graph))
 
     def event(self, where: str, t: float, kind: str, rec: Mapping[str, Any]) -> None:
         k, i, number = int(rec["robot"]), int(rec["action"]), int(rec["plan"])
@@ -301,6 +369,10 @@ class _Replay:
             if self.pos[k] != src:
                 self.error(where, f"robot {k} starts {a} from {src} but stands on "
                            f"{self.pos[k]}")
+            hs = st.graph.headings
+            if hs is not None and self.heading is not None and self.heading[k] != hs[k][i]:
+                self.error(where, f"robot {k} starts {a} with heading {hs[k][i]} but holds "
+                           f"{self.heading[k]}")
             st.started[a] = t
             self.running[k] = a
             if dst != src:
@@ -314,6 +386,8 @@ class _Replay:
             if dst != src:
                 self.leave(src, k)
             self.pos[k] = dst
+            if self.heading is not None and st.graph.headings is not None:
+                self.heading[k] = st.graph.headings[k][i + 1]
             self.last_finish[k] = t
             self.report.actions_run += 1
 
@@ -344,9 +418,9 @@ class _Replay:
         return r
 
 
-def check_trace(records: Iterable[Mapping[str, Any]], action_ms: float = ACTION_MS) -> TraceReport:
+def check_trace(records: Iterable[Mapping[str, Any]]) -> TraceReport:
     """Check a whole trace, given as its records in order."""
-    replay = _Replay(action_ms)
+    replay = _Replay()
     for n, rec in enumerate(records, 1):
         try:
             replay.record(n, rec)
@@ -355,18 +429,18 @@ def check_trace(records: Iterable[Mapping[str, Any]], action_ms: float = ACTION_
     return replay.close()
 
 
-def slack_series(records: Sequence[Mapping[str, Any]], times_ms: Iterable[float],
-                 action_ms: float = ACTION_MS) -> list[float]:
+def slack_series(records: Sequence[Mapping[str, Any]],
+                 times_ms: Iterable[float]) -> list[float]:
     """Δ̄F of the plan in force at each of ``times_ms`` (ascending), from the trace alone."""
     out: list[float] = []
-    replay = _Replay(action_ms)
+    replay = _Replay()
     n = 0
     for t in times_ms:
         while n < len(records) and records[n].get("type") != "summary" and \
                 float(records[n]["t_ms"]) <= t:
             replay.record(n + 1, records[n])
             n += 1
-        out.append(fleet_slack(replay.states[-1], t, action_ms) if replay.states else 0.0)
+        out.append(fleet_slack(replay.states[-1], t) if replay.states else 0.0)
     return out
 
 

@@ -2,7 +2,9 @@
 
 Vertices are numbered robot by robot: robot ``k`` owns the ids ``first[k] .. first[k+1]-1`` in
 the order of its path, so its Type 1 predecessor of ``v`` is ``v - 1`` (when ``v > first[k]``).
-Type 2 edges are stored twice, CSR-style: ``t2_pred[t2_pred_ptr[v]:t2_pred_ptr[v+1]]`` are the
+Under the ``turning`` motion model (``headings`` given) a turn is a vertex like any other
+action; it holds its cell, so it is never the tail or head of a Type 2 edge. Type 2 edges are
+stored twice, CSR-style: ``t2_pred[t2_pred_ptr[v]:t2_pred_ptr[v+1]]`` are the
 tails of the Type 2 edges into ``v`` and ``t2_succ[...]`` the heads of those out of ``v``;
 ``pred``/``succ`` (with ``pred_ptr``/``succ_ptr``) hold all edges, Type 1 included.
 """
@@ -12,6 +14,7 @@ from __future__ import annotations
 from bisect import bisect_right
 from collections.abc import Iterator
 
+from gateway.execution.actions import ActionKind, action_kind
 from gateway.execution.errors import ExecutionError
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
@@ -33,31 +36,39 @@ class ADG:
 
     With ``drop_waits`` the wait actions get no vertex (Hönig's original graph); the action
     numbers seen from outside stay the path indices ``i`` of ``a_i^k`` either way.
+    A ``turning`` plan (``plan.headings``) makes its turns actions; a turn is never dropped.
     """
 
     def __init__(self, plan: Plan, *, drop_waits: bool = False) -> None:
         paths = plan.paths
         self.n_robots = len(paths)
         self.drop_waits = drop_waits
+        self.headings = plan.headings
+        if self.headings is not None and len(self.headings) != len(paths):
+            raise ExecutionError(f"{len(self.headings)} heading sequences for {len(paths)} "
+                                 "robots")
         self.first: list[int] = [0]
         self.robot_of: list[int] = []
         self.step_of: list[int] = []
         self.src: list[Cell] = []
         self.dst: list[Cell] = []
+        self.kind: list[ActionKind] = []
         # flat lookup (robot, path index) -> vertex or -1, with per-robot offsets
         self._action_first: list[int] = [0]
         self._vertex_at: list[int] = []
         for k, path in enumerate(paths):
             if not path:
                 raise ExecutionError(f"robot {k} has an empty path")
+            hs = None if self.headings is None else self.headings[k]
+            if hs is not None and len(hs) != len(path):
+                raise ExecutionError(f"robot {k} has {len(hs)} headings for {len(path)} cells")
             for i in range(len(path) - 1):
-                (x0, y0), (x1, y1) = path[i], path[i + 1]
-                if abs(x1 - x0) + abs(y1 - y0) > 1:
-                    raise ExecutionError(
-                        f"robot {k} jumps from {path[i]} to {path[i + 1]} at step {i}: "
-                        "only waits and 4-neighbour moves are actions"
-                    )
-                if drop_waits and path[i] == path[i + 1]:
+                try:
+                    kind = action_kind(path[i], path[i + 1], None if hs is None else hs[i],
+                                       None if hs is None else hs[i + 1])
+                except ExecutionError as exc:
+                    raise ExecutionError(f"robot {k} action {i}: {exc}") from None
+                if drop_waits and kind == "wait":
                     self._vertex_at.append(-1)
                     continue
                 self._vertex_at.append(len(self.robot_of))
@@ -65,6 +76,7 @@ class ADG:
                 self.step_of.append(i)
                 self.src.append(path[i])
                 self.dst.append(path[i + 1])
+                self.kind.append(kind)
             self.first.append(len(self.robot_of))
             self._action_first.append(len(self._vertex_at))
         self.n_vertices = len(self.robot_of)
@@ -110,6 +122,13 @@ class ADG:
                     if pos < len(steps):
                         edges.append((v, vertices[pos]))
         return edges
+
+    def heading(self, robot: int, step: int) -> int | None:
+        """Robot's heading at timestep ``step`` of the plan (None under ``omni``)."""
+        if self.headings is None:
+            return None
+        hs = self.headings[robot]
+        return hs[min(step, len(hs) - 1)]
 
     def n_actions(self, robot: int) -> int:
         """Number of actions in the robot's path (waits included even if dropped)."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from gateway.execution.actions import ActionKind
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
 
@@ -19,6 +20,8 @@ class Dispatch:
 
     With lookahead dispatch it may be queued behind the robot's previous action: the robot
     starts it only after finishing that one (actions run strictly in index order).
+    Under the ``turning`` motion model ``src_heading``/``dst_heading`` are the poses' headings
+    (0 east, 1 south, 2 west, 3 north); under ``omni`` they are None.
     """
 
     plan: int
@@ -27,6 +30,15 @@ class Dispatch:
     src: Cell
     dst: Cell
     duration_ms: float
+    src_heading: int | None = None
+    dst_heading: int | None = None
+
+    @property
+    def kind(self) -> ActionKind:
+        """"move" (the cell changes), "turn" (only the heading does) or "wait"."""
+        if self.src != self.dst:
+            return "move"
+        return "wait" if self.src_heading == self.dst_heading else "turn"
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,12 +66,16 @@ class Trigger:
 class SolveRequest:
     """All robots are idle after a trigger: plan from ``starts`` to ``goals``.
 
+    ``headings`` are the robots' current headings under the ``turning`` motion model (the new
+    plan must start with them; goal headings are free), None under ``omni``.
+
     The driver solves (charging the solver's time as it is configured to) and then calls
     ``Executor.adopt_plan`` or, if no plan was found, ``Executor.abandon_replan``.
     """
 
     starts: tuple[Cell, ...]
     goals: tuple[Cell, ...]
+    headings: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -34,8 +34,9 @@ from __future__ import annotations
 import enum
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
+from gateway.execution.actions import ActionDurations, per_robot
 from gateway.execution.adg import ADG
 from gateway.execution.commands import (
     Cancel,
@@ -73,12 +74,19 @@ class Mode(enum.Enum):
 
 
 class Executor:
-    """Executes a plan on a fleet through its ADG: retiming, monitoring, replanning."""
+    """Executes a plan on a fleet through its ADG: retiming, monitoring, replanning.
+
+    A ``turning`` plan (with ``plan.headings``) makes turns actions of their own.
+    ``durations`` is the expected duration of each action kind, for every robot or per robot
+    (its model); by default every action takes ``action_ms``.
+    """
 
     def __init__(self, plan: Plan, *, policy: ReplanPolicy | None = None,
                  action_ms: float = 1000.0, drop_waits: bool = False,
                  max_replans: int = 1, record: Record | None = None,
-                 lookahead: int = 0) -> None:
+                 lookahead: int = 0,
+                 durations: ActionDurations | Sequence[ActionDurations] | None = None
+                 ) -> None:
         if not (math.isfinite(action_ms) and action_ms > 0):
             raise ExecutionError(f"action_ms must be a positive number, got {action_ms}")
         if max_replans < 0:
@@ -87,7 +95,6 @@ class Executor:
             raise ExecutionError(f"lookahead must be >= 0, got {lookahead}")
         self.lookahead = lookahead
         self.policy: ReplanPolicy = policy if policy is not None else NoReplan()
-        self.action_ms = float(action_ms)
         self.drop_waits = drop_waits
         self.max_replans = max_replans
         self.replans = 0
@@ -96,15 +103,20 @@ class Executor:
         self._out: list[Command] = []
         self._now = 0.0
         adg = ADG(plan, drop_waits=drop_waits)
+        self.durations = per_robot(
+            ActionDurations.uniform(action_ms) if durations is None else durations, adg.n_robots)
         self._goals: tuple[Cell, ...] = tuple(p[-1] for p in plan.paths)
         self._cells: list[Cell] = [p[0] for p in plan.paths]
+        self._headings: list[int] | None = None if adg.headings is None else \
+            [h[0] for h in adg.headings]
         self._completion = [0.0] * adg.n_robots
         self._install(plan, adg, 0, 0.0)
 
     def _install(self, plan: Plan, adg: ADG, plan_id: int, now_ms: float) -> None:
         """Make ``plan`` the current one (nothing dispatched yet)."""
         self.plan, self.plan_id, self.adg = plan, plan_id, adg
-        self.monitor = Monitor(adg, now_ms=now_ms, action_ms=self.action_ms,
+        tx = [self.durations[adg.robot_of[v]].of(adg.kind[v]) for v in range(adg.n_vertices)]
+        self.monitor = Monitor(adg, now_ms=now_ms, action_ms=tx,
                                base_completion_ms=self._completion)
         self._status = bytearray(adg.n_vertices)
         self._blocked = bytearray(adg.n_vertices)
@@ -139,6 +151,12 @@ class Executor:
         """The cell the robot stands on (until a running move finishes), its goal at the end."""
         self._check_robot(robot)
         return self._cells[robot]
+
+    def robot_heading(self, robot: int) -> int | None:
+        """The robot's heading (turning motion model; None under ``omni``), as of its last
+        finished action."""
+        self._check_robot(robot)
+        return None if self._headings is None else self._headings[robot]
 
     def completion_ms(self, robot: int) -> float:
         """Finish time of the robot's latest action (0 if it has none)."""
@@ -233,6 +251,8 @@ class Executor:
         self._busy -= 1
         self._left -= 1
         self._cells[robot] = self.adg.dst[v]
+        if self._headings is not None and self.adg.headings is not None:
+            self._headings[robot] = self.adg.headings[robot][self.adg.step_of[v] + 1]
         self._completion[robot] = self._now
         self.monitor.action_finished(v, now_ms)
         self._trace("finish", robot, action)
@@ -302,13 +322,24 @@ class Executor:
         self._trigger("operator")
 
     def adopt_plan(self, plan: Plan, now_ms: float) -> None:
-        """Answer to ``SolveRequest``: execute ``plan`` (from the robots' cells to the goals)."""
+        """Answer to ``SolveRequest``: execute ``plan`` (from the robots' cells and, turning,
+        their headings to the goals; a goal heading is free)."""
         self._check_time(now_ms)
         if self.mode is not Mode.SOLVING:
             raise ExecutionError(f"no plan was requested: the executor is {self.mode.value}")
         n = self.adg.n_robots
         if len(plan.paths) != n:
             raise ExecutionError(f"the new plan has {len(plan.paths)} paths for {n} robots")
+        headings = plan.headings
+        if (headings is None) != (self._headings is None):
+            raise ExecutionError("the new plan must have headings exactly when the current "
+                                 "one has (the motion model cannot change)")
+        if headings is not None and self._headings is not None:
+            for r, hs in enumerate(headings[:n]):
+                if not hs or hs[0] != self._headings[r]:
+                    raise ExecutionError(f"robot {r}: the new path starts with heading "
+                                         f"{hs[0] if hs else None}, but the robot holds "
+                                         f"{self._headings[r]}")
         for r, path in enumerate(plan.paths):
             if not path or path[0] != self._cells[r]:
                 first = path[0] if path else None
@@ -347,10 +378,24 @@ class Executor:
 
     def _adopted(self) -> None:
         """Announce the current plan and dispatch what is ready."""
+        adg = self.adg
         self._out.append(PlanAdopted(self.plan_id, self.plan))
         if self._record is not None:
-            self._record({"t_ms": self._now, "type": "plan", "plan": self.plan_id,
-                          "agents": [{"path": [[x, y] for x, y in p]} for p in self.plan.paths]})
+            agents: list[dict[str, object]] = []
+            default = ActionDurations()
+            for k, p in enumerate(self.plan.paths):
+                hs = None if adg.headings is None else adg.headings[k]
+                agent: dict[str, object] = {"path": [[x, y] for x, y in p] if hs is None
+                                            else [[x, y, h] for (x, y), h in zip(p, hs,
+                                                                                 strict=True)]}
+                if self.durations[k] != default:
+                    agent["durations_ms"] = self.durations[k].as_dict()
+                agents.append(agent)
+            record: dict[str, object] = {"t_ms": self._now, "type": "plan",
+                                         "plan": self.plan_id, "agents": agents}
+            if adg.headings is not None:
+                record["motion"] = "turning"
+            self._record(record)
         self._dispatch_ready()
 
     def _dispatch_ready(self) -> None:
@@ -380,8 +425,10 @@ class Executor:
             self._status[v] = _DISPATCHED
             queue.append(v)
             self._busy += 1
-            self._out.append(Dispatch(self.plan_id, robot, adg.step_of[v], adg.src[v],
-                                      adg.dst[v], self.action_ms))
+            i = adg.step_of[v]
+            self._out.append(Dispatch(self.plan_id, robot, i, adg.src[v], adg.dst[v],
+                                      self.monitor.tx[v], adg.heading(robot, i),
+                                      adg.heading(robot, i + 1)))
             self._trace("dispatch", robot, adg.step_of[v])
 
     def _complete(self) -> None:
@@ -412,4 +459,5 @@ class Executor:
             self._complete()
             return
         self.mode = Mode.SOLVING
-        self._out.append(SolveRequest(tuple(self._cells), self._goals))
+        self._out.append(SolveRequest(tuple(self._cells), self._goals,
+                                      None if self._headings is None else tuple(self._headings)))

@@ -1,7 +1,8 @@
 """Execution monitoring (DESIGN section 2): Algorithm 1 estimates and slack, incrementally.
 
 Estimates: ``t_s(a) = max t_c(p)`` over the predecessors of ``a`` (the robot's release time if
-it has none), ``t_c(a) = t_s(a) + t_x``; completed actions use their real times; a started,
+it has none), ``t_c(a) = t_s(a) + t_x(a)`` (``t_x`` per action: its kind -- move, turn, wait --
+and its robot's model decide it); completed actions use their real times; a started,
 unfinished action has ``t_c = max(t_s + t_x, now)``; an action whose predecessors are all done
 cannot start before ``now``. ``now`` is the monitor's clamping time: the latest
 :meth:`Monitor.advance` (the executor's latest tick), so the present is seen at the tick
@@ -99,6 +100,19 @@ def _layers(adg: ADG) -> list[_Layer]:
     return out
 
 
+def _per_vertex(action_ms: float | Sequence[float], nv: int) -> array[float]:
+    """``t_x`` of every vertex from one value for all or a per-vertex sequence."""
+    if isinstance(action_ms, int | float):
+        out = array("d", [float(action_ms)]) * nv
+    else:
+        out = array("d", (float(x) for x in action_ms))
+        if len(out) != nv:
+            raise ExecutionError(f"expected {nv} per-action durations, got {len(out)}")
+    if not all(math.isfinite(x) and x > 0 for x in out):
+        raise ExecutionError("action durations must be positive numbers of ms")
+    return out
+
+
 def _per_robot(value: float | Sequence[float] | None, default: float, n: int) -> list[float]:
     """A per-robot list from a scalar, a sequence or None (``default`` for everyone)."""
     if value is None:
@@ -115,15 +129,17 @@ class Monitor:
     """Estimates (Algorithm 1) and slack of one plan's ADG, updated incrementally.
 
     The executor reports progress with :meth:`advance` (the present moved on),
-    :meth:`action_started` and :meth:`action_finished` (vertex ids of ``adg``).
+    :meth:`action_started` and :meth:`action_finished` (vertex ids of ``adg``). ``action_ms``
+    is ``t_x``: one value for every action, or one per vertex.
     """
 
-    def __init__(self, adg: ADG, *, now_ms: float, action_ms: float = 1000.0,
+    def __init__(self, adg: ADG, *, now_ms: float, action_ms: float | Sequence[float] = 1000.0,
                  release_ms: float | Sequence[float] | None = None,
                  base_completion_ms: Sequence[float] | None = None) -> None:
         n, nv = adg.n_robots, adg.n_vertices
         self.adg = adg
-        self.action_ms = float(action_ms)
+        self.tx = _per_vertex(action_ms, nv)
+        """``t_x`` of each vertex (ms)."""
         self.now_ms = float(now_ms)
         self.release_ms = _per_robot(release_ms, self.now_ms, n)
         # completion of a robot that has no action in this plan (its previous completion)
@@ -157,6 +173,7 @@ class Monitor:
         self._np_tc = np.frombuffer(self._tc, np.float64)
         self._np_delta = np.frombuffer(self._delta, np.float64)
         self._np_delta0 = np.frombuffer(self._delta0, np.float64)
+        self._np_tx = np.frombuffer(self.tx, np.float64)
 
     # ----------------------------------------------------------------- evaluation
     def _propagate(self, seeds: Iterable[int]) -> None:
@@ -172,7 +189,7 @@ class Monitor:
         t2_ptr, t2, is_first, robot_of = adg.t2_pred_ptr, adg.t2_pred, adg.is_first, adg.robot_of
         state, remaining, release = self._state, self._remaining, self.release_ms
         ts_of, tc_of, delta = self._ts, self._tc, self._delta
-        now, tx = self.now_ms, self.action_ms
+        now, tx_of = self.now_ms, self.tx
         # Every edge goes from a plan step to a later one (ADG.order), so visiting the dirty
         # vertices step by step is a topological order; a bucket per step and a heap of the
         # steps that have one is much cheaper than a heap of vertices (a tick re-clamps
@@ -196,7 +213,7 @@ class Monitor:
                 if st == DONE:
                     tc = tc_of[v]
                 elif st == STARTED:
-                    tc = ts_of[v] + tx
+                    tc = ts_of[v] + tx_of[v]
                     if tc < now:
                         tc = now
                 else:
@@ -206,7 +223,7 @@ class Monitor:
                     if ts < now and remaining[v] == 0:
                         ts = now
                     ts_of[v] = ts
-                    tc = ts + tx
+                    tc = ts + tx_of[v]
                 lo, hi = t2_ptr[v], t2_ptr[v + 1]
                 if lo < hi:
                     prev = release[robot_of[v]] if is_first[v] else tc_of[v - 1]
@@ -240,7 +257,7 @@ class Monitor:
         state, remaining = self._np_state, self._np_remaining
         ts, tc, delta = self._np_ts, self._np_tc, self._np_delta
         release = np.asarray(self.release_ms, dtype=np.float64)
-        now, tx = self.now_ms, self.action_ms
+        now, tx = self.now_ms, self._np_tx
         for layer in self._layer_cache:
             for verts, start in (
                     (layer.with_pred, np.maximum.reduceat(tc[layer.pred_flat], layer.pred_off)
@@ -253,9 +270,9 @@ class Monitor:
                 v0, t0 = verts[waiting], start[waiting]
                 t0 = np.where((t0 < now) & (remaining[v0] == 0), now, t0)
                 ts[v0] = t0
-                tc[v0] = t0 + tx
+                tc[v0] = t0 + tx[v0]
                 v1 = verts[st == STARTED]
-                tc[v1] = np.maximum(ts[v1] + tx, now)
+                tc[v1] = np.maximum(ts[v1] + tx[v1], now)
             if layer.with_t2.size:
                 prev = np.where(layer.t2_first, release[layer.t2_robot], tc[layer.t2_prev])
                 d = np.maximum.reduceat(tc[layer.t2_flat], layer.t2_off) - prev
@@ -312,7 +329,7 @@ class Monitor:
         self._state[v] = STARTED
         self._active.discard(v)
         self._ts[v] = float(at_ms)
-        heapq.heappush(self._thresholds, (at_ms + self.action_ms, v, _STARTED_KIND))
+        heapq.heappush(self._thresholds, (at_ms + self.tx[v], v, _STARTED_KIND))
         self._pending.append(v)
 
     def action_finished(self, v: int, at_ms: float) -> list[int]:
@@ -428,16 +445,18 @@ class Estimate:
     delta0: list[float]
 
 
-def algorithm1(adg: ADG, *, now_ms: float, action_ms: float,
+def algorithm1(adg: ADG, *, now_ms: float, action_ms: float | Sequence[float],
                release_ms: Sequence[float], started_ms: Sequence[float | None],
                finished_ms: Sequence[float | None]) -> Estimate:
     """Full recomputation of estimates and Δ (Algorithm 1, timestep by timestep).
 
     ``started_ms[v]`` / ``finished_ms[v]`` are the real times of vertex ``v`` (None if it has
-    not started / finished yet). Independent of :class:`Monitor`'s incremental bookkeeping;
-    ``delta0`` of the result is empty.
+    not started / finished yet); ``action_ms`` is ``t_x`` for all vertices or per vertex.
+    Independent of :class:`Monitor`'s incremental bookkeeping; ``delta0`` of the result is
+    empty.
     """
     nv = adg.n_vertices
+    tx = [float(action_ms)] * nv if isinstance(action_ms, int | float) else list(action_ms)
     ts, tc, delta = [0.0] * nv, [0.0] * nv, [0.0] * nv
     by_step: dict[int, list[int]] = {}
     for v in range(nv):
@@ -449,12 +468,12 @@ def algorithm1(adg: ADG, *, now_ms: float, action_ms: float,
             if done_at is not None and begun_at is not None:
                 ts[v], tc[v] = begun_at, done_at
             elif begun_at is not None:
-                ts[v], tc[v] = begun_at, max(begun_at + action_ms, now_ms)
+                ts[v], tc[v] = begun_at, max(begun_at + tx[v], now_ms)
             else:
                 start = max((tc[p] for p in preds), default=release_ms[adg.robot_of[v]])
                 if all(finished_ms[p] is not None for p in preds):
                     start = max(start, now_ms)
-                ts[v], tc[v] = start, start + action_ms
+                ts[v], tc[v] = start, start + tx[v]
             tails = adg.t2_pred[adg.t2_pred_ptr[v] : adg.t2_pred_ptr[v + 1]]
             if tails:
                 p = adg.t1_pred(v)

@@ -91,6 +91,46 @@ def random_robust_plan(seed: int, width: int, height: int, robots: int,
             return paths
 
 
+STEP = {(1, 0): 0, (0, 1): 1, (-1, 0): 2, (0, -1): 3}
+"""Heading (0 east, 1 south, 2 west, 3 north) of a forward move by ``(dx, dy)``."""
+
+
+def turning_expand(paths: Sequence[Sequence[Cell]],
+                   seed: int) -> tuple[list[list[Cell]], list[list[int]]]:
+    """An omni plan made a turning plan: every timestep becomes three (turn or wait, turn or
+    wait, move or wait) for every robot, from random start headings; a robot turns the short
+    way (one or two 90-degree turns) before each move. The cells repeat each omni cell three
+    times, so a 1-robust omni plan stays 1-robust (pos(3t+3) = c(t+1), pos(3t+2) = c(t))."""
+    rng = random.Random(seed)
+    cells_out: list[list[Cell]] = []
+    heads_out: list[list[int]] = []
+    for path in paths:
+        h = rng.randrange(4)
+        cells, heads = [path[0]], [h]
+        for a, b in itertools.pairwise(path):
+            want = STEP.get((b[0] - a[0], b[1] - a[1]), h)
+            turns = {0: [], 1: [want], 3: [want], 2: [(h + 1) % 4, want]}[(want - h) % 4]
+            for hh in ([h] * (2 - len(turns)) + turns):
+                cells.append(a)
+                heads.append(hh)
+            h = want
+            cells.append(b)
+            heads.append(h)
+        cells_out.append(cells)
+        heads_out.append(heads)
+    return cells_out, heads_out
+
+
+def turning_plan(paths: Sequence[Sequence[Cell]], headings: Sequence[Sequence[int]]) -> Plan:
+    """A turning plan of cells and headings, trailing repeats of the last pose trimmed."""
+    cells, heads = [list(p) for p in paths], [list(h) for h in headings]
+    for c, h in zip(cells, heads, strict=True):
+        while len(c) > 1 and (c[-1], h[-1]) == (c[-2], h[-2]):
+            c.pop()
+            h.pop()
+    return Plan(tuple(tuple(c) for c in cells), tuple(tuple(h) for h in heads))
+
+
 def brute_type2(paths: Sequence[Sequence[Cell]]) -> list[tuple[int, int, int, int]]:
     """Type 2 edges straight from the definition, comparing all pairs of actions."""
     out = []
@@ -109,14 +149,17 @@ def brute_type2(paths: Sequence[Sequence[Cell]]) -> list[tuple[int, int, int, in
     return sorted(out)
 
 
-def brute_predecessors(paths: Sequence[Sequence[Cell]],
-                       drop_waits: bool) -> dict[Action, set[Action]]:
-    """Every action's ADG predecessors (Type 1: the previous kept action; Type 2: brute force)."""
+def brute_predecessors(paths: Sequence[Sequence[Cell]], drop_waits: bool,
+                       headings: Sequence[Sequence[int]] | None = None
+                       ) -> dict[Action, set[Action]]:
+    """Every action's ADG predecessors (Type 1: the previous kept action; Type 2: brute force);
+    with ``headings`` a turn (same cell, other heading) is kept, not a wait."""
     preds: dict[Action, set[Action]] = {}
     for k, p in enumerate(paths):
         prev = None
         for i in range(len(p) - 1):
-            if drop_waits and p[i] == p[i + 1]:
+            turn = headings is not None and headings[k][i] != headings[k][i + 1]
+            if drop_waits and p[i] == p[i + 1] and not turn:
                 continue
             preds[(k, i)] = {prev} if prev is not None else set()
             prev = (k, i)
@@ -151,6 +194,7 @@ class _PlanLog:
     paths: list[list[Cell]]
     adopted_ms: float
     preds: dict[Action, set[Action]]
+    headings: list[list[int]] | None = None
     dispatched: list[Action] = field(default_factory=list)
     started: dict[Action, float] = field(default_factory=dict)
     finished: dict[Action, float] = field(default_factory=dict)
@@ -253,7 +297,11 @@ class Driver:
             if isinstance(cmd, PlanAdopted):
                 paths = [list(p) for p in cmd.paths.paths]
                 assert cmd.plan == len(self.plans)
-                self.plans.append(_PlanLog(paths, now, brute_predecessors(paths, ex.drop_waits)))
+                heads = None if cmd.paths.headings is None else [
+                    list(h) for h in cmd.paths.headings]
+                self.plans.append(_PlanLog(paths, now,
+                                           brute_predecessors(paths, ex.drop_waits, heads),
+                                           heads))
                 self.plans[-1].delta0 = self._oracle(self.plans[-1], now).delta
             elif isinstance(cmd, Dispatch):
                 self._on_dispatch(cmd, now)
@@ -279,6 +327,12 @@ class Driver:
         assert key not in log.started
         done = [a for (r, a) in log.finished if r == cmd.robot]
         assert all(a < cmd.action for a in done), "robot's actions out of order"
+        path, heads = log.paths[cmd.robot], log.headings
+        h0, h1 = (None, None) if heads is None else heads[cmd.robot][cmd.action:cmd.action + 2]
+        assert (cmd.src, cmd.dst, cmd.src_heading, cmd.dst_heading) == (
+            path[cmd.action], path[cmd.action + 1], h0, h1)
+        kind = "move" if cmd.src != cmd.dst else "wait" if h0 == h1 else "turn"
+        assert cmd.duration_ms == self.ex.durations[cmd.robot].of(kind)
         log.dispatched.append(key)
         self._begin(cmd.robot, cmd.plan, cmd.action, now)
 
@@ -302,20 +356,28 @@ class Driver:
                      cmd.action, self.robot_token[cmd.robot])
 
     def _shifted(self, request: SolveRequest) -> Plan:
-        """Each robot's remaining path from where it stands (same goals)."""
+        """Each robot's remaining path (and headings) from where it stands (same goals)."""
         log = self.plans[-1]
-        paths = []
+        paths, heads = [], []
         for r, path in enumerate(log.paths):
             done = [a for (k, a) in log.finished if k == r]
-            rest = path[max(done) + 1:] if done else path
+            cut = max(done) + 1 if done else 0
+            rest = path[cut:]
             assert rest[0] == request.starts[r] and rest[-1] == request.goals[r]
             paths.append(rest)
-        return Plan.of(paths)
+            if log.headings is not None:
+                assert request.headings is not None
+                assert log.headings[r][cut] == request.headings[r]
+                heads.append(log.headings[r][cut:])
+        if log.headings is None:
+            assert request.headings is None
+            return Plan.of(paths)
+        return turning_plan(paths, heads)
 
     def _oracle(self, log: _PlanLog, now: float) -> Estimate:
         adg = self.ex.adg
         keys = [(adg.robot_of[v], adg.step_of[v]) for v in range(adg.n_vertices)]
-        return algorithm1(adg, now_ms=now, action_ms=self.ex.action_ms,
+        return algorithm1(adg, now_ms=now, action_ms=self.ex.monitor.tx,
                           release_ms=[log.adopted_ms] * adg.n_robots,
                           started_ms=[log.started.get(k) for k in keys],
                           finished_ms=[log.finished.get(k) for k in keys])

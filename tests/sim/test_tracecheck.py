@@ -161,3 +161,66 @@ def test_file_round_trip_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[s
     path.write_text('{"t_ms": 0}\nnot json\n')
     with pytest.raises(ValueError, match=r"t\.jsonl:2: not JSON"):
         read_trace(path)
+
+
+# Turning: robot 0 on (0,0) facing north turns to east (its turns take 1500 ms), then drives
+# to (2,0); robot 1 on (1,1) facing east turns north, waits twice and drives into (1,0) after
+# robot 0 left it. ADG: Type 1 chains plus a_2^0 -> a_3^1; the turns enter no cell.
+T_PATHS = [[(0, 0), (0, 0), (1, 0), (2, 0)], [(1, 1), (1, 1), (1, 1), (1, 1), (1, 0)]]
+T_HEADS = [[3, 0, 0, 0], [0, 3, 3, 3, 3]]
+T_DURATIONS = [{"move": 1000.0, "turn": 1500.0, "wait": 1000.0}, None]
+
+
+def turning_trace(heads: list[list[int]] = T_HEADS) -> list[dict]:
+    # robot 0: turn 0-1500, moves 1500-2500-3500; robot 1: turn 0-1000, waits to 3000, its
+    # move waits for robot 0's a_2 (3500) and ends at 4500 => SOC 8000, makespan 4500
+    return ordered(plan_record(0, 0, T_PATHS, heads, T_DURATIONS),
+                   *run(0, 0, 0, 1500), *run(0, 1, 1500, 2500), *run(0, 2, 2500, 3500),
+                   *run(1, 0, 0, 1000), *run(1, 1, 1000, 2000), *run(1, 2, 2000, 3000),
+                   *run(1, 3, 3500, 4500), summary_record(8000, 4500))
+
+
+def test_turning_trace_passes_with_kinds_and_durations() -> None:
+    trace = turning_trace()
+    assert trace[0]["motion"] == "turning" and trace[0]["agents"][0]["path"][1] == [0, 0, 0]
+    report = check_trace(trace)
+    assert report.ok, report.errors
+    assert (report.actions_run, report.soc_ms, report.makespan_ms) == (7, 8000, 4500)
+    g = build_graph(0, 0.0, T_PATHS, T_HEADS, [T_DURATIONS[0] or {}, {}])
+    assert [g.kinds[(1, i)] for i in range(4)] == ["turn", "wait", "wait", "move"]
+    assert g.type2_in[(1, 3)] == [(0, 2)] and g.type2_in[(0, 0)] == g.type2_in[(1, 0)] == []
+    assert (g.tx[(0, 0)], g.tx[(1, 0)], g.tx[(0, 1)]) == (1500.0, 1000.0, 1000.0)
+    # fleet slack: initially robot 1's move waits Δ0 = t_c(a_2^0) - t_c(a_2^1) = 3500 - 3000;
+    # with robot 0's turn still running at 2000 (t_c clamped to 2000), its moves end at 3000
+    # and 4000; robot 1's first wait (started at 1000) ends at 2000, its second at 3000, so its
+    # move (not started) waits Δ = 4000 - 3000 = 1000: Δ̄F = 1000 - 500 = 500
+    partial = [r for r in trace if (r.get("t_ms", 1e9) < 1500 and r["type"] != "finish")
+               or r["type"] == "plan" or (r["type"] == "finish" and r["robot"] == 1
+                                          and r["t_ms"] <= 1000)]
+    assert slack_series(partial, [0.0, 2000.0]) == [0.0, 500.0]
+
+
+@pytest.mark.parametrize(("heads", "message"), [
+    ([[3, 1, 1, 1], T_HEADS[1]], "robot 0 action 0: turn 3 -> 1 on (0, 0) is not 90 degrees"),
+    ([[2, 1, 1, 1], T_HEADS[1]], "robot 0 action 1: move (0, 0) -> (1, 0) is not one cell "
+                                 "forward along heading 1"),
+    ([[3, 3, 0, 0], T_HEADS[1]], "robot 0 action 1: move (0, 0) -> (1, 0) turns from 3 to 0"),
+])
+def test_illegal_turning_steps_are_reported(heads: list[list[int]], message: str) -> None:
+    report = check_trace(turning_trace(heads))
+    assert any(message in e for e in report.errors), report.errors
+
+
+def test_turning_replan_must_start_from_the_held_headings() -> None:
+    # after robot 0's turn and robot 1's turn, a new plan claims robot 1 still faces east
+    head = [plan_record(0, 0, T_PATHS, T_HEADS), *run(0, 0, 0, 1000), *run(1, 0, 0, 1000)]
+    replan = plan_record(1000, 1, [T_PATHS[0][1:], [(1, 1), (1, 1)]], [T_HEADS[0][1:], [0, 3]])
+    tail = [*run(0, 0, 1000, 2000, plan=1), *run(0, 1, 2000, 3000, plan=1),
+            *run(1, 0, 1000, 2000, plan=1), summary_record(5000, 3000)]
+    report = check_trace(ordered(*head, replan, *tail))
+    assert any("robot 1 starts with heading 0 but holds 3" in e for e in report.errors)
+    good = plan_record(1000, 1, [T_PATHS[0][1:], [(1, 1), (1, 1)]], [T_HEADS[0][1:], [3, 0]])
+    assert check_trace(ordered(*head, good, *tail)).ok
+    omni = plan_record(1000, 1, [T_PATHS[0][1:], [(1, 1), (1, 1)]])
+    assert any("motion model changed" in e
+               for e in check_trace(ordered(*head, omni, *tail)).errors)
