@@ -2,7 +2,12 @@
 
 Gateway subcommands live in :mod:`gateway.commands`; packages the gateway must not import
 (``sim_clients``) contribute theirs through the ``fleetgate.commands`` entry-point group.
-Exit codes: 0 success, 2 bad input (one-line reason on stderr), 3 no solution within the limit.
+Exit codes: 0 success, 2 bad input (one-line reason on stderr), 3 no solution within the limit,
+130 interrupted (Ctrl-C).
+
+Building the parser imports only the command modules' registration code: each command imports
+what it needs (numpy, pydantic, matplotlib...) when it runs, so ``--help`` and the first line
+of every command come at once.
 """
 
 from __future__ import annotations
@@ -12,22 +17,44 @@ import importlib
 import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
+from typing import Any
 
 GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.plan",
     "gateway.commands.maps",
     "gateway.commands.serve",
     "gateway.commands.protocol",
+    "gateway.commands.conformance",
 )
 """Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_NO_SOLUTION = 3
+EXIT_INTERRUPTED = 130
 
 
 class UsageError(Exception):
     """Bad input: the CLI prints ``fleetgate: <message>`` and exits with code 2."""
+
+
+class StrictParser(argparse.ArgumentParser):
+    """A parser that rejects unknown arguments itself, so a mistyped option of a subcommand
+    gets that subcommand's usage line, not the top-level one. Options are never abbreviated
+    (a typo that happens to be a prefix of an option must not run the command)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def parse_known_args(  # type: ignore[override]
+            self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None,
+    ) -> tuple[argparse.Namespace, list[str]]:
+        """Parse ``args``; any argument left over is an error of this parser."""
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed, extras
 
 
 Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
@@ -44,11 +71,12 @@ def _registrars() -> list[Register]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with every registered subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = StrictParser(
         prog="fleetgate",
         description="Execute multi-robot plans safely, monitor delays, replan when it pays off.",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub: argparse._SubParsersAction[argparse.ArgumentParser] = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=StrictParser)
     for register in _registrars():
         register(sub)
     return parser
@@ -63,4 +91,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"fleetgate: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("fleetgate: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return code

@@ -19,14 +19,17 @@ from robot_client.kobuki import KobukiSerial
 
 def main(argv: list[str] | None = None) -> int:
     """Parse settings, open the base and the camera, run the client until interrupted."""
+    # --config is needed before the settings are parsed (the file is one of their sources);
+    # both options are settings too, so that --help lists them.
     pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--config", help="TOML file with settings (see deploy/robot.md)")
-    pre.add_argument("--log-level", default="INFO")
+    pre.add_argument("--config")
+    pre.add_argument("--log-level", type=str.upper)
     opts, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
-    logging.basicConfig(level=opts.log_level.upper(),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
-        settings = load_settings(rest, config_file=opts.config)
+        settings = load_settings(rest, config_file=opts.config,
+                                 **({"log_level": opts.log_level} if opts.log_level else {}))
+        logging.basicConfig(level=settings.log_level,
+                            format="%(asctime)s %(levelname)s %(name)s: %(message)s")
         base = KobukiSerial(settings.serial_port)
         frames: FrameSource | None = None
         if not settings.no_camera:

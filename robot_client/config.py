@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field, SecretStr, ValidationError
 from pydantic_settings import (
@@ -32,8 +32,12 @@ class RobotSettings(BaseSettings):
 
     model_config = SettingsConfigDict(
         env_prefix=ENV_PREFIX, extra="forbid", cli_prog_name="fleetgate-robot",
-        cli_kebab_case=True, cli_implicit_flags=True)
+        cli_kebab_case=True, cli_implicit_flags="toggle")
 
+    config: str = Field("", description="TOML file with these settings (see deploy/robot.md;"
+                                        " read before the others)")
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
+        "INFO", description="log level of the robot's log lines on stderr")
     gateway_url: str = Field("ws://127.0.0.1:8080/ws", description="gateway websocket URL")
     robot_id: int = Field(ge=0, description="this robot's agent index in the plan")
     token: SecretStr = Field(description="per-robot token (sent as 'Authorization: Bearer')")

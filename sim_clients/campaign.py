@@ -441,6 +441,10 @@ class CampaignResult:
     """Wall time of the experiment phase (simulations, replans included)."""
 
 
+SCHEDULER_CONNECT_S = 5.0
+"""How long to try reaching a Dask scheduler before giving up (Dask's default is 30 s)."""
+
+
 @contextmanager
 def open_executor(workers: int = 1,
                   scheduler: str | None = None) -> Iterator[tuple[Executor, int]]:
@@ -462,7 +466,12 @@ def open_executor(workers: int = 1,
     except ImportError as exc:
         raise CampaignError("--scheduler needs dask.distributed (pip install "
                             "'fleetgate[dask]')") from exc
-    with Client(scheduler) as client:
+    try:
+        client = Client(scheduler, timeout=SCHEDULER_CONNECT_S)
+    except (OSError, TimeoutError) as exc:
+        raise CampaignError(f"cannot reach the Dask scheduler at {scheduler} within "
+                            f"{SCHEDULER_CONNECT_S:g} s ({type(exc).__name__})") from None
+    with client:
         threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
         yield client.get_executor(pure=False), max(1, threads)
 

@@ -10,42 +10,44 @@ gateway keeps serving the GUI afterwards (load, start, pause, intruders...) unti
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import json
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from websockets.asyncio.client import connect as ws_connect
-
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
-from gateway.commands.deadline import WallDeadline
-from gateway.commands.instance_args import add_instance_arguments, instance_from_args
-from gateway.planning.plan import NoSolution
-from gateway.planning.solver import solve
-from gateway.server.config import ConfigError, GatewayConfig, load_config
-from gateway.server.gateway import Gateway
-from gateway.server.logs import configure_logging
-from gateway.server.planner import Problem
-from sim_clients.des import derive_seed
-from sim_clients.fleet import (
-    ClientConnection,
-    Connect,
-    RunResult,
-    SimFleet,
-    fleet_for,
-    run_in_process,
+from gateway.cli import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from gateway.commands.instance_args import add_instance_arguments
+from gateway.commands.progress import StatusLine
+from gateway.commands.solving import (
+    add_planning_arguments,
+    check_planning_arguments,
+    no_solution_message,
+    solve_instance,
 )
+
+if TYPE_CHECKING:
+    import asyncio
+
+    from gateway.server.config import GatewayConfig
+    from gateway.server.engine import Engine
+    from gateway.server.gateway import Gateway
+    from gateway.server.planner import Problem
+    from sim_clients.fleet import ClientConnection, Connect, SimFleet
 
 DEFAULT_MAP, DEFAULT_SCEN, DEFAULT_AGENTS = "lab", "lab-random-4", 10
 """The zero-setup demo: 10 robots on the shipped lab map. Its seed-0 intruder blocks a robot
 that others queue behind, the fleet slack passes 2 s at about 7.1 s and the replan saves about
 3 s of SOC (virtual time: 95.2 s against 98.3 s without replanning), robustly in real time too."""
 
+STATUS_PERIOD_S = 0.25
+"""How often the terminal's status line is redrawn (wall time)."""
+
 
 def websocket_connector(url: str) -> Connect:
     """Opens ``url`` with a bearer token (no proxy, no compression: loopback)."""
+    from websockets.asyncio.client import connect as ws_connect
 
     async def connect(token: str) -> ClientConnection:
         return await ws_connect(url, additional_headers={"Authorization": f"Bearer {token}"},
@@ -54,28 +56,67 @@ def websocket_connector(url: str) -> Connect:
     return connect
 
 
-def _follow_runs(gateway: Gateway, fleet: SimFleet) -> None:
+def status_text(engine: Engine) -> str:
+    """The live status: ``t 12.3 s | robots done 4/10 | slack 2.1 s | replans 1 | running``."""
+    ex = engine.executor
+    if ex is None:
+        return f"gateway {engine.status}"
+    n = ex.adg.n_robots
+    done = sum(1 for r in range(n) if ex.monitor.next_vertex(r) < 0)
+    slack = ex.monitor.fleet_slack()
+    return (f"t {engine.now_ms() / 1000:.1f} s | robots done {done}/{n} | slack "
+            f"{slack / 1000:.1f} s | replans {ex.replans} | {engine.status}")
+
+
+def run_summary(engine: Engine) -> str:
+    """One line for a finished run (from the GUI, say): SOC, makespan and replans."""
+    soc, makespan = engine.summary or (0.0, 0.0)
+    replans = engine.executor.replans if engine.executor is not None else 0
+    return (f"run complete: SOC {soc:.0f} ms, makespan {makespan:.0f} ms, "
+            f"{replans} replan(s)")
+
+
+async def show_status(engine: Engine, status: StatusLine) -> None:
+    """Redraw the status line until cancelled (on a terminal; elsewhere it returns)."""
+    import asyncio
+
+    if not status.live:
+        return
+    try:
+        while True:
+            status.set(status_text(engine))
+            await asyncio.sleep(STATUS_PERIOD_S)
+    finally:
+        status.clear()
+
+
+def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
     """After the first run, an operator may load and start others: give every agent a
-    robot and put the robots on the plan's starts whenever a new run begins."""
+    robot, put the robots on the plan's starts whenever a new run begins, and print a
+    summary line when a run ends."""
     engine = gateway.engine
     previous: list[str] = [engine.status]
 
-    def on_status(status: str) -> None:
-        was, previous[0] = previous[0], status
+    def on_status(now: str) -> None:
+        was, previous[0] = previous[0], now
         problem = engine.problem
         if problem is None:
             return
-        if status == "loaded":
+        if now == "loaded":
             for r in range(problem.instance.num_agents):
                 fleet.add_robot(r)
-        if status == "running" and was in ("loaded", "done") and engine.executor is not None:
+        if now == "running" and was in ("loaded", "done") and engine.executor is not None:
             fleet.place_all([p[0] for p in engine.executor.plan.paths])
+        if now == "done" and was != "done":
+            status.print(run_summary(engine))
 
     engine.status_listeners.append(on_status)
 
 
 def _stop_on_signals() -> asyncio.Event:
     """An event set by SIGINT or SIGTERM (the demo then stops cleanly)."""
+    import asyncio
+
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -84,54 +125,75 @@ def _stop_on_signals() -> asyncio.Event:
     return stop
 
 
-async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace) -> None:
+async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace,
+                status: StatusLine) -> int:
+    import asyncio
+
+    from gateway.server.gateway import Gateway
+    from sim_clients.fleet import RunResult, fleet_for, run_in_process
+
     stop = _stop_on_signals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         host = config.host
-        print(f"fleetgate demo: GUI at http://{host}:{port}/ "
-              f"(robots and world on ws://{host}:{port}/ws)", file=sys.stderr, flush=True)
+        status.print(f"fleetgate demo: GUI at http://{host}:{port}/ "
+                     f"(robots and world on ws://{host}:{port}/ws)")
         fleet = fleet_for(gateway, problem.instance.num_agents,
-                          websocket_connector(f"ws://{host}:{port}/ws"), seed=args.seed,
+                          websocket_connector(f"ws://{host}:{port}/ws"),
+                          seed=args.seed,
                           intruder=args.intruder, poll_at_ticks=False, send_state=True)
         run = asyncio.ensure_future(run_in_process(gateway, problem, fleet))
         stopped = asyncio.ensure_future(stop.wait())
+        live = asyncio.ensure_future(show_status(gateway.engine, status))
         try:
             await asyncio.wait({run, stopped}, return_when=asyncio.FIRST_COMPLETED)
             if not run.done():
-                print("fleetgate demo: interrupted before the run completed", file=sys.stderr)
-                return
+                status.print("fleetgate demo: interrupted before the run completed")
+                return EXIT_INTERRUPTED
             result: RunResult = run.result()
             if args.json:
                 print(json.dumps(result.summary()), flush=True)
             else:
-                print(f"run complete: SOC {result.soc_ms:.0f} ms (plan {result.plan_soc} x "
-                      f"1000 ms), makespan {result.makespan_ms:.0f} ms, "
-                      f"{result.replans} replan(s), {result.collisions} collisions",
-                      file=sys.stderr, flush=True)
+                status.print(f"run complete: SOC {result.soc_ms:.0f} ms (plan "
+                             f"{result.plan_soc} x 1000 ms), makespan "
+                             f"{result.makespan_ms:.0f} ms, {result.replans} replan(s), "
+                             f"{result.collisions} collisions")
             if not args.headless:
-                _follow_runs(gateway, fleet)
-                print("serving the GUI until Ctrl-C", file=sys.stderr, flush=True)
+                _follow_runs(gateway, fleet, status)
+                status.print("serving the GUI until Ctrl-C")
                 await stopped
+            return EXIT_OK
         finally:
-            for task in (run, stopped):
+            for task in (run, stopped, live):
                 task.cancel()
-            await asyncio.gather(run, stopped, return_exceptions=True)
+            await asyncio.gather(run, stopped, live, return_exceptions=True)
             await fleet.stop()
 
 
 def _run(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from gateway.commands.instance_args import instance_from_args
+    from gateway.planning.plan import NoSolution
+    from gateway.server.config import ConfigError, load_config
+    from gateway.server.logs import configure_logging
+    from gateway.server.planner import Problem
+    from sim_clients.des import derive_seed
+
     if not 0 < args.speed <= 100:
-        raise UsageError(f"--speed must be in (0, 100], got {args.speed}")
+        raise UsageError(f"--speed must be in (0, 100], got {args.speed:g}")
     if args.threshold_ms < 0:
-        raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms}")
+        raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms:g}")
+    if args.max_replans < 0:
+        raise UsageError(f"--max-replans must be >= 0, got {args.max_replans}")
+    check_planning_arguments(args)
     instance = instance_from_args(args)
+    status = StatusLine()
     try:
-        plan = solve(instance.grid, instance.starts, instance.goals,
-                     deadline=WallDeadline(args.time_limit)).plan
+        plan = solve_instance(instance, args, status).plan
     except NoSolution as exc:
-        print(f"fleetgate: no plan for {instance.name or 'the instance'}: {exc}",
-              file=sys.stderr)
+        why = no_solution_message(instance, args, str(exc), exc.timed_out)
+        print(f"fleetgate: {why}", file=sys.stderr)
         return EXIT_NO_SOLUTION
     if args.trace:
         try:
@@ -142,18 +204,22 @@ def _run(args: argparse.Namespace) -> int:
         config = load_config(None, host=args.host, port=args.port, map=None, speed=args.speed,
                              policy=args.policy, threshold_ms=args.threshold_ms,
                              policy_seed=derive_seed(args.seed, "replan"), trace=args.trace,
-                             solver_time_limit_s=args.time_limit, log_level=args.log_level,
+                             solver_time_limit_s=args.time_limit, fallback_s=args.fallback,
+                             max_replans=args.max_replans, log_level=args.log_level,
+                             log_format=args.log_format, log_file=args.log_file,
                              dispatch_lookahead=args.lookahead)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
-    configure_logging(config.log_level)
+    try:
+        configure_logging(config.log_level, config.log_format, config.log_file, status.stream)
+    except OSError as exc:
+        raise UsageError(f"cannot write the log file {args.log_file}: {exc.strerror}") from None
     problem = Problem(instance, instance.name or str(args.map), plan)
     try:
-        asyncio.run(_demo(config, problem, args))
+        return asyncio.run(_demo(config, problem, args, status))
     except OSError as exc:
         raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
                          ) from None
-    return EXIT_OK
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -187,10 +253,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="fleet slack threshold of the slack policy (default 2000)")
     p.add_argument("--seed", metavar="K", type=int, default=0,
                    help="seed of the intruder's choice and the random policy (default 0)")
-    p.add_argument("--time-limit", metavar="SEC", type=float, default=30.0,
-                   help="planner time limit per solve in seconds (default 30)")
+    add_planning_arguments(p, 30.0)
+    p.add_argument("--max-replans", metavar="N", type=int, default=1,
+                   help="replans allowed per run, the operator's included (default 1)")
     p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"],
-                   default="WARNING", help="gateway log level on stderr (default WARNING)")
+                   default="WARNING", help="gateway log level (default WARNING)")
+    p.add_argument("--log-format", choices=["text", "json"], default="text",
+                   help="gateway log lines: readable text (default) or JSON objects")
+    p.add_argument("--log-file", metavar="FILE", type=Path,
+                   help="append the gateway's logs here instead of stderr")
     p.add_argument("--lookahead", metavar="N", type=int, default=1,
                    help="actions queued on a robot beyond its current one (default 1: the next "
                         "action is released early, so a robot need not wait for a round trip; "

@@ -9,28 +9,13 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
-
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
-from rich.text import Text
+from typing import TYPE_CHECKING, Any
 
 from gateway.cli import EXIT_OK, UsageError
 from gateway.commands.mapstore import MapNotFound, resolve
-from sim_clients.campaign import (
-    PAPER_GROUPS,
-    PAPER_INSTANCES,
-    PAPER_SEEDS,
-    CampaignError,
-    CampaignSpec,
-    SimSettings,
-    open_executor,
-    run_campaign,
-)
-from sim_clients.des import parse_solver_time
-from sim_clients.plots import plot_all
-from sim_clients.stats import OutlierRules, join_experiments, summarize
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 JsonDict = dict[str, Any]
 
@@ -47,9 +32,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    "lab, arena, room-32-32-4, random-32-32-20 to run)")
     p.add_argument("--agents", nargs="+", metavar="N[,N..]|MAP=N[,N..]",
                    help="agent counts for every map, or for one map as MAP=N,N")
-    p.add_argument("--instances", type=int, help=f"instances per map and agent count "
-                   f"(--paper: {PAPER_INSTANCES})")
-    p.add_argument("--seeds", type=int, help=f"seeds per instance (--paper: {PAPER_SEEDS})")
+    p.add_argument("--instances", type=int, help="instances per map and agent count "
+                   "(--paper: the paper's)")
+    p.add_argument("--seeds", type=int, help="seeds per instance (--paper: the paper's)")
     p.add_argument("--out", required=True, type=Path, help="output folder (reused to resume)")
     p.add_argument("--paper", action="store_true",
                    help="the paper's protocol: 13 map/agent groups x 20 instances x 5 seeds "
@@ -83,6 +68,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _solver_time(text: str) -> str:
+    from sim_clients.des import parse_solver_time
+
     try:
         parse_solver_time(text)
     except ValueError as exc:
@@ -107,6 +94,8 @@ def parse_groups(maps: Sequence[str] | None, agents: Sequence[str] | None,
     ``--agents`` items are counts for every map (``5,10 15``) or for one map (``arena=10,20``);
     a map's own counts replace the common ones. With ``--paper`` the defaults are the paper's.
     """
+    from sim_clients.campaign import PAPER_GROUPS
+
     common: list[int] = []
     per_map: dict[str, list[int]] = {}
     for item in agents or ():
@@ -133,13 +122,24 @@ def parse_groups(maps: Sequence[str] | None, agents: Sequence[str] | None,
     return groups
 
 
-def _map_files(names: Sequence[str], maps_dir: str | None) -> dict[str, str]:
+def _map_files(groups: Sequence[tuple[str, int]], maps_dir: str | None) -> dict[str, str]:
+    """The file of each map, checked to be readable and to hold its largest fleet."""
+    from gateway.planning.movingai import MapFormatError, read_map
+
     files = {}
-    for name in names:
+    for name in dict.fromkeys(m for m, _ in groups):
         try:
             path = resolve(name, "map", maps_dir)
+            free = sum(1 for _ in read_map(path).free_cells())
         except MapNotFound as exc:
             raise UsageError(str(exc)) from None
+        except MapFormatError as exc:
+            raise UsageError(str(exc)) from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise UsageError(f"cannot read the map {name}: {exc}") from None
+        most = max(n for m, n in groups if m == name)
+        if most > free:
+            raise UsageError(f"--agents {most} on {name}: the map has only {free} free cells")
         files[name] = str(path.resolve())
     return files
 
@@ -177,15 +177,17 @@ def _times(d: JsonDict) -> str:
     return f"{d['median']:.0f} / {d['mean']:.0f} / {d['max']:.0f}"
 
 
-class _PlainTable(Table):
-    """A table whose cells are plain text (``[..]`` intervals are not rich markup)."""
-
-    def add_row(self, *cells: Any, **kwargs: Any) -> None:
-        super().add_row(*(Text(c) if isinstance(c, str) else c for c in cells), **kwargs)
-
-
 def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) -> Table:
     """One map's (or all maps') numbers: value, 95 % bootstrap interval, n, the paper's value."""
+    from rich.table import Table
+    from rich.text import Text
+
+    class _PlainTable(Table):
+        """A table whose cells are plain text (``[..]`` intervals are not rich markup)."""
+
+        def add_row(self, *cells: Any, **kwargs: Any) -> None:
+            super().add_row(*(Text(c) if isinstance(c, str) else c for c in cells), **kwargs)
+
     paper = PAPER.get(name, {})
     table = _PlainTable(title=f"{name}: {g['experiments']} experiments (replan ms: median / "
                         "mean / max)", title_justify="left")
@@ -241,6 +243,27 @@ def summary_tables(summary: JsonDict) -> list[Table]:
 
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) the campaign, then write the summary and plots and print the tables."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+
+    from sim_clients.campaign import (
+        PAPER_INSTANCES,
+        PAPER_SEEDS,
+        CampaignError,
+        CampaignSpec,
+        SimSettings,
+        open_executor,
+        run_campaign,
+    )
+    from sim_clients.plots import plot_all
+    from sim_clients.stats import OutlierRules, join_experiments, summarize
+
     groups = parse_groups(args.maps, args.agents, args.paper)
     if args.workers < 1:
         raise UsageError(f"--workers must be positive, got {args.workers}")
@@ -248,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--threshold-ms must be >= 0 and --replan-time-limit > 0")
     sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
                       replan_time_limit_s=args.replan_time_limit)
-    files = _map_files(list(dict.fromkeys(m for m, _ in groups)), args.maps_dir)
+    files = _map_files(groups, args.maps_dir)
     named = [(_short(m), n) for m, n in groups]
     stems = {_short(m) for m in files}
     if len(stems) != len(files):

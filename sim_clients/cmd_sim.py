@@ -8,17 +8,18 @@ operator's ``place_intruder`` and the gateway's ``set_speed``. Runs until Ctrl-C
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import json
 import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_OK, UsageError
-from sim_clients.cmd_demo import websocket_connector
-from sim_clients.fleet import SimFleet
+from gateway.cli import EXIT_BAD_INPUT, EXIT_OK, UsageError
+
+if TYPE_CHECKING:
+    from sim_clients.fleet import SimFleet
 
 
 def parse_robots(spec: str) -> list[int]:
@@ -64,6 +65,8 @@ def token_source(spec: str) -> Callable[[int], str]:
 
 
 async def _run_fleet(fleet: SimFleet) -> None:
+    import asyncio
+
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -89,6 +92,11 @@ async def _run_fleet(fleet: SimFleet) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from sim_clients.cmd_demo import websocket_connector
+    from sim_clients.fleet import SimFleet
+
     try:
         robots = parse_robots(args.robots)
         tokens = token_source(args.tokens)
@@ -111,7 +119,7 @@ def _run(args: argparse.Namespace) -> int:
         asyncio.run(main())
     except RuntimeError as exc:  # a robot's handshake was refused
         print(f"fleetgate sim: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     return EXIT_OK
 
 

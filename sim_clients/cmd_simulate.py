@@ -5,17 +5,28 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING
 
 from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
-from gateway.commands.deadline import WallDeadline
-from gateway.commands.instance_args import add_instance_arguments, instance_from_args
-from gateway.planning.plan import NoSolution
-from gateway.planning.solver import solve
-from sim_clients.des import POLICIES, SimConfig, SolverTime, parse_solver_time, run_simulation
-from sim_clients.trace import JsonlWriter
+from gateway.commands.instance_args import add_instance_arguments
+from gateway.commands.progress import StatusLine, ticking
+from gateway.commands.solving import (
+    add_planning_arguments,
+    check_planning_arguments,
+    no_solution_message,
+    solve_instance,
+)
+
+if TYPE_CHECKING:
+    from sim_clients.des import SolverTime
+
+POLICY_CHOICES = ("none", "random", "slack")
+"""The discrete-event simulator's policies (``sim_clients.des.POLICIES``; a test checks)."""
 
 
 def _solver_time(text: str) -> SolverTime:
+    from sim_clients.des import parse_solver_time  # when parsing a command, not for --help
+
     try:
         return parse_solver_time(text)
     except ValueError as exc:
@@ -23,17 +34,21 @@ def _solver_time(text: str) -> SolverTime:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from gateway.commands.instance_args import instance_from_args
+    from gateway.planning.plan import NoSolution
+    from sim_clients.des import SimConfig, run_simulation
+    from sim_clients.trace import JsonlWriter
+
     if args.threshold_ms < 0:
-        raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms}")
-    if args.time_limit <= 0:
-        raise UsageError(f"--time-limit must be positive, got {args.time_limit}")
+        raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms:g}")
+    check_planning_arguments(args)
     instance = instance_from_args(args)
+    status = StatusLine()
     try:
-        solution = solve(instance.grid, instance.starts, instance.goals,
-                         deadline=WallDeadline(args.time_limit))
+        solution = solve_instance(instance, args, status)
     except NoSolution as exc:
-        print(f"fleetgate: no plan for {instance.name or 'the instance'}: {exc}",
-              file=sys.stderr)
+        why = no_solution_message(instance, args, str(exc), exc.timed_out)
+        print(f"fleetgate: {why}", file=sys.stderr)
         return EXIT_NO_SOLUTION
     try:
         writer = JsonlWriter(args.trace) if args.trace else None
@@ -44,7 +59,8 @@ def _run(args: argparse.Namespace) -> int:
                        solver_time=args.solver_time, solver_time_limit_s=args.time_limit,
                        trace=writer)
     try:
-        result = run_simulation(config)
+        with ticking(status, lambda s: f"simulating {instance.num_agents} robots ... {s:.0f} s"):
+            result = run_simulation(config)
     finally:
         if writer is not None:
             writer.close()
@@ -75,7 +91,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="seed of the intruder's choice and the random policy (default 0)")
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
                    help="the intruder appears at 3000 ms and leaves at 10000 ms (default: on)")
-    p.add_argument("--policy", choices=POLICIES, default="none",
+    p.add_argument("--policy", choices=POLICY_CHOICES, default="none",
                    help="replanning policy (default none; at most one replan)")
     p.add_argument("--threshold-ms", metavar="MS", type=float, default=2000.0,
                    help="fleet slack threshold of the slack policy (default 2000)")
@@ -83,8 +99,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    default="measured",
                    help="virtual time charged for a replan's solver: its CPU time (default), "
                         "nothing, or fixed milliseconds (zero or MS make runs reproducible)")
-    p.add_argument("--time-limit", metavar="SEC", type=float, default=60.0,
-                   help="planner time limit per solve in seconds (default 60)")
+    add_planning_arguments(p, 60.0)
     p.add_argument("--trace", metavar="FILE.jsonl", help="write the JSON-lines trace here")
     p.add_argument("--json", action="store_true",
                    help='print {"soc_ms", "makespan_ms", "plan_soc", "replans", '

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from gateway.cli import UsageError
-from gateway.commands import mapstore
-from gateway.planning.instance import Instance, load_instance, load_mapf_ir
 from gateway.planning.motion import (
     DEFAULT_START_HEADING,
     HEADING_NAMES,
@@ -14,8 +13,10 @@ from gateway.planning.motion import (
     Motion,
     parse_heading,
 )
-from gateway.planning.movingai import MapFormatError
-from gateway.planning.problem import Place
+
+if TYPE_CHECKING:
+    from gateway.planning.instance import Instance
+    from gateway.planning.problem import Place
 
 
 def add_instance_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +36,10 @@ def add_instance_arguments(parser: argparse.ArgumentParser) -> None:
 
 def instance_from_args(args: argparse.Namespace) -> Instance:
     """Load and check the instance the options name; bad input raises :class:`UsageError`."""
+    from gateway.commands import mapstore
+    from gateway.planning.instance import load_instance, load_mapf_ir
+    from gateway.planning.movingai import MapFormatError
+
     if args.agents is not None and args.agents < 1:
         raise UsageError(f"--agents must be at least 1, got {args.agents}")
     if args.instance and args.scen:
@@ -53,7 +58,8 @@ def instance_from_args(args: argparse.Namespace) -> Instance:
     except OSError as exc:
         raise UsageError(f"cannot read {exc.filename}: {exc.strerror}") from None
     except UnicodeDecodeError:
-        raise UsageError("cannot read the map, scenario or instance: not a text file") from None
+        given = " or ".join(str(f) for f in (args.map, args.scen, args.instance) if f)
+        raise UsageError(f"cannot read {given}: not a text file") from None
 
 
 def add_motion_arguments(parser: argparse.ArgumentParser, default: Motion) -> None:

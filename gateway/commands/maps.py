@@ -7,14 +7,13 @@ import argparse
 import json
 import sys
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from gateway.cli import EXIT_OK, UsageError
 from gateway.commands import mapstore
-from gateway.planning.generators import random_map, rooms_map, scenario_set, warehouse_map
-from gateway.planning.grid import Grid
-from gateway.planning.movingai import format_map, format_scen
+
+if TYPE_CHECKING:
+    from gateway.planning.grid import Grid
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -50,6 +49,10 @@ def _download(args: argparse.Namespace) -> int:
 
 
 def _generated_map(args: argparse.Namespace) -> Grid:
+    import numpy as np
+
+    from gateway.planning.generators import random_map, rooms_map, warehouse_map
+
     rng = np.random.default_rng(args.seed)
     name = f"{args.name}.map"
     if args.kind == "random":
@@ -61,6 +64,9 @@ def _generated_map(args: argparse.Namespace) -> Grid:
 
 
 def _generate(args: argparse.Namespace) -> int:
+    from gateway.planning.generators import scenario_set
+    from gateway.planning.movingai import format_map, format_scen
+
     if "/" in args.name or not args.name:
         raise UsageError(f"NAME must be a plain file name, got {args.name!r}")
     if args.scenarios < 0:

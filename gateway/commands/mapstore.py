@@ -12,9 +12,6 @@ from __future__ import annotations
 import io
 import os
 import re
-import urllib.error
-import urllib.request
-import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -96,6 +93,8 @@ def resolve(name: str | Path, kind: Kind, maps_dir: str | Path | None = None,
         for candidate in _candidates(text, kind, d.path):
             if candidate.is_file():
                 return candidate
+    if text.endswith(f".{kind}"):  # a file name, not a name to download
+        raise MapNotFound(f"{kind} file {text!r} does not exist")
     where = ", ".join(f"{d.path} ({d.origin})" for d in dirs)
     hint = "; try 'fleetgate maps download NAME'" if kind == "map" else ""
     raise MapNotFound(f"no {kind} named {text!r} in {where}{hint}")
@@ -140,6 +139,9 @@ def archive_names(name: str, with_scen: bool = True) -> list[str]:
 
 
 def _fetch(url: str, timeout: float) -> bytes:
+    import urllib.error  # the network stack only when a download needs it
+    import urllib.request
+
     try:
         with urllib.request.urlopen(url, timeout=timeout) as response:
             data: bytes = response.read()
@@ -154,6 +156,8 @@ def _fetch(url: str, timeout: float) -> bytes:
 def archive_members(data: bytes, source: str = "archive") -> list[tuple[str, bytes]]:
     """The ``.map`` and ``.scen`` files of a zip as ``(base name, content)``; folders inside
     the archive are dropped. Raises :class:`DownloadError` if there is none."""
+    import zipfile
+
     try:
         archive = zipfile.ZipFile(io.BytesIO(data))
     except zipfile.BadZipFile as exc:

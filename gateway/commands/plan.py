@@ -5,22 +5,23 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
-from gateway.commands.deadline import WallDeadline
-from gateway.commands.instance_args import (
-    add_instance_arguments,
-    add_motion_arguments,
-    instance_from_args,
-    starts_from_args,
+from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK
+from gateway.commands.instance_args import add_instance_arguments, add_motion_arguments
+from gateway.commands.solving import (
+    add_planning_arguments,
+    check_planning_arguments,
+    no_solution_message,
+    solve_instance,
 )
-from gateway.planning.instance import Instance
-from gateway.planning.plan import NoSolution, Solution
-from gateway.planning.problem import Place
-from gateway.planning.solver import solve
-from gateway.planning.validate import check_plan
+
+if TYPE_CHECKING:
+    from gateway.planning.instance import Instance
+    from gateway.planning.plan import Solution
+    from gateway.planning.problem import Place
 
 DEFAULT_TIME_LIMIT = 60.0
 """Seconds the planner may take unless ``--time-limit`` says otherwise."""
@@ -50,24 +51,21 @@ def solution_json(instance: Instance, solution: Solution, runtime_s: float,
 
 
 def _plan(args: argparse.Namespace) -> int:
-    for flag, value in (("--time-limit", args.time_limit), ("--fallback", args.fallback)):
-        if value is not None and value <= 0:
-            raise UsageError(f"{flag} must be positive, got {value}")
+    from gateway.commands.instance_args import instance_from_args, starts_from_args
+    from gateway.planning.plan import NoSolution
+    from gateway.planning.validate import check_plan
+
+    check_planning_arguments(args)
     instance = instance_from_args(args)
     starts = starts_from_args(args, instance)
-    deadline = WallDeadline(args.time_limit)
-    fallback = WallDeadline(args.time_limit + args.fallback) if args.fallback else None
+    began = time.monotonic()
     try:
-        solution = solve(instance.grid, starts, instance.goals, deadline=deadline,
-                         fallback=fallback, motion=args.motion)
+        solution = solve_instance(instance, args, starts=starts, motion=args.motion)
     except NoSolution as exc:
-        runtime = deadline.elapsed()
-        limit = args.time_limit + (args.fallback or 0.0)
-        why = (f"no solution within the time limit of {limit:g} s" if exc.timed_out
-               else f"no solution: {exc}")
-        print(f"fleetgate: {why} ({runtime:.3f} s)", file=sys.stderr)
+        why = no_solution_message(instance, args, str(exc), exc.timed_out)
+        print(f"fleetgate: {why} ({time.monotonic() - began:.3f} s)", file=sys.stderr)
         return EXIT_NO_SOLUTION
-    runtime = deadline.elapsed()
+    runtime = time.monotonic() - began
     check_plan(instance.grid, starts, instance.goals, solution.plan)
     if args.json:
         print(json.dumps(solution_json(instance, solution, runtime, starts)))
@@ -90,10 +88,5 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_motion_arguments(parser, default="omni")
     parser.add_argument("--json", action="store_true",
                         help="print the solution as JSON (map, soc, makespan, agents' paths...)")
-    parser.add_argument("--time-limit", type=float, default=DEFAULT_TIME_LIMIT, metavar="SEC",
-                        help=f"give up after SEC seconds of wall time "
-                             f"(default {DEFAULT_TIME_LIMIT:g})")
-    parser.add_argument("--fallback", type=float, default=None, metavar="SEC",
-                        help="if CBS runs out of time, spend up to SEC more seconds on the fast "
-                             "prioritised planner (the output then says \"optimal\": false)")
+    add_planning_arguments(parser, DEFAULT_TIME_LIMIT)
     parser.set_defaults(func=_plan)

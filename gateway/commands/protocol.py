@@ -8,10 +8,13 @@ import sys
 from pathlib import Path
 
 from gateway.cli import EXIT_OK, UsageError
-from protocol import json_schema
 
 
 def _schema(args: argparse.Namespace) -> int:
+    if args.markdown is not None:
+        return _markdown(Path(args.markdown))
+    from protocol import json_schema
+
     text = json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"
     if args.output is None:
         sys.stdout.write(text)
@@ -20,6 +23,18 @@ def _schema(args: argparse.Namespace) -> int:
         Path(args.output).write_text(text)
     except OSError as exc:
         raise UsageError(f"cannot write {args.output}: {exc.strerror}") from None
+    return EXIT_OK
+
+
+def _markdown(path: Path) -> int:
+    from gateway.conformance.doc import StaleDocument, render
+
+    try:
+        path.write_text(render(path.read_text()))
+    except OSError as exc:
+        raise UsageError(f"cannot update {path}: {exc.strerror}") from None
+    except StaleDocument as exc:
+        raise UsageError(f"{path}: {exc}") from None
     return EXIT_OK
 
 
@@ -32,4 +47,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                               description="Write the JSON Schema (draft 2020-12) of protocol "
                                           "v1 to FILE or standard output.")
     schema.add_argument("-o", "--output", metavar="FILE", help="write here instead of stdout")
+    schema.add_argument("--markdown", metavar="FILE",
+                        help="instead, rewrite the generated message table and schema blocks "
+                             "of FILE (docs/protocol.md)")
     schema.set_defaults(func=_schema)

@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import signal
 import sys
+from typing import TYPE_CHECKING
 
 from gateway.cli import EXIT_OK, UsageError
-from gateway.server.config import ConfigError, GatewayConfig, load_config
-from gateway.server.gateway import Gateway
-from gateway.server.logs import configure_logging
+
+if TYPE_CHECKING:
+    from gateway.server.config import GatewayConfig
 
 
 async def _serve(config: GatewayConfig) -> None:
+    import asyncio
+
+    from gateway.server.gateway import Gateway
+
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -29,12 +33,21 @@ async def _serve(config: GatewayConfig) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from gateway.server.config import ConfigError, load_config
+    from gateway.server.logs import configure_logging
+
     try:
         config = load_config(args.config, host=args.host, port=args.port,
-                             log_level=args.log_level)
+                             log_level=args.log_level, log_format=args.log_format)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
-    configure_logging(config.log_level)
+    try:
+        configure_logging(config.log_level, config.log_format, config.log_file)
+    except OSError as exc:
+        raise UsageError(f"cannot write the log file {config.log_file}: {exc.strerror}"
+                         ) from None
     try:
         asyncio.run(_serve(config))
     except ValueError as exc:  # the configured instance cannot be loaded
@@ -59,4 +72,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port to listen on (default 8080; 0 = any)")
     parser.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    parser.add_argument("--log-format", choices=["text", "json"],
+                        help="log lines on stderr (or log_file): readable text (default) or "
+                             "JSON objects")
     parser.set_defaults(func=_run)

@@ -4,14 +4,12 @@
 with turnings, the League of Robot Runners' MAPF_T convention): a robot's state is its cell
 and heading; one timestep is a wait, a 90-degree turn clockwise or counter-clockwise in place,
 or one cell forward along the heading. Occupancy, conflicts and the 1-robust rule are on cells
-either way: a turning robot holds its cell.
+either way: a turning robot holds its cell. (No numpy here: the CLI reads these names at start.)
 """
 
 from __future__ import annotations
 
 from typing import Literal, get_args
-
-from gateway.planning.grid import Cell
 
 Motion = Literal["omni", "turning"]
 """The name of a motion model."""
@@ -25,7 +23,7 @@ Heading = int
 HeadedCell = tuple[int, int, int]
 """``(x, y, heading)``: a robot's pose under the ``turning`` model."""
 
-HEADING_MOVES: tuple[Cell, ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))
+HEADING_MOVES: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))
 """``HEADING_MOVES[h]`` is the ``(dx, dy)`` of one step forward with heading h."""
 
 HEADING_NAMES: tuple[str, ...] = ("east", "south", "west", "north")

@@ -66,6 +66,9 @@ class GatewayConfig(BaseSettings):
     """Actions queued on a robot beyond its current one (0: dispatch only when all ADG edges
     are done; 1: release the next action early so the robot need not wait for a round trip)."""
     solver_time_limit_s: float = Field(default=10.0, gt=0)
+    fallback_s: float | None = Field(default=None, gt=0)
+    """If CBS finds no plan within ``solver_time_limit_s``, seconds more for the prioritised
+    planner (a feasible, not optimal plan; logged as a warning). None: no fallback."""
     speed: float = Field(default=1.0, gt=0, le=100)
 
     state_period_ms: float = Field(default=5000.0, gt=0)
@@ -81,6 +84,9 @@ class GatewayConfig(BaseSettings):
     static_dir: Path | None = None
     trace: Path | None = None
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    log_format: Literal["text", "json"] = "text"
+    log_file: Path | None = None
+    """Append logs here instead of writing them on stderr."""
 
     @property
     def loopback(self) -> bool:
@@ -94,7 +100,15 @@ class GatewayConfig(BaseSettings):
                 or "demo-world" in t.world)
         if demo and not self.allow_demo_tokens and not _is_loopback(self.host):
             raise ValueError(f"demo tokens on non-loopback host {self.host!r}: configure "
-                             "tokens (and demo_robot_prefix = null) or set allow_demo_tokens")
+                             'tokens (and demo_robot_prefix = "") or set allow_demo_tokens')
+        return self
+
+    @model_validator(mode="after")
+    def _map_needs_agents(self) -> GatewayConfig:
+        if "map" in self.model_fields_set and self.map is not None and self.instance is None \
+                and self.scen is None and self.agents is None:
+            raise ValueError(f"map = {self.map!r} needs scen or agents to load an instance at "
+                             "start (leave map out to start empty and load from the GUI)")
         return self
 
 
@@ -147,4 +161,4 @@ def load_config(path: str | Path | None = None, **overrides: Any) -> GatewayConf
         raise ConfigError(f"bad configuration: {_first_error(exc)}") from None
     except ValueError as exc:  # unreadable TOML/JSON
         raise ConfigError(f"cannot read {file}: {exc}") from None
-    return GatewayConfig.model_validate(merged.model_dump())
+    return GatewayConfig.model_validate(merged.model_dump(exclude_unset=True))

@@ -525,7 +525,7 @@ class Engine:
         grid, limit = problem.instance.grid, self.config.solver_time_limit_s
 
         def work() -> Plan:
-            return plan_for(grid, starts, goals, limit)
+            return plan_for(grid, starts, goals, limit, self.config.fallback_s)
 
         async def run() -> None:
             t0 = time.perf_counter()

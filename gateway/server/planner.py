@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +17,8 @@ from gateway.planning.movingai import MapFormatError, read_map
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve
 from gateway.planning.validate import plan_violations
+
+log = logging.getLogger("fleetgate.planner")
 
 
 class InstanceError(ValueError):
@@ -81,7 +84,13 @@ def problem_from_paths(map: str, paths: list[list[Cell]]) -> Problem:
 
 
 def plan_for(grid: Grid, starts: tuple[Cell, ...], goals: tuple[Cell, ...],
-             time_limit_s: float) -> Plan:
-    """A 1-robust plan from ``starts`` to ``goals`` (raises planning's NoSolution)."""
-
-    return solve(grid, starts, goals, deadline=WallDeadline(time_limit_s)).plan
+             time_limit_s: float, fallback_s: float | None = None) -> Plan:
+    """A 1-robust plan from ``starts`` to ``goals`` (raises planning's NoSolution): CBS's
+    within ``time_limit_s``, else (given ``fallback_s``) the prioritised planner's, with a
+    warning."""
+    fallback = WallDeadline(time_limit_s + fallback_s) if fallback_s else None
+    solution = solve(grid, starts, goals, deadline=WallDeadline(time_limit_s), fallback=fallback)
+    if not solution.optimal:
+        log.warning("no optimal plan within %g s: using the prioritised planner's plan "
+                    "(SOC %d, not proven optimal)", time_limit_s, solution.plan.soc)
+    return solution.plan

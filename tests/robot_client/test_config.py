@@ -44,3 +44,19 @@ def test_module_runs_with_help() -> None:
     out = subprocess.run([sys.executable, "-m", "robot_client", "--help"], capture_output=True,
                          text=True, timeout=60, check=True).stdout
     assert "--gateway-url" in out and "--robot-id" in out
+
+
+def test_help_lists_config_and_log_level_and_plain_flags() -> None:
+    out = subprocess.run([sys.executable, "-m", "robot_client", "--help"], capture_output=True,
+                         text=True, timeout=60, check=True).stdout
+    assert "--config str" in out and "--log-level {DEBUG,INFO,WARNING,ERROR}" in out
+    assert "[--no-camera]" in out and "--no-no-camera" not in out
+
+
+def test_log_level_from_the_config_file(tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text('robot_id = 0\ntoken = "t"\ngrid_width = 3\ngrid_height = 3\n'
+                   'serial_port = "/nonexistent/kobuki"\nno_camera = true\nlog_level = "LOUD"\n')
+    assert main(["--config", str(cfg)]) == 2
+    assert "log_level" in capsys.readouterr().err

@@ -1,0 +1,1 @@
+"""``python -m fleetgate``: the ``fleetgate`` command (see :mod:`gateway.cli`)."""

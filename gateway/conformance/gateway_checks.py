@@ -1,0 +1,804 @@
+"""The checklist a gateway goes through: the checker plays robots (and an operator, to load
+tiny plans) against it. Each check cites its rule in docs/protocol.md."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from typing import Any
+
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+
+from gateway.conformance.checklist import Checklist
+from gateway.conformance.report import CheckFailed, CheckResult
+from gateway.conformance.target import Cell, Options, Robot, Run, Target
+from protocol import (
+    MAX_MESSAGE_BYTES,
+    Ack,
+    Action,
+    CancelAction,
+    Cancelled,
+    Error,
+    ErrorCode,
+    Finished,
+    Hello,
+    IntruderReport,
+    Pause,
+    ReplanNow,
+    Resume,
+    Start,
+    Started,
+    State,
+    Unblocked,
+    Welcome,
+    encode,
+    parse_action_id,
+)
+from protocol import Blocked as BlockedReport
+
+GATEWAY_CHECKS: Checklist[Target] = Checklist()
+check = GATEWAY_CHECKS.check
+
+QUIET_S = 0.25
+"""How long the checker waits to be sure something does not happen."""
+
+HARD_FRAME = 300_000
+"""A frame larger than any gateway should read (fleetgate closes above 256 KiB)."""
+
+
+def _raw(conn_name: str, **fields: Any) -> str:
+    return json.dumps({"v": 1, "msg_id": f"{conn_name}-raw", "seq": 0, **fields})
+
+
+def _lane(t: Target) -> list[Cell]:
+    _, layout = t.need_operator()
+    return layout.lane
+
+
+def _single(t: Target) -> Run:
+    """A run in which the robot under test makes three moves along the lane."""
+    return Run(t, {t.options.robot_id: _lane(t)[1:]})
+
+
+async def _started_run(t: Target) -> tuple[Run, Robot, Action]:
+    run = await _single(t).__aenter__()
+    robot = await run.robot(t.options.robot_id)
+    await run.start()
+    return run, robot, await robot.action(0)
+
+
+class _Started:
+    """``async with _Started(t) as (run, robot, first)``: a single run, started."""
+
+    def __init__(self, t: Target) -> None:
+        self.t = t
+        self.run: Run | None = None
+
+    async def __aenter__(self) -> tuple[Run, Robot, Action]:
+        self.run, robot, first = await _started_run(self.t)
+        return self.run, robot, first
+
+    async def __aexit__(self, *exc: object) -> None:
+        if self.run is not None:
+            await self.run.__aexit__(*exc)
+
+
+def _other(t: Target) -> int:
+    return t.options.peer
+
+
+# ---------------------------------------------------------------------- authentication
+@check("auth-missing-token-401", "AUTH-2")
+async def _auth_missing(t: Target) -> None:
+    """A handshake without a token is refused with HTTP 401."""
+    await _refused(t, None, 401)
+
+
+@check("auth-unknown-token-403", "AUTH-3")
+async def _auth_unknown(t: Target) -> None:
+    """A handshake with an unknown token is refused with HTTP 403."""
+    await _refused(t, "conformance-no-such-token-7f3a", 403)
+
+
+async def _refused(t: Target, token: str | None, status: int) -> None:
+    try:
+        conn = await t.open(token)
+    except InvalidStatus as exc:
+        if exc.response.status_code != status:
+            raise CheckFailed(f"refused with HTTP {exc.response.status_code}, expected "
+                              f"{status}") from None
+        return
+    await conn.close()
+    raise CheckFailed("the handshake was accepted")
+
+
+@check("auth-token-in-query", "AUTH-1")
+async def _auth_query(t: Target) -> None:
+    """A token in ``?token=`` is accepted like the bearer header."""
+    token = t.options.robot_token(t.options.robot_id)
+    conn = await t.open(None, "rq", query=f"token={token}")
+    try:
+        robot = Robot(t, t.options.robot_id, conn)
+        await robot.hello()
+    finally:
+        await conn.close()
+
+
+@check("hello-gets-welcome", "HS-2")
+async def _hello_welcome(t: Target) -> None:
+    """``hello`` is answered with ``welcome`` for the robot, before anything else."""
+    robot = await t.robot(hello=False)
+    try:
+        await robot.conn.send(Hello, robot_id=robot.id)
+        first = await robot.conn.expect("a first message", lambda m: True)
+        if not isinstance(first, Welcome):
+            raise CheckFailed(f"the first message after hello is {first.type}")
+        if first.robot_id != robot.id:
+            raise CheckFailed(f"welcome.robot_id is {first.robot_id}, expected {robot.id}")
+    finally:
+        await robot.conn.close()
+
+
+@check("hello-as-another-robot", "AUTH-4")
+async def _hello_other(t: Target) -> None:
+    """``hello`` claiming another robot id gets ``not_yourself`` and no welcome."""
+    robot = await t.robot(hello=False)
+    try:
+        ref = await robot.conn.send(Hello, robot_id=_other(t))
+        await robot.conn.error_for(ref, ErrorCode.NOT_YOURSELF)
+        await robot.conn.quiet("welcome", lambda m: isinstance(m, Welcome), QUIET_S)
+    finally:
+        await robot.conn.close()
+
+
+@check("report-about-another-robot", "AUTH-5")
+async def _report_other(t: Target) -> None:
+    """A report about another robot's action gets ``not_yourself``."""
+    robot = await t.robot()
+    try:
+        ref = await robot.conn.send(Finished, action_id=f"0.{_other(t)}.0")
+        await robot.conn.error_for(ref, ErrorCode.NOT_YOURSELF)
+    finally:
+        await robot.conn.close()
+
+
+@check("state-about-another-robot", "AUTH-5")
+async def _state_other(t: Target) -> None:
+    """A ``state`` naming another robot gets ``not_yourself``."""
+    robot = await t.robot()
+    try:
+        ref = await robot.conn.send(State, robot_id=_other(t))
+        await robot.conn.error_for(ref, ErrorCode.NOT_YOURSELF)
+    finally:
+        await robot.conn.close()
+
+
+@check("robot-may-not-command", "AUTH-6")
+async def _robot_command(t: Target) -> None:
+    """An operator command from a robot gets ``forbidden``."""
+    robot = await t.robot()
+    try:
+        ref = await robot.conn.send(Start)
+        await robot.conn.error_for(ref, ErrorCode.FORBIDDEN)
+    finally:
+        await robot.conn.close()
+
+
+@check("robot-may-not-report-intruders", "AUTH-6")
+async def _robot_world(t: Target) -> None:
+    """A world report (``intruder``) from a robot gets ``forbidden``."""
+    robot = await t.robot()
+    try:
+        ref = await robot.conn.send(IntruderReport, cell=(0, 0), state="on")
+        await robot.conn.error_for(ref, ErrorCode.FORBIDDEN)
+    finally:
+        await robot.conn.close()
+
+
+@check("report-before-hello", "HS-4")
+async def _before_hello(t: Target) -> None:
+    """A report before ``hello`` gets ``bad_state``."""
+    robot = await t.robot(hello=False)
+    try:
+        ref = await robot.conn.send(Started, action_id=f"0.{robot.id}.0")
+        await robot.conn.error_for(ref, ErrorCode.BAD_STATE)
+    finally:
+        await robot.conn.close()
+
+
+@check("second-hello-resyncs", "HS-5")
+async def _second_hello(t: Target) -> None:
+    """A second ``hello`` on one connection gets a second ``welcome``."""
+    robot = await t.robot()
+    try:
+        await robot.hello()
+    finally:
+        await robot.conn.close()
+
+
+@check("new-connection-replaces-old", "HS-6")
+async def _replaced(t: Target) -> None:
+    """A robot's new connection replaces its old one, which is closed with 4000."""
+    old = await t.robot()
+    new = await t.robot()
+    try:
+        code = await old.conn.closed()
+        if code != 4000:
+            raise CheckFailed(f"the old connection was closed with {code}, expected 4000")
+        if new.conn.is_closed:
+            raise CheckFailed("the new connection was closed")
+    finally:
+        await old.conn.close()
+        await new.conn.close()
+
+
+@check("state-accepted", "STATE-2")
+async def _state_ok(t: Target) -> None:
+    """A robot's own ``state`` is accepted silently."""
+    robot = await t.robot()
+    try:
+        await robot.conn.send(State, robot_id=robot.id, activity="idle")
+        await robot.conn.quiet("error", lambda m: isinstance(m, Error), QUIET_S)
+    finally:
+        await robot.conn.close()
+
+
+# ---------------------------------------------------------------------- bad messages
+async def _bad(t: Target, raw: str | bytes, code: ErrorCode, ref: str | None,
+               timeout: float = 5.0) -> None:
+    robot = await t.robot()
+    try:
+        await robot.conn.send_raw(raw)
+        await robot.conn.error_for(ref, code, timeout)
+    finally:
+        await robot.conn.close()
+
+
+@check("malformed-json", "ERR-3")
+async def _malformed(t: Target) -> None:
+    """Text that is not JSON gets ``malformed`` with ``ref`` null."""
+    await _bad(t, "{not json", ErrorCode.MALFORMED, None)
+
+
+@check("not-a-json-object", "MSG-1")
+async def _not_object(t: Target) -> None:
+    """A JSON value that is not an object gets ``malformed``."""
+    await _bad(t, "[1, 2]", ErrorCode.MALFORMED, None)
+
+
+@check("unsupported-version", "VER-1")
+async def _version(t: Target) -> None:
+    """``v`` 2 gets ``unsupported_version`` naming the msg_id."""
+    await _bad(t, _raw("x", type="state", robot_id=t.options.robot_id, v=2),
+               ErrorCode.UNSUPPORTED_VERSION, "x-raw")
+
+
+@check("missing-version", "VER-1")
+async def _no_version(t: Target) -> None:
+    """A message without ``v`` gets ``unsupported_version``."""
+    raw = json.dumps({"type": "state", "msg_id": "y-raw", "seq": 0,
+                      "robot_id": t.options.robot_id})
+    await _bad(t, raw, ErrorCode.UNSUPPORTED_VERSION, "y-raw")
+
+
+@check("unknown-type", "MSG-1")
+async def _unknown_type(t: Target) -> None:
+    """An unknown ``type`` gets ``unknown_type`` naming the msg_id."""
+    await _bad(t, _raw("z", type="teleport"), ErrorCode.UNKNOWN_TYPE, "z-raw")
+
+
+@check("invalid-field", "MSG-1")
+async def _invalid(t: Target) -> None:
+    """A field of the wrong form gets ``invalid`` naming the msg_id."""
+    await _bad(t, _raw("w", type="ack", action_id="nonsense"), ErrorCode.INVALID, "w-raw")
+
+
+@check("unknown-field", "MSG-1")
+async def _extra(t: Target) -> None:
+    """An unknown field gets ``invalid`` (no extra fields)."""
+    await _bad(t, _raw("u", type="state", robot_id=t.options.robot_id, colour="red"),
+               ErrorCode.INVALID, "u-raw")
+
+
+@check("too-large", "LIMIT-1")
+async def _too_large(t: Target) -> None:
+    """A message over 64 KiB gets ``too_large`` and the connection stays open."""
+    robot = await t.robot()
+    try:
+        await robot.conn.send_raw(_raw("big", type="state", robot_id=robot.id,
+                                       pad="x" * MAX_MESSAGE_BYTES))
+        await robot.conn.error_for(None, ErrorCode.TOO_LARGE)
+        await robot.hello()
+    finally:
+        await robot.conn.close()
+
+
+@check("error-keeps-connection", "ERR-2")
+async def _error_not_fatal(t: Target) -> None:
+    """After an ``error`` reply the connection stays usable."""
+    robot = await t.robot(hello=False)
+    try:
+        await robot.conn.send_raw("{not json")
+        await robot.conn.error_for(None, ErrorCode.MALFORMED)
+        await robot.hello()
+    finally:
+        await robot.conn.close()
+
+
+@check("binary-frame-refused", "WS-1", required=False)
+async def _binary(t: Target) -> None:
+    """A binary frame gets ``malformed`` (messages travel in text frames)."""
+    msg = State(msg_id="bin-0", seq=0, robot_id=t.options.robot_id)
+    await _bad(t, encode(msg).encode(), ErrorCode.MALFORMED, None, timeout=2.0)
+
+
+@check("oversize-frame-closes-1009", "LIMIT-2")
+async def _huge(t: Target) -> None:
+    """A frame far over the limit closes the connection with 1009."""
+    robot = await t.robot(hello=False)
+    try:
+        with contextlib.suppress(ConnectionClosed):
+            await robot.conn.send_raw(_raw("huge", type="state", robot_id=robot.id,
+                                           pad="x" * HARD_FRAME))
+        code = await robot.conn.closed()
+        if code != 1009:
+            raise CheckFailed(f"closed with {code}, expected 1009")
+    finally:
+        await robot.conn.close()
+
+
+@check("repeated-abuse-closes-1008", "LIMIT-4")
+async def _abuse(t: Target) -> None:
+    """Repeated bad messages close the connection with 1008, after their error replies."""
+    robot = await t.robot(hello=False)
+    try:
+        for _ in range(200):
+            if robot.conn.is_closed:
+                break
+            try:
+                await robot.conn.send_raw("[]")
+            except ConnectionClosed:
+                break
+        code = await robot.conn.closed()
+        errors = [m for m in robot.conn.received if isinstance(m, Error)]
+        if code != 1008:
+            raise CheckFailed(f"closed with {code}, expected 1008")
+        if not errors or any(e.code != ErrorCode.MALFORMED for e in errors):
+            raise CheckFailed(f"expected malformed errors before the close, got "
+                              f"{[e.code.value for e in errors][:5]}")
+    finally:
+        await robot.conn.close()
+
+
+@check("rate-limited", "LIMIT-3", required=False)
+async def _rate(t: Target) -> None:
+    """A flood of messages gets ``rate_limited``."""
+    robot = await t.robot()
+    try:
+        text = encode(State(msg_id="flood", seq=0, robot_id=robot.id))
+        for _ in range(3000):
+            if robot.conn.is_closed:
+                break
+            try:
+                await robot.conn.send_raw(text)
+            except ConnectionClosed:
+                break
+        await robot.conn.expect_type(Error, 5.0, lambda e: e.code == ErrorCode.RATE_LIMITED,
+                                     what="error rate_limited")
+    finally:
+        await robot.conn.close()
+
+
+@check("gateway-answers-ping", "WS-2")
+async def _ping(t: Target) -> None:
+    """A websocket ping is answered with a pong."""
+    robot = await t.robot(hello=False)
+    try:
+        pong = await robot.conn.ws.ping()
+        try:
+            await asyncio.wait_for(pong, 5.0)
+        except TimeoutError:
+            raise CheckFailed("no pong within 5 s") from None
+    finally:
+        await robot.conn.close()
+
+
+# ---------------------------------------------------------------------- dispatch
+@check("welcome-start-pose", "HS-3")
+async def _welcome_start(t: Target) -> None:
+    """Before a run, ``welcome.start`` is the robot's first cell of the loaded plan."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        assert robot.welcome is not None
+        want = _lane(t)[1]
+        got = robot.welcome.start.cell if robot.welcome.start else None
+        if got != want:
+            raise CheckFailed(f"welcome.start is {got}, expected {want}")
+
+
+@check("dispatch-fields", "DISPATCH-2")
+async def _dispatch_fields(t: Target) -> None:
+    """The first action: id ``<plan>.<robot>.0``, sequence 0, src/dst the path's first step."""
+    async with _Started(t) as (_, robot, first):
+        lane = _lane(t)
+        _plan, r, index = parse_action_id(first.action_id)
+        problems = []
+        if (r, index) != (robot.id, 0):
+            problems.append(f"action_id {first.action_id} is not action 0 of robot {robot.id}")
+        if first.sequence != index:
+            problems.append(f"sequence {first.sequence} != index {index}")
+        if (tuple(first.src.cell), tuple(first.dst.cell)) != (lane[1], lane[2]):
+            problems.append(f"{first.src.cell} -> {first.dst.cell}, expected {lane[1]} -> "
+                            f"{lane[2]}")
+        if problems:
+            raise CheckFailed("; ".join(problems))
+
+
+@check("dispatch-in-order", "DISPATCH-3")
+async def _in_order(t: Target) -> None:
+    """Every action of the plan arrives once, in index order, each starting where the last
+    ended."""
+    async with _Started(t) as (_, robot, first):
+        got = [first]
+        await robot.execute(first)
+        while len(got) < 3:
+            a = await robot.action()
+            got.append(a)
+            await robot.execute(a)
+        ids = [parse_action_id(a.action_id)[2] for a in got]
+        if ids != [0, 1, 2]:
+            raise CheckFailed(f"action indexes arrived as {ids}")
+        lane = _lane(t)
+        cells = [tuple(got[0].src.cell)] + [tuple(a.dst.cell) for a in got]
+        if cells != lane[1:]:
+            raise CheckFailed(f"the actions visit {cells}, the plan is {lane[1:]}")
+        await robot.conn.quiet("action", lambda m: isinstance(m, Action), QUIET_S)
+
+
+@check("run-completes", "REPORT-1")
+async def _completes(t: Target) -> None:
+    """``started`` + ``finished`` of every action completes the run (status ``done``)."""
+    op, _ = t.need_operator()
+    async with _Started(t) as (_, robot, first):
+        await robot.execute(first)
+        for _ in range(2):
+            await robot.execute(await robot.action())
+        await op.until("done", timeout=5.0)
+        errors = [m for m in robot.conn.received if isinstance(m, Error)]
+        if errors:
+            raise CheckFailed(f"the gateway refused a report: {errors[0].code.value}: "
+                              f"{errors[0].detail}")
+
+
+@check("ack-unknown-action", "ACK-2")
+async def _ack_unknown(t: Target) -> None:
+    """An ``ack`` of an action never dispatched gets ``unknown_action``."""
+    async with _Started(t) as (_, robot, _first):
+        ref = await robot.conn.send(Ack, action_id=f"0.{robot.id}.9")
+        await robot.conn.error_for(ref, ErrorCode.UNKNOWN_ACTION)
+
+
+@check("report-never-dispatched", "REPORT-3")
+async def _never(t: Target) -> None:
+    """A report about an action never dispatched gets ``unknown_action``."""
+    async with _Started(t) as (_, robot, _first):
+        ref = await robot.conn.send(Started, action_id=f"0.{robot.id}.9")
+        await robot.conn.error_for(ref, ErrorCode.UNKNOWN_ACTION)
+
+
+@check("finish-before-start", "REPORT-1")
+async def _finish_first(t: Target) -> None:
+    """``finished`` without ``started`` gets ``rejected``."""
+    async with _Started(t) as (_, robot, first):
+        ref = await robot.conn.send(Finished, action_id=first.action_id, pose=first.dst)
+        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+
+
+@check("started-twice", "REPORT-4")
+async def _started_twice(t: Target) -> None:
+    """A second ``started`` of a running action gets ``duplicate``."""
+    async with _Started(t) as (_, robot, first):
+        await robot.report(Started, first.action_id)
+        ref = await robot.conn.send(Started, action_id=first.action_id, pose=first.src)
+        await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
+
+
+@check("finished-twice-applied-once", "DUP-2")
+async def _finished_twice(t: Target) -> None:
+    """A second ``finished`` gets ``duplicate`` and changes nothing (no action is sent
+    again)."""
+    async with _Started(t) as (_, robot, first):
+        await robot.execute(first)
+        second = await robot.action(1)
+        ref = await robot.conn.send(Finished, action_id=first.action_id, pose=first.dst)
+        await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
+        await robot.conn.quiet(f"second dispatch of {second.action_id}",
+                               lambda m: isinstance(m, Action)
+                               and m.action_id in (first.action_id, second.action_id), QUIET_S)
+
+
+@check("out-of-order-report", "DISPATCH-4")
+async def _out_of_order(t: Target) -> None:
+    """``started`` of action 1 while action 0 is unfinished is refused."""
+    async with _Started(t) as (_, robot, _first):
+        ref = await robot.conn.send(Started, action_id=f"0.{robot.id}.1")
+        err = await robot.conn.expect_type(Error, 5.0, lambda e: e.ref == ref,
+                                           what=f"error for {ref}")
+        if err.code not in (ErrorCode.REJECTED, ErrorCode.UNKNOWN_ACTION):
+            raise CheckFailed(f"got {err.code.value}, expected rejected (or unknown_action if "
+                              "it was not dispatched yet)")
+
+
+@check("blocked-then-unblocked", "BLOCK-1")
+async def _blocked_ok(t: Target) -> None:
+    """``blocked``, ``unblocked``, ``started``, ``finished`` of one action are accepted."""
+    async with _Started(t) as (_, robot, first):
+        aid = first.action_id
+        await robot.conn.send(Ack, action_id=aid)
+        await robot.conn.send(BlockedReport, action_id=aid, pose=first.src)
+        await robot.conn.send(Unblocked, action_id=aid, pose=first.src)
+        await robot.report(Started, aid)
+        await robot.report(Finished, aid)
+        await robot.action(1)
+        await robot.conn.quiet("error", lambda m: isinstance(m, Error), QUIET_S)
+
+
+@check("blocked-twice", "REPORT-4")
+async def _blocked_twice(t: Target) -> None:
+    """A second ``blocked`` gets ``duplicate``."""
+    async with _Started(t) as (_, robot, first):
+        await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
+        ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
+        await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
+
+
+@check("blocked-after-start", "BLOCK-2")
+async def _blocked_late(t: Target) -> None:
+    """``blocked`` of a started action gets ``rejected``."""
+    async with _Started(t) as (_, robot, first):
+        await robot.report(Started, first.action_id)
+        ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
+        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+
+
+@check("unblocked-when-not-blocked", "BLOCK-2")
+async def _unblocked_stray(t: Target) -> None:
+    """``unblocked`` of an action that is not blocked gets ``rejected``."""
+    async with _Started(t) as (_, robot, first):
+        ref = await robot.conn.send(Unblocked, action_id=first.action_id, pose=first.src)
+        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+
+
+@check("cancelled-without-cancel", "CANCEL-5")
+async def _stray_cancelled(t: Target) -> None:
+    """``cancelled`` with no ``cancel`` outstanding gets ``rejected``."""
+    async with _Started(t) as (_, robot, first):
+        ref = await robot.conn.send(Cancelled, action_id=first.action_id, pose=first.src)
+        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+
+
+# ---------------------------------------------------------------------- reconnecting
+@check("resend-unacknowledged", "RESEND-1")
+async def _resend_unacked(t: Target) -> None:
+    """An action the robot never acknowledged is resent in the next ``welcome``."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        await run.start()
+        first = await robot.action(0)
+        await robot.conn.close()
+        again = await run.robot(robot.id)
+        assert again.welcome is not None
+        resent = {a.action_id: a for a in again.welcome.resend}
+        if first.action_id not in resent:
+            raise CheckFailed(f"welcome.resend is {list(resent)}, without the unacknowledged "
+                              f"{first.action_id}")
+        if resent[first.action_id].dst != first.dst:
+            raise CheckFailed("the resent action differs from the first dispatch")
+
+
+@check("no-resend-of-acknowledged", "RESEND-1")
+async def _no_resend_acked(t: Target) -> None:
+    """Actions the robot acknowledged and still holds (``hello.acked``) are not resent."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        await run.start()
+        await robot.action(0)
+        await asyncio.sleep(QUIET_S)  # collect what a lookahead gateway releases early
+        held = [a.action_id for a in robot.collect()]
+        for aid in held:
+            await robot.conn.send(Ack, action_id=aid)
+        await asyncio.sleep(QUIET_S)
+        await robot.conn.close()
+        again = await run.robot(robot.id, acked=held)
+        assert again.welcome is not None
+        resent = [a.action_id for a in again.welcome.resend]
+        if resent:
+            raise CheckFailed(f"welcome.resend is {resent}: acknowledged actions {held} were "
+                              "sent again")
+
+
+@check("finish-reported-in-hello", "RESEND-3")
+async def _finish_in_hello(t: Target) -> None:
+    """A finish listed in ``hello.finished`` is applied; a later ``finished`` of it gets
+    ``duplicate``."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        await run.start()
+        first = await robot.action(0)
+        await robot.conn.send(Ack, action_id=first.action_id)
+        await robot.report(Started, first.action_id)
+        await robot.conn.close()
+        robot.done.add(first.action_id)
+        again = await run.robot(robot.id, finished=[first.action_id])
+        assert again.welcome is not None
+        if any(a.action_id == first.action_id for a in again.welcome.resend):
+            raise CheckFailed(f"{first.action_id} was resent although hello said finished")
+        ref = await again.conn.send(Finished, action_id=first.action_id, pose=first.dst)
+        await again.conn.error_for(ref, ErrorCode.DUPLICATE)
+
+
+@check("running-reported-in-hello", "RESEND-4")
+async def _running_in_hello(t: Target) -> None:
+    """``hello.current`` running applies the ``started`` the link lost: a ``finished``
+    follows without error."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        await run.start()
+        first = await robot.action(0)
+        await robot.conn.send(Ack, action_id=first.action_id)
+        await robot.conn.close()
+        again = await run.robot(robot.id, acked=[first.action_id],
+                                current={"action_id": first.action_id, "state": "running"})
+        ref = await again.report(Finished, first.action_id)
+        await again.conn.quiet(f"error for {ref}",
+                               lambda m: isinstance(m, Error) and m.ref == ref, QUIET_S)
+
+
+# ---------------------------------------------------------------------- two robots
+def _pair(t: Target) -> Run:
+    """Robot R moves lane[1] -> lane[2]; the peer waits on lane[0], then enters lane[1]."""
+    lane = _lane(t)
+    return Run(t, {t.options.robot_id: [lane[1], lane[2]],
+                   t.options.peer: [lane[0], lane[0], lane[1]]})
+
+
+@check("dispatch-waits-for-dependencies", "DISPATCH-1")
+async def _dependencies(t: Target) -> None:
+    """An action is not sent before the other robot's action it depends on has finished."""
+    async with _pair(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        peer = await run.robot(t.options.peer)
+        await run.start()
+        mine = await robot.action(0)
+        wait = await peer.action(0)
+        await peer.execute(wait)
+        await peer.conn.quiet("action 1 before its dependency finished",
+                              lambda m: isinstance(m, Action) and m.sequence == 1, QUIET_S)
+        await robot.execute(mine)
+        await peer.action(1)
+
+
+@check("disconnected-robot-holds-others", "LIVE-3")
+async def _held(t: Target) -> None:
+    """While a robot is away its unfinished step holds the robots that depend on it."""
+    async with _pair(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        peer = await run.robot(t.options.peer)
+        await run.start()
+        mine = await robot.action(0)
+        await robot.conn.send(Ack, action_id=mine.action_id)
+        await robot.conn.close()
+        await peer.execute(await peer.action(0))
+        await peer.conn.quiet("action 1 while its dependency's robot is away",
+                              lambda m: isinstance(m, Action) and m.sequence == 1, QUIET_S)
+        back = await run.robot(robot.id, acked=[mine.action_id])
+        await back.execute(mine)
+        await peer.action(1)
+
+
+# ---------------------------------------------------------------------- pause, cancel
+@check("pause-and-resume-reach-robots", "PAUSE-1")
+async def _pause(t: Target) -> None:
+    """The operator's pause and resume are sent to every connected robot."""
+    op, _ = t.need_operator()
+    async with _Started(t) as (_, robot, _first):
+        await op.command(Pause)
+        await robot.conn.expect_type(Pause)
+        await op.command(Resume)
+        await robot.conn.expect_type(Resume)
+
+
+@check("welcome-while-paused", "PAUSE-3")
+async def _welcome_paused(t: Target) -> None:
+    """A robot connecting while the fleet is paused is told so in ``welcome.paused``."""
+    op, _ = t.need_operator()
+    async with _Started(t) as (run, robot, first):
+        await robot.conn.send(Ack, action_id=first.action_id)
+        await op.command(Pause)
+        await robot.conn.close()
+        again = await run.robot(robot.id, acked=[first.action_id])
+        assert again.welcome is not None
+        if not again.welcome.paused:
+            raise CheckFailed("welcome.paused is false while the fleet is paused")
+
+
+async def _replan(t: Target) -> tuple[Run, Robot, list[CancelAction]]:
+    op, _ = t.need_operator()
+    run, robot, _first = await _started_run(t)
+    await asyncio.sleep(QUIET_S)
+    held = robot.collect()
+    await op.command(ReplanNow)
+    cancels = []
+    for _ in held:
+        cancels.append(await robot.conn.expect_type(CancelAction))
+    return run, robot, cancels
+
+
+@check("cancel-on-replan", "CANCEL-1")
+async def _cancel(t: Target) -> None:
+    """A replan cancels every dispatched action that has not started."""
+    run, robot, cancels = await _replan(t)
+    try:
+        held = sorted(a.action_id for a in robot.open_actions())
+        got = sorted(c.action_id for c in cancels)
+        if got != held:
+            raise CheckFailed(f"cancelled {got}, expected {held}")
+    finally:
+        await run.__aexit__(None, None, None)
+
+
+@check("new-plan-after-replan", "CANCEL-6")
+async def _new_plan(t: Target) -> None:
+    """After the cancels are confirmed, actions of the next plan number arrive, starting
+    where the robot stands."""
+    run, robot, cancels = await _replan(t)
+    try:
+        for c in cancels:
+            await robot.report(Cancelled, c.action_id)
+        nxt = await robot.conn.expect_type(
+            Action, 15.0, lambda a: parse_action_id(a.action_id)[0] == 1,
+            what="an action of plan 1")
+        robot.actions[nxt.action_id] = nxt
+        if tuple(nxt.src.cell) != _lane(t)[1]:
+            raise CheckFailed(f"plan 1 starts on {nxt.src.cell}, the robot is on "
+                              f"{_lane(t)[1]}")
+    finally:
+        await run.__aexit__(None, None, None)
+
+
+# ---------------------------------------------------------------------- envelope (passive)
+@check("gateway-messages-valid", "MSG-1")
+async def _valid(t: Target) -> None:
+    """Every message the gateway sent decoded under the strict schema."""
+    t.breaches.verdict("MSG-1")
+
+
+@check("gateway-seq-increments", "MSG-2")
+async def _seq(t: Target) -> None:
+    """The gateway's ``seq`` starts at 0 and grows by 1 on every connection."""
+    t.breaches.verdict("MSG-2")
+
+
+@check("gateway-msg-ids-unique", "MSG-3")
+async def _ids(t: Target) -> None:
+    """The gateway never reused a ``msg_id`` on a connection."""
+    t.breaches.verdict("MSG-3")
+
+
+@check("gateway-text-frames", "WS-1")
+async def _text(t: Target) -> None:
+    """The gateway sent text frames only."""
+    t.breaches.verdict("WS-1")
+
+
+async def run_gateway_checks(options: Options, only: set[str] | None = None
+                             ) -> list[CheckResult]:
+    """Run the gateway checklist against ``options.url``; UsageProblem if it cannot start."""
+    target = Target(options)
+    await target.probe()
+    await target.setup()
+    try:
+        return await GATEWAY_CHECKS.run(target, only=only)
+    finally:
+        await target.teardown()

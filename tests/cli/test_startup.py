@@ -1,0 +1,66 @@
+"""The CLI starts at once: building the parser imports no heavy library, and ``--help``
+costs a small multiple of a bare interpreter's start (CPU time, best of several runs: a ratio
+measured in the same run, never an absolute time)."""
+
+from __future__ import annotations
+
+import json
+import resource
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("numpy", "matplotlib", "pydantic", "dask", "distributed", "rich", "websockets",
+         "asyncio", "cv2", "gateway.planning.cbs", "gateway.server.engine",
+         "sim_clients.campaign", "sim_clients.des")
+"""Modules that only running a command may import (each costs 0.05 to 1.5 s to import)."""
+
+MAX_HELP_RATIO = 6.0
+"""``fleetgate --help`` against ``python -c pass`` (about 3x here; 30x with matplotlib
+imported eagerly as before)."""
+
+
+def _cpu_s(*args: str, runs: int = 5) -> float:
+    best = float("inf")
+    for _ in range(runs):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        subprocess.run([sys.executable, *args], check=True, capture_output=True, timeout=60)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        best = min(best, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime))
+    return best
+
+
+def test_building_the_parser_imports_nothing_heavy() -> None:
+    code = ("import sys, json; from gateway.cli import build_parser; build_parser(); "
+            "print(json.dumps(sorted(sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
+                         text=True, timeout=60).stdout
+    loaded = set(json.loads(out))
+    assert "sim_clients.cmd_experiment" in loaded  # the entry point's commands are there
+    assert sorted(m for m in loaded if m.split(".")[0] in HEAVY or m in HEAVY) == []
+
+
+@pytest.mark.parametrize("command", [["--help"], ["simulate", "--help"],
+                                     ["experiment", "--help"]])
+def test_help_costs_a_small_multiple_of_a_bare_interpreter(command: list[str]) -> None:
+    bare = _cpu_s("-c", "pass")
+    help_ = _cpu_s("-m", "gateway", *command)
+    assert help_ / bare < MAX_HELP_RATIO, (help_, bare)
+
+
+def test_python_dash_m_fleetgate_is_the_command() -> None:
+    done = subprocess.run([sys.executable, "-m", "fleetgate", "--help"], capture_output=True,
+                          text=True, timeout=60, check=False)
+    assert done.returncode == 0
+    assert done.stdout.startswith("usage: fleetgate ")
+    listed = {line.split()[0] for line in done.stdout.splitlines() if line.startswith("    ")}
+    assert {"plan", "maps", "serve", "protocol", "simulate", "sim", "demo",
+            "experiment"} <= listed
+
+
+def test_simulate_offers_the_simulators_policies() -> None:
+    from sim_clients.cmd_simulate import POLICY_CHOICES
+    from sim_clients.des import POLICIES
+
+    assert POLICY_CHOICES == POLICIES

@@ -1,0 +1,28 @@
+"""The conformance checker is the vendor-facing piece: it imports only `protocol`, websockets
+and the standard library (checked on the source, statically)."""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[2] / "gateway" / "conformance"
+
+
+def test_conformance_imports_only_protocol_websockets_and_stdlib() -> None:
+    files = sorted(PACKAGE.glob("*.py"))
+    assert files
+    bad = []
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module] if isinstance(node, ast.ImportFrom) and node.module
+                     and node.level == 0 else [])
+            for name in names:
+                top = name.split(".")[0]
+                ok = (top in ("protocol", "websockets") or top in sys.stdlib_module_names
+                      or name.startswith("gateway.conformance"))
+                if not ok:
+                    bad.append((f.name, name))
+    assert bad == []
