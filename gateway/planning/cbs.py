@@ -21,8 +21,11 @@ splits, MDD cardinality, the DG heuristic, bypassing and target reasoning keep t
 on its goal holds the cell whatever it turns). Rectangle reasoning does not: its barrier proof
 needs every cheapest path to reach cell c at exactly ``|c - start|`` (or one step later), and
 under ``turning`` two cheapest paths reach the same cell at times that differ by their numbers
-of turns (a staircase pays a turn per corner, an L-shaped path one), so the barriers could cut
-off every optimal plan. It is switched off for ``turning``.
+of turns (a staircase pays a turn per corner, an L-shaped path one), so barriers built on
+turning costs could cut off every optimal plan. As written (both costs equal to the Manhattan
+distances) it could never fire anyway: a rectangle needs both agents to move along both axes,
+which takes a turn, so a turning cost always exceeds the Manhattan distance. It is switched off
+for ``turning``.
 """
 
 from __future__ import annotations
