@@ -14,7 +14,7 @@ from pydantic import TypeAdapter, ValidationError
 
 from protocol.messages import (
     MAX_MESSAGE_BYTES,
-    PROTOCOL_VERSION,
+    SUPPORTED_VERSIONS,
     AnyMessage,
     ErrorCode,
     Message,
@@ -78,11 +78,11 @@ def decode(raw: str | bytes) -> AnyMessage:
     if not isinstance(data, dict):
         raise ProtocolError(ErrorCode.MALFORMED, "a message must be a JSON object")
     ref = data.get("msg_id") if isinstance(data.get("msg_id"), str) else None
-    if data.get("v") != PROTOCOL_VERSION:
+    if data.get("v") not in SUPPORTED_VERSIONS:
         raise ProtocolError(
             ErrorCode.UNSUPPORTED_VERSION,
-            f"protocol version {data.get('v')!r} not supported (this gateway speaks "
-            f"{PROTOCOL_VERSION})",
+            f"protocol version {data.get('v')!r} not supported (this side speaks "
+            f"{' and '.join(map(str, SUPPORTED_VERSIONS))})",
             ref,
         )
     kind = data.get("type")

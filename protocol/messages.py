@@ -1,4 +1,5 @@
-"""The message models of protocol v1 (see :mod:`protocol` for the message flow).
+"""The message models of protocol v2, which also serves v1 peers (:data:`PROTOCOL_VERSION`; see
+:mod:`protocol` for the message flow).
 
 Every message carries ``type`` (the discriminator), ``v`` (protocol version), ``msg_id`` (unique
 per sender) and ``seq`` (per-sender counter, +1 per message on a connection). Unknown fields are
@@ -14,8 +15,21 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-PROTOCOL_VERSION: Literal[1] = 1
-"""The version every message of this module carries in ``v``."""
+PROTOCOL_VERSION: Literal[2] = 2
+"""The version this module speaks (the default ``v`` of every message).
+
+Version 2 adds the ``turning`` motion model: an action's ``src`` and ``dst`` poses carry
+headings, a turn is an action whose cell stays (only the heading changes by 90 degrees) and a
+move keeps its heading and goes one cell forward; and a ``blocked`` after ``started`` reports a
+move stopped on the way (a bumper contact), which a ``cancel`` may then void (the robot goes
+back to the move's source cell and answers ``cancelled``). A robot's ``hello`` fixes the
+version of its connection: the gateway answers in it, and serves version 1 robots (no
+headings: ``omni`` plans only)."""
+
+SUPPORTED_VERSIONS: tuple[int, ...] = (1, 2)
+"""The versions a peer may speak."""
+
+ProtocolVersion = Literal[1, 2]
 
 MAX_MESSAGE_BYTES = 64 * 1024
 """Largest message (encoded JSON) a peer must accept; larger ones are refused."""
@@ -25,6 +39,13 @@ Cell = tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=0)]]
 
 Heading = Literal["E", "N", "W", "S"]
 """Compass heading of a robot (only meaningful for the ``turning`` motion model)."""
+
+HEADINGS: tuple[Heading, ...] = ("E", "S", "W", "N")
+"""The compass heading of a plan's heading number (0 east (+x), 1 south (+y), 2 west, 3 north:
+DESIGN's ``turning`` motion model), e.g. ``HEADINGS[1] == "S"``."""
+
+PlanHeading = Annotated[int, Field(ge=0, le=3)]
+"""A plan's heading number (see :data:`HEADINGS`)."""
 
 RobotId = Annotated[int, Field(ge=0)]
 """A robot is the agent with this index in the instance."""
@@ -67,7 +88,7 @@ class Envelope(_Model):
 
     model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_require_version)
 
-    v: Literal[1] = PROTOCOL_VERSION
+    v: ProtocolVersion = PROTOCOL_VERSION
     msg_id: MsgId
     seq: Annotated[int, Field(ge=0)]
 
@@ -289,11 +310,13 @@ class LoadInstance(Envelope):
 
 
 class LoadPlan(Envelope):
-    """Execute these paths (one per robot, ``path[t]`` its cell at step t) on map ``map``."""
+    """Execute these paths (one per robot, ``path[t]`` its cell at step t) on map ``map``;
+    with ``headings`` (one per cell of each path) a plan of the ``turning`` motion model."""
 
     type: Literal["load_plan"] = "load_plan"
     map: Annotated[str, Field(min_length=1, max_length=200)]
     paths: list[list[Cell]] = Field(min_length=1)
+    headings: list[list[PlanHeading]] | None = None
 
 
 class Start(Envelope):
@@ -422,6 +445,8 @@ class Snapshot(Envelope):
     rows: list[str] = Field(default_factory=list)
     plan: int | None = None
     paths: list[list[Cell]] = Field(default_factory=list)
+    headings: list[list[PlanHeading]] = Field(default_factory=list)
+    """Under the ``turning`` motion model each path's headings (one per cell), else empty."""
     robots: list[RobotView] = Field(default_factory=list)
     actions: ActionCounts = Field(default_factory=ActionCounts)
     fleet_slack: list[tuple[float, float]] = Field(default_factory=list)
@@ -450,7 +475,7 @@ class Event(Envelope):
     Fields beyond ``event`` and ``t_ms`` are set as the kind needs: dispatch..cancel use
     plan/robot/action; plan uses plan/paths; trigger policy/fleet_slack_ms; slack
     fleet_slack_ms; intruder cell/state; summary soc_ms/makespan_ms; status status;
-    connection robot/state ("on"/"off").
+    connection robot/state ("on"/"off"). A ``turning`` plan's event also has ``headings``.
     """
 
     type: Literal["event"] = "event"
@@ -460,6 +485,7 @@ class Event(Envelope):
     robot: RobotId | None = None
     action: int | None = None
     paths: list[list[Cell]] | None = None
+    headings: list[list[PlanHeading]] | None = None
     policy: str | None = None
     fleet_slack_ms: float | None = None
     cell: Cell | None = None

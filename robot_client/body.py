@@ -32,8 +32,8 @@ class RobotBody:
         return self.localiser.pose
 
     def start(self, action: GridAction, now_ms: float) -> None:
-        """Begin executing ``action``."""
-        self.runner.start(action, now_ms)
+        """Begin executing ``action`` (ValueError if it cannot: see ``ActionRunner.start``)."""
+        self.runner.start(action, now_ms, self.localiser.pose)
 
     def tick(self, now_ms: float) -> list[RunnerEvent]:
         """One control period: feedback in, wheel command out; the runner's new events."""

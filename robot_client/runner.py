@@ -6,12 +6,16 @@ answers with the base control command (speed mm/s, radius mm) for the Kobuki; wh
 reads a clock or touches a device.
 
 Actions are the plan's: ``wait`` (stay ``duration_ms``), ``turn`` (same cell, new heading: spin
-in place the shorter way) and ``move`` (to a 4-neighbour cell: spin to face it, then drive
-along the line between the two cell centres, steering back onto it, until the target centre is
-reached within ``position_tol_m``; then, if the target heading differs from the direction of
-travel, spin to it). A bumper contact during a turn or move stops the base and pauses the
-action until ``bumper_pause_ms`` (5 s, as on the demonstrator) after the last contact; it then
-continues where it is.
+in place the shorter way, by the pose estimate -- odometry corrected by AprilTag fixes -- to
+within ``heading_tol_rad``) and ``move`` (to a 4-neighbour cell: drive along the line between
+the two cell centres, steering back onto it, until the target centre is reached within
+``position_tol_m``). Under the ``turning`` motion model (the action has headings) a move keeps
+its heading and goes one cell forward: the robot drives straight and refuses (ValueError) a move
+whose start heading it does not hold (its estimated heading is nearest another compass
+heading); an ``omni`` move (no headings) first spins to face the target and, if a target
+heading is given that differs from the direction of travel, spins to it at the end. A bumper
+contact during a turn or move stops the base and pauses the action until ``bumper_pause_ms``
+(5 s, as on the demonstrator) after the last contact; it then continues where it is.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from protocol.messages import Heading
-from robot_client.floor import HEADING_ANGLE, Cell, FloorGrid, heading_of_step
+from robot_client.floor import HEADING_ANGLE, Cell, FloorGrid, heading_of_step, nearest_heading
 from robot_client.kobuki import twist_to_base_control
 from robot_client.odometry import Pose, wrap_angle
 
@@ -54,9 +58,16 @@ class GridAction:
         return "wait"
 
     def validate(self) -> None:
-        """ValueError unless a move goes to a 4-neighbour and the duration is positive."""
+        """ValueError unless a move goes to a 4-neighbour (under ``turning``: forward along its
+        unchanged heading) and the duration is positive."""
         if self.kind == "move":
-            heading_of_step(self.src, self.dst)
+            travel = heading_of_step(self.src, self.dst)
+            if self.src_heading is not None and not (
+                    self.src_heading == travel and self.dst_heading in (None, travel)):
+                raise ValueError(
+                    f"action {self.action_id}: a move from {list(self.src)} to "
+                    f"{list(self.dst)} goes {travel}, but it starts facing {self.src_heading} "
+                    f"and ends facing {self.dst_heading} (a move keeps its heading)")
         if self.duration_ms <= 0:
             raise ValueError(f"action {self.action_id}: duration {self.duration_ms} ms <= 0")
 
@@ -120,12 +131,20 @@ class ActionRunner:
         """Whether the current action is paused by a bumper contact."""
         return self._pause_until is not None
 
-    def start(self, action: GridAction, now_ms: float) -> None:
-        """Begin ``action`` (reported as ``started`` on the next :meth:`step`)."""
+    def start(self, action: GridAction, now_ms: float, pose: Pose | None = None) -> None:
+        """Begin ``action`` (reported as ``started`` on the next :meth:`step`); ``pose`` is
+        the current estimate, against which a turning move's start heading is checked."""
         if self.action is not None:
             raise RuntimeError(f"runner busy with {self.action.action_id}; "
                                f"cannot start {action.action_id}")
         action.validate()
+        if action.kind == "move" and action.src_heading is not None and pose is not None:
+            facing = nearest_heading(pose.theta)
+            if facing != action.src_heading:
+                raise ValueError(
+                    f"action {action.action_id}: a move from {list(action.src)} facing "
+                    f"{action.src_heading}, but the robot faces {facing} (heading "
+                    f"{math.degrees(pose.theta):.0f} deg): turn first")
         self.action, self._t_start, self._started = action, now_ms, False
         self._pause_until = None
         self.phase = _FIRST_PHASE[action.kind]

@@ -349,11 +349,19 @@ class _Replay:
                 self.error(where, f"action {a} dispatched before {missing} finished")
             st.dispatched.add(a)
         elif kind in ("blocked", "unblocked", "cancel"):
-            # the executor records a cancel when the robot confirms it did not move
-            if a not in st.dispatched or a in st.started or a in st.cancelled:
-                self.error(where, f"{kind} of action {a} that is not waiting to start")
+            # the executor records a cancel when the robot confirms it did not move, or that
+            # it went back to the source of a move stopped on the way (blocked after start)
+            moving = self.running.get(k) == a and a not in st.finished
+            if a not in st.dispatched or a in st.cancelled or (a in st.started and not (
+                    moving and src != dst)):
+                self.error(where, f"{kind} of action {a} that is not waiting to start nor a "
+                           "move under way")
             if kind == "cancel":
                 st.cancelled.add(a)
+                if moving:
+                    del self.running[k]
+                    del st.started[a]
+                    self.leave(dst, k)
         elif kind == "start":
             if a not in st.dispatched or a in st.cancelled:
                 self.error(where, f"action {a} started without (a standing) dispatch")

@@ -21,12 +21,15 @@ from protocol import (
     Cancelled,
     Error,
     ErrorCode,
+    Event,
     Finished,
     Hello,
     IntruderReport,
+    LoadPlan,
     Pause,
     ReplanNow,
     Resume,
+    Snapshot,
     Start,
     Started,
     State,
@@ -269,8 +272,8 @@ async def _not_object(t: Target) -> None:
 
 @check("unsupported-version", "VER-1")
 async def _version(t: Target) -> None:
-    """``v`` 2 gets ``unsupported_version`` naming the msg_id."""
-    await _bad(t, _raw("x", type="state", robot_id=t.options.robot_id, v=2),
+    """``v`` 3 (not 1 or 2) gets ``unsupported_version`` naming the msg_id."""
+    await _bad(t, _raw("x", type="state", robot_id=t.options.robot_id, v=3),
                ErrorCode.UNSUPPORTED_VERSION, "x-raw")
 
 
@@ -555,11 +558,16 @@ async def _blocked_twice(t: Target) -> None:
 
 @check("blocked-after-start", "BLOCK-2")
 async def _blocked_late(t: Target) -> None:
-    """``blocked`` of a started action gets ``rejected``."""
+    """``blocked`` of a started move (v2: stopped on the way) is accepted, so a second one is
+    a ``duplicate``; of a started wait or turn it gets ``rejected``."""
     async with _Started(t) as (_, robot, first):
         await robot.report(Started, first.action_id)
         ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
-        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+        if first.src.cell == first.dst.cell:
+            await robot.conn.error_for(ref, ErrorCode.REJECTED)
+            return
+        ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
+        await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
 
 
 @check("unblocked-when-not-blocked", "BLOCK-2")
@@ -581,20 +589,39 @@ async def _stray_cancelled(t: Target) -> None:
 # ---------------------------------------------------------------------- reconnecting
 @check("resend-unacknowledged", "RESEND-1")
 async def _resend_unacked(t: Target) -> None:
-    """An action the robot never acknowledged is resent in the next ``welcome``."""
+    """The actions the robot never acknowledged are resent in the next `welcome`, in index
+    order, as first sent."""
     async with _single(t) as run:
         robot = await run.robot(t.options.robot_id)
         await run.start()
-        first = await robot.action(0)
+        await robot.action(0)
+        await asyncio.sleep(QUIET_S)  # collect what a lookahead gateway releases early
+        sent = robot.collect()
         await robot.conn.close()
         again = await run.robot(robot.id)
         assert again.welcome is not None
-        resent = {a.action_id: a for a in again.welcome.resend}
-        if first.action_id not in resent:
-            raise CheckFailed(f"welcome.resend is {list(resent)}, without the unacknowledged "
-                              f"{first.action_id}")
-        if resent[first.action_id].dst != first.dst:
-            raise CheckFailed("the resent action differs from the first dispatch")
+        resent = [a.action_id for a in again.welcome.resend]
+        want = [a.action_id for a in sent]
+        if resent != want:
+            raise CheckFailed(f"welcome.resend is {resent}, expected the unacknowledged {want}")
+        changed = [a.action_id for a, b in zip(sent, again.welcome.resend, strict=True)
+                   if (a.src, a.dst, a.sequence) != (b.src, b.dst, b.sequence)]
+        if changed:
+            raise CheckFailed(f"resent actions differ from the first dispatch: {changed}")
+
+
+@check("welcome-names-the-plan", "HS-3")
+async def _welcome_plan(t: Target) -> None:
+    """During a run `welcome.plan` is the number of the plan being executed."""
+    async with _Started(t) as (run, robot, first):
+        await robot.conn.send(Ack, action_id=first.action_id)
+        await robot.conn.close()
+        again = await run.robot(robot.id, acked=[first.action_id])
+        assert again.welcome is not None
+        plan = parse_action_id(first.action_id)[0]
+        if again.welcome.plan != plan:
+            raise CheckFailed(f"welcome.plan is {again.welcome.plan}, the actions are of plan "
+                              f"{plan}")
 
 
 @check("no-resend-of-acknowledged", "RESEND-1")
@@ -765,6 +792,35 @@ async def _new_plan(t: Target) -> None:
                               f"{_lane(t)[1]}")
     finally:
         await run.__aexit__(None, None, None)
+
+
+# ---------------------------------------------------------------------- operator channel
+@check("operator-gets-snapshot", "OP-1")
+async def _op_snapshot(t: Target) -> None:
+    """An operator gets a `snapshot` on connect."""
+    t.need_operator()
+    conn = await t.open(t.options.operator_token, "op2", ignore=(Event,))
+    try:
+        await conn.expect_type(Snapshot, 5.0)
+    finally:
+        await conn.close()
+
+
+@check("operator-bad-request", "OP-2")
+async def _op_bad_request(t: Target) -> None:
+    """A plan that is not a plan (a jump between cells) gets `bad_request`."""
+    op, layout = t.need_operator()
+    lane = layout.lane
+    ref = await op.conn.send(LoadPlan, map=t.options.map, paths=[[lane[0], lane[2]]])
+    await op.conn.error_for(ref, ErrorCode.BAD_REQUEST)
+
+
+@check("operator-bad-state", "OP-2")
+async def _op_bad_state(t: Target) -> None:
+    """`resume` while nothing is paused gets `bad_state`."""
+    op, _ = t.need_operator()
+    ref = await op.conn.send(Resume)
+    await op.conn.error_for(ref, ErrorCode.BAD_STATE)
 
 
 # ---------------------------------------------------------------------- envelope (passive)

@@ -318,8 +318,7 @@ class FakeGateway:
     async def idle(self) -> None:
         """Let pending reports and acks of the last step arrive and drop them."""
         await asyncio.sleep(0.05)
-        c = self.c()
-        c._unclaimed[:] = [m for m in c._unclaimed if not isinstance(m, Ack | State)]
+        self.c().take((Ack, State))
 
 
 ROBOT_CHECKS: Checklist[FakeGateway] = Checklist(time_limit_s=45.0)
@@ -490,8 +489,8 @@ async def _error(g: FakeGateway) -> None:
 
 @check("bad-messages-are-ignored", "ERR-4")
 async def _garbage(g: FakeGateway) -> None:
-    """Undecodable messages (not JSON, version 2, unknown type) do not stop the robot."""
-    for raw in ("{not json", '{"v": 2, "type": "pause", "msg_id": "x", "seq": 0}',
+    """Undecodable messages (not JSON, version 3, unknown type) do not stop the robot."""
+    for raw in ("{not json", '{"v": 3, "type": "pause", "msg_id": "x", "seq": 0}',
                 '{"v": 1, "type": "teleport", "msg_id": "y", "seq": 0}'):
         await g.c().send_raw(raw)
     aid = await g.dispatch()

@@ -177,8 +177,8 @@ class Robot:
 
     def collect(self) -> list[Action]:
         """Claim every ``action`` received so far; the open actions (see open_actions)."""
-        for m in [m for m in self.conn._unclaimed if isinstance(m, Action)]:
-            self.conn._unclaimed.remove(m)
+        for m in self.conn.take(Action):
+            assert isinstance(m, Action)
             self.actions.setdefault(m.action_id, m)
         return self.open_actions()
 
@@ -208,8 +208,7 @@ class Robot:
         """Execute everything held and everything that arrives, honour cancel and pause
         (runs until cancelled)."""
         while True:
-            for m in [m for m in list(self.conn._unclaimed)]:
-                self.conn._unclaimed.remove(m)
+            for m in self.conn.take():
                 if isinstance(m, Action):
                     self.actions.setdefault(m.action_id, m)
                 elif isinstance(m, CancelAction) and m.action_id not in self.done \
@@ -229,9 +228,7 @@ class Robot:
                 continue
             if self.conn.is_closed:
                 return
-            self.conn._changed.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.conn._changed.wait(), 0.2)
+            await self.conn.wait_change(0.2)
 
 
 @dataclass

@@ -124,6 +124,20 @@ class Conn:
             self._unclaimed.append(msg)
             self._changed.set()
 
+    def take(self, kind: type[AnyMessage] | tuple[type[AnyMessage], ...] | None = None
+             ) -> list[AnyMessage]:
+        """Claim every unclaimed message of ``kind`` (all if None), oldest first."""
+        taken = [m for m in self._unclaimed if kind is None or isinstance(m, kind)]
+        ids = {id(m) for m in taken}
+        self._unclaimed[:] = [m for m in self._unclaimed if id(m) not in ids]
+        return taken
+
+    async def wait_change(self, timeout: float) -> None:
+        """Until a message arrives, the connection closes, or ``timeout`` s pass."""
+        self._changed.clear()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._changed.wait(), timeout)
+
     @property
     def is_closed(self) -> bool:
         """True once the connection is closed."""

@@ -4,8 +4,11 @@ Drivers feed robot events with the current time and take commands from :meth:`Ex
 With ``lookahead=0`` (classic retiming) an action is dispatched only when all its incoming ADG
 edges are done. A replan goes
 RUNNING -> STOPPING (no new dispatches; running actions finish; dispatched, unstarted ones are
-cancelled) -> SOLVING (``SolveRequest`` emitted once every robot is idle) -> RUNNING (after
-``adopt_plan`` with plan id + 1, or ``abandon_replan`` which resumes the old plan).
+cancelled, and so is a move stopped on the way by an obstacle -- a ``blocked`` after its
+``started``, a TurtleBot's bumper contact: :meth:`Executor.stopped` -- whose robot then goes
+back to its source cell) -> SOLVING (``SolveRequest`` emitted once every robot is idle) ->
+RUNNING (after ``adopt_plan`` with plan id + 1, or ``abandon_replan`` which resumes the old
+plan).
 
 Replan budget: every decided replan counts against ``max_replans``, whoever decided it (policy or
 operator) and whether or not a plan was then adopted.
@@ -158,6 +161,13 @@ class Executor:
         self._check_robot(robot)
         return None if self._headings is None else self._headings[robot]
 
+    def has_started(self, robot: int, plan: int, action: int) -> bool:
+        """True if ``a_action^robot`` of the current plan ``plan`` started (or finished)."""
+        self._check_robot(robot)
+        if plan != self.plan_id:
+            return False
+        return self._status[self.adg.vertex(robot, action)] in (_STARTED, _DONE)
+
     def completion_ms(self, robot: int) -> float:
         """Finish time of the robot's latest action (0 if it has none)."""
         self._check_robot(robot)
@@ -270,7 +280,19 @@ class Executor:
         """The robot found the action's target cell taken and waits."""
         v = self._event_vertex("blocked", robot, plan, action, now_ms)
         self._expect(self._status[v] == _DISPATCHED, "blocked", robot, action,
-                     "it has already started")
+                     "it has already started (a move stopped on the way is stopped())")
+        self._mark_blocked(v, robot, action, now_ms)
+
+    def stopped(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """A move under way was stopped by an obstacle (a TurtleBot's bumper contact; the
+        protocol's ``blocked`` after ``started``): a replan may cancel it, and the robot then
+        goes back to the move's source cell; ``unblocked`` if it drives on."""
+        v = self._event_vertex("blocked", robot, plan, action, now_ms)
+        self._expect(self._status[v] == _STARTED and self.adg.kind[v] == "move", "blocked",
+                     robot, action, "only a move under way can be stopped on the way")
+        self._mark_blocked(v, robot, action, now_ms)
+
+    def _mark_blocked(self, v: int, robot: int, action: int, now_ms: float) -> None:
         self._expect(not self._blocked[v], "blocked", robot, action, "it is already blocked")
         self._advance(now_ms)
         self._blocked[v] = 1
@@ -279,18 +301,21 @@ class Executor:
     def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """The action's target cell became free again."""
         v = self._event_vertex("unblocked", robot, plan, action, now_ms)
-        self._expect(self._status[v] == _DISPATCHED and bool(self._blocked[v]), "unblocked",
-                     robot, action, "it is not blocked")
+        self._expect(self._status[v] in (_DISPATCHED, _STARTED) and bool(self._blocked[v]),
+                     "unblocked", robot, action, "it is not blocked")
         self._advance(now_ms)
         self._blocked[v] = 0
         self._trace("unblocked", robot, action)
 
     def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        """The robot confirms a ``Cancel``: it did not move and stays on the action's source."""
+        """The robot confirms a ``Cancel``: it did not move, or (a move stopped on the way)
+        went back, and stays on the action's source."""
         v = self._event_vertex("cancelled", robot, plan, action, now_ms)
-        self._expect(self._status[v] == _DISPATCHED and bool(self._cancelling[v]), "cancelled",
-                     robot, action, "no Cancel is outstanding for it")
+        self._expect(self._status[v] in (_DISPATCHED, _STARTED) and bool(self._cancelling[v]),
+                     "cancelled", robot, action, "no Cancel is outstanding for it")
         self._advance(now_ms)
+        if self._status[v] == _STARTED:
+            self.monitor.action_cancelled(v)
         self._status[v] = _PENDING
         self._blocked[v] = self._cancelling[v] = 0
         self._queue[robot].remove(v)
@@ -446,7 +471,7 @@ class Executor:
         adg = self.adg
         for r in range(adg.n_robots):
             for v in self._queue[r]:
-                if self._status[v] == _DISPATCHED:
+                if self._status[v] == _DISPATCHED or self._blocked[v]:
                     self._cancelling[v] = 1
                     self._out.append(Cancel(self.plan_id, r, adg.step_of[v]))
         self._maybe_solve()

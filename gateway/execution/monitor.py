@@ -332,6 +332,17 @@ class Monitor:
         heapq.heappush(self._thresholds, (at_ms + self.tx[v], v, _STARTED_KIND))
         self._pending.append(v)
 
+    def action_cancelled(self, v: int) -> None:
+        """Vertex ``v`` (started, a move stopped on the way) was cancelled: its robot is back
+        on the source cell and the action has not started after all."""
+        if self._state[v] != STARTED:
+            raise ExecutionError(f"vertex {v} cannot be cancelled: it is not running")
+        self._state[v] = NOT_STARTED
+        preds = self.adg.predecessors(v)
+        base = max((self._tc[p] for p in preds), default=self.release_ms[self.adg.robot_of[v]])
+        heapq.heappush(self._thresholds, (base, v, _READY_KIND))
+        self._pending.append(v)
+
     def action_finished(self, v: int, at_ms: float) -> list[int]:
         """Vertex ``v`` (started) finished at ``at_ms``; returns the vertices now ready."""
         self._check_time(at_ms)

@@ -92,7 +92,7 @@ from protocol import (
     action_id,
     parse_action_id,
 )
-from protocol.messages import GatewayStatus, PolicyName
+from protocol.messages import HEADINGS, GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
 
@@ -321,6 +321,15 @@ class Engine:
 
     def _hello(self, session: Session, msg: Hello) -> None:
         r = msg.robot_id
+        session.version = msg.v  # answer in the robot's protocol version
+        plan = self.executor.plan if self.executor is not None else (
+            self.problem.plan if self.problem is not None else None)
+        if msg.v < 2 and plan is not None and plan.headings is not None:
+            session.error(ErrorCode.UNSUPPORTED_VERSION, msg.msg_id,
+                          "the plan is for turning robots: protocol v2 needed (a v1 robot "
+                          "moves omni-directionally)")
+            session.close(1008, "protocol v1 robot on a turning plan")
+            return
         rec = self.robot(r)
         if rec.session is not None:  # a reconnect, or a second hello on this connection
             if rec.session is not session:
@@ -350,7 +359,7 @@ class Engine:
         rec.session = session
         self._online.add(r)
         self.metrics.connected_robots.inc()
-        resend = [Action(msg_id=f"resend-{aid}", seq=0, **h.fields)
+        resend = [Action(v=session.version, msg_id=f"resend-{aid}", seq=0, **h.fields)
                   for aid, h in rec.held.items()]
         session.send(Welcome, robot_id=r, start=self._start_pose(r),
                      plan=self.executor.plan_id if self.executor else None, resend=resend,
@@ -418,15 +427,17 @@ class Engine:
         try:
             self._unlocked_at = received if kind == "finished" else None
             now = self.now_ms() if at_ms is None else max(at_ms, self.executor.now_ms)
-            self._apply(r, rec, aid, kind, now)
+            self._apply(r, rec, aid, kind, now, on_the_way=session.version >= 2)
             self._route(self.executor.drain())
         except ExecutionError as exc:
             session.error(ErrorCode.REJECTED, msg.msg_id, str(exc))
         finally:
             self._unlocked_at = None
 
-    def _apply(self, r: int, rec: RobotRecord, aid: str, kind: ReportKind, now: float) -> None:
-        """Feed one robot event to the executor and update the robot's record."""
+    def _apply(self, r: int, rec: RobotRecord, aid: str, kind: ReportKind, now: float,
+               on_the_way: bool = False) -> None:
+        """Feed one robot event to the executor and update the robot's record; with
+        ``on_the_way`` (protocol v2) a ``blocked`` of a running move is a stop on the way."""
         ex = self.executor
         assert ex is not None
         plan, _, index = parse_action_id(aid)
@@ -435,11 +446,14 @@ class Engine:
             ex.started(r, plan, index, now)
             held.phase = "running"
         elif kind == "blocked":
-            ex.blocked(r, plan, index, now)
+            if on_the_way and held.phase == "running":
+                ex.stopped(r, plan, index, now)
+            else:
+                ex.blocked(r, plan, index, now)
             held.phase = "blocked"
         elif kind == "unblocked":
             ex.unblocked(r, plan, index, now)
-            held.phase = "dispatched"
+            held.phase = "running" if ex.has_started(r, plan, index) else "dispatched"
         elif kind == "finished":
             ex.finished(r, plan, index, now)
             del rec.held[aid]
@@ -493,8 +507,12 @@ class Engine:
     def _dispatch(self, c: Dispatch) -> None:
         aid = action_id(c.plan, c.robot, c.action)
         fields: dict[str, Any] = {
-            "action_id": aid, "sequence": c.action, "src": Pose(cell=c.src),
-            "dst": Pose(cell=c.dst), "duration_ms": c.duration_ms,
+            "action_id": aid, "sequence": c.action,
+            "src": Pose(cell=c.src, heading=None if c.src_heading is None
+                        else HEADINGS[c.src_heading]),
+            "dst": Pose(cell=c.dst, heading=None if c.dst_heading is None
+                        else HEADINGS[c.dst_heading]),
+            "duration_ms": c.duration_ms,
         }
         rec = self.robot(c.robot)
         rec.held[aid] = Held(fields)
@@ -610,7 +628,7 @@ class Engine:
             case LoadPlan():
                 self._idle("load a plan")
                 try:
-                    problem = problem_from_paths(msg.map, msg.paths)
+                    problem = problem_from_paths(msg.map, msg.paths, msg.headings)
                 except InstanceError as exc:
                     raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
                 self.executor = None
@@ -771,10 +789,12 @@ class Engine:
         if not self.operators:
             return  # several records per action: build no event nobody would receive
         fields: dict[str, Any] = {k: v for k, v in rec.items()
-                                  if k not in ("type", "t_ms", "agents")}
+                                  if k not in ("type", "t_ms", "agents", "motion")}
         agents: Any = rec.get("agents")
         if agents is not None:
-            fields["paths"] = [a["path"] for a in agents]
+            fields["paths"] = [[c[:2] for c in a["path"]] for a in agents]
+            if rec.get("motion") == "turning":
+                fields["headings"] = [[c[2] for c in a["path"]] for a in agents]
         self._broadcast_event(kind, float(t_ms), **fields)
 
     def _broadcast_event(self, kind: str, t_ms: float, **fields: Any) -> None:

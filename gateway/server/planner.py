@@ -10,6 +10,8 @@ import numpy as np
 
 from gateway.commands import mapstore
 from gateway.commands.deadline import WallDeadline
+from gateway.execution.adg import ADG
+from gateway.execution.errors import ExecutionError
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
@@ -65,15 +67,27 @@ def resolve_instance(map: str, scen: str | None, agents: int | None, seed: int =
         raise InstanceError(f"cannot read {exc.filename}: {exc.strerror}") from None
 
 
-def problem_from_paths(map: str, paths: list[list[Cell]]) -> Problem:
-    """A given plan on a named map, checked to be a valid 1-robust plan. Raises InstanceError."""
+def problem_from_paths(map: str, paths: list[list[Cell]],
+                       headings: list[list[int]] | None = None) -> Problem:
+    """A given plan on a named map (``turning`` with ``headings``), checked to be a valid
+    1-robust plan of legal actions. Raises InstanceError."""
     try:
         grid, map_name = _map(map)
     except mapstore.MapNotFound as exc:
         raise InstanceError(str(exc)) from None
     except (MapFormatError, OSError) as exc:
         raise InstanceError(f"cannot read map {map!r}: {exc}") from None
-    plan = Plan.of(paths)
+    if headings is None:
+        plan = Plan.of(paths)
+    else:
+        if [len(h) for h in headings] != [len(p) for p in paths]:
+            raise InstanceError("a turning plan needs one heading per cell of every path")
+        plan = Plan(tuple(tuple((int(x), int(y)) for x, y in p) for p in paths),
+                    tuple(tuple(int(h) for h in hs) for hs in headings))
+        try:
+            ADG(plan)  # every step a legal action of the turning model
+        except ExecutionError as exc:
+            raise InstanceError(f"invalid plan: {exc}") from None
     starts = tuple(p[0] for p in plan.paths)
     goals = tuple(p[-1] for p in plan.paths)
     problems = plan_violations(grid, starts, goals, plan)

@@ -16,7 +16,8 @@ from typing import Any
 
 from gateway.server.auth import Peer
 from gateway.server.transport import Link, LinkClosed
-from protocol import AnyMessage, Error, ErrorCode, encode
+from protocol import PROTOCOL_VERSION, AnyMessage, Error, ErrorCode, encode
+from protocol.messages import ProtocolVersion
 
 log = logging.getLogger("fleetgate.session")
 
@@ -41,6 +42,8 @@ class Session:
         self._tokens = rate_burst
         self._last = asyncio.get_running_loop().time()
         self.closing = False
+        self.version: ProtocolVersion = PROTOCOL_VERSION
+        """The protocol version of this connection (a robot's ``hello`` fixes it)."""
         self.writer = asyncio.create_task(self._write(), name=f"writer-{self.id}")
 
     def __str__(self) -> str:
@@ -54,7 +57,7 @@ class Session:
         if self.closing:
             return None
         seq = next(self._seq)
-        message = kind(msg_id=f"g{self.id}-{seq}", seq=seq, **fields)
+        message = kind(v=self.version, msg_id=f"g{self.id}-{seq}", seq=seq, **fields)
         try:
             self._queue.put_nowait(encode(message))
         except asyncio.QueueFull:

@@ -4,11 +4,25 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from gateway.execution.executor import Executor
 from gateway.planning.grid import Grid
-from protocol import ActionCounts, ReplanMark, RobotView, WaitEdge
+from gateway.planning.plan import Plan
+from protocol import ActionCounts, Pose, ReplanMark, RobotView, WaitEdge
+from protocol.messages import HEADINGS, Heading
 
 if TYPE_CHECKING:
     from gateway.server.engine import Engine
+
+
+def _heading(pose: Pose | None, ex: Executor | None, plan: Plan | None,
+             robot: int) -> Heading | None:
+    """The robot's heading: as it reports it, else (turning) as the executor or the plan
+    has it, else None (omni)."""
+    if pose is not None and pose.heading is not None:
+        return pose.heading
+    h = ex.robot_heading(robot) if ex is not None else \
+        plan.headings[robot][0] if plan is not None and plan.headings is not None else None
+    return None if h is None else HEADINGS[h]
 
 
 def map_rows(grid: Grid) -> list[str]:
@@ -36,6 +50,8 @@ def snapshot_fields(engine: Engine) -> dict[str, Any]:
     plan = ex.plan if ex is not None else problem.plan
     if plan is not None:
         out["paths"] = [list(p) for p in plan.paths]
+        if plan.headings is not None:
+            out["headings"] = [list(h) for h in plan.headings]
     goals = problem.instance.goals
     counts = {"dispatched": 0, "running": 0, "blocked": 0, "finished": 0}
     robots = []
@@ -50,7 +66,7 @@ def snapshot_fields(engine: Engine) -> dict[str, Any]:
         counts["finished"] += rec.next_index if ex is not None else 0
         robots.append(RobotView(
             robot_id=r, connected=rec.session is not None, cell=cell,
-            heading=rec.pose.heading if rec.pose is not None else None,
+            heading=_heading(rec.pose, ex, plan, r),
             activity=rec.activity(), action_id=held[0] if held else None, goal=goals[r],
             remaining=list(path[min(rec.next_index, len(path) - 1):]),
             slack_ms=ex.monitor.robot_slack(r) if ex is not None else 0.0))

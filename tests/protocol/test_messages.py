@@ -1,4 +1,5 @@
-"""Protocol v1: every message type round-trips, the exported schema accepts exactly them."""
+"""Protocol v2 (serving v1 peers): every message type round-trips, the exported schema
+accepts exactly them."""
 
 from __future__ import annotations
 
@@ -59,7 +60,8 @@ def test_minimal_messages_round_trip(message: AnyMessage) -> None:
 def test_schema_rejects_extra_fields_and_other_versions(message: AnyMessage) -> None:
     data = json.loads(encode(message))
     assert not VALIDATOR.is_valid({**data, "surplus": 1})
-    assert not VALIDATOR.is_valid({**data, "v": 2})
+    assert not VALIDATOR.is_valid({**data, "v": 3})
+    assert VALIDATOR.is_valid({**data, "v": 1})  # v2 serves v1 peers
     without_v = {k: v for k, v in data.items() if k != "v"}
     assert not VALIDATOR.is_valid(without_v)
     with pytest.raises(ProtocolError) as err:
@@ -111,7 +113,7 @@ def test_action_sequence_must_match_its_id() -> None:
         ("{not json", ErrorCode.MALFORMED, None),
         ("[1, 2]", ErrorCode.MALFORMED, None),
         (b"\xff\xfe", ErrorCode.MALFORMED, None),
-        ('{"v": 2, "type": "ack", "msg_id": "m1", "seq": 0}', ErrorCode.UNSUPPORTED_VERSION,
+        ('{"v": 3, "type": "ack", "msg_id": "m1", "seq": 0}', ErrorCode.UNSUPPORTED_VERSION,
          "m1"),
         ('{"type": "ack", "msg_id": "m2", "seq": 0}', ErrorCode.UNSUPPORTED_VERSION, "m2"),
         ('{"v": 1, "type": "teleport", "msg_id": "m3", "seq": 0}', ErrorCode.UNKNOWN_TYPE, "m3"),
@@ -138,7 +140,7 @@ def test_parse_action_id_refuses_garbage() -> None:
 
 def test_finished_pose_is_optional() -> None:
     assert decode('{"v":1,"type":"finished","msg_id":"a","seq":3,"action_id":"0.1.2"}') == \
-        Finished(msg_id="a", seq=3, action_id="0.1.2")
+        Finished(v=1, msg_id="a", seq=3, action_id="0.1.2")
 
 
 def test_cli_writes_the_schema(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -81,8 +81,8 @@ class Robot:
         return math.hypot(self.sim.x - x, self.sim.y - y)
 
 
-def action(i: int, src: tuple[int, int], dst: tuple[int, int], h0: Heading, h1: Heading
-           ) -> dict[str, Any]:
+def action(i: int, src: tuple[int, int], dst: tuple[int, int], h0: Heading | None,
+           h1: Heading | None) -> dict[str, Any]:
     """Fields of action i of robot 3 in plan 0."""
     return {"action_id": f"0.3.{i}", "sequence": i, "src": Pose(cell=src, heading=h0),
             "dst": Pose(cell=dst, heading=h1), "duration_ms": 1000.0}
@@ -213,7 +213,9 @@ async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     cancelled = await conn.expect(Cancelled, "0.3.0")
     assert cancelled.pose is not None and cancelled.pose.cell == (1, 1)
     await conn.send(Resume)
-    await conn.send(Action, **action(1, (1, 1), (1, 2), "S", "S"))  # spin to S, then drive
+    # an omni move (no headings): spin to S, then drive (a turning move would be refused:
+    # the robot faces E)
+    await conn.send(Action, **action(1, (1, 1), (1, 2), None, None))
     await conn.expect(Started, "0.3.1")
     await asyncio.sleep(0.3)
     robot.sim.bumper = 0x04  # left bumper for 100 ms

@@ -176,3 +176,46 @@ def test_body_remembers_the_pose_of_each_tick(rig_factory: list[PtyRig]) -> None
     assert rig.body.pose_at(t) == pose and rig.body.pose_at(t + 19.0) == pose
     assert rig.body.pose_at(-1.0) == seen[0][1]  # older than the history: the oldest kept
     assert seen[29][1].x > seen[10][1].x  # it was moving, so the poses differ
+
+
+def test_turning_move_drives_straight_without_spinning(rig_factory: list[PtyRig]) -> None:
+    # facing E within 10 degrees: a turning move east drives off at once, never spins in place
+    rig = make(rig_factory, (1, 2), math.radians(10))
+    events = rig.run(GridAction("0.0.0", (1, 2), (2, 2), "E", "E"))
+    assert [e.kind for e in events] == ["started", "finished"]
+    assert at(rig, (2, 2)) < POS_TOL
+    assert all(cmd[0] > 0 and cmd[1] != 1 for _, cmd in rig.commands if cmd != (0, 0))
+
+
+def test_a_move_the_robot_does_not_face_is_refused(rig_factory: list[PtyRig]) -> None:
+    rig = make(rig_factory, (2, 2), math.pi / 2)  # facing N
+    with pytest.raises(ValueError, match=r"action 0\.0\.7: a move from \[2, 2\] facing E, but "
+                                         r"the robot faces N \(heading 90 deg\): turn first"):
+        rig.body.start(GridAction("0.0.7", (2, 2), (3, 2), "E", "E"), rig.now)
+    assert not rig.body.runner.busy
+    # a turning move must go forward along its unchanged heading
+    for action, goes in [(GridAction("0.0.8", (2, 2), (3, 2), "N", "N"), "goes E"),
+                         (GridAction("0.0.9", (2, 2), (2, 1), "N", "E"), "ends facing E")]:
+        with pytest.raises(ValueError, match=goes):
+            rig.body.start(action, rig.now)
+    # after a 90-degree turn (odometry) it holds E and the move runs
+    assert [e.kind for e in rig.run(GridAction("0.0.10", (2, 2), (2, 2), "N", "E"))] == [
+        "started", "finished"]
+    assert [e.kind for e in rig.run(GridAction("0.0.11", (2, 2), (3, 2), "E", "E"))] == [
+        "started", "finished"]
+    assert at(rig, (3, 2)) < POS_TOL
+
+
+def test_camera_fixes_correct_the_heading_of_a_turn(rig_factory: list[PtyRig]) -> None:
+    """A 90-degree turn by odometry alone keeps a wrong start heading; with OpenCV-rendered
+    tag frames the AprilTag fixes correct it and the turn ends facing south."""
+    renderer = FloorRenderer(5, 4, 0.4, 0.12)
+    error = (0.0, 0.0, math.radians(8))
+    turn = GridAction("0.0.12", (2, 1), (2, 1), "E", "S")
+    blind = make(rig_factory, (2, 1), 0.0, pose_error=error)
+    blind.run(turn)
+    seeing = make(rig_factory, (2, 1), 0.0, pose_error=error, renderer=renderer, frame_every=10)
+    seeing.run(turn)
+    assert seeing.fixes >= 3
+    assert abs(wrap_angle(seeing.sim.theta + math.pi / 2)) < HEADING_TOL
+    assert abs(wrap_angle(blind.sim.theta + math.pi / 2)) > math.radians(6)

@@ -256,7 +256,10 @@ window.fleetgate = {
   plan: () => (model.snap ? model.snap.plan : null),
   robots: () => model.robots().map((r) => ({
     id: r.id, cell: r.cell, pos: r.pos, activity: r.activity, remaining: r.remaining,
+    heading: r.heading, angle: r.angle, turning: r.turning,
   })),
+  /** What the map last drew per robot: canvas centre, radius, heading angle, turning. */
+  drawn: () => mapView.drawn || [],
   slack: () => (model.snap ? model.snap.fleet_slack.slice() : []),
   /** Page coordinates of the centre of cell (x, y) on the map. */
   cellCenter: (x, y) => {

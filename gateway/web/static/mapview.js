@@ -107,6 +107,7 @@ export class MapView {
       const b = byId.get(w.for_robot);
       if (a && b) this.drawArrow(a.pos, b.pos);
     }
+    this.drawn = [];
     for (const r of robots) this.drawRobot(r);
   }
 
@@ -213,14 +214,28 @@ export class MapView {
       ctx.strokeStyle = COLORS.blocked;
       ctx.stroke();
     }
-    if (r.heading) {
-      const ang = { E: 0, S: Math.PI / 2, W: Math.PI, N: -Math.PI / 2 }[r.heading];
+    if (r.angle !== null && r.angle !== undefined) {
+      // the heading: a white wedge at the rim (the id stays readable in the middle); a
+      // turning robot also gets a dashed ring
+      const a = r.angle;
       ctx.beginPath();
-      ctx.arc(cx + Math.cos(ang) * rad * 0.72, cy + Math.sin(ang) * rad * 0.72, rad * 0.18, 0,
-        2 * Math.PI);
+      ctx.moveTo(cx + Math.cos(a) * rad * 1.0, cy + Math.sin(a) * rad * 1.0);
+      ctx.lineTo(cx + Math.cos(a + 0.55) * rad * 0.6, cy + Math.sin(a + 0.55) * rad * 0.6);
+      ctx.lineTo(cx + Math.cos(a - 0.55) * rad * 0.6, cy + Math.sin(a - 0.55) * rad * 0.6);
+      ctx.closePath();
       ctx.fillStyle = "#ffffff";
       ctx.fill();
+      if (r.turning) {
+        ctx.beginPath();
+        ctx.setLineDash([cell * 0.08, cell * 0.08]);
+        ctx.arc(cx, cy, rad + cell * 0.07, 0, 2 * Math.PI);
+        ctx.lineWidth = Math.max(1.5, cell * 0.05);
+        ctx.strokeStyle = robotColor(r.id);
+        ctx.stroke();
+        ctx.setLineDash([]);
+      }
     }
+    this.drawn.push({ id: r.id, x: cx, y: cy, rad, angle: r.angle, turning: r.turning });
     if (cell >= 12) {
       ctx.fillStyle = "#ffffff";
       ctx.font = `700 ${Math.round(cell * 0.34)}px system-ui, sans-serif`;

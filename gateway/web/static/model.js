@@ -18,6 +18,11 @@ export function pathCost(path) {
 
 const sameCell = (a, b) => a[0] === b[0] && a[1] === b[1];
 
+/** Compass letter of a plan heading number (0 east, 1 south, 2 west, 3 north). */
+export const HEADING_LETTERS = ["E", "S", "W", "N"];
+/** Canvas angle (radians, y down) of a compass heading: east 0, south +pi/2. */
+export const HEADING_ANGLE = { E: 0, S: Math.PI / 2, W: Math.PI, N: -Math.PI / 2 };
+
 export class FleetModel {
   constructor() {
     this.snap = null; // the last snapshot, patched in place by events
@@ -102,6 +107,10 @@ export class FleetModel {
             r.cell = path[e.action + 1];
             r.remaining = path.slice(e.action + 1);
           }
+          const heads = (s.headings || [])[e.robot];
+          if (heads && heads[e.action + 1] !== undefined) {
+            r.heading = HEADING_LETTERS[heads[e.action + 1]];
+          }
           r.activity = "idle";
           r.action_id = null;
           s.waits = s.waits.filter((w) => w.for_robot !== e.robot || w.for_action !== e.action);
@@ -124,6 +133,7 @@ export class FleetModel {
         s.plan = e.plan;
         if (e.paths) {
           s.paths = e.paths;
+          s.headings = e.headings || [];
           s.robots.forEach((rb, k) => {
             if (e.paths[k]) rb.remaining = e.paths[k];
           });
@@ -176,7 +186,9 @@ export class FleetModel {
     }
   }
 
-  /** Where each robot is drawn now: [{id, cell, from, to, pos:[x,y], progress, ...}]. */
+  /** Where each robot is drawn now: [{id, cell, from, to, pos:[x,y], progress, angle,
+   * turning, ...}]; ``angle`` is where it faces (radians, null without a heading), turned
+   * part of the way while a turn runs. */
   robots(wall = performance.now()) {
     const s = this.snap;
     if (!s) return [];
@@ -186,6 +198,7 @@ export class FleetModel {
         id: r.robot_id, cell: r.cell, pos: [r.cell[0], r.cell[1]], from: r.cell, to: null,
         progress: 0, activity: r.activity, connected: r.connected, goal: r.goal,
         heading: r.heading, slack_ms: r.slack_ms, remaining: r.remaining || [],
+        angle: r.heading ? HEADING_ANGLE[r.heading] : null, turning: false,
       };
       const aid = parseActionId(r.action_id);
       const path = s.paths[r.robot_id];
@@ -198,6 +211,16 @@ export class FleetModel {
         out.to = sameCell(from, to) ? null : to;
         out.progress = p;
         out.pos = [from[0] + (to[0] - from[0]) * p, from[1] + (to[1] - from[1]) * p];
+        const heads = (s.headings || [])[r.robot_id];
+        if (heads && heads[aid[2] + 1] !== undefined) {
+          const [h0, h1] = [heads[aid[2]], heads[aid[2] + 1]];
+          out.heading = HEADING_LETTERS[h0];
+          out.angle = HEADING_ANGLE[out.heading];
+          if (h0 !== h1) { // a 90-degree turn in place: clockwise (+1) or counter-clockwise
+            out.turning = true;
+            out.angle += ((h1 - h0 + 4) % 4 === 1 ? 1 : -1) * (Math.PI / 2) * p;
+          }
+        }
       }
       return out;
     });

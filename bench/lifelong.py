@@ -1,0 +1,107 @@
+"""Lifelong operation: throughput on the LoRR problems, and simulation speed at 1,000 robots.
+
+Part 1 (skipped cleanly if ``../shared/lorr`` is absent): each of the four shared LoRR
+problems for ``--ticks`` ticks under its rules (delays from its ``delayConfig``, 1000 ms
+planning period at 100 ms a tick, the planner's measured CPU time charged), tasks finished
+against the LoRR Start-Kit's reference in ``SOURCES.md`` (one ratio per problem), and the
+output replayed by the independent checker (``tests/lifelong/lorr_check.py``): collisions
+must be 0.
+
+Part 2: ``--robots`` robots for 600 simulated seconds (one action a second, a plan every
+second) on a generated warehouse of about 10,000 free cells (shelf rows, like MovingAI's
+warehouse-10-20-10-2-1), in CPU seconds; the goal is 60 s on 2 cores, and LSMART (2026, the
+same ADG execution) takes 268 s on 16 cores. Prints one result line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gateway.planning.generators import warehouse_map
+from gateway.planning.lorr import DelayConfig, LorrProblem, read_problem
+from gateway.planning.movingai import format_map
+from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+from tests.lifelong.lorr_check import check_output, read_free  # noqa: E402
+
+SHARED = REPO / ".." / "shared" / "lorr"
+REFERENCE = {  # tasks finished in 600 ticks by the Start-Kit's default planner + executor
+    "maze": ("maze.domain/maze-example_40.json", 55),
+    "room": ("room.domain/room-example_150.json", 107),
+    "random": ("random.domain/random-example_400.json", 409),
+    "city": ("city.domain/bos-example_600.json", 39),
+}
+
+
+def shared_runs(ticks: int) -> list[str]:
+    """One ``name finished/reference=ratio`` entry per shared problem (collisions checked)."""
+    out = []
+    for name, (rel, reference) in REFERENCE.items():
+        problem = read_problem(SHARED / rel)
+        cfg = LifelongConfig(problem, ticks=ticks)
+        res = run_lifelong(cfg)
+        check_output(lorr_output(cfg, res), read_free(format_map(problem.grid)))
+        scaled = reference * ticks / 600
+        out.append(f"{name} {res.finished}/{scaled:.0f}={res.finished / scaled:.2f}")
+    return out
+
+
+def warehouse_problem(robots: int, seed: int) -> LorrProblem:
+    """~10,000 free cells of shelf rows; random starts; two-errand tasks next to shelves."""
+    grid = warehouse_map(13, 25, 10, shelf_depth=2, aisle=2, border=2, name="warehouse")
+    rng = np.random.default_rng(seed)
+    free = grid.free
+    # errand cells: free cells beside a shelf (pick and drop stations)
+    blocked = ~free
+    near = np.zeros_like(free)
+    near[1:, :] |= blocked[:-1, :]
+    near[:-1, :] |= blocked[1:, :]
+    stations = np.flatnonzero((near & free).ravel())
+    starts = rng.choice(np.flatnonzero(free.ravel()), size=robots, replace=False)
+    tasks = tuple((int(a), int(b)) for a, b in rng.choice(stations, size=(4 * robots, 2)))
+    delay = DelayConfig(seed=seed, min_delay=1, max_delay=4, p_delay=0.01)
+    return LorrProblem(grid=grid, starts=tuple(int(s) for s in starts), tasks=tasks,
+                       num_tasks_reveal=1.5, agent_counter=1, delay=delay, name="warehouse")
+
+
+def speed_run(robots: int, seconds: int, seed: int) -> tuple[float, int, int]:
+    """CPU seconds, tasks finished and free cells of the warehouse run."""
+    problem = warehouse_problem(robots, seed)
+    cfg = LifelongConfig(problem, ticks=seconds, period=1, tick_ms=1000.0, seed=seed)
+    t0 = time.process_time()
+    res = run_lifelong(cfg)
+    cpu = time.process_time() - t0
+    check_output(lorr_output(cfg, res), read_free(format_map(problem.grid)))
+    return cpu, res.finished, int(problem.grid.free.sum())
+
+
+def main() -> None:
+    """Run both parts and print one result line."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ticks", type=int, default=600, help="ticks per LoRR problem")
+    ap.add_argument("--robots", type=int, default=1000, help="robots in the speed run")
+    ap.add_argument("--seconds", type=int, default=600, help="simulated seconds (speed run)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    parts = []
+    if SHARED.is_dir():
+        parts.append("tasks vs LoRR reference: " + ", ".join(shared_runs(args.ticks))
+                     + "; collisions 0")
+    else:
+        parts.append("LoRR problems skipped (../shared/lorr absent)")
+    cpu, finished, cells = speed_run(args.robots, args.seconds, args.seed)
+    parts.append(f"speed: {args.robots} robots x {args.seconds} s on {cells} free cells "
+                 f"({finished} tasks) in {cpu:.1f} s CPU = {cpu / 60:.2f} x the 60 s goal "
+                 f"(LSMART: 268 s on 16 cores)")
+    print("lifelong: " + "; ".join(parts))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""Lifelong tasks: a pool of revealed tasks and pluggable schedulers (pure, no I/O).
+
+A task is an ordered list of errand cells (flat ids); a robot completes an errand by arriving
+at its cell, and the task when its last errand is done. The pool keeps ``reveal`` tasks
+revealed and unfinished (LoRR's ``numTasksReveal`` x team size): each finished task reveals the
+next one of the task list, which is cycled when it runs out (task ids keep growing).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+
+@dataclass
+class Task:
+    """A revealed task: its errands, who does it (-1: nobody yet) and how many are done."""
+
+    id: int
+    errands: tuple[int, ...]
+    release_tick: int
+    robot: int = -1
+    done: int = 0
+    finish_tick: int = -1
+
+
+@dataclass
+class TaskPool:
+    """Revealed tasks of a task list; ``open`` are the revealed, unassigned ones (by id)."""
+
+    task_list: Sequence[tuple[int, ...]]
+    reveal: int
+    tasks: dict[int, Task] = field(default_factory=dict)
+    open: dict[int, Task] = field(default_factory=dict)
+    finished: int = 0
+    next_id: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.task_list or any(not t for t in self.task_list):
+            raise ValueError("a task pool needs tasks with at least one errand each")
+        if self.reveal <= 0:
+            raise ValueError("a task pool must reveal at least one task")
+        self.top_up(0)
+
+    def top_up(self, tick: int) -> None:
+        """Reveal tasks until ``reveal`` are revealed and unfinished."""
+        while len(self.tasks) < self.reveal:
+            task = Task(self.next_id, tuple(self.task_list[self.next_id % len(self.task_list)]),
+                        tick)
+            self.tasks[task.id] = task
+            self.open[task.id] = task
+            self.next_id += 1
+
+    def assign(self, task_id: int, robot: int) -> Task:
+        """Give an open task to ``robot``."""
+        task = self.open.pop(task_id)
+        task.robot = robot
+        return task
+
+    def errand_done(self, task_id: int, tick: int) -> bool:
+        """Its robot reached the task's next errand; True if that finished the task (which
+        leaves the pool and reveals the next one)."""
+        task = self.tasks[task_id]
+        task.done += 1
+        if task.done < len(task.errands):
+            return False
+        task.finish_tick = tick
+        del self.tasks[task_id]
+        self.finished += 1
+        self.top_up(tick)
+        return True
+
+
+DistanceFrom = Callable[[Sequence[int], Sequence[int]], npt.NDArray[np.int64]]
+"""``f(cells, targets)[i, j]``: moves from ``cells[i]`` to ``targets[j]`` (-1: unreachable)."""
+
+
+class Scheduler(Protocol):
+    """Chooses tasks for free robots: ``{robot: task id}`` among ``pool.open``."""
+
+    def __call__(self, free: Sequence[tuple[int, int]], pool: TaskPool,
+                 distance_from: DistanceFrom) -> dict[int, int]:
+        """``free`` lists ``(robot, cell)`` of robots without a task."""
+        ...
+
+
+def greedy_nearest(free: Sequence[tuple[int, int]], pool: TaskPool,
+                   distance_from: DistanceFrom) -> dict[int, int]:
+    """Each free robot in turn takes the open task whose first errand is nearest to it."""
+    if not free or not pool.open:
+        return {}
+    ids = np.fromiter(pool.open, np.int64, len(pool.open))
+    first = [pool.open[int(i)].errands[0] for i in ids]
+    cost = distance_from([cell for _, cell in free], first).astype(np.int64)
+    cost[cost < 0] = np.iinfo(np.int32).max
+    out: dict[int, int] = {}
+    taken = np.zeros(ids.size, dtype=bool)
+    for row, (robot, _) in enumerate(free):
+        if taken.all():
+            break
+        c = np.where(taken, np.iinfo(np.int64).max, cost[row])
+        j = int(np.argmin(c))
+        taken[j] = True
+        out[robot] = int(ids[j])
+    return out
+
+
+def min_cost(free: Sequence[tuple[int, int]], pool: TaskPool,
+             distance_from: DistanceFrom) -> dict[int, int]:
+    """Globally cheapest pairs first: repeatedly assign the (robot, task) pair with the
+    smallest distance to the first errand (a greedy matching, better than robot order)."""
+    if not free or not pool.open:
+        return {}
+    ids = np.fromiter(pool.open, np.int64, len(pool.open))
+    first = [pool.open[int(i)].errands[0] for i in ids]
+    big = np.iinfo(np.int64).max // 4
+    cost = distance_from([cell for _, cell in free], first).astype(np.int64)
+    cost[cost < 0] = big
+    out: dict[int, int] = {}
+    flat = np.argsort(cost, axis=None, kind="stable")
+    used_r = np.zeros(len(free), dtype=bool)
+    used_t = np.zeros(ids.size, dtype=bool)
+    for f in flat.tolist():
+        r, t = divmod(f, ids.size)
+        if used_r[r] or used_t[t]:
+            continue
+        used_r[r] = used_t[t] = True
+        out[free[r][0]] = int(ids[t])
+        if len(out) == min(len(free), ids.size):
+            break
+    return out
+
+
+SCHEDULERS: dict[str, Scheduler] = {"greedy": greedy_nearest, "mincost": min_cost}
+"""Schedulers by name (``fleetgate lifelong --scheduler``)."""

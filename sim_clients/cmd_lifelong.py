@@ -1,0 +1,102 @@
+"""``fleetgate lifelong``: a LoRR problem run in virtual time, with the LoRR output JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from gateway.cli import EXIT_OK, UsageError
+
+SCHEDULER_CHOICES = ("greedy", "mincost")
+"""``gateway.execution.tasks.SCHEDULERS`` (a test checks), named here so --help stays light."""
+
+
+def _planner_time(text: str) -> str | float:
+    if text in ("measured", "zero"):
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"planner time must be 'measured', 'zero' or ms, got {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"planner time must be finite ms >= 0, got {text!r}")
+    return value
+
+
+def _run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from gateway.planning.lorr import LorrFormatError, read_problem
+    from sim_clients.lifelong import (
+        LifelongConfig,
+        lorr_output,
+        mean,
+        run_lifelong,
+        tasks_per_tick,
+    )
+
+    for name in ("ticks", "period"):
+        if getattr(args, name) <= 0:
+            raise UsageError(f"--{name} must be positive, got {getattr(args, name)}")
+    if args.window < 0:
+        raise UsageError(f"--window must be >= 0, got {args.window}")
+    try:
+        problem = read_problem(args.problem)
+    except LorrFormatError as exc:
+        raise UsageError(str(exc)) from None
+    out = None
+    if args.output:
+        try:
+            out = open(args.output, "w", encoding="utf-8")  # noqa: SIM115 (closed below)
+        except OSError as exc:
+            raise UsageError(f"cannot write {args.output}: {exc.strerror}") from None
+    cfg = LifelongConfig(problem=problem, ticks=args.ticks, turning=args.motion == "turning",
+                         period=args.period, window=args.window,
+                         planner_time=args.planner_time, scheduler=args.scheduler,
+                         seed=args.seed)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("ticks, {task.fields[done]} tasks"),
+                  disable=not args.progress, transient=True,
+                  console=Console(stderr=True)) as bar:
+        task = bar.add_task(problem.name, total=args.ticks, done=0)
+        result = run_lifelong(cfg, lambda t, done: bar.update(task, completed=t, done=done))
+    if out is not None:
+        with out:
+            json.dump(lorr_output(cfg, result), out)
+    times = result.planner_times
+    print(f"{problem.name}: {problem.team_size} robots, {args.ticks} ticks: "
+          f"{result.finished} tasks finished, {tasks_per_tick(result):.3f} per tick; "
+          f"planner {1000 * mean(times):.1f} ms per call (max {1000 * max(times, default=0):.1f}, "
+          f"{len(times)} calls)")
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add ``fleetgate lifelong``."""
+    p = sub.add_parser(
+        "lifelong", help="a lifelong (LoRR) problem in virtual time",
+        description="Run a League of Robot Runners problem in virtual time: tasks, delays, "
+                    "periodic windowed planning appended to a live ADG; writes the LoRR "
+                    "output JSON. Exit codes: 0 success, 2 bad input.")
+    p.add_argument("--problem", required=True, metavar="PROBLEM.json",
+                   help="LoRR problem file (its map, agent and task files beside it)")
+    p.add_argument("--ticks", type=int, default=600, help="execution ticks (default 600)")
+    p.add_argument("--output", metavar="OUT.json", help="write the LoRR output JSON here")
+    p.add_argument("--motion", choices=("turning", "omni"), default="turning",
+                   help="motion model (default turning, LoRR's MAPF_T)")
+    p.add_argument("--period", type=int, default=10,
+                   help="ticks between planning calls (default 10: 1000 ms at 100 ms a tick)")
+    p.add_argument("--window", type=int, default=0,
+                   help="timesteps planned per call (default 0: enough for a period)")
+    p.add_argument("--planner-time", type=_planner_time, default="measured",
+                   metavar="measured|zero|MS",
+                   help="planner time charged per call (default: measured CPU time)")
+    p.add_argument("--scheduler", choices=SCHEDULER_CHOICES, default="greedy",
+                   help="task assignment (default greedy nearest-first)")
+    p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction,
+                   default=sys.stderr.isatty(), help="progress bar (default: on a terminal)")
+    p.set_defaults(func=_run)

@@ -1,0 +1,344 @@
+"""Lifelong operation in virtual time under the League of Robot Runners (LoRR) rules.
+
+The simulation advances in execution ticks. A forward move or a turn takes ``agent_counter``
+ticks (the problem's ``agentCounter``); a robot in a delay (the problem's ``delayConfig``,
+drawn per tick by :class:`DelayModel`) makes no progress. The planner runs periodically, every
+``period`` ticks at the earliest (LoRR's ``planCommTimeLimit`` / ``actionMoveTimeLimit``): it
+assigns tasks to robots that have none (:mod:`gateway.execution.tasks`), plans a window of
+``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`),
+and its result is appended to the live ADG (:mod:`gateway.execution.live_adg`) when it
+arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
+measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
+exactly reproducible). Meanwhile robots keep executing what is committed, so they never stop
+for a replan. A robot starts its next committed action at a tick only if the action's Type 2
+dependency finished at an earlier tick, so no two robots ever hold a cell at the same tick
+(a moving robot holds both cells of its move).
+
+An errand is done when its robot completes the action that brings it onto the errand's cell
+(or its committed actions end there); a finished task reveals the next one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from gateway.execution.live_adg import CCW, CW, FORWARD, LiveADG
+from gateway.execution.tasks import SCHEDULERS, TaskPool
+from gateway.planning.distance import distance_tables
+from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
+from gateway.planning.pibt import StateSpace, WindowedPIBT
+
+TICK_MS = 100.0
+"""LoRR's default execution tick (``actionMoveTimeLimit``)."""
+PLAN_PERIOD_MS = 1000.0
+"""LoRR's default minimum time between plan updates (``planCommTimeLimit``)."""
+EXACT_SCHEDULING_WORK = 4_000_000
+"""The scheduler uses exact distances (a search from each free robot) while free robots x
+free cells stays below this; Manhattan distances beyond (a large fleet's first call)."""
+_LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
+_OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
+
+
+class DelayModel:
+    """LoRR's delay generator: each tick, robots not in a delay may start one.
+
+    ``bernoulli``: each available robot with probability ``p_delay``; ``poisson``:
+    ``Poisson(team * p_delay)`` available robots at random. Durations are uniform integers in
+    ``[min_delay, max_delay]`` or a rounded, clamped Gaussian. Seeded by the config's seed.
+    """
+
+    def __init__(self, config: DelayConfig, n_robots: int) -> None:
+        self.config = config
+        self.n = n_robots
+        self.rng = np.random.default_rng(config.seed)
+        self.remaining = np.zeros(n_robots, dtype=np.int64)
+        self.intervals: list[list[tuple[int, int]]] = [[] for _ in range(n_robots)]
+
+    def _duration(self, k: int) -> list[int]:
+        c = self.config
+        if c.min_delay == c.max_delay:
+            return [c.min_delay] * k
+        if c.duration_model == "uniform":
+            return self.rng.integers(c.min_delay, c.max_delay + 1, size=k).tolist()
+        span = c.max_delay - c.min_delay
+        raw = self.rng.normal(c.min_delay + span * c.gauss_mean_ratio,
+                              span * c.gauss_std_ratio, size=k)
+        return np.clip(np.rint(raw), c.min_delay, c.max_delay).astype(np.int64).tolist()
+
+    def tick(self, t: int) -> npt.NDArray[np.bool_]:
+        """Advance to tick ``t``; returns the mask of robots delayed during it."""
+        np.maximum(self.remaining - 1, 0, out=self.remaining)
+        c = self.config
+        if c.p_delay > 0:
+            free = np.flatnonzero(self.remaining == 0)
+            if c.event_model == "bernoulli":
+                chosen = free[self.rng.random(free.size) < c.p_delay]
+            else:
+                k = min(int(self.rng.poisson(self.n * c.p_delay)), free.size)
+                chosen = self.rng.permutation(free)[:k] if k else free[:0]
+            if chosen.size:
+                durations = self._duration(chosen.size)
+                self.remaining[chosen] = durations
+                for robot, d in zip(chosen.tolist(), durations, strict=True):
+                    self.intervals[robot].append((t, t + d))
+        return self.remaining > 0
+
+
+
+@dataclass(frozen=True)
+class LifelongConfig:
+    """One lifelong run: problem, ticks, motion model and planner settings."""
+
+    problem: LorrProblem
+    ticks: int = 600
+    turning: bool = True
+    period: int = 10
+    window: int = 0  # timesteps per planning call; 0: enough to cover a period
+    planner_time: str | float = "measured"  # "measured", "zero" or ms per call
+    tick_ms: float = TICK_MS
+    scheduler: str = "greedy"
+    seed: int = 0
+    output_window: int = 1000
+
+
+@dataclass
+class LifelongResult:
+    """What a run did: finished tasks, per-tick actions, events, planner times (s)."""
+
+    ticks: int
+    finished: int
+    letters: list[bytearray]
+    snapshots: list[list[tuple[int, int, int]]]
+    events: list[tuple[int, int, int, int]]
+    tasks: list[tuple[int, int, tuple[int, ...]]]
+    planner_times: list[float]
+    delay_intervals: list[list[tuple[int, int]]]
+    starts: list[tuple[int, int]]
+    sum_of_cost: int
+    max_pending: int = 0
+    calls: int = 0
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class _Pending:
+    """A planned window on its way: it is appended at tick ``arrival``."""
+
+    arrival: int
+    states: list[list[int]]
+    reached: list[list[int]]
+    tasks_of: list[int]
+
+
+def _planner_ms(mode: str | float, cpu_s: float) -> float:
+    if mode == "measured":
+        return cpu_s * 1000.0
+    if mode == "zero":
+        return 0.0
+    return float(mode)
+
+
+def run_lifelong(cfg: LifelongConfig,
+                 on_progress: Callable[[int, int], None] | None = None) -> LifelongResult:
+    """Simulate ``cfg.ticks`` ticks; ``on_progress(tick, finished)`` after each planning call."""
+    prob = cfg.problem
+    grid = prob.grid
+    n = prob.team_size
+    counter = prob.agent_counter
+    if cfg.scheduler not in SCHEDULERS:
+        raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
+    schedule = SCHEDULERS[cfg.scheduler]
+    space = StateSpace(grid, cfg.turning)
+    planner = WindowedPIBT(space, n, seed=cfg.seed)
+    headings = [0] * n
+    adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
+    pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)))
+    delays = DelayModel(prob.delay, n)
+    window = cfg.window or (math.ceil(cfg.period / counter) + 2)
+
+    cell = list(prob.starts)
+    heading = list(headings)
+    progress = [0] * n  # ticks done of the running action (0: idle)
+    letters = [bytearray() for _ in range(n)]
+    snapshots: list[list[tuple[int, int, int]]] = [[] for _ in range(n)]
+    events: list[tuple[int, int, int, int]] = []
+    released: list[tuple[int, int, tuple[int, ...]]] = []
+    # planning view: each robot's task and how many of its errands the committed plan reaches
+    plan_task = [-1] * n
+    plan_idx = [0] * n
+    # execution view: (seq threshold, task id) errand markers per robot, in order
+    markers: list[deque[tuple[int, int]]] = [deque() for _ in range(n)]
+    planner_times: list[float] = []
+    pending: _Pending | None = None
+    next_call = 0
+    sum_of_cost = 0
+    max_pending = 0
+    idle = [0, 0, 0]  # robot-ticks delayed, waiting for a dependency, without committed work
+    width = grid.width
+    n_free = int(grid.free.sum())
+
+    def distance_from(cells: Sequence[int], targets: Sequence[int]) -> npt.NDArray[np.int64]:
+        tgt = np.asarray(targets, dtype=np.int64)
+        if len(cells) * n_free <= EXACT_SCHEDULING_WORK:
+            return distance_tables(grid, [grid.cell(c) for c in cells])[:, tgt].astype(np.int64)
+        src = np.asarray(cells, dtype=np.int64)[:, None]
+        return np.abs(src % width - tgt % width) + np.abs(src // width - tgt // width)
+
+    def errand_reached(r: int, task_id: int, t: int) -> None:
+        task = pool.tasks[task_id]
+        events.append((t, r, task_id, task.done + 1))
+        pool.errand_done(task_id, t)
+
+    def apply(t: int, states: list[list[int]], reached: list[list[int]],
+              tasks_of: list[int]) -> None:
+        """Append a planned window to the ADG and register its errand markers."""
+        cells = [[space.cell_of[s] for s in row] for row in states]
+        heads = [[space.heading_of(s) for s in row] for row in states] if cfg.turning else None
+        before = list(adg.appended)
+        # the action count after each step, per robot, to place errand markers
+        for r in range(n):
+            if not reached[r]:
+                continue
+            count, j_prev, seq_at = 0, 0, []
+            for j in reached[r]:
+                for k in range(j_prev + 1, j + 1):
+                    if states[k][r] != states[k - 1][r]:
+                        count += 1
+                j_prev = j
+                seq_at.append(before[r] + count)
+            for threshold in seq_at:
+                markers[r].append((threshold, tasks_of[r]))
+        adg.append(cells, heads)
+        for r in range(n):
+            q = markers[r]
+            while q and adg.done[r] >= q[0][0]:
+                errand_reached(r, q.popleft()[1], t)
+
+    for t in range(cfg.ticks):
+        if pending is not None and pending.arrival <= t:
+            apply(t, pending.states, pending.reached, pending.tasks_of)
+            pending = None
+        if pending is None and t >= next_call:
+            cpu0 = time.thread_time()
+            free = [(r, adg.end_cell[r]) for r in range(n) if plan_task[r] < 0]
+            for r, task_id in schedule(free, pool, distance_from).items():
+                pool.assign(task_id, r)
+                released_task = pool.tasks[task_id]
+                released.append((task_id, released_task.release_tick, released_task.errands))
+                plan_task[r], plan_idx[r] = task_id, 0
+            goals = [pool.tasks[plan_task[r]].errands[plan_idx[r]:] if plan_task[r] >= 0
+                     else () for r in range(n)]
+            starts = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
+            # a robot with a period's work committed waits in this window: backlogs stay short
+            frozen = [adg.pending(r) * counter - progress[r] >= cfg.period + counter
+                      for r in range(n)]
+            win = planner.plan(starts, goals, window, frozen)
+            tasks_of = list(plan_task)
+            for r in range(n):
+                if win.reached[r]:
+                    plan_idx[r] += len(win.reached[r])
+                    if plan_idx[r] >= len(pool.tasks[plan_task[r]].errands):
+                        plan_task[r] = -1
+            cpu = time.thread_time() - cpu0
+            planner_times.append(cpu)
+            delay_ticks = math.ceil(_planner_ms(cfg.planner_time, cpu) / cfg.tick_ms)
+            pending = _Pending(t + delay_ticks, win.states, win.reached, tasks_of)
+            next_call = t + cfg.period
+            if delay_ticks == 0:
+                apply(t, win.states, win.reached, tasks_of)
+                pending = None
+            if on_progress is not None:
+                on_progress(t, pool.finished)
+        max_pending = max(max_pending, adg.n_pending())
+        delayed = delays.tick(t).tolist()
+        if t % cfg.output_window == 0:
+            for r in range(n):
+                snapshots[r].append((cell[r], heading[r], progress[r]))
+        # starts: decided on the state at the beginning of the tick
+        for r in range(n):
+            if progress[r] == 0 and not delayed[r] and adg.is_ready(r):
+                progress[r] = -1  # starts this tick
+        for r in range(n):
+            p = progress[r]
+            if p == 0 or delayed[r]:
+                letters[r].append(87)  # "W"
+                if delayed[r]:
+                    idle[0] += 1
+                elif adg.pending(r):
+                    idle[1] += 1
+                else:
+                    idle[2] += 1
+                continue
+            a = adg.head(r)
+            assert a is not None
+            if a.kind == FORWARD and not cfg.turning:
+                d = a.cell - cell[r]
+                letters[r].append(ord(_OMNI_LETTER.get(d, "s" if d == width else "n")))
+            else:
+                letters[r].append(ord(_LETTER[a.kind]))
+            sum_of_cost += 1
+            p = 1 if p < 0 else p + 1
+            if p >= counter:
+                adg.finish(r)
+                cell[r], heading[r] = a.cell, a.heading
+                progress[r] = 0
+                q = markers[r]
+                while q and adg.done[r] >= q[0][0]:
+                    errand_reached(r, q.popleft()[1], t)
+            else:
+                progress[r] = p
+    starts_out = [divmod(c, width) for c in prob.starts]
+    return LifelongResult(
+        ticks=cfg.ticks, finished=pool.finished, letters=letters, snapshots=snapshots,
+        events=events, tasks=released, planner_times=planner_times,
+        delay_intervals=delays.intervals, starts=starts_out, sum_of_cost=sum_of_cost,
+        max_pending=max_pending, calls=len(planner_times),
+        extra={"delayed": idle[0] / (n * cfg.ticks), "waiting": idle[1] / (n * cfg.ticks),
+               "no_work": idle[2] / (n * cfg.ticks)})
+
+
+def lorr_output(cfg: LifelongConfig, res: LifelongResult) -> dict[str, object]:
+    """The LoRR output JSON of a run (``Input_Output_Format.md``)."""
+    grid = cfg.problem.grid
+    paths = [compress_path(grid, res.snapshots[r], res.letters[r].decode("ascii"),
+                           cfg.output_window) for r in range(len(res.letters))]
+    names = "ESWN"
+    width = grid.width
+    return {
+        "actionModel": "MAPF_T" if cfg.turning else "MAPF",
+        "AllValid": "Yes",
+        "teamSize": len(res.letters),
+        "agentMaxCounter": cfg.problem.agent_counter,
+        "outputSegmentSize": cfg.output_window,
+        "start": [[row, col, names[0]] for row, col in res.starts],
+        "numTaskFinished": res.finished,
+        "sumOfCost": res.sum_of_cost,
+        "makespan": res.ticks,
+        "actualPaths": paths,
+        "plannerTimes": res.planner_times,
+        "errors": [],
+        "events": [list(e) for e in res.events],
+        "tasks": [[tid, rel, [v for loc in errands for v in divmod(loc, width)]]
+                  for tid, rel, errands in res.tasks],
+        "delayIntervals": [[list(i) for i in per] for per in res.delay_intervals],
+        "numPlannerErrors": 0,
+        "numScheduleErrors": 0,
+        "numEntryTimeouts": 0,
+    }
+
+
+def tasks_per_tick(res: LifelongResult) -> float:
+    """Throughput: finished tasks per tick."""
+    return res.finished / res.ticks if res.ticks else 0.0
+
+
+def mean(values: Sequence[float]) -> float:
+    """Arithmetic mean (0 for none)."""
+    return sum(values) / len(values) if values else 0.0

@@ -1,0 +1,84 @@
+"""Lifelong runs in virtual time, checked by the independent LoRR output checker."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gateway.planning.lorr import read_problem
+from gateway.planning.movingai import format_map
+from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from tests.lifelong.lorr_check import check_output, read_free
+from tests.lifelong.support import small_problem
+
+SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "lorr"
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 10_000), turning=st.booleans(), counter=st.integers(1, 3),
+       p_delay=st.sampled_from([0.0, 0.05, 0.3]))
+def test_no_robot_enters_a_held_cell_under_any_delays(seed: int, turning: bool, counter: int,
+                                                      p_delay: float) -> None:
+    """Random maps, tasks and delays: the checker replays the output and finds no shared cell;
+    tasks get done and every finished task has an event per errand."""
+    problem = small_problem(seed, counter=counter, p_delay=p_delay)
+    cfg = LifelongConfig(problem, ticks=120, turning=turning, period=3,
+                         planner_time="zero", seed=seed)
+    res = run_lifelong(cfg)
+    out = lorr_output(cfg, res)
+    assert check_output(out, read_free(format_map(problem.grid))) == 120
+    finishing = [e for e in out["events"] if e[3] == len(problem.tasks[e[2] % len(problem.tasks)])]
+    assert len(finishing) == res.finished
+    if p_delay == 0.0 and counter == 1:
+        assert res.finished > 0
+
+
+def test_checker_catches_a_shared_cell() -> None:
+    """The oracle can fail: two robots driving into the same cell at once."""
+    free = [[True] * 3]
+    out = {"agentMaxCounter": 1, "start": [[0, 0, "E"], [0, 2, "E"]],
+           "actualPaths": ["[(0,0,0,0,0):(F 1,W 2)]", "[(0,0,2,0,0):(R 1,R 1,F 1)]"]}
+    with pytest.raises(AssertionError, match="both hold"):
+        check_output(out, free)
+    out["actualPaths"][1] = "[(0,0,2,0,0):(R 1,R 1,W 1)]"  # stays: fine
+    assert check_output(out, free) == 3
+
+
+def test_same_seed_same_run() -> None:
+    """With the planner time charged as zero or fixed, a run is a function of its inputs."""
+    problem = small_problem(3)
+    runs = [run_lifelong(LifelongConfig(problem, ticks=80, period=4, planner_time=150.0))
+            for _ in range(2)]
+    assert runs[0].letters == runs[1].letters
+    assert runs[0].events == runs[1].events
+
+
+def test_slow_planner_costs_throughput_but_not_safety() -> None:
+    """A planner charged 2.5 s per call leaves robots idle between plans."""
+    problem = dataclasses.replace(small_problem(5, p_delay=0.0), agent_counter=1)
+    fast = run_lifelong(LifelongConfig(problem, ticks=150, period=5, planner_time="zero"))
+    slow_cfg = LifelongConfig(problem, ticks=150, period=5, planner_time=2500.0)
+    slow = run_lifelong(slow_cfg)
+    assert slow.finished < fast.finished
+    check_output(lorr_output(slow_cfg, slow), read_free(format_map(problem.grid)))
+
+
+@pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/lorr is absent")
+def test_shared_maze_problem(tmp_path: Path) -> None:
+    """The LoRR maze problem for 60 ticks through the CLI: valid output, tasks under way."""
+    from gateway.cli import main
+
+    problem = SHARED / "maze.domain" / "maze-example_40.json"
+    out_path = tmp_path / "out.json"
+    assert main(["lifelong", "--problem", str(problem), "--ticks", "90", "--output",
+                 str(out_path), "--planner-time", "zero", "--no-progress"]) == 0
+    out = json.loads(out_path.read_text())
+    prob = read_problem(problem)
+    assert out["teamSize"] == 40 and out["actionModel"] == "MAPF_T"
+    assert check_output(out, read_free(format_map(prob.grid))) == 90
+    assert out["events"]

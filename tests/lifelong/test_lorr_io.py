@@ -1,0 +1,90 @@
+"""LoRR problem files: reading, clear errors, the CLI's exit codes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from gateway.cli import main
+from gateway.planning.lorr import LorrFormatError, compress_path, read_problem, write_problem
+from tests.lifelong.support import small_problem
+
+
+def _write(tmp_path: Path) -> Path:
+    p = small_problem(1, robots=4, size=8)
+    return write_problem(tmp_path, "tiny", p.grid, list(p.starts), list(p.tasks),
+                         agent_counter=2, num_tasks_reveal=1.5, delay=p.delay)
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    p = small_problem(1, robots=4, size=8)
+    back = read_problem(_write(tmp_path))
+    assert back.starts == p.starts and back.tasks == p.tasks
+    assert back.agent_counter == 2 and back.num_tasks_reveal == 1.5
+    assert back.delay == p.delay
+    assert (back.grid.free == p.grid.free).all()
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda d: d.pop("teamSize"), "missing field 'teamSize'"),
+    (lambda d: d.update(teamSize=99), "teamSize is 99"),
+    (lambda d: d.update(agentCounter="3"), "'agentCounter' must be int"),
+    (lambda d: d.update(delayConfig={"eventModel": "often"}), "eventModel must be"),
+    (lambda d: d.update(mapFile="nope.map"), "cannot read"),
+])
+def test_bad_problem_fields(tmp_path: Path, edit, message: str) -> None:  # type: ignore[no-untyped-def]
+    path = _write(tmp_path)
+    data = json.loads(path.read_text())
+    edit(data)
+    path.write_text(json.dumps(data))
+    with pytest.raises(LorrFormatError, match=message) as info:
+        read_problem(path)
+    assert "\n" not in str(info.value)
+
+
+def test_bad_locations(tmp_path: Path) -> None:
+    path = _write(tmp_path)
+    tasks = tmp_path / "tasks" / "tiny.tasks"
+    tasks.write_text("1\n5,999999\n")
+    with pytest.raises(LorrFormatError, match=r"tiny.tasks:2: location 999999 is not a free"):
+        read_problem(path)
+    tasks.write_text("3\n5\n")
+    with pytest.raises(LorrFormatError, match="says 3 tasks"):
+        read_problem(path)
+
+
+def test_cli_bad_input_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write(tmp_path)
+    path.write_text("{not json")
+    assert main(["lifelong", "--problem", str(path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fleetgate: ") and "not JSON" in err and err.count("\n") == 1
+    assert main(["lifelong", "--problem", str(path), "--ticks", "0"]) == 2
+
+
+def test_cli_run_prints_throughput(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write(tmp_path)
+    out = tmp_path / "out.json"
+    assert main(["lifelong", "--problem", str(path), "--ticks", "40", "--output", str(out),
+                 "--planner-time", "zero", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "tasks finished" in text and "per tick" in text and "ms per call" in text
+    data = json.loads(out.read_text())
+    assert data["makespan"] == 40 and len(data["actualPaths"]) == 4
+
+
+def test_compress_path_runs_and_windows() -> None:
+    p = small_problem(1, robots=1, size=8)
+    loc = p.starts[0]
+    row, col = divmod(loc, p.grid.width)
+    text = compress_path(p.grid, [(loc, 0, 0), (loc, 1, 1)], "WWFFRW", 4)
+    assert text == f"[(0,{row},{col},0,0):(W 2,F 2)][(4,{row},{col},1,1):(R 1,W 1)]"
+
+
+def test_cli_offers_the_schedulers() -> None:
+    from gateway.execution.tasks import SCHEDULERS
+    from sim_clients.cmd_lifelong import SCHEDULER_CHOICES
+
+    assert sorted(SCHEDULER_CHOICES) == sorted(SCHEDULERS)
