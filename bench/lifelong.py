@@ -4,7 +4,7 @@ Part 1 (skipped cleanly if ``../shared/lorr`` is absent): each of the four share
 problems for ``--ticks`` ticks under its rules (delays from its ``delayConfig``, 1000 ms
 planning period at 100 ms a tick, the planner's measured CPU time charged), tasks finished
 against the LoRR Start-Kit's reference in ``SOURCES.md`` (one ratio per problem), and the
-output replayed by the independent checker (``tests/lifelong/lorr_check.py``): collisions
+output replayed by the independent checker (``tracecheck/lorr.py``): collisions
 must be 0.
 
 Part 2: ``--robots`` robots for 600 simulated seconds (one action a second, a plan every
@@ -16,7 +16,6 @@ same ADG execution) takes 268 s on 16 cores. Prints one result line.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -26,10 +25,9 @@ from gateway.planning.generators import warehouse_map
 from gateway.planning.lorr import DelayConfig, LorrProblem, read_problem
 from gateway.planning.movingai import format_map
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from tracecheck.lorr import check_output, read_free
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-from tests.lifelong.lorr_check import check_output, read_free  # noqa: E402
 
 SHARED = REPO / ".." / "shared" / "lorr"
 REFERENCE = {  # tasks finished in 600 ticks by the Start-Kit's default planner + executor

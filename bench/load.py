@@ -1,7 +1,7 @@
 """Load benchmark: R simulated robots over websockets against one gateway in another process.
 
 Workload: an open grid with ~1 robot per 8 cells and a 1-robust plan of ``S`` steps per robot
-(``tests/sim/random_plans.random_plan``: at every step each robot moves to a free neighbour
+(``gateway/planning/random_plans.random_plan``: at every step each robot moves to a free neighbour
 that nobody stood on the step before, or waits; robots cross all the time, so Type 2 edges
 abound). Waits are actions too and an action lasts 1000 ms +- ``--jitter`` (default 20 %, seeded per
 robot: real robots are never in lockstep, and a lockstep fleet would send R finishes in the
@@ -59,15 +59,13 @@ from gateway.execution.adg import ADG
 from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
 from gateway.planning.plan import Plan
+from gateway.planning.random_plans import open_grid, random_plan
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import GC_THRESHOLDS
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
-from sim_clients.cmd_demo import websocket_connector
+from sim_clients.connect import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for tests/
-from tests.sim.random_plans import open_grid, random_plan
 
 P99_LIMIT_MS = 50.0
 BASELINE_ROBOTS = 10

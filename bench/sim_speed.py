@@ -15,13 +15,13 @@ import statistics
 import time
 from collections.abc import Callable
 
-from gateway.commands.deadline import WallDeadline
-from gateway.commands.mapstore import resolve
 from gateway.execution.commands import Dispatch
 from gateway.execution.executor import Executor
 from gateway.planning.instance import load_instance
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve
+from gateway.runtime.deadline import WallDeadline
+from gateway.runtime.mapstore import resolve
 from sim_clients.des import SimConfig, run_simulation
 
 

@@ -1,9 +1,10 @@
 """The ``fleetgate`` command.
 
 Gateway subcommands live in :mod:`gateway.commands`; packages the gateway must not import
-(``sim_clients``) contribute theirs through the ``fleetgate.commands`` entry-point group.
-Exit codes: 0 success, 2 bad input (one-line reason on stderr), 3 no solution within the limit,
-130 interrupted (Ctrl-C).
+(``sim_clients``, ``experiments``) contribute theirs through the ``fleetgate.commands``
+entry-point group. Exit codes (0 success, 2 bad input with a one-line reason on stderr, 3 no
+solution within the limit, 130 interrupted) and :class:`UsageError` live in
+:mod:`gateway.runtime.exits`.
 
 Building the parser imports only the command modules' registration code: each command imports
 what it needs (numpy, pydantic, matplotlib...) when it runs, so ``--help`` and the first line
@@ -19,6 +20,8 @@ from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import Any
 
+from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_INTERRUPTED, UsageError
+
 GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.plan",
     "gateway.commands.maps",
@@ -27,16 +30,6 @@ GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.conformance",
 )
 """Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
-
-EXIT_OK = 0
-EXIT_BAD_INPUT = 2
-EXIT_NO_SOLUTION = 3
-EXIT_INTERRUPTED = 130
-
-
-class UsageError(Exception):
-    """Bad input: the CLI prints ``fleetgate: <message>`` and exits with code 2."""
-
 
 class StrictParser(argparse.ArgumentParser):
     """A parser that rejects unknown arguments itself, so a mistyped option of a subcommand

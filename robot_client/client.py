@@ -3,8 +3,9 @@
 Three tasks share one event loop:
 
 * control: every ``control_period_ms`` it ticks the body (base feedback in, wheel command
-  out), reports the runner's events (``started``, ``finished``; a bumper pause as an immediate
-  ``state`` with activity ``blocked``, see :meth:`RobotClient._report`), and starts the next
+  out), reports the runner's events (``started``, ``finished``; a bumper pause as ``blocked``
+  / ``unblocked`` during a move and as ``state`` with activity ``blocked``, see
+  :meth:`RobotClient._report`), and starts the next
   held action when the robot is idle, connected and not paused;
 * camera: reads frames in a worker thread, measures tag fixes there and applies them;
 * link: connects with the robot's token, says ``hello`` (pose, held and finished action ids,
@@ -37,6 +38,7 @@ from protocol import (
     Action,
     Activity,
     AnyMessage,
+    Blocked,
     CancelAction,
     Cancelled,
     Error,
@@ -47,6 +49,7 @@ from protocol import (
     Resume,
     Started,
     State,
+    Unblocked,
     Welcome,
     decode,
     encode,
@@ -172,11 +175,11 @@ class RobotClient:
     async def _report(self, event: RunnerEvent) -> None:
         """Tell the gateway about a runner event.
 
-        A bumper pause (runner ``blocked`` / ``unblocked``) always happens after ``started``,
-        while protocol v1's ``blocked`` / ``unblocked`` mean "target cell taken" before the
-        robot starts, and the gateway's executor refuses them for an action under way. So a
-        bumper pause is reported as an immediate ``state`` snapshot (activity ``blocked``, then
-        ``running`` again) instead.
+        A bumper pause (runner ``blocked`` / ``unblocked``) always happens after ``started``.
+        During a move it is reported as protocol v2's stop on the way (``blocked``, then
+        ``unblocked``: the executor's ``stopped``, so a replan can re-task the robot) and, as
+        for a turn (which v2 does not stop), by an immediate ``state`` snapshot (activity
+        ``blocked``, then ``running`` again).
         """
         if event.kind == "finished":
             self.finished.append(event.action_id)
@@ -187,8 +190,12 @@ class RobotClient:
         if event.kind in _REPORTS:
             await self._send(self.link, _REPORTS[event.kind], action_id=event.action_id,
                              pose=self.wire_pose())
-        else:
-            await self._send_state(self.link)
+            return
+        current = self.body.runner.action
+        if current is not None and current.kind == "move":
+            await self._send(self.link, Blocked if event.kind == "blocked" else Unblocked,
+                             action_id=event.action_id, pose=self.wire_pose())
+        await self._send_state(self.link)
 
     # ---------------------------------------------------------------- control
 

@@ -16,6 +16,8 @@ fi
 ruff check .
 mypy
 mypy bench
+# Reproducible property tests: the derandomised hypothesis profile (tests/conftest.py).
+export HYPOTHESIS_PROFILE="${HYPOTHESIS_PROFILE:-ci}"
 set +e
 python -m pytest -n 2 -q "$@"
 rc=$?

@@ -1,1 +1,2 @@
-"""Simulated robots, world occupancy, intruder, virtual-time runner and experiment campaigns."""
+"""Simulated robots, world occupancy, intruder, the discrete-event simulator and the
+virtual-time fleet runner."""

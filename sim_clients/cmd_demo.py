@@ -17,7 +17,6 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, EXIT_OK, UsageError
 from gateway.commands.instance_args import add_instance_arguments
 from gateway.commands.progress import StatusLine
 from gateway.commands.solving import (
@@ -26,6 +25,7 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, EXIT_OK, UsageError
 
 if TYPE_CHECKING:
     import asyncio
@@ -34,7 +34,7 @@ if TYPE_CHECKING:
     from gateway.server.engine import Engine
     from gateway.server.gateway import Gateway
     from gateway.server.planner import Problem
-    from sim_clients.fleet import ClientConnection, Connect, SimFleet
+    from sim_clients.fleet import SimFleet
 
 DEFAULT_MAP, DEFAULT_SCEN, DEFAULT_AGENTS = "lab", "lab-random-4", 10
 """The zero-setup demo: 10 robots on the shipped lab map. Its seed-0 intruder blocks a robot
@@ -43,17 +43,6 @@ that others queue behind, the fleet slack passes 2 s at about 7.1 s and the repl
 
 STATUS_PERIOD_S = 0.25
 """How often the terminal's status line is redrawn (wall time)."""
-
-
-def websocket_connector(url: str) -> Connect:
-    """Opens ``url`` with a bearer token (no proxy, no compression: loopback)."""
-    from websockets.asyncio.client import connect as ws_connect
-
-    async def connect(token: str) -> ClientConnection:
-        return await ws_connect(url, additional_headers={"Authorization": f"Bearer {token}"},
-                                proxy=None, compression=None, max_queue=None)
-
-    return connect
 
 
 def status_text(engine: Engine) -> str:
@@ -130,6 +119,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
     import asyncio
 
     from gateway.server.gateway import Gateway
+    from sim_clients.connect import websocket_connector
     from sim_clients.fleet import RunResult, fleet_for, run_in_process
 
     stop = _stop_on_signals()

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from gateway.cli import EXIT_OK, UsageError
+from gateway.runtime.exits import EXIT_OK, UsageError
 
 SCHEDULER_CHOICES = ("greedy", "mincost")
 """``gateway.execution.tasks.SCHEDULERS`` (a test checks), named here so --help stays light."""

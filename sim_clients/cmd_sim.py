@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_BAD_INPUT, EXIT_OK, UsageError
+from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_OK, UsageError
 
 if TYPE_CHECKING:
     from sim_clients.fleet import SimFleet
@@ -94,7 +94,7 @@ async def _run_fleet(fleet: SimFleet) -> None:
 def _run(args: argparse.Namespace) -> int:
     import asyncio
 
-    from sim_clients.cmd_demo import websocket_connector
+    from sim_clients.connect import websocket_connector
     from sim_clients.fleet import SimFleet
 
     try:

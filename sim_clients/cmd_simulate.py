@@ -7,7 +7,6 @@ import json
 import sys
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK, UsageError
 from gateway.commands.instance_args import add_instance_arguments
 from gateway.commands.progress import StatusLine, ticking
 from gateway.commands.solving import (
@@ -16,6 +15,7 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
 
 if TYPE_CHECKING:
     from sim_clients.des import SolverTime
@@ -36,8 +36,8 @@ def _solver_time(text: str) -> SolverTime:
 def _run(args: argparse.Namespace) -> int:
     from gateway.commands.instance_args import instance_from_args
     from gateway.planning.plan import NoSolution
+    from gateway.runtime.trace import JsonlWriter
     from sim_clients.des import SimConfig, run_simulation
-    from sim_clients.trace import JsonlWriter
 
     if args.threshold_ms < 0:
         raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms:g}")

@@ -9,7 +9,6 @@ SIM_COMMANDS: tuple[str, ...] = (
     "sim_clients.cmd_simulate",
     "sim_clients.cmd_sim",
     "sim_clients.cmd_demo",
-    "sim_clients.cmd_experiment",
     "sim_clients.cmd_lifelong",
 )
 

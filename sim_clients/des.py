@@ -17,7 +17,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from gateway.commands.deadline import WallDeadline
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import (
     Cancel,
@@ -32,10 +31,11 @@ from gateway.execution.policies import ReplanPolicy, make_policy
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import NoSolution, Plan
 from gateway.planning.solver import solve
-from gateway.server.clock import SolverTime, run_charged
+from gateway.runtime.deadline import WallDeadline
+from gateway.runtime.solver_time import SolverTime, run_charged
+from gateway.runtime.trace import TraceSink, intruder_record, summary_record
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
 from sim_clients.robot import RobotEvent, RobotState, SimRobot
-from sim_clients.trace import TraceSink, intruder_record, summary_record
 from sim_clients.world import INTRUDER, World
 
 PolicyName = Literal["none", "random", "slack"]

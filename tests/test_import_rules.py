@@ -1,4 +1,9 @@
-"""DESIGN section 1: the layers import only what they may (checked on the source, statically)."""
+"""DESIGN section 1: the layers import only what they may (checked on the source, statically).
+
+Every ``import``/``from ... import`` of every module is read with :mod:`ast`, including imports
+inside functions and ``TYPE_CHECKING`` blocks; relative imports are resolved against the
+module's package.
+"""
 
 from __future__ import annotations
 
@@ -8,50 +13,117 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PURE_FORBIDDEN = ("gateway.server", "asyncio", "websockets", "pydantic", "time", "datetime",
-                  "sim_clients", "protocol")
+PROJECT = ("gateway", "protocol", "robot_client", "sim_clients", "experiments", "tracecheck",
+           "fleetgate", "tests", "bench")
+PURE_FORBIDDEN = ("gateway.server", "gateway.runtime", "gateway.commands", "gateway.cli",
+                  "asyncio", "websockets", "pydantic", "time", "datetime", "sim_clients",
+                  "experiments", "tracecheck", "protocol")
+CLI = ("gateway.cli", "gateway.commands", "gateway.__main__", "fleetgate")
+"""The ``fleetgate`` command's own modules (plugins' command modules: see :func:`_is_cli`)."""
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
 
 
 def _imports(path: Path) -> list[str]:
+    """Absolute names of every module ``path`` imports (relative imports resolved)."""
     tree = ast.parse(path.read_text(), filename=str(path))
+    package = _module_name(path).split(".")
+    if path.name != "__init__.py":
+        package.pop()
     names: list[str] = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             names.extend(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.append(node.module)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            module = ".".join([*base, *([node.module] if node.module else [])])
+            names.append(module)
+            names.extend(f"{module}.{alias.name}" for alias in node.names)
     return names
 
 
-def _modules(package: str) -> list[Path]:
-    return sorted((ROOT / package.replace(".", "/")).rglob("*.py"))
+def _modules(*packages: str) -> list[Path]:
+    files: list[Path] = []
+    for package in packages:
+        path = ROOT / package.replace(".", "/")
+        files.extend(sorted(path.rglob("*.py")) if path.is_dir() else [path.with_suffix(".py")])
+    return files
 
 
 def _hits(name: str, prefixes: tuple[str, ...]) -> bool:
     return any(name == p or name.startswith(p + ".") for p in prefixes)
 
 
+def _violations(files: list[Path], forbidden: tuple[str, ...]) -> list[tuple[str, str]]:
+    assert files, "no modules found"
+    return sorted({(_module_name(f), n) for f in files for n in _imports(f)
+                   if _hits(n, forbidden)})
+
+
+def _is_cli(module: str) -> bool:
+    """Modules of the ``fleetgate`` command: gateway's, and the command modules that
+    ``sim_clients`` and ``experiments`` plug in through the ``fleetgate.commands`` entry point."""
+    last = module.rsplit(".", 1)[-1]
+    return _hits(module, CLI) or (module.split(".")[0] in ("sim_clients", "experiments")
+                                  and (last == "commands" or last.startswith("cmd_")))
+
+
 @pytest.mark.parametrize("package", ["gateway/planning", "gateway/execution"])
 def test_pure_core_has_no_io_clock_or_server_imports(package: str) -> None:
-    files = _modules(package)
-    assert files, f"{package} has no modules"
-    bad = [(f.name, n) for f in files for n in _imports(f) if _hits(n, PURE_FORBIDDEN)]
-    assert bad == []
+    assert _violations(_modules(package), PURE_FORBIDDEN) == []
 
 
 def test_protocol_imports_nothing_of_the_project() -> None:
-    project = ("gateway", "robot_client", "sim_clients")
-    bad = [(f.name, n) for f in _modules("protocol") for n in _imports(f) if _hits(n, project)]
-    assert bad == []
+    assert _violations(_modules("protocol"), tuple(p for p in PROJECT if p != "protocol")) == []
 
 
 def test_robot_client_imports_only_protocol() -> None:
-    project = ("gateway", "sim_clients")
-    bad = [(f.name, n) for f in _modules("robot_client") for n in _imports(f) if _hits(n, project)]
-    assert bad == []
+    others = tuple(p for p in PROJECT if p not in ("protocol", "robot_client"))
+    assert _violations(_modules("robot_client"), others) == []
 
 
-def test_nothing_imports_sim_clients() -> None:
-    others = [*_modules("gateway"), *_modules("protocol"), *_modules("robot_client")]
-    bad = [(f.name, n) for f in others for n in _imports(f) if _hits(n, ("sim_clients",))]
+def test_gateway_imports_neither_simulator_nor_experiments() -> None:
+    above = ("sim_clients", "experiments", "tracecheck", "tests", "bench")
+    assert _violations(_modules("gateway", "protocol", "robot_client"), above) == []
+
+
+def test_simulator_does_not_import_experiments() -> None:
+    assert _violations(_modules("sim_clients"), ("experiments", "tests", "bench")) == []
+
+
+def test_runtime_helpers_sit_below_the_drivers_and_the_cli() -> None:
+    drivers = ("gateway.server", *CLI, "sim_clients", "experiments")
+    assert _violations(_modules("gateway/runtime"), drivers) == []
+
+
+def test_discrete_event_simulator_has_no_asyncio_server() -> None:
+    des = _modules(*(f"sim_clients/{m}" for m in ("des", "robot", "world", "intruder")))
+    assert _violations(des, ("gateway.server", "asyncio", "websockets")) == []
+
+
+def test_no_package_imports_the_cli() -> None:
+    files = _modules("gateway", "protocol", "robot_client", "sim_clients", "experiments",
+                     "tracecheck", "fleetgate", "bench")
+    bad = [(m, n) for m, n in _violations(files, CLI) if not _is_cli(m)]
     assert bad == []
+    # The command modules share the CLI's helpers, but nothing imports the entry point back.
+    entries = ("gateway.__main__", "fleetgate.__main__")
+    back = [(m, n) for m, n in _violations(files, ("gateway.cli",)) if m not in entries]
+    assert back == []
+    plugins = [(m, n) for m, n in _violations(files, ("sim_clients", "experiments"))
+               if _is_cli(n) and not _is_cli(m)]
+    assert plugins == []
+
+
+def test_tracecheck_imports_nothing_of_the_project() -> None:
+    others = tuple(p for p in PROJECT if p != "tracecheck")
+    assert _violations(_modules("tracecheck"), others) == []
+
+
+def test_benchmarks_do_not_import_tests() -> None:
+    assert _violations(_modules("bench"), ("tests",)) == []

@@ -1,4 +1,4 @@
-"""``fleetgate conformance gateway|robot``: check an implementation against protocol v1."""
+"""``fleetgate conformance gateway|robot``: check an implementation against the robot protocol."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = sub.add_parser(
         "conformance", help="check a gateway or a robot against the protocol",
         description="Check a gateway or a robot implementation against the fleetgate robot "
-                    "protocol v1 (docs/protocol.md). Exit code 0: every required check "
+                    "protocol (docs/protocol.md). Exit code 0: every required check "
                     "passed; 1: a required check failed; 2: bad invocation or unreachable "
                     "target.")
     add_arguments(parser)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from gateway.cli import UsageError
 from gateway.planning.motion import (
     DEFAULT_START_HEADING,
     HEADING_NAMES,
@@ -13,6 +12,7 @@ from gateway.planning.motion import (
     Motion,
     parse_heading,
 )
+from gateway.runtime.exits import UsageError
 
 if TYPE_CHECKING:
     from gateway.planning.instance import Instance
@@ -36,9 +36,9 @@ def add_instance_arguments(parser: argparse.ArgumentParser) -> None:
 
 def instance_from_args(args: argparse.Namespace) -> Instance:
     """Load and check the instance the options name; bad input raises :class:`UsageError`."""
-    from gateway.commands import mapstore
     from gateway.planning.instance import load_instance, load_mapf_ir
     from gateway.planning.movingai import MapFormatError
+    from gateway.runtime import mapstore
 
     if args.agents is not None and args.agents < 1:
         raise UsageError(f"--agents must be at least 1, got {args.agents}")

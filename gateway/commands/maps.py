@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_OK, UsageError
-from gateway.commands import mapstore
+from gateway.runtime import mapstore
+from gateway.runtime.exits import EXIT_OK, UsageError
 
 if TYPE_CHECKING:
     from gateway.planning.grid import Grid

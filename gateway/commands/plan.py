@@ -9,7 +9,6 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from gateway.cli import EXIT_NO_SOLUTION, EXIT_OK
 from gateway.commands.instance_args import add_instance_arguments, add_motion_arguments
 from gateway.commands.solving import (
     add_planning_arguments,
@@ -17,6 +16,7 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK
 
 if TYPE_CHECKING:
     from gateway.planning.instance import Instance

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from gateway.cli import EXIT_OK, UsageError
+from gateway.runtime.exits import EXIT_OK, UsageError
 
 
 def _schema(args: argparse.Namespace) -> int:

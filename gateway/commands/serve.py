@@ -8,7 +8,7 @@ import signal
 import sys
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_OK, UsageError
+from gateway.runtime.exits import EXIT_OK, UsageError
 
 if TYPE_CHECKING:
     from gateway.server.config import GatewayConfig

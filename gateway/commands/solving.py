@@ -7,8 +7,8 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from gateway.cli import UsageError
 from gateway.commands.progress import StatusLine, ticking
+from gateway.runtime.exits import UsageError
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -57,8 +57,8 @@ def solve_instance(instance: Instance, args: argparse.Namespace,
     While CBS works a terminal shows "planning NAME (N agents) ... 3 s"; a fallback plan is
     announced in one line on ``status``.
     """
-    from gateway.commands.deadline import WallDeadline
     from gateway.planning.solver import solve
+    from gateway.runtime.deadline import WallDeadline
 
     status = status or StatusLine()
     name = instance.name or "the instance"

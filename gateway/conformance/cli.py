@@ -139,7 +139,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     modes = parser.add_subparsers(dest="mode", required=True, metavar="MODE")
     g = modes.add_parser(
         "gateway", help="check a gateway (the checker plays robots and an operator)",
-        description="Drive a gateway through the protocol v1 checklist (docs/protocol.md). "
+        description="Drive a gateway through the protocol checklist (docs/protocol.md). "
                     "It needs a robot token and an operator token (to load tiny plans on "
                     "--map; the checker switches replanning off while it runs and restores "
                     "the policy). Against a zero-setup `fleetgate serve`: "
@@ -159,7 +159,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _common(g)
     r = modes.add_parser(
         "robot", help="check a robot (the checker plays the gateway)",
-        description="Play a gateway against a robot implementation, through the protocol v1 "
+        description="Play a gateway against a robot implementation, through the protocol "
                     "checklist (docs/protocol.md). The checker listens on --url (and waits "
                     "for the robot) or on an ephemeral 127.0.0.1 port and runs --command with "
                     "{url}, {token} and {robot_id} substituted. The robot must accept moves "

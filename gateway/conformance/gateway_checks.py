@@ -143,6 +143,23 @@ async def _hello_welcome(t: Target) -> None:
         await robot.conn.close()
 
 
+@check("version-1-robot-is-served", "VER-2")
+async def _version_1(t: Target) -> None:
+    """A robot whose `hello` is version 1 is answered in version 1 (welcome and actions) on
+    a plan without headings."""
+    async with _single(t) as run:
+        robot = await t.robot(hello=False)
+        robot.conn.version = 1
+        run.robots[robot.id] = robot
+        welcome = await robot.hello()
+        await run.start()
+        first = await robot.action(0)
+        got: list[Welcome | Action] = [welcome, first, *welcome.resend]
+        late = [m.type for m in got if m.v != 1]
+        if late:
+            raise CheckFailed(f"a version 1 robot got version 2 messages: {late}")
+
+
 @check("hello-as-another-robot", "AUTH-4")
 async def _hello_other(t: Target) -> None:
     """``hello`` claiming another robot id gets ``not_yourself`` and no welcome."""

@@ -23,6 +23,7 @@ from gateway.conformance.checklist import Checklist
 from gateway.conformance.report import CheckFailed, CheckResult, UsageProblem
 from gateway.conformance.wire import Breaches, Conn
 from protocol import (
+    PROTOCOL_VERSION,
     Ack,
     Action,
     AnyMessage,
@@ -229,12 +230,14 @@ class FakeGateway:
         first = await self.c().expect("the robot's first message", lambda m: True, ACT_S)
         if not isinstance(first, Hello):
             raise CheckFailed(f"the robot's first message is {first.type}, not hello")
+        self.c().version = first.v  # VER-2: the gateway answers in the robot's version
         return first
 
     async def welcome(self, resend: Sequence[str] = (), paused: bool = False) -> None:
         """Send ``welcome`` (resending the named actions)."""
         self.sent.update(resend)
-        actions = [Action(msg_id=f"resend-{aid}", seq=0, **self.dispatched[aid])
+        v = self.c().version or PROTOCOL_VERSION
+        actions = [Action(msg_id=f"resend-{aid}", seq=0, v=v, **self.dispatched[aid])
                    for aid in resend]
         await self.c().send(Welcome, robot_id=self.robot_id, start=Pose(cell=(0, 0)),
                             plan=self.plan, resend=actions,

@@ -17,6 +17,7 @@ from websockets.exceptions import ConnectionClosed
 
 from gateway.conformance.report import CheckFailed
 from protocol import AnyMessage, Error, ErrorCode, ProtocolError, decode, encode
+from protocol.messages import ProtocolVersion
 
 M = TypeVar("M", bound=AnyMessage)
 
@@ -61,6 +62,8 @@ class Conn:
         self._ids: set[str] = set()
         self._changed = asyncio.Event()
         self.closed_code: int | None = None
+        self.version: ProtocolVersion | None = None
+        """The protocol version of what this end sends (None: the models' default)."""
         self.on_message: Callable[[AnyMessage], None] | None = None
         self._reader = asyncio.get_running_loop().create_task(self._read())
 
@@ -73,6 +76,8 @@ class Conn:
     async def send(self, kind: type[AnyMessage], **fields: Any) -> str:
         """Send a message of type ``kind``; returns its msg_id."""
         msg_id, seq = self.next_id()
+        if self.version is not None:
+            fields.setdefault("v", self.version)
         await self.ws.send(encode(kind(msg_id=msg_id, seq=seq, **fields)))
         return msg_id
 

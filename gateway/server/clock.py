@@ -20,28 +20,11 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Callable, Coroutine
-from typing import Any, Literal, TypeVar
+from typing import Any, TypeVar
+
+from gateway.runtime.solver_time import SolverTime, run_charged
 
 T = TypeVar("T")
-
-SolverTime = Literal["measured", "zero"] | float
-"""How virtual time charges the planner: its CPU time, nothing, or a fixed number of ms."""
-
-
-def run_charged(fn: Callable[[], T], solver_time: SolverTime) -> tuple[T, float]:
-    """Run the planner call ``fn`` and say how many virtual ms it costs.
-
-    "measured" charges the calling thread's CPU time rather than wall time: on an idle machine
-    the two agree (the planner is single-threaded and does no I/O), but CPU time does not grow
-    when other processes share the cores, so virtual-time results stay comparable across
-    machines and loads (DESIGN says wall time; see the issue note for why we deviate).
-    """
-    t0 = time.thread_time()
-    result = fn()
-    cpu_ms = (time.thread_time() - t0) * 1000.0
-    if solver_time == "measured":
-        return result, cpu_ms
-    return result, 0.0 if solver_time == "zero" else float(solver_time)
 
 
 class LoopClock:

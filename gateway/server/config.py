@@ -34,6 +34,16 @@ class TokensConfig(BaseModel):
     """If set, the token ``<prefix><id>`` authenticates robot ``<id>``."""
 
 
+class RobotModel(BaseModel):
+    """Expected duration ``t_x`` of each action kind for one kind of robot (ms)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    move_ms: float = Field(default=1000.0, gt=0)
+    turn_ms: float = Field(default=1000.0, gt=0)
+    wait_ms: float = Field(default=1000.0, gt=0)
+
+
 class ConfigError(ValueError):
     """The configuration (file, environment or arguments) is invalid; the message says why."""
 
@@ -61,6 +71,11 @@ class GatewayConfig(BaseSettings):
     threshold_ms: float = Field(default=2000.0, ge=0)
     max_replans: int = Field(default=1, ge=0)
     action_ms: float = Field(default=1000.0, gt=0)
+    """t_x of every action of a robot that has no model in ``robot_model``."""
+    robot_models: dict[str, RobotModel] = Field(default_factory=dict)
+    """Named robot models: the monitor's t_x per action kind (move, turn, wait)."""
+    robot_model: dict[int, str] = Field(default_factory=dict)
+    """Robot id -> the name of its model in ``robot_models``."""
     drop_waits: bool = False
     dispatch_lookahead: int = Field(default=1, ge=0)
     """Actions queued on a robot beyond its current one (0: dispatch only when all ADG edges
@@ -92,6 +107,14 @@ class GatewayConfig(BaseSettings):
     def loopback(self) -> bool:
         """True if the gateway listens on a loopback address only."""
         return _is_loopback(self.host)
+
+    @model_validator(mode="after")
+    def _models_exist(self) -> GatewayConfig:
+        unknown = sorted({m for m in self.robot_model.values() if m not in self.robot_models})
+        if unknown:
+            raise ValueError(f"robot_model names unknown robot models {unknown}; "
+                             f"robot_models defines {sorted(self.robot_models)}")
+        return self
 
     @model_validator(mode="after")
     def _demo_tokens_only_on_loopback(self) -> GatewayConfig:

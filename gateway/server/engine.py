@@ -24,6 +24,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import IO, Any, Literal
 
+from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import (
     Cancel,
     Command,
@@ -700,6 +701,15 @@ class Engine:
                     rec.session.send(Resume)
         self._status_changed()
 
+    def _durations(self, robots: int) -> list[ActionDurations]:
+        """Each robot's t_x per action kind: its configured model, else ``action_ms``."""
+        cfg = self.config
+        models = {name: ActionDurations(m.move_ms, m.turn_ms, m.wait_ms)
+                  for name, m in cfg.robot_models.items()}
+        uniform = ActionDurations.uniform(cfg.action_ms)
+        return [models[cfg.robot_model[k]] if k in cfg.robot_model else uniform
+                for k in range(robots)]
+
     def _make_policy(self, plan: Plan) -> ReplanPolicy:
         return make_policy(self.policy_name, seed=self.policy_seed,
                            threshold_ms=self.threshold_ms,
@@ -759,7 +769,8 @@ class Engine:
                                  action_ms=self.config.action_ms,
                                  drop_waits=self.config.drop_waits,
                                  max_replans=self.config.max_replans, record=self._record,
-                                 lookahead=self.config.dispatch_lookahead)
+                                 lookahead=self.config.dispatch_lookahead,
+                                 durations=self._durations(len(plan.paths)))
         # The plan, ADG, monitor and connections live as long as the run: move them out of
         # the cyclic collector's reach, or its full passes over a large fleet's objects stall
         # the owner (~150 ms at 2,000 robots). Only what exists now is frozen; what the run

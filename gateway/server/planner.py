@@ -8,8 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.commands import mapstore
-from gateway.commands.deadline import WallDeadline
 from gateway.execution.adg import ADG
 from gateway.execution.errors import ExecutionError
 from gateway.planning.generators import random_instance
@@ -19,6 +17,8 @@ from gateway.planning.movingai import MapFormatError, read_map
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve
 from gateway.planning.validate import plan_violations
+from gateway.runtime import mapstore
+from gateway.runtime.deadline import WallDeadline
 
 log = logging.getLogger("fleetgate.planner")
 

@@ -13,7 +13,7 @@ import pytest
 
 HEAVY = ("numpy", "matplotlib", "pydantic", "dask", "distributed", "rich", "websockets",
          "asyncio", "cv2", "gateway.planning.cbs", "gateway.server.engine",
-         "sim_clients.campaign", "sim_clients.des")
+         "experiments.campaign", "sim_clients.des")
 """Modules that only running a command may import (each costs 0.05 to 1.5 s to import)."""
 
 MAX_HELP_RATIO = 6.0
@@ -37,7 +37,7 @@ def test_building_the_parser_imports_nothing_heavy() -> None:
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
                          text=True, timeout=60).stdout
     loaded = set(json.loads(out))
-    assert "sim_clients.cmd_experiment" in loaded  # the entry point's commands are there
+    assert "experiments.cmd_experiment" in loaded  # the entry point's commands are there
     assert sorted(m for m in loaded if m.split(".")[0] in HEAVY or m in HEAVY) == []
 
 

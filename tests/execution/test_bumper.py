@@ -12,8 +12,8 @@ from gateway.execution.errors import ExecutionError
 from gateway.execution.executor import Executor
 from gateway.execution.monitor import NOT_STARTED, algorithm1
 from gateway.planning.plan import Plan
-from sim_clients.tracecheck import check_trace
 from tests.execution.support import turning_plan
+from tracecheck import check_trace
 
 # A drives (0,0) -> (1,0) -> (2,0); B drives (5,5) -> (5,4), far away.
 PLAN = Plan.of([[(0, 0), (1, 0), (2, 0)], [(5, 5), (5, 4)]])

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from gateway.planning.lorr import read_problem
 from gateway.planning.movingai import format_map
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
-from tests.lifelong.lorr_check import check_output, read_free
 from tests.lifelong.support import small_problem
+from tracecheck.lorr import check_output, read_free
 
 SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "lorr"
 

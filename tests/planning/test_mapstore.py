@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.commands import mapstore
+from gateway.runtime import mapstore
 from tests.planning.fleetgate_cli import call, run
 
 TINY_MAP = "type octile\nheight 1\nwidth 3\nmap\n...\n"

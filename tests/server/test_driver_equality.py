@@ -8,19 +8,18 @@ from pathlib import Path
 
 import pytest
 
-from gateway.commands import mapstore
-from gateway.commands.deadline import WallDeadline
 from gateway.planning.instance import Instance, load_instance
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve
+from gateway.runtime import mapstore
+from gateway.runtime.deadline import WallDeadline
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
 from sim_clients.des import PolicyName, SimConfig, run_simulation
 from sim_clients.fleet import RunResult, fleet_for, run_in_process
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
+from tracecheck import check_trace, read_trace
 
 SOLVER_MS = 500.0
 """A fixed charge for the replan's solver: both drivers are then exactly reproducible."""

@@ -12,10 +12,9 @@ from websockets.asyncio.client import ClientConnection, connect
 
 from gateway.server.gateway import Gateway
 from protocol import Action, Finished, LoadPlan, Start, Started, Welcome
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
 from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import TestOperator, TestRobot
+from tracecheck import check_trace, read_trace
 
 DEPENDENT_PATHS = [
     [(1, 0), (2, 0), (3, 0)],

@@ -9,11 +9,10 @@ from pathlib import Path
 
 from gateway.server.gateway import Gateway
 from protocol import Action, Finished, Start, Started, Welcome
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
 from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import TestOperator, TestRobot
 from tests.server.test_end_to_end import DEPENDENT_PATHS, _until, load, ws
+from tracecheck import check_trace, read_trace
 
 
 async def test_robots_get_their_next_action_before_they_finish(tmp_path: Path) -> None:

@@ -30,10 +30,9 @@ from protocol import (
     Snapshot,
     Start,
 )
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
 from tests.server.conftest import Connect, connector, make_config
 from tests.server.robots import Peer, TestOperator, TestRobot
+from tracecheck import check_trace, read_trace
 
 
 async def operator(ws_connect: Connect) -> TestOperator:

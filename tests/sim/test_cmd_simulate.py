@@ -10,9 +10,8 @@ from pathlib import Path
 import pytest
 
 from gateway.cli import main
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
 from tests.planning.fleetgate_cli import run
+from tracecheck import check_trace, read_trace
 
 KEYS = {"soc_ms", "makespan_ms", "plan_soc", "replans", "replan_at_ms", "solver_ms",
         "collisions"}

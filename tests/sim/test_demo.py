@@ -11,8 +11,7 @@ import sys
 import urllib.request
 from pathlib import Path
 
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
+from tracecheck import check_trace, read_trace
 
 FLEETGATE = [sys.executable, "-m", "gateway"]
 

@@ -12,11 +12,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gateway.planning.plan import Plan
+from gateway.planning.random_plans import open_grid, random_plan
+from gateway.runtime.trace import Record
 from sim_clients.des import PolicyName, SimConfig, SimResult, SimulationError, run_simulation
 from sim_clients.intruder import IntruderConfig
-from sim_clients.trace import Record
-from sim_clients.tracecheck import check_trace
-from tests.sim.random_plans import open_grid, random_plan
+from tracecheck import check_trace
 
 
 def traced(config: SimConfig) -> tuple[SimResult, list[Record]]:

@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 
 from bench.planner import instances
-from gateway.commands.deadline import WallDeadline
-from gateway.commands.mapstore import resolve
 from gateway.planning.instance import Instance, load_instance
 from gateway.planning.plan import NoSolution, Plan
 from gateway.planning.solver import solve
+from gateway.runtime.deadline import WallDeadline
+from gateway.runtime.mapstore import resolve
 from sim_clients.des import SimConfig, run_simulation
-from sim_clients.tracecheck import check_trace
+from tracecheck import check_trace
 
 SHARED_MAPS = Path(__file__).resolve().parents[2] / ".." / "shared" / "maps"
 BENCH_CAP_S = 1.0

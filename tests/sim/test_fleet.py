@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from gateway.planning.plan import Plan
+from gateway.planning.random_plans import open_grid
 from gateway.server.auth import Peer
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
@@ -31,9 +32,7 @@ from protocol import (
     encode,
 )
 from sim_clients.fleet import SimFleet, fleet_for, run_in_process
-from sim_clients.trace import read_trace
-from sim_clients.tracecheck import check_trace
-from tests.sim.random_plans import open_grid
+from tracecheck import check_trace, read_trace
 
 CORRIDOR = Plan.of([[(0, 0), (1, 0), (2, 0), (3, 0), (4, 0)],
                     [(0, 2), (1, 2), (2, 2), (3, 2)]])

@@ -10,12 +10,12 @@ import random
 
 from hypothesis import HealthCheck, given, settings
 
+from gateway.planning.random_plans import open_grid, random_plan
+from gateway.runtime.trace import Record
 from sim_clients.des import SimConfig
 from sim_clients.intruder import IntruderConfig
-from sim_clients.trace import Record
-from sim_clients.tracecheck import check_trace
-from tests.sim.random_plans import open_grid, random_plan
 from tests.sim.test_des import scenarios, traced
+from tracecheck import check_trace
 
 _MOVES = ("start", "finish", "blocked", "unblocked", "plan", "trigger", "intruder", "summary")
 

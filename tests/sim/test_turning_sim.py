@@ -13,14 +13,14 @@ from hypothesis import strategies as st
 
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import Dispatch
+from gateway.planning.random_plans import open_grid, random_plan
+from gateway.runtime.trace import Record
 from sim_clients.des import SimConfig, run_simulation
 from sim_clients.intruder import IntruderConfig, pick_target
 from sim_clients.robot import RobotState, SimRobot, SimRobotError
-from sim_clients.trace import Record
-from sim_clients.tracecheck import check_trace
 from sim_clients.world import World
 from tests.execution.support import turning_expand, turning_plan
-from tests.sim.random_plans import open_grid, random_plan
+from tracecheck import check_trace
 
 # as in tests/execution/test_turning.py: A turns north -> east and drives to (2,0); B turns
 # east -> north on (1,1), waits twice, and drives into (1,0) after A left it

@@ -7,8 +7,8 @@ import random
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.planning.random_plans import open_grid, random_plan
 from gateway.planning.validate import plan_violations
-from tests.sim.random_plans import open_grid, random_plan
 
 
 @settings(max_examples=60, deadline=None)

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim_clients.campaign import Row
-from sim_clients.stats import (
+from experiments.campaign import Row
+from experiments.stats import (
     OutlierRules,
     bootstrap_ci,
     join_experiments,

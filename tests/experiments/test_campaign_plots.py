@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sim_clients.plots import plot_all
-from sim_clients.stats import Experiment, OutlierRules, outlier_reasons
+from experiments.plots import plot_all
+from experiments.stats import Experiment, OutlierRules, outlier_reasons
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

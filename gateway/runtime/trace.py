@@ -9,7 +9,7 @@ adds ``intruder`` records and the closing ``summary``. A sink is any callable ta
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
@@ -90,23 +90,3 @@ class JsonlWriter:
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
-
-
-def iter_trace(path: str | Path) -> Iterator[Record]:
-    """The records of a JSON-lines trace file; ValueError names the line of a bad one."""
-    with open(path, encoding="utf-8") as f:
-        for lineno, line in enumerate(f, 1):
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{path}:{lineno}: not JSON: {exc.msg}") from None
-            if not isinstance(record, dict):
-                raise ValueError(f"{path}:{lineno}: a trace line must be a JSON object")
-            yield record
-
-
-def read_trace(path: str | Path) -> list[Record]:
-    """All records of a JSON-lines trace file."""
-    return list(iter_trace(path))

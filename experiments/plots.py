@@ -22,7 +22,7 @@ matplotlib.use("Agg")  # before pyplot: files only, no display
 import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
 
-from sim_clients.stats import Experiment, OutlierRules, map_order, outlier_reasons
+from experiments.stats import Experiment, OutlierRules, map_order, outlier_reasons
 
 REPLANNED_LABELS = ("Replan", "No Replan")
 

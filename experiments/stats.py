@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from sim_clients.campaign import Row
+from experiments.campaign import Row
 
 JsonDict = dict[str, Any]
 

@@ -11,8 +11,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gateway.cli import EXIT_OK, UsageError
-from gateway.commands.mapstore import MapNotFound, resolve
+from gateway.runtime.exits import EXIT_OK, UsageError
+from gateway.runtime.mapstore import MapNotFound, resolve
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -94,7 +94,7 @@ def parse_groups(maps: Sequence[str] | None, agents: Sequence[str] | None,
     ``--agents`` items are counts for every map (``5,10 15``) or for one map (``arena=10,20``);
     a map's own counts replace the common ones. With ``--paper`` the defaults are the paper's.
     """
-    from sim_clients.campaign import PAPER_GROUPS
+    from experiments.campaign import PAPER_GROUPS
 
     common: list[int] = []
     per_map: dict[str, list[int]] = {}
@@ -252,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
         TimeElapsedColumn,
     )
 
-    from sim_clients.campaign import (
+    from experiments.campaign import (
         PAPER_INSTANCES,
         PAPER_SEEDS,
         CampaignError,
@@ -261,8 +261,8 @@ def run(args: argparse.Namespace) -> int:
         open_executor,
         run_campaign,
     )
-    from sim_clients.plots import plot_all
-    from sim_clients.stats import OutlierRules, join_experiments, summarize
+    from experiments.plots import plot_all
+    from experiments.stats import OutlierRules, join_experiments, summarize
 
     groups = parse_groups(args.maps, args.agents, args.paper)
     if args.workers < 1:

@@ -37,12 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from gateway.commands.deadline import WallDeadline
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.movingai import read_map
 from gateway.planning.plan import NoSolution, Plan
 from gateway.planning.solver import solve
+from gateway.runtime.deadline import WallDeadline
 from sim_clients.des import PolicyName, SimConfig, SimResult, parse_solver_time, run_simulation
 from sim_clients.intruder import IntruderConfig
 

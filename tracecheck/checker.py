@@ -21,7 +21,7 @@ section 2 defines them), replays the events in order and reports
 and it recomputes the fleet slack (Algorithm 1 plus DESIGN's slack definitions) at any moment,
 in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move", "turn",
 "wait"}``, each 1000 ms if absent) are its actions' expected durations ``t_x``. Run it as
-``python -m sim_clients.tracecheck FILE``.
+``python -m tracecheck FILE``.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sim_clients.trace import read_trace
+from tracecheck.reader import read_trace
 
 Pos = tuple[int, int]
 Act = tuple[int, int]
@@ -453,7 +453,7 @@ def slack_series(records: Sequence[Mapping[str, Any]],
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m sim_clients.tracecheck FILE``: print the findings; exit 1 if any."""
+    """``python -m tracecheck FILE``: print the findings; exit 1 if any."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("trace", type=Path, help="JSON-lines trace file")
     args = parser.parse_args(argv)

@@ -1,4 +1,4 @@
-"""Random valid 1-robust plans for property tests, built step by step without a planner.
+"""Random valid 1-robust plans (property tests, benchmarks), built step by step without a planner.
 
 At every timestep the robots, in a random order, either wait or move to a free 4-neighbour
 that no other robot stood on at the previous step and no robot has claimed for this step;

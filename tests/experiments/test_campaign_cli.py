@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.cli import UsageError
-from sim_clients.campaign import PAPER_GROUPS
-from sim_clients.cmd_experiment import parse_groups
+from experiments.campaign import PAPER_GROUPS
+from experiments.cmd_experiment import parse_groups
+from gateway.runtime.exits import UsageError
 
 
 def test_paper_groups_are_the_papers_1300_experiments() -> None:

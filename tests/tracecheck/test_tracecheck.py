@@ -8,15 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from sim_clients.trace import (
+from gateway.runtime.trace import (
     JsonlWriter,
     event_record,
     intruder_record,
     plan_record,
-    read_trace,
     summary_record,
 )
-from sim_clients.tracecheck import build_graph, check_trace, main, slack_series
+from tracecheck import build_graph, check_trace, main, read_trace, slack_series
 
 # Robot 0 moves right twice; robot 1 waits twice then enters (1,0), which robot 0 leaves in
 # its action 1 (a 1-robust plan). ADG: Type 1 chains plus the Type 2 edge a_1^0 -> a_2^1.

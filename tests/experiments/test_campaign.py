@@ -14,8 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.commands.mapstore import resolve
-from sim_clients.campaign import (
+from experiments.campaign import (
     COLUMNS,
     VARIANTS,
     CampaignError,
@@ -28,8 +27,9 @@ from sim_clients.campaign import (
     run_campaign,
     run_experiment,
 )
-from sim_clients.plots import plot_all
-from sim_clients.stats import join_experiments
+from experiments.plots import plot_all
+from experiments.stats import join_experiments
+from gateway.runtime.mapstore import resolve
 
 SPEC = CampaignSpec(groups=(("lab", 5),), instances=2, seeds=2,
                     sim=SimSettings(solver_time="zero"), plan_time_limit_s=20)
