@@ -37,13 +37,16 @@ from typing import Any
 
 import numpy as np
 
+from gateway.execution.params import PAPER
+from gateway.execution.policies import PolicyName
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.movingai import read_map
 from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.solution_json import SolutionJson
 from gateway.planning.solver import solve
 from gateway.runtime.deadline import WallDeadline
-from sim_clients.des import PolicyName, SimConfig, SimResult, parse_solver_time, run_simulation
+from sim_clients.des import SimConfig, SimResult, parse_solver_time, run_simulation
 from sim_clients.intruder import IntruderConfig
 
 VARIANTS: tuple[str, ...] = ("lower_bound", "intruder", "random", "slack")
@@ -135,9 +138,9 @@ class SimSettings:
     """
 
     solver_time: str = "measured"
-    threshold_ms: float = 2000.0
-    intruder_appear_ms: float = 3000.0
-    intruder_leave_ms: float = 10000.0
+    threshold_ms: float = PAPER.threshold_ms
+    intruder_appear_ms: float = PAPER.intruder_appear_ms
+    intruder_leave_ms: float = PAPER.intruder_leave_ms
     replan_time_limit_s: float = 10.0
 
 
@@ -211,12 +214,10 @@ class InstanceRecord:
 
     def to_json(self, campaign_seed: int) -> dict[str, Any]:
         """Solution JSON (DESIGN section 3) plus an ``instance`` block saying how it was made."""
+        solution = SolutionJson(self.map, self.starts, self.goals, self.plan, self.optimal,
+                                self.runtime_s, self.expanded_nodes)
         return {
-            "map": self.map, "motion": "omni", "robust": 1, "optimal": self.optimal,
-            "soc": self.plan.soc, "makespan": self.plan.makespan, "runtime_s": self.runtime_s,
-            "expanded_nodes": self.expanded_nodes,
-            "agents": [{"start": list(s), "goal": list(g), "path": [list(c) for c in p]}
-                       for s, g, p in zip(self.starts, self.goals, self.plan.paths, strict=True)],
+            **solution.to_json(),
             "instance": {"campaign_seed": campaign_seed, "agents": self.agents,
                          "index": self.index, "generator_seed": self.generator_seed,
                          "attempts": self.attempts},
@@ -226,16 +227,17 @@ class InstanceRecord:
     def from_json(data: dict[str, Any]) -> InstanceRecord:
         """Inverse of :meth:`to_json` (KeyError/ValueError/TypeError on a malformed file)."""
         meta = data["instance"]
-        agents = data["agents"]
-        if len(agents) != meta["agents"]:
-            raise ValueError(f"{len(agents)} agents listed, the header says {meta['agents']}")
+        solution = SolutionJson.from_json(data)
+        if len(solution.starts) != meta["agents"]:
+            raise ValueError(f"{len(solution.starts)} agents listed, the header says "
+                             f"{meta['agents']}")
         return InstanceRecord(
-            map=str(data["map"]), agents=int(meta["agents"]), index=int(meta["index"]),
+            map=solution.map, agents=int(meta["agents"]), index=int(meta["index"]),
             generator_seed=int(meta["generator_seed"]), attempts=int(meta["attempts"]),
-            starts=tuple((int(a["start"][0]), int(a["start"][1])) for a in agents),
-            goals=tuple((int(a["goal"][0]), int(a["goal"][1])) for a in agents),
-            plan=Plan.of([a["path"] for a in agents]), optimal=bool(data["optimal"]),
-            runtime_s=float(data["runtime_s"]), expanded_nodes=int(data["expanded_nodes"]))
+            starts=tuple((s[0], s[1]) for s in solution.starts), goals=solution.goals,
+            plan=solution.plan,
+            optimal=solution.optimal, runtime_s=solution.runtime_s,
+            expanded_nodes=solution.expanded_nodes)
 
 
 def derived_seed(*parts: int | str, bits: int = 63) -> int:

@@ -11,6 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gateway.execution.params import PAPER as PAPER_PARAMS
 from gateway.runtime.exits import EXIT_OK, UsageError
 from gateway.runtime.mapstore import MapNotFound, resolve
 
@@ -50,8 +51,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--replan-time-limit", type=float, default=10.0, metavar="SEC",
                    help="limit of each replanning solve; past it the old plan is kept "
                    "(default 10)")
-    p.add_argument("--threshold-ms", type=float, default=2000.0,
-                   help="slack threshold Δ̄T of the slack policy (default 2000)")
+    p.add_argument("--threshold-ms", type=float, default=PAPER_PARAMS.threshold_ms,
+                   help="slack threshold Δ̄T of the slack policy "
+                   f"(default {PAPER_PARAMS.threshold_ms:g})")
     p.add_argument("--seed", type=int, default=0, help="seed of instance generation")
     p.add_argument("--maps-dir", help="folder searched first for map names")
     p.add_argument("--limit", type=int, metavar="N",

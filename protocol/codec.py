@@ -8,6 +8,7 @@ offending ``msg_id``.
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 from pydantic import TypeAdapter, ValidationError
@@ -25,6 +26,18 @@ from protocol.messages import (
 
 MESSAGE_ADAPTER: TypeAdapter[AnyMessage] = TypeAdapter(Message)
 """Validates any protocol message (discriminated on ``type``)."""
+
+MAX_DEPTH = 8
+"""Deepest nesting of JSON arrays/objects in a message (``load_plan`` needs 4); deeper is
+refused (``too_large``) before the frame is parsed."""
+
+MAX_DIGITS = 32
+"""Longest run of digits in a JSON number; longer is refused (``too_large``) before parsing."""
+
+_LONG_NUMBER = re.compile(f"[0-9]{{{MAX_DIGITS + 1},}}")
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+_NOT_BRACKET = re.compile(r"[^\[\]{}]")
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
 
 def _types(union: Any) -> frozenset[str]:
     members = getattr(union, "__args__", (union,))
@@ -54,44 +67,102 @@ class ProtocolError(ValueError):
         self.ref = ref
 
 
+BINARY_FRAME = "binary frame: protocol v1 messages are JSON in websocket text frames"
+"""Detail of the ``malformed`` error a binary frame gets (the protocol is text only)."""
+
+
 def _first_error(exc: ValidationError) -> str:
     err = exc.errors(include_url=False)[0]
     where = ".".join(str(p) for p in err["loc"])
     return f"{where}: {err['msg']}" if where else str(err["msg"])
 
 
+def _size(text: str) -> int:
+    """Length of ``text`` in UTF-8 bytes (as it travels in a websocket frame)."""
+    return len(text) if text.isascii() else len(text.encode("utf-8", "surrogatepass"))
+
+
+def _check_shape(text: str) -> None:
+    """Refuse nesting deeper than MAX_DEPTH and numbers longer than MAX_DIGITS without parsing
+    (a parser would recurse or build huge integers first). Linear time, in C for small frames."""
+    if text.count("[") + text.count("{") <= MAX_DEPTH and not _LONG_NUMBER.search(text):
+        return
+    bare = _JSON_STRING.sub('""', text)  # digits and brackets inside strings do not count
+    if _LONG_NUMBER.search(bare):
+        raise ProtocolError(ErrorCode.TOO_LARGE, f"a number has more than {MAX_DIGITS} digits")
+    depth = deepest = 0
+    for ch in _NOT_BRACKET.sub("", bare):
+        depth += 1 if ch in "[{" else -1
+        if depth > deepest:
+            deepest = depth
+            if deepest > MAX_DEPTH:
+                raise ProtocolError(ErrorCode.TOO_LARGE, f"nested deeper than {MAX_DEPTH}")
+
+
+def _has_surrogate(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return True
+    return False
+
+
+def _check_unicode(text: str) -> None:
+    """Refuse lone surrogates (``"\\ud800"`` is valid JSON but no character: it could not be
+    echoed back, logged or written to the trace as UTF-8)."""
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError:
+        return  # malformed: diagnosed later
+    if _has_surrogate(json.dumps(data, ensure_ascii=False)) or _has_surrogate(text):
+        raise ProtocolError(ErrorCode.MALFORMED, "a string holds a lone UTF-16 surrogate")
+
+
 def decode(raw: str | bytes) -> AnyMessage:
-    """Parse one message; raise :class:`ProtocolError` with the matching code if it is bad."""
-    if len(raw) > MAX_MESSAGE_BYTES:
-        raise ProtocolError(ErrorCode.TOO_LARGE, f"{len(raw)} bytes > {MAX_MESSAGE_BYTES}")
+    """Parse one message; raise :class:`ProtocolError` with the matching code if it is bad.
+
+    Bytes must be UTF-8 (the gateway itself refuses binary frames before decoding: see
+    :data:`BINARY_FRAME`).
+    """
+    size = len(raw) if isinstance(raw, bytes) else _size(raw)
+    if size > MAX_MESSAGE_BYTES:
+        raise ProtocolError(ErrorCode.TOO_LARGE, f"{size} bytes > {MAX_MESSAGE_BYTES}")
+    if isinstance(raw, bytes):
+        try:
+            raw = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ProtocolError(ErrorCode.MALFORMED, f"not UTF-8: {exc}") from None
+    _check_shape(raw)
+    if _SURROGATE_ESCAPE.search(raw) or (not raw.isascii() and _has_surrogate(raw)):
+        _check_unicode(raw)
+    first: ValidationError | None = None
     try:  # fast path: parse and validate in one pass (pydantic-core), ~2x faster
-        message = MESSAGE_ADAPTER.validate_json(raw)
-    except ValidationError:
-        pass  # diagnose below, with the precise error code
+        message = MESSAGE_ADAPTER.validate_json(raw, strict=True)
+    except ValidationError as exc:
+        first = exc
     else:
         if "v" in message.model_fields_set:  # ``v`` has a default but is mandatory on the wire
             return message
     try:
         data: Any = json.loads(raw)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except json.JSONDecodeError as exc:
         raise ProtocolError(ErrorCode.MALFORMED, f"not JSON: {exc}") from None
     if not isinstance(data, dict):
         raise ProtocolError(ErrorCode.MALFORMED, "a message must be a JSON object")
     ref = data.get("msg_id") if isinstance(data.get("msg_id"), str) else None
-    if data.get("v") not in SUPPORTED_VERSIONS:
+    version = data.get("v")
+    if type(version) is not int or version not in SUPPORTED_VERSIONS:
         raise ProtocolError(
             ErrorCode.UNSUPPORTED_VERSION,
-            f"protocol version {data.get('v')!r} not supported (this side speaks "
+            f"protocol version {version!r} not supported (this side speaks "
             f"{' and '.join(map(str, SUPPORTED_VERSIONS))})",
             ref,
         )
     kind = data.get("type")
     if not isinstance(kind, str) or kind not in MESSAGE_TYPES:
         raise ProtocolError(ErrorCode.UNKNOWN_TYPE, f"unknown message type {kind!r}", ref)
-    try:
-        return MESSAGE_ADAPTER.validate_python(data)
-    except ValidationError as exc:
-        raise ProtocolError(ErrorCode.INVALID, f"{kind}: {_first_error(exc)}", ref) from None
+    detail = _first_error(first) if first is not None else "invalid"
+    raise ProtocolError(ErrorCode.INVALID, f"{kind}: {detail}", ref)
 
 
 def encode(message: AnyMessage) -> str:

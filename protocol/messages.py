@@ -10,10 +10,10 @@ milliseconds.
 from __future__ import annotations
 
 import re
-from enum import StrEnum
+from enum import IntEnum, StrEnum
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 PROTOCOL_VERSION: Literal[2] = 2
 """The version this module speaks (the default ``v`` of every message).
@@ -91,6 +91,14 @@ class Envelope(_Model):
     v: ProtocolVersion = PROTOCOL_VERSION
     msg_id: MsgId
     seq: Annotated[int, Field(ge=0)]
+
+    @field_validator("v", mode="before")
+    @classmethod
+    def _version_is_an_integer(cls, value: Any) -> Any:
+        """``true`` and ``1.0`` equal 1 in Python but are not a version number."""
+        if type(value) is not int:
+            raise ValueError("v must be an integer (a protocol version)")
+        return value
 
 
 class Pose(_Model):
@@ -269,6 +277,25 @@ class ErrorCode(StrEnum):
     BAD_REQUEST = "bad_request"  # command arguments wrong (unknown map, ...)
     RATE_LIMITED = "rate_limited"
     INTERNAL = "internal"
+
+
+class CloseCode(IntEnum):
+    """Why the gateway closed a websocket (RFC 6455 codes, 4000-4999 fleetgate's own).
+
+    A bad frame gets an ``error`` reply (:class:`ErrorCode`); the connection is closed only for
+    the reasons below.
+    """
+
+    NORMAL = 1000  # the peer or the gateway ended the session
+    GOING_AWAY = 1001  # the gateway is shutting down
+    INVALID_UTF8 = 1007  # a text frame that is not UTF-8 (closed by the websocket layer)
+    POLICY = 1008  # too many protocol errors in a short time (the error budget is spent)
+    TOO_BIG = 1009  # a frame over the hard limit (4 x MAX_MESSAGE_BYTES)
+    INTERNAL = 1011  # the gateway failed while handling this connection (logged)
+    TRY_AGAIN = 1013  # the peer read too slowly: its send queue was full
+    REPLACED = 4000  # the same robot connected again; this older connection is dropped
+    HELLO_TIMEOUT = 4001  # a robot did not say hello within hello_timeout_s
+    IDLE_TIMEOUT = 4002  # a robot sent nothing for idle_timeout_s
 
 
 class Error(Envelope):

@@ -30,6 +30,7 @@ def main(argv: list[str] | None = None) -> int:
                                  **({"log_level": opts.log_level} if opts.log_level else {}))
         logging.basicConfig(level=settings.log_level,
                             format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        settings.ssl_context()  # refuse unreadable TLS files now, with a one-line reason
         base = KobukiSerial(settings.serial_port)
         frames: FrameSource | None = None
         if not settings.no_camera:

@@ -105,6 +105,7 @@ class RobotClient:
         self._send_lock = asyncio.Lock()
         self._stop = asyncio.Event()
         self._moved = False
+        self._ssl = settings.ssl_context()
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -241,7 +242,7 @@ class RobotClient:
                                    open_timeout=s.ping_timeout_s * 2,
                                    ping_interval=s.ping_interval_s,
                                    ping_timeout=s.ping_timeout_s,
-                                   max_size=MAX_MESSAGE_BYTES) as ws:
+                                   max_size=MAX_MESSAGE_BYTES, ssl=self._ssl) as ws:
                     await self._session(ws)
                 log.warning("gateway closed the link")
             except (*_LINK_ERRORS, SessionRefused) as exc:

@@ -8,6 +8,7 @@ variables (``FLEETGATE_ROBOT_ROBOT_ID=3``), a TOML file (``--config robot.toml``
 from __future__ import annotations
 
 import os
+import ssl
 from pathlib import Path
 from typing import Any, Literal
 
@@ -20,6 +21,7 @@ from pydantic_settings import (
 )
 
 from protocol.messages import Heading
+from protocol.tls import client_context
 from robot_client.apriltag_localiser import DownwardCamera
 from robot_client.floor import FloorGrid
 from robot_client.runner import RunnerParams
@@ -41,6 +43,11 @@ class RobotSettings(BaseSettings):
     gateway_url: str = Field("ws://127.0.0.1:8080/ws", description="gateway websocket URL")
     robot_id: int = Field(ge=0, description="this robot's agent index in the plan")
     token: SecretStr = Field(description="per-robot token (sent as 'Authorization: Bearer')")
+    ca_file: Path | None = Field(None, description="wss://: PEM CA that signed the gateway's "
+                                 "certificate (default: the system's CAs)")
+    client_cert: Path | None = Field(None, description="wss://: PEM client certificate issued "
+                                     "to fleetgate:robot:<robot_id> (mutual TLS)")
+    client_key: Path | None = Field(None, description="its PEM key (if not in client_cert)")
     serial_port: str = Field("/dev/kobuki", description="Kobuki base serial device")
     camera_index: int = Field(0, ge=0, description="cv2.VideoCapture index of the camera")
     no_camera: bool = Field(False, description="run on odometry only (no camera)")
@@ -70,6 +77,13 @@ class RobotSettings(BaseSettings):
     reconnect_max_s: float = Field(10.0, gt=0, description="largest reconnect delay")
     ping_interval_s: float = Field(2.0, gt=0, description="websocket ping period")
     ping_timeout_s: float = Field(3.0, gt=0, description="link declared lost after this")
+
+    def ssl_context(self) -> ssl.SSLContext | None:
+        """The TLS settings of a ``wss://`` gateway URL (None for ``ws://``); OSError or
+        ssl.SSLError if the CA, certificate or key cannot be loaded."""
+        if not self.gateway_url.startswith("wss://"):
+            return None
+        return client_context(self.ca_file, self.client_cert, self.client_key)
 
     def floor(self) -> FloorGrid:
         """The tag grid."""

@@ -5,6 +5,9 @@ Everything talks over real websockets on loopback in real time: the gateway list
 like remote ones would. Actions last ``1000 / speed`` ms of wall time; every reported time is
 plan time (wall time x speed). The first run starts by itself; without ``--headless`` the
 gateway keeps serving the GUI afterwards (load, start, pause, intruders...) until Ctrl-C.
+
+The operator token is random for each run and printed once, in the GUI's login URL
+(``/login#token=...``: the fragment never reaches a server or a log).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import secrets
 import signal
 import sys
 from pathlib import Path
@@ -25,6 +29,8 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.execution.params import PAPER
+from gateway.execution.policies import POLICY_NAMES
 from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, EXIT_OK, UsageError
 
 if TYPE_CHECKING:
@@ -120,13 +126,15 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
 
     from gateway.server.gateway import Gateway
     from sim_clients.connect import websocket_connector
-    from sim_clients.fleet import RunResult, fleet_for, run_in_process
+    from sim_clients.fleet import fleet_for, run_in_process
+    from sim_clients.summary import RunSummary
 
     stop = _stop_on_signals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         host = config.host
-        status.print(f"fleetgate demo: GUI at http://{host}:{port}/ "
+        token = config.tokens.operators[0]
+        status.print(f"fleetgate demo: GUI at http://{host}:{port}/login#token={token} "
                      f"(robots and world on ws://{host}:{port}/ws)")
         fleet = fleet_for(gateway, problem.instance.num_agents,
                           websocket_connector(f"ws://{host}:{port}/ws"),
@@ -140,7 +148,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
             if not run.done():
                 status.print("fleetgate demo: interrupted before the run completed")
                 return EXIT_INTERRUPTED
-            result: RunResult = run.result()
+            result: RunSummary = run.result()
             if args.json:
                 print(json.dumps(result.summary()), flush=True)
             else:
@@ -197,7 +205,8 @@ def _run(args: argparse.Namespace) -> int:
                              solver_time_limit_s=args.time_limit, fallback_s=args.fallback,
                              max_replans=args.max_replans, log_level=args.log_level,
                              log_format=args.log_format, log_file=args.log_file,
-                             dispatch_lookahead=args.lookahead)
+                             dispatch_lookahead=args.lookahead,
+                             tokens={"operators": [secrets.token_urlsafe(24)]})
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     try:
@@ -236,11 +245,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--speed", metavar="F", type=float, default=1.0,
                    help="the world runs F times faster than plan time (default 1)")
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
-                   help="the intruder appears at 3000 ms and leaves at 10000 ms (default: on)")
-    p.add_argument("--policy", choices=["none", "random", "slack", "operator"], default="slack",
+                   help=f"the intruder appears at {PAPER.intruder_appear_ms:g} ms and leaves at "
+                   f"{PAPER.intruder_leave_ms:g} ms (default: on)")
+    p.add_argument("--policy", choices=POLICY_NAMES, default="slack",
                    help="replanning policy (default slack)")
-    p.add_argument("--threshold-ms", metavar="MS", type=float, default=2000.0,
-                   help="fleet slack threshold of the slack policy (default 2000)")
+    p.add_argument("--threshold-ms", metavar="MS", type=float, default=PAPER.threshold_ms,
+                   help="fleet slack threshold of the slack policy "
+                   f"(default {PAPER.threshold_ms:g})")
     p.add_argument("--seed", metavar="K", type=int, default=0,
                    help="seed of the intruder's choice and the random policy (default 0)")
     add_planning_arguments(p, 30.0)

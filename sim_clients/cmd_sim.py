@@ -1,8 +1,10 @@
 """``fleetgate sim``: simulated robots (and the simulated world) for a running gateway.
 
-Each robot connects to ``--connect`` with its own token, executes what it is dispatched on a
-shared simulated floor, and reconnects when its link drops. The world connection receives the
-operator's ``place_intruder`` and the gateway's ``set_speed``. Runs until Ctrl-C.
+Each robot connects to ``--connect`` with its own token (and, for ``wss://`` with mutual TLS,
+its own client certificate: ``--cert``/``--key`` templates with ``{id}``), executes what it is
+dispatched on a shared simulated floor, and reconnects when its link drops. The world
+connection receives the operator's ``place_intruder`` and the gateway's ``set_speed``. Runs until
+Ctrl-C.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from typing import TYPE_CHECKING
 from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_OK, UsageError
 
 if TYPE_CHECKING:
+    import ssl
+
     from sim_clients.fleet import SimFleet
 
 
@@ -64,6 +68,33 @@ def token_source(spec: str) -> Callable[[int], str]:
     return lookup
 
 
+def tls_contexts(args: argparse.Namespace, robots: list[int], tokens: Callable[[int], str]
+                 ) -> Callable[[str], ssl.SSLContext | None] | None:
+    """token -> SSL context of its connection for a ``wss://`` gateway (robot ``r`` presents
+    the certificate ``--cert`` with ``{id}`` = r; the world none); None for ``ws://``.
+    ValueError if a file cannot be loaded or TLS options come with ``ws://``."""
+    if not args.connect.startswith("wss://"):
+        if args.ca or args.cert or args.key:
+            raise ValueError("--ca, --cert and --key need a wss:// gateway URL")
+        return None
+    if args.key and not args.cert:
+        raise ValueError("--key needs --cert")
+    from protocol.tls import client_context
+
+    def load(r: int | None) -> ssl.SSLContext:
+        cert = args.cert.replace("{id}", str(r)) if args.cert and r is not None else None
+        key = args.key.replace("{id}", str(r)) if args.key and r is not None else None
+        try:
+            return client_context(args.ca, cert, key)
+        except OSError as exc:  # ssl.SSLError too
+            raise ValueError(f"cannot load the TLS files for robot {r} "
+                             f"({args.ca}, {cert}, {key}): {exc}") from None
+
+    contexts = {tokens(r): load(r) for r in robots}
+    shared = load(None)
+    return lambda token: contexts.get(token, shared)
+
+
 async def _run_fleet(fleet: SimFleet) -> None:
     import asyncio
 
@@ -106,12 +137,16 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if not args.connect.startswith(("ws://", "wss://")):
         raise UsageError(f"--connect must be a ws:// or wss:// URL, got {args.connect!r}")
+    try:
+        tls = tls_contexts(args, robots, tokens)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if args.reconnect_s <= 0:
         raise UsageError(f"--reconnect-s must be positive, got {args.reconnect_s}")
 
     async def main() -> None:
         world = None if args.world_token == "none" else args.world_token
-        fleet = SimFleet(websocket_connector(args.connect), robots, token=tokens,
+        fleet = SimFleet(websocket_connector(args.connect, tls), robots, token=tokens,
                          world_token=world, reconnect_delay_s=args.reconnect_s)
         await _run_fleet(fleet)
 
@@ -140,6 +175,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         'JSON file {"0": "token", ...}')
     p.add_argument("--world-token", default="demo-world",
                    help="token of the world connection, or 'none' (default demo-world)")
+    p.add_argument("--ca", metavar="FILE",
+                   help="wss://: PEM CA of the gateway's certificate (default: system CAs)")
+    p.add_argument("--cert", metavar="TEMPLATE",
+                   help="wss:// with mutual TLS: each robot's PEM client certificate, {id} = "
+                        "its robot id (e.g. certs/robot-{id}.pem)")
+    p.add_argument("--key", metavar="TEMPLATE",
+                   help="the certificates' PEM keys if not in them (e.g. certs/robot-{id}.key)")
     p.add_argument("--reconnect-s", type=float, default=1.0,
                    help="seconds between reconnection attempts (default 1)")
     p.set_defaults(func=_run)

@@ -15,14 +15,12 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.execution.params import PAPER
+from gateway.execution.policies import AUTONOMOUS_POLICIES
 from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
 
 if TYPE_CHECKING:
     from sim_clients.des import SolverTime
-
-POLICY_CHOICES = ("none", "random", "slack")
-"""The discrete-event simulator's policies (``sim_clients.des.POLICIES``; a test checks)."""
-
 
 def _solver_time(text: str) -> SolverTime:
     from sim_clients.des import parse_solver_time  # when parsing a command, not for --help
@@ -90,11 +88,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--seed", metavar="K", type=int, default=0,
                    help="seed of the intruder's choice and the random policy (default 0)")
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
-                   help="the intruder appears at 3000 ms and leaves at 10000 ms (default: on)")
-    p.add_argument("--policy", choices=POLICY_CHOICES, default="none",
+                   help=f"the intruder appears at {PAPER.intruder_appear_ms:g} ms and leaves at "
+                   f"{PAPER.intruder_leave_ms:g} ms (default: on)")
+    p.add_argument("--policy", choices=AUTONOMOUS_POLICIES, default="none",
                    help="replanning policy (default none; at most one replan)")
-    p.add_argument("--threshold-ms", metavar="MS", type=float, default=2000.0,
-                   help="fleet slack threshold of the slack policy (default 2000)")
+    p.add_argument("--threshold-ms", metavar="MS", type=float, default=PAPER.threshold_ms,
+                   help="fleet slack threshold of the slack policy "
+                   f"(default {PAPER.threshold_ms:g})")
     p.add_argument("--solver-time", metavar="measured|zero|MS", type=_solver_time,
                    default="measured",
                    help="virtual time charged for a replan's solver: its CPU time (default), "

@@ -15,7 +15,6 @@ import heapq
 import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
 
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import (
@@ -27,19 +26,19 @@ from gateway.execution.commands import (
     Trigger,
 )
 from gateway.execution.executor import MONITOR_PERIOD_MS, Executor
-from gateway.execution.policies import ReplanPolicy, make_policy
+from gateway.execution.params import PAPER
+from gateway.execution.policies import AUTONOMOUS_POLICIES, PolicyName, ReplanPolicy, make_policy
+from gateway.execution.trace_records import TraceSink, intruder_record, summary_record
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import NoSolution, Plan
 from gateway.planning.solver import solve
 from gateway.runtime.deadline import WallDeadline
 from gateway.runtime.solver_time import SolverTime, run_charged
-from gateway.runtime.trace import TraceSink, intruder_record, summary_record
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
 from sim_clients.robot import RobotEvent, RobotState, SimRobot
+from sim_clients.summary import RunSummary
 from sim_clients.world import INTRUDER, World
 
-PolicyName = Literal["none", "random", "slack"]
-POLICIES: tuple[str, ...] = ("none", "random", "slack")
 ExtraDelay = Callable[[int, int, int], float]
 """``(plan, robot, action) -> extra ms`` added to an action's duration (delay injection)."""
 
@@ -75,25 +74,25 @@ class SimConfig:
     seed: int = 0
     intruder: bool = True
     policy: PolicyName = "none"
-    threshold_ms: float = 2000.0
+    threshold_ms: float = PAPER.threshold_ms
     solver_time: SolverTime = "measured"
     solver_time_limit_s: float = 30.0
     trace: TraceSink | None = None
     intruder_config: IntruderConfig = field(default_factory=IntruderConfig)
-    action_ms: float = 1000.0
+    action_ms: float = PAPER.action_ms
     durations: ActionDurations | None = None
     """Duration of each action kind (move, turn, wait); by default each takes ``action_ms``.
     The simulated robots take exactly what the executor expects (plus ``extra_delay``)."""
     extra_delay: ExtraDelay | None = None
-    max_replans: int = 1
+    max_replans: int = PAPER.max_replans
     lookahead: int = 0
     """Actions the executor may queue on a robot beyond its current one (see Executor)."""
     stall_ms: float = 600_000.0
     """Give up (SimulationError) this long after the last robot finished or started an action."""
 
     def __post_init__(self) -> None:
-        if self.policy not in POLICIES:
-            raise ValueError(f"policy must be one of {POLICIES}, got {self.policy!r}")
+        if self.policy not in AUTONOMOUS_POLICIES:
+            raise ValueError(f"policy must be one of {AUTONOMOUS_POLICIES}, got {self.policy!r}")
         if isinstance(self.solver_time, str):
             parse_solver_time(self.solver_time)
         elif not 0 <= self.solver_time < float("inf"):
@@ -112,19 +111,11 @@ class SimConfig:
 
 
 @dataclass(frozen=True)
-class SimResult:
-    """What one simulated execution measured (times in ms of virtual time)."""
+class SimResult(RunSummary):
+    """What one simulated execution measured (times in ms of virtual time): the run summary
+    and more."""
 
-    soc_ms: float
-    makespan_ms: float
-    plan_soc: int
     plan_makespan: int
-    replans: int
-    replan_at_ms: float | None
-    """When the (first) replan was triggered; None if none was."""
-    solver_ms: float
-    """Solver time charged for replans."""
-    collisions: int
     robot_blocks: int
     """Times a robot found its next cell held by another robot (the ADG should prevent it)."""
     intruder_robot: int | None
@@ -133,13 +124,6 @@ class SimResult:
     intruder_on_ms: float | None
     """When the intruder entered its cell; None if it never did."""
     end_ms: float
-
-    def summary(self) -> dict[str, object]:
-        """The ``fleetgate simulate --json`` object (DESIGN section 3)."""
-        return {"soc_ms": self.soc_ms, "makespan_ms": self.makespan_ms,
-                "plan_soc": self.plan_soc, "replans": self.replans,
-                "replan_at_ms": self.replan_at_ms, "solver_ms": self.solver_ms,
-                "collisions": self.collisions}
 
 
 def derive_seed(seed: int, purpose: str) -> int:

@@ -68,6 +68,7 @@ from protocol import (
 from sim_clients.des import derive_seed
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
 from sim_clients.robot import RECHECK_MS, RobotEvent, RobotState, SimRobot
+from sim_clients.summary import RunSummary
 from sim_clients.world import World
 
 log = logging.getLogger("fleetgate.sim")
@@ -697,26 +698,6 @@ class EngineOracle:
         return ex.monitor.start_ms(robot, action)
 
 
-@dataclass(frozen=True)
-class RunResult:
-    """One execution through a gateway with a simulated fleet (times in plan ms)."""
-
-    soc_ms: float
-    makespan_ms: float
-    plan_soc: int
-    replans: int
-    replan_at_ms: float | None
-    solver_ms: float
-    collisions: int
-
-    def summary(self) -> dict[str, object]:
-        """The ``fleetgate simulate --json`` object (DESIGN section 3)."""
-        return {"soc_ms": self.soc_ms, "makespan_ms": self.makespan_ms,
-                "plan_soc": self.plan_soc, "replans": self.replans,
-                "replan_at_ms": self.replan_at_ms, "solver_ms": self.solver_ms,
-                "collisions": self.collisions}
-
-
 def fleet_for(gateway: Gateway, robots: int, connect: Connect, *, seed: int = 0,
               intruder: bool = True, intruder_config: IntruderConfig | None = None,
               poll_at_ticks: bool = True, send_state: bool = False) -> SimFleet:
@@ -738,7 +719,7 @@ def fleet_for(gateway: Gateway, robots: int, connect: Connect, *, seed: int = 0,
     return fleet
 
 
-async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) -> RunResult:
+async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) -> RunSummary:
     """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, start, and wait
     for the end of the execution. The fleet keeps running afterwards (the caller stops it)."""
     plan = problem.plan
@@ -764,6 +745,6 @@ async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) ->
         engine.status_listeners.remove(on_status)
     ex = engine.executor
     assert ex is not None
-    return RunResult(soc_ms=soc, makespan_ms=makespan, plan_soc=plan.soc, replans=ex.replans,
+    return RunSummary(soc_ms=soc, makespan_ms=makespan, plan_soc=plan.soc, replans=ex.replans,
                      replan_at_ms=replan_at[0] if replan_at else None,
                      solver_ms=engine.solver_ms, collisions=len(fleet.world.collisions))

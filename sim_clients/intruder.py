@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
+from gateway.execution.params import PAPER
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Path
 from sim_clients.world import INTRUDER, World
@@ -26,10 +27,10 @@ StartEstimate = Callable[[int, int], float]
 class IntruderConfig:
     """When the intruder comes and goes; the defaults are the paper's."""
 
-    appear_ms: float = 3000.0
-    leave_ms: float = 10000.0
-    lead_ms: float = 2000.0
-    recheck_ms: float = 100.0
+    appear_ms: float = PAPER.intruder_appear_ms
+    leave_ms: float = PAPER.intruder_leave_ms
+    lead_ms: float = PAPER.intruder_lead_ms
+    recheck_ms: float = PAPER.recheck_ms
 
     def __post_init__(self) -> None:
         if not 0 <= self.appear_ms < self.leave_ms:

@@ -23,10 +23,11 @@ from dataclasses import dataclass
 from enum import Enum
 
 from gateway.execution.commands import Dispatch
+from gateway.execution.params import PAPER
 from gateway.planning.grid import Cell
 from sim_clients.world import World
 
-RECHECK_MS = 100.0
+RECHECK_MS = PAPER.recheck_ms
 """How often a blocked robot looks at its target cell again."""
 
 

@@ -453,11 +453,20 @@ def slack_series(records: Sequence[Mapping[str, Any]],
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m tracecheck FILE``: print the findings; exit 1 if any."""
+    """``python -m tracecheck FILE``: print the findings; exit 1 if any, 2 if the file cannot
+    be read as JSON lines (one line on stderr)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("trace", type=Path, help="JSON-lines trace file")
     args = parser.parse_args(argv)
-    report = check_trace(read_trace(args.trace))
+    try:
+        records = read_trace(args.trace)
+    except OSError as exc:
+        print(f"tracecheck: cannot read {args.trace}: {exc.strerror}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f"tracecheck: {exc}", file=sys.stderr)
+        return 2
+    report = check_trace(records)
     for err in report.errors:
         print(f"error: {err}")
     for c in report.collisions:

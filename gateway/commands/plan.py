@@ -29,25 +29,13 @@ DEFAULT_TIME_LIMIT = 60.0
 
 def solution_json(instance: Instance, solution: Solution, runtime_s: float,
                   starts: Sequence[Place] | None = None) -> dict[str, Any]:
-    """The solution object of DESIGN section 3 (``fleetgate plan --json``).
+    """The solution object of DESIGN section 3 (``fleetgate plan --json``); ``starts`` are
+    the planner's (``(x, y, heading)`` under ``turning``)."""
+    from gateway.planning.solution_json import SolutionJson
 
-    Under ``turning`` path entries and ``starts`` (the planner's, with headings) are
-    ``[x, y, heading]``; goals are ``[x, y]`` (any final heading).
-    """
-    plan = solution.plan
-    return {
-        "map": instance.grid.name,
-        "motion": plan.motion,
-        "robust": 1,
-        "optimal": solution.optimal,
-        "soc": plan.soc,
-        "makespan": plan.makespan,
-        "runtime_s": round(runtime_s, 6),
-        "expanded_nodes": solution.expanded_nodes,
-        "agents": [{"start": list(s), "goal": list(g), "path": path}
-                   for s, g, path in zip(starts or instance.starts, instance.goals,
-                                         plan.json_paths(), strict=True)],
-    }
+    return SolutionJson(instance.grid.name, tuple(starts or instance.starts),
+                        tuple(instance.goals), solution.plan, solution.optimal, runtime_s,
+                        solution.expanded_nodes).to_json()
 
 
 def _plan(args: argparse.Namespace) -> int:

@@ -26,9 +26,10 @@ async def _serve(config: GatewayConfig) -> None:
             loop.add_signal_handler(sig, stop.set)
     async with Gateway(config) as gateway:
         port = await gateway.listen()
-        print(f"fleetgate gateway on ws://{config.host}:{port}/ws "
-              f"(GUI http://{config.host}:{port}/, metrics /metrics)", file=sys.stderr,
-              flush=True)
+        s = "s" if config.tls is not None else ""
+        print(f"fleetgate gateway on ws{s}://{config.host}:{port}/ws "
+              f"(GUI http{s}://{config.host}:{port}/, metrics /metrics, probes /healthz "
+              f"/readyz)", file=sys.stderr, flush=True)
         await stop.wait()
 
 

@@ -243,6 +243,13 @@ class FakeGateway:
                             plan=self.plan, resend=actions,
                             state_period_ms=STATE_PERIOD_MS, paused=paused)
 
+    def moves_may_stop(self, aid: str) -> bool:
+        """Whether ``aid`` is a move sent on a version 2 connection (BLOCK-2)."""
+        fields = self.dispatched.get(aid)
+        if fields is None or not self.hellos:
+            return False
+        return bool(fields["src"].cell != fields["dst"].cell and self.hellos[-1].v >= 2)
+
     def next_action(self, move: bool = False) -> str:
         """Plan the robot's next action, a wait or a move (back and forth on row 0); its
         action id."""
@@ -660,17 +667,33 @@ async def _own(g: FakeGateway) -> None:
 
 @check("report-order", "REPORT-5")
 async def _order(g: FakeGateway) -> None:
-    """Per action: blocked/unblocked only before started, started before finished, no
-    cancelled after started, started at most once."""
-    rank = {"blocked": 0, "unblocked": 0, "started": 1, "finished": 2, "cancelled": 2}
-    bad = []
-    for aid, kinds in g.reports.items():
-        ranks = [rank[k] for k in kinds]
-        if ranks != sorted(ranks) or kinds.count("started") > 1 or (
-                "cancelled" in kinds and "started" in kinds):
-            bad.append(f"{aid}: {' '.join(kinds)}")
+    """Per action: blocked/unblocked before started (and, in version 2, stops on the way of a
+    move), started once, then finished (repeats allowed), or cancelled before started or
+    after a stop."""
+    bad = [f"{aid}: {' '.join(kinds)}" for aid, kinds in g.reports.items()
+           if not _valid_reports(kinds, moving_stops=g.moves_may_stop(aid))]
     if bad:
         raise CheckFailed("; ".join(bad[:3]))
+
+
+def _valid_reports(kinds: list[str], moving_stops: bool) -> bool:
+    """Whether one action's reports follow REPORT-5 (``moving_stops``: v2 and a move)."""
+    allowed = {  # phase -> the reports allowed in it, and the phase each leads to
+        "waiting": {"blocked": "waiting", "unblocked": "waiting", "started": "moving",
+                    "cancelled": "over"},
+        "moving": {"finished": "done"},
+        "stopped": {"unblocked": "moving", "cancelled": "over"},
+        "done": {"finished": "done"},
+        "over": {},
+    }
+    if moving_stops:
+        allowed["moving"] = {"finished": "done", "blocked": "stopped"}
+    phase = "waiting"
+    for kind in kinds:
+        if kind not in allowed[phase]:
+            return False
+        phase = allowed[phase][kind]
+    return True
 
 
 @check("robot-messages-valid", "MSG-1")

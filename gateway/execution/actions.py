@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from gateway.execution.errors import ExecutionError
+from gateway.execution.params import PAPER
 from gateway.planning.grid import Cell
 
 ActionKind = Literal["move", "turn", "wait"]
@@ -27,9 +28,9 @@ HEADING_STEP: tuple[Cell, ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))
 class ActionDurations:
     """The expected duration ``t_x`` of each action kind for one robot model (ms)."""
 
-    move_ms: float = 1000.0
-    turn_ms: float = 1000.0
-    wait_ms: float = 1000.0
+    move_ms: float = PAPER.action_ms
+    turn_ms: float = PAPER.action_ms
+    wait_ms: float = PAPER.action_ms
 
     def __post_init__(self) -> None:
         for kind in KINDS:

@@ -37,7 +37,7 @@ from __future__ import annotations
 import enum
 import math
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 from gateway.execution.actions import ActionDurations, per_robot
 from gateway.execution.adg import ADG
@@ -52,16 +52,22 @@ from gateway.execution.commands import (
 )
 from gateway.execution.errors import ExecutionError
 from gateway.execution.monitor import Monitor
+from gateway.execution.params import PAPER
 from gateway.execution.policies import NoReplan, ReplanPolicy
+from gateway.execution.trace_records import (
+    TraceSink,
+    event_record,
+    plan_record,
+    trigger_record,
+)
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
 
 __all__ = ["MONITOR_PERIOD_MS", "ExecutionError", "Executor", "Mode"]
 
-MONITOR_PERIOD_MS = 100
+MONITOR_PERIOD_MS = PAPER.monitor_period_ms
 """Drivers call ``tick()`` at every multiple of this while running."""
 
-Record = Callable[[dict[str, object]], None]
 
 _PENDING, _DISPATCHED, _STARTED, _DONE = 0, 1, 2, 3
 
@@ -85,8 +91,8 @@ class Executor:
     """
 
     def __init__(self, plan: Plan, *, policy: ReplanPolicy | None = None,
-                 action_ms: float = 1000.0, drop_waits: bool = False,
-                 max_replans: int = 1, record: Record | None = None,
+                 action_ms: float = PAPER.action_ms, drop_waits: bool = False,
+                 max_replans: int = PAPER.max_replans, record: TraceSink | None = None,
                  lookahead: int = 0,
                  durations: ActionDurations | Sequence[ActionDurations] | None = None
                  ) -> None:
@@ -398,29 +404,17 @@ class Executor:
 
     def _trace(self, kind: str, robot: int, action: int) -> None:
         if self._record is not None:
-            self._record({"t_ms": self._now, "type": kind, "plan": self.plan_id,
-                          "robot": robot, "action": action})
+            self._record(event_record(self._now, kind, self.plan_id, robot, action))
 
     def _adopted(self) -> None:
         """Announce the current plan and dispatch what is ready."""
         adg = self.adg
         self._out.append(PlanAdopted(self.plan_id, self.plan))
         if self._record is not None:
-            agents: list[dict[str, object]] = []
             default = ActionDurations()
-            for k, p in enumerate(self.plan.paths):
-                hs = None if adg.headings is None else adg.headings[k]
-                agent: dict[str, object] = {"path": [[x, y] for x, y in p] if hs is None
-                                            else [[x, y, h] for (x, y), h in zip(p, hs,
-                                                                                 strict=True)]}
-                if self.durations[k] != default:
-                    agent["durations_ms"] = self.durations[k].as_dict()
-                agents.append(agent)
-            record: dict[str, object] = {"t_ms": self._now, "type": "plan",
-                                         "plan": self.plan_id, "agents": agents}
-            if adg.headings is not None:
-                record["motion"] = "turning"
-            self._record(record)
+            self._record(plan_record(
+                self._now, self.plan_id, self.plan.paths, adg.headings,
+                [None if d == default else d.as_dict() for d in self.durations]))
         self._dispatch_ready()
 
     def _dispatch_ready(self) -> None:
@@ -466,8 +460,7 @@ class Executor:
         slack = self.monitor.fleet_slack()
         self._out.append(Trigger(policy, slack))
         if self._record is not None:
-            self._record({"t_ms": self._now, "type": "trigger", "policy": policy,
-                          "fleet_slack_ms": slack})
+            self._record(trigger_record(self._now, policy, slack))
         adg = self.adg
         for r in range(adg.n_robots):
             for v in self._queue[r]:

@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from gateway.execution.adg import ADG
 from gateway.execution.errors import ExecutionError
+from gateway.execution.params import PAPER
 
 NOT_STARTED, STARTED, DONE = 0, 1, 2
 _READY_KIND, _STARTED_KIND = 0, 1
@@ -133,7 +134,8 @@ class Monitor:
     is ``t_x``: one value for every action, or one per vertex.
     """
 
-    def __init__(self, adg: ADG, *, now_ms: float, action_ms: float | Sequence[float] = 1000.0,
+    def __init__(self, adg: ADG, *, now_ms: float,
+                 action_ms: float | Sequence[float] = PAPER.action_ms,
                  release_ms: float | Sequence[float] | None = None,
                  base_completion_ms: Sequence[float] | None = None) -> None:
         n, nv = adg.n_robots, adg.n_vertices

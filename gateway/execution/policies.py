@@ -9,9 +9,16 @@ poll. The executor enforces the replan budget (``max_replans``); an operator's "
 from __future__ import annotations
 
 import random
-from typing import Protocol
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Literal, Protocol, get_args
 
-from gateway.execution.monitor import Monitor
+from gateway.execution.params import PAPER
+
+if TYPE_CHECKING:
+    from gateway.execution.monitor import Monitor
+
+PolicyName = Literal["none", "random", "slack", "operator"]
+"""Every replanning policy's name (the wire protocol's ``PolicyName`` must equal it)."""
 
 
 class ReplanPolicy(Protocol):
@@ -58,8 +65,8 @@ class RandomReplan:
 
     name = "random"
 
-    def __init__(self, seed: int, *, intruder_appear_ms: float = 3000.0,
-                 makespan_lb_ms: float, margin_ms: float = 3000.0) -> None:
+    def __init__(self, seed: int, *, intruder_appear_ms: float = PAPER.intruder_appear_ms,
+                 makespan_lb_ms: float, margin_ms: float = PAPER.random_margin_ms) -> None:
         lo, hi = float(intruder_appear_ms), float(makespan_lb_ms) - float(margin_ms)
         rng = random.Random(seed)
         self.replan_at_ms: float = float(rng.randint(int(lo), int(hi))) if hi > lo else lo
@@ -82,7 +89,7 @@ class SlackReplan:
 
     name = "slack"
 
-    def __init__(self, threshold_ms: float = 2000.0) -> None:
+    def __init__(self, threshold_ms: float = PAPER.threshold_ms) -> None:
         self.threshold_ms = float(threshold_ms)
 
     def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
@@ -94,16 +101,28 @@ class SlackReplan:
         return None
 
 
-def make_policy(name: str, *, seed: int = 0, threshold_ms: float = 2000.0,
-                makespan_lb_ms: float = 0.0, intruder_appear_ms: float = 3000.0) -> ReplanPolicy:
-    """A policy by its name ("none", "random", "slack" or "operator")."""
-    if name == "none":
-        return NoReplan()
-    if name == "operator":
-        return OperatorOnly()
-    if name == "slack":
-        return SlackReplan(threshold_ms)
-    if name == "random":
-        return RandomReplan(seed, intruder_appear_ms=intruder_appear_ms,
-                            makespan_lb_ms=makespan_lb_ms)
-    raise ValueError(f"unknown replanning policy {name!r} (none, random, slack, operator)")
+PolicyFactory = Callable[[int, float, float, float], ReplanPolicy]
+"""``(seed, threshold_ms, makespan_lb_ms, intruder_appear_ms) -> policy``."""
+
+POLICIES: dict[str, PolicyFactory] = {
+    "none": lambda seed, threshold, lb, appear: NoReplan(),
+    "random": lambda seed, threshold, lb, appear: RandomReplan(
+        seed, intruder_appear_ms=appear, makespan_lb_ms=lb),
+    "slack": lambda seed, threshold, lb, appear: SlackReplan(threshold),
+    "operator": lambda seed, threshold, lb, appear: OperatorOnly(),
+}
+"""The policy registry: every policy by name."""
+
+POLICY_NAMES: tuple[PolicyName, ...] = get_args(PolicyName)
+AUTONOMOUS_POLICIES: tuple[PolicyName, ...] = tuple(p for p in POLICY_NAMES if p != "operator")
+"""The policies that need no operator: the simulator's and the campaign's choices."""
+
+
+def make_policy(name: str, *, seed: int = 0, threshold_ms: float = PAPER.threshold_ms,
+                makespan_lb_ms: float = 0.0,
+                intruder_appear_ms: float = PAPER.intruder_appear_ms) -> ReplanPolicy:
+    """A policy by its name (one of :data:`POLICY_NAMES`)."""
+    factory = POLICIES.get(name)
+    if factory is None:
+        raise ValueError(f"unknown replanning policy {name!r} ({', '.join(POLICY_NAMES)})")
+    return factory(seed, threshold_ms, makespan_lb_ms, intruder_appear_ms)

@@ -1,64 +1,17 @@
-"""Execution traces as JSON lines (DESIGN section 3).
+"""Writing execution traces as JSON lines (DESIGN section 3).
 
-The executor produces the ``plan``, ``dispatch``, ``start``, ``finish``, ``blocked``,
-``unblocked``, ``cancel`` and ``trigger`` records through its ``record`` callback; the driver
-adds ``intruder`` records and the closing ``summary``. A sink is any callable taking one record;
-:class:`JsonlWriter` writes them to a file, a plain ``list.append`` keeps them in memory.
+The records themselves are built by :mod:`gateway.execution.trace_records`; :class:`JsonlWriter`
+is the sink that writes them to a file.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO
 
-from gateway.planning.grid import Cell
-
-Record = dict[str, Any]
-TraceSink = Callable[[Record], None]
-
-EVENT_TYPES = ("dispatch", "start", "finish", "blocked", "unblocked", "cancel")
-"""Record types about one action of one robot."""
-
-
-def plan_record(t_ms: float, plan: int, paths: Sequence[Sequence[Cell]],
-                headings: Sequence[Sequence[int]] | None = None,
-                durations_ms: Sequence[Mapping[str, float] | None] | None = None) -> Record:
-    """``{"t_ms", "type": "plan", "plan", "agents": [{"path": [[x, y], ...]}]}``; a turning
-    plan (``headings``) adds ``"motion": "turning"`` and has ``[x, y, heading]`` entries; an
-    agent's ``durations_ms`` (``{"move", "turn", "wait"}``) is given where not None."""
-    agents: list[Record] = []
-    for k, path in enumerate(paths):
-        agent: Record = {"path": [[x, y] for x, y in path] if headings is None else
-                         [[x, y, h] for (x, y), h in zip(path, headings[k], strict=True)]}
-        if durations_ms is not None and durations_ms[k] is not None:
-            agent["durations_ms"] = dict(durations_ms[k] or {})
-        agents.append(agent)
-    record: Record = {"t_ms": t_ms, "type": "plan", "plan": plan, "agents": agents}
-    if headings is not None:
-        record["motion"] = "turning"
-    return record
-
-
-def event_record(t_ms: float, kind: str, plan: int, robot: int, action: int) -> Record:
-    """``{"t_ms", "type": kind, "plan", "robot", "action"}`` for a kind of :data:`EVENT_TYPES`."""
-    if kind not in EVENT_TYPES:
-        raise ValueError(f"unknown event type {kind!r}; expected one of {EVENT_TYPES}")
-    return {"t_ms": t_ms, "type": kind, "plan": plan, "robot": robot, "action": action}
-
-
-def intruder_record(t_ms: float, cell: Cell, state: str) -> Record:
-    """``{"t_ms", "type": "intruder", "cell": [x, y], "state": "on"|"off"}``."""
-    if state not in ("on", "off"):
-        raise ValueError(f"intruder state must be 'on' or 'off', got {state!r}")
-    return {"t_ms": t_ms, "type": "intruder", "cell": [cell[0], cell[1]], "state": state}
-
-
-def summary_record(soc_ms: float, makespan_ms: float) -> Record:
-    """The last line: ``{"type": "summary", "soc_ms", "makespan_ms"}``."""
-    return {"type": "summary", "soc_ms": soc_ms, "makespan_ms": makespan_ms}
+from gateway.execution.trace_records import Record
 
 
 class JsonlWriter:

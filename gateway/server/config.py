@@ -20,6 +20,9 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from gateway.execution.params import PAPER
+from gateway.execution.policies import PolicyName
+
 
 class TokensConfig(BaseModel):
     """Who may connect: bearer token -> role (and robot id for robots)."""
@@ -34,14 +37,32 @@ class TokensConfig(BaseModel):
     """If set, the token ``<prefix><id>`` authenticates robot ``<id>``."""
 
 
+class TlsConfig(BaseModel):
+    """TLS on the gateway's port (websockets, GUI and HTTP API alike).
+
+    With ``client_ca`` the gateway asks every client for a certificate signed by that CA
+    (mutual TLS): a robot must then present one issued to its robot id (SAN URI or CN
+    ``fleetgate:robot:<id>``), and may omit its token. Browsers without a certificate can
+    still open the GUI unless ``require_client_cert`` refuses them at the TLS handshake.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    cert: Path = Field(description="PEM certificate chain of the gateway")
+    key: Path = Field(description="PEM private key of the gateway")
+    client_ca: Path | None = Field(default=None, description="PEM CA of client certificates")
+    require_client_cert: bool = False
+    """Refuse clients without a certificate at the TLS handshake (operators too)."""
+
+
 class RobotModel(BaseModel):
     """Expected duration ``t_x`` of each action kind for one kind of robot (ms)."""
 
     model_config = ConfigDict(extra="forbid")
 
-    move_ms: float = Field(default=1000.0, gt=0)
-    turn_ms: float = Field(default=1000.0, gt=0)
-    wait_ms: float = Field(default=1000.0, gt=0)
+    move_ms: float = Field(default=PAPER.action_ms, gt=0)
+    turn_ms: float = Field(default=PAPER.action_ms, gt=0)
+    wait_ms: float = Field(default=PAPER.action_ms, gt=0)
 
 
 class ConfigError(ValueError):
@@ -58,6 +79,11 @@ class GatewayConfig(BaseSettings):
     port: int = Field(default=8080, ge=0, le=65535)
     tokens: TokensConfig = TokensConfig()
     allow_demo_tokens: bool = False
+    tls: TlsConfig | None = None
+    allowed_origins: list[str] = Field(default_factory=list)
+    """Browser origins (``https://host:port``) allowed besides the gateway's own."""
+    login_ttl_s: float = Field(default=12 * 3600.0, gt=0)
+    """Lifetime of a GUI login (the session cookie)."""
 
     map: str | None = "lab"
     scen: str | None = None
@@ -66,11 +92,11 @@ class GatewayConfig(BaseSettings):
     generate_seed: int = 0
     autostart: bool = False
 
-    policy: Literal["none", "random", "slack", "operator"] = "slack"
+    policy: PolicyName = "slack"
     policy_seed: int = 0
-    threshold_ms: float = Field(default=2000.0, ge=0)
-    max_replans: int = Field(default=1, ge=0)
-    action_ms: float = Field(default=1000.0, gt=0)
+    threshold_ms: float = Field(default=PAPER.threshold_ms, ge=0)
+    max_replans: int = Field(default=PAPER.max_replans, ge=0)
+    action_ms: float = Field(default=PAPER.action_ms, gt=0)
     """t_x of every action of a robot that has no model in ``robot_model``."""
     robot_models: dict[str, RobotModel] = Field(default_factory=dict)
     """Named robot models: the monitor's t_x per action kind (move, turn, wait)."""
@@ -90,8 +116,18 @@ class GatewayConfig(BaseSettings):
     ping_interval_s: float = Field(default=5.0, gt=0)
     ping_timeout_s: float = Field(default=5.0, gt=0)
     close_timeout_s: float = Field(default=2.0, gt=0)
+    handshake_timeout_s: float = Field(default=10.0, gt=0)
+    """TLS plus HTTP upgrade must be done within this."""
+    hello_timeout_s: float = Field(default=10.0, gt=0)
+    """A robot's websocket must say hello within this (else closed 4001)."""
+    idle_timeout_s: float = Field(default=60.0, gt=0)
+    """A robot's websocket that sends nothing for this long is closed (4002)."""
+    max_connections: int = Field(default=10000, ge=1)
+    """Open websocket connections at most (more get HTTP 503); also capped by the fd limit."""
     send_queue: int = Field(default=4096, ge=1)
     max_errors: int = Field(default=20, ge=1)
+    error_decay_s: float = Field(default=1.0, gt=0)
+    """The error budget forgets one error per this many seconds."""
     rate_per_s: float = Field(default=500.0, gt=0)
     rate_burst: float = Field(default=1000.0, ge=1)
     slack_series_len: int = Field(default=3000, ge=10)

@@ -36,6 +36,7 @@ from gateway.execution.commands import (
 )
 from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
 from gateway.execution.policies import ReplanPolicy, SlackReplan, make_policy
+from gateway.execution.trace_records import intruder_record, summary_record
 from gateway.planning.grid import Cell
 from gateway.planning.plan import NoSolution, Plan
 from gateway.server.clock import Clock
@@ -309,7 +310,7 @@ class Engine:
                 if r is not None and msg.pose is not None:
                     self.robot(r).pose = msg.pose
             case IntruderReport():
-                self._intruder(msg)
+                self._intruder(session, msg)
             case _:
                 self._command(msg, session)  # type: ignore[arg-type]
 
@@ -466,15 +467,23 @@ class Engine:
             del rec.held[aid]
             rec.applied[aid] = "cancelled"
 
-    def _intruder(self, msg: IntruderReport) -> None:
+    def _intruder(self, session: Session, msg: IntruderReport) -> None:
+        """Record a world's intruder report (trace and operators) if it is consistent: a free
+        cell of the loaded map, on only if it is off and off only if it is on."""
         cell = (int(msg.cell[0]), int(msg.cell[1]))
+        if self.problem is not None and not self.problem.instance.grid.is_free(cell):
+            session.error(ErrorCode.REJECTED, msg.msg_id, f"{list(cell)} is not a free cell")
+            return
+        if (cell in self.intruders) == (msg.state == "on"):
+            session.error(ErrorCode.DUPLICATE, msg.msg_id,
+                          f"the intruder on {list(cell)} is already {msg.state}")
+            return
         if msg.state == "on":
             self.intruders.add(cell)
         else:
             self.intruders.discard(cell)
         now = self.clock.now_ms()
-        self._write_trace({"t_ms": now, "type": "intruder", "cell": list(cell),
-                           "state": msg.state})
+        self._write_trace(intruder_record(now, cell, msg.state))
         self._broadcast_event("intruder", now, cell=cell, state=msg.state)
 
     # -------------------------------------------------------------------------- routing
@@ -529,7 +538,7 @@ class Engine:
         gc.unfreeze()
         gc.set_threshold(*GC_DEFAULT_THRESHOLDS)
         self.summary = (c.soc_ms, c.makespan_ms)
-        self._write_trace({"type": "summary", "soc_ms": c.soc_ms, "makespan_ms": c.makespan_ms})
+        self._write_trace(summary_record(c.soc_ms, c.makespan_ms))
         self._close_trace()
         self._broadcast_event("summary", self.now_ms(), soc_ms=c.soc_ms,
                               makespan_ms=c.makespan_ms)

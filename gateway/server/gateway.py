@@ -16,7 +16,15 @@ Usage (driver 2: virtual time, in-memory transport)::
     run_virtual(main())
 
 Connection handlers (:meth:`Gateway.serve_link`) only rate-limit, decode, check the sender's
-role and identity, and enqueue; everything else happens in the engine's owner task.
+role and identity, and enqueue; everything else happens in the engine's owner task. No
+exception escapes a handler: an unexpected one is logged as one line and the connection is
+closed with 1011 (:class:`protocol.CloseCode`).
+
+Transport defences of the websocket server: TLS and mutual TLS (``config.tls``), credentials and
+``Origin`` checked at the upgrade (:mod:`gateway.server.auth`; bad requests get 400/401/403,
+never 500), handshake, hello and idle timeouts, frames of at most ``HARD_MAX_BYTES`` (1009),
+text frames only, at most ``max_connections`` connections (503) and the soft limit of open
+files raised to the hard one.
 """
 
 from __future__ import annotations
@@ -25,21 +33,24 @@ import asyncio
 import contextlib
 import json
 import logging
+import resource
 import time
+import weakref
 from types import TracebackType
 
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
-from gateway.server.auth import Authenticator, AuthError, Peer, request_token
+from gateway.server.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import CommandError, Engine
-from gateway.server.http import HttpRoutes, response
+from gateway.server.http import HttpRoutes, json_response, response
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.metrics import Metrics
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.session import Session
+from gateway.server.tls import server_context
 from gateway.server.transport import (
     HARD_MAX_BYTES,
     Link,
@@ -53,6 +64,7 @@ from protocol import (
     ROBOT_TYPES,
     WORLD_TYPES,
     AnyMessage,
+    CloseCode,
     ErrorCode,
     Hello,
     OperatorCommand,
@@ -61,6 +73,7 @@ from protocol import (
     decode,
     parse_action_id,
 )
+from protocol.codec import BINARY_FRAME
 
 log = logging.getLogger("fleetgate.gateway")
 
@@ -68,6 +81,19 @@ ALLOWED: dict[str, frozenset[str]] = {
     "robot": ROBOT_TYPES, "operator": OPERATOR_TYPES, "world": WORLD_TYPES,
 }
 """Which message types each role may send."""
+
+FD_RESERVE = 64
+"""File descriptors kept free for logs, the trace and static files when capping connections."""
+
+
+def raise_fd_limit() -> int:
+    """Raise the soft limit of open files to the hard one; returns the soft limit now."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != hard:
+        with contextlib.suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+            soft = hard
+    return soft if soft != resource.RLIM_INFINITY else 1 << 20
 
 
 class Gateway:
@@ -78,17 +104,20 @@ class Gateway:
         self.config = config if config is not None else GatewayConfig()
         self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
         self.metrics = Metrics()
-        self.auth = Authenticator(self.config.tokens)
+        tls = self.config.tls
+        self.auth = Authenticator(
+            self.config.tokens, login_ttl_s=self.config.login_ttl_s,
+            robots_need_cert=tls is not None and tls.client_ca is not None)
         self.engine = Engine(self.config, self.clock, self.metrics)
         self._owner: asyncio.Task[None] | None = None
         self._server: Server | None = None
-        self._ws_peers: dict[ServerConnection, Peer] = {}
+        self._ws_peers: weakref.WeakKeyDictionary[ServerConnection, Peer] = (
+            weakref.WeakKeyDictionary())
         self._links: set[asyncio.Task[None]] = set()
         self._sessions: set[Session] = set()
-        ops = self.config.tokens.operators
-        embed = ops[0] if ops and self.config.loopback else None  # loopback demo only
-        self.http = HttpRoutes(self.metrics.render, self._health, self.config.static_dir,
-                               operator_token=embed)
+        self._max_connections = self.config.max_connections
+        self.http = HttpRoutes(self.metrics.render, self._health, self._ready, self.auth,
+                               tls=tls is not None, static_dir=self.config.static_dir)
         self.port: int | None = None
         """The bound port once :meth:`listen` returned."""
 
@@ -168,15 +197,23 @@ class Gateway:
         return client
 
     async def listen(self, host: str | None = None, port: int | None = None) -> int:
-        """Serve websockets and HTTP on ``host:port`` (config by default); returns the port."""
+        """Serve websockets and HTTP on ``host:port`` (config by default), over TLS if
+        configured; returns the port. TlsError (a ValueError) if the TLS files are bad."""
         cfg = self.config
+        ssl = server_context(cfg.tls) if cfg.tls is not None else None
+        fds = raise_fd_limit()
+        self._max_connections = max(1, min(cfg.max_connections, fds - FD_RESERVE))
         self._server = await serve(
             self._ws_handler, host or cfg.host, cfg.port if port is None else port,
             process_request=self._process_request, max_size=HARD_MAX_BYTES, compression=None,
             ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s,
-            close_timeout=cfg.close_timeout_s, max_queue=64)
+            close_timeout=cfg.close_timeout_s, open_timeout=cfg.handshake_timeout_s,
+            max_queue=64, ssl=ssl,
+            ssl_handshake_timeout=cfg.handshake_timeout_s if ssl is not None else None)
         self.port = int(self._server.sockets[0].getsockname()[1])
-        log.info("listening", extra={"host": host or cfg.host, "port": self.port})
+        log.info("listening", extra={"host": host or cfg.host, "port": self.port,
+                                     "tls": ssl is not None,
+                                     "max_connections": self._max_connections})
         return self.port
 
     # ------------------------------------------------------------------------ connections
@@ -184,51 +221,96 @@ class Gateway:
         self._links.add(task)
         task.add_done_callback(self._links.discard)
 
-    def _health(self) -> bytes:
-        return json.dumps({"status": "ok", "gateway": self.engine.status,
-                           "robots": self.engine.connected_robots()}).encode()
+    def _alive(self) -> bool:
+        return self._owner is not None and not self._owner.done()
+
+    def _health(self) -> tuple[bool, bytes]:
+        alive = self._alive()
+        return alive, json.dumps({"status": "ok" if alive else "down",
+                                  "gateway": self.engine.status,
+                                  "robots": self.engine.connected_robots()}).encode()
+
+    def _ready(self) -> bool:
+        return self._alive() and self._server is not None and self._server.is_serving()
 
     def _process_request(self, connection: ServerConnection, request: Request
                          ) -> Response | None:
-        if request.headers.get("Upgrade", "").lower() != "websocket":
-            return self.http(request.path)
+        """HTTP routes, or the checks of a websocket upgrade (None accepts it). Never raises:
+        a malformed request gets 400, refused credentials 401/403, anything unexpected 500
+        with one log line."""
         try:
-            token = request_token(request.headers.get("Authorization"), request.path)
-            self._ws_peers[connection] = self.auth.identify(token)
+            upgrade = single_header(request.headers, "Upgrade")
+            if upgrade is None or upgrade.lower() != "websocket":
+                return self.http(request)
+            if len(self._sessions) >= self._max_connections:
+                return response(503, b"too many connections\n", extra=[("Retry-After", "5")])
+            tls = self.config.tls is not None
+            if not origin_allowed(request.headers, tls, self.config.allowed_origins):
+                raise AuthError(403, "foreign Origin")
+            cert = connection.transport.get_extra_info("peercert") if tls else None
+            self._ws_peers[connection] = self.auth.handshake(request.headers, request.path,
+                                                             cert)
         except AuthError as exc:
             log.warning("handshake refused", extra={"status": exc.status, "why": exc.reason})
-            return response(exc.status, f"{exc.reason}\n".encode(),
-                            extra=[("WWW-Authenticate", "Bearer")])
+            self.metrics.refused.labels(str(exc.status)).inc()
+            extra = [("WWW-Authenticate", "Bearer")] if exc.status == 401 else []
+            return response(exc.status, f"{exc.reason}\n".encode(), extra=extra)
+        except Exception as exc:
+            log.error("request failed", extra={"path": request.path[:200], "error": repr(exc)})
+            return json_response(500, {"error": "internal error"})
         return None
 
     async def _ws_handler(self, connection: ServerConnection) -> None:
-        peer = self._ws_peers.pop(connection)
+        peer = self._ws_peers.pop(connection, None)
+        if peer is None:  # cannot happen: process_request accepted it
+            await connection.close(CloseCode.INTERNAL, "not authenticated")
+            return
         task = asyncio.current_task()
         assert task is not None
         self._links.add(task)
         try:
-            await self.serve_link(WebSocketLink(connection, peer))
+            await self.serve_link(WebSocketLink(connection, peer), timeouts=True)
         finally:
             self._links.discard(task)
 
-    async def serve_link(self, link: Link) -> None:
-        """Run one authenticated connection until it closes (both transports use this)."""
+    async def serve_link(self, link: Link, *, timeouts: bool = False) -> None:
+        """Run one authenticated connection until it closes (both transports use this).
+
+        With ``timeouts`` (websockets; never in virtual time) a robot must say hello within
+        ``hello_timeout_s`` and then send something at least every ``idle_timeout_s``.
+        """
         cfg = self.config
         session = Session(link, queue_size=cfg.send_queue, max_errors=cfg.max_errors,
+                          error_decay_s=cfg.error_decay_s,
                           rate_per_s=cfg.rate_per_s, rate_burst=cfg.rate_burst,
                           on_error=lambda code: self.metrics.errors.labels(code.value).inc())
         self._sessions.add(session)
         queue = self.engine.queue
         queue.put_nowait(Connected(session))
+        robot = timeouts and session.peer.role == "robot"
+        greeted = False
         try:
             while not session.closing:
-                raw = await link.recv()
+                limit = (cfg.idle_timeout_s if greeted else cfg.hello_timeout_s) if robot else None
+                try:
+                    async with asyncio.timeout(limit):
+                        raw = await link.recv()
+                except TimeoutError:
+                    code = CloseCode.IDLE_TIMEOUT if greeted else CloseCode.HELLO_TIMEOUT
+                    session.close(code, f"{'idle' if greeted else 'no hello'} for {limit} s")
+                    break
                 message = self._admit(session, raw)
                 if message is not None:
+                    greeted = greeted or isinstance(message, Hello)
                     queue.put_nowait(Inbound(session, message, time.perf_counter(),
                                              self.clock.now_ms()))
         except LinkClosed:
             pass
+        except Exception as exc:  # a bug: one line, close 1011, the gateway carries on
+            log.error("connection handler failed", extra={"peer": str(session),
+                                                          "error": repr(exc)[:500]})
+            self.metrics.handler_failures.inc()
+            session.close(CloseCode.INTERNAL, "internal error")
         finally:
             self._sessions.discard(session)
             queue.put_nowait(Disconnected(session))
@@ -240,6 +322,9 @@ class Gateway:
         """Validate one message from a peer; reply ``error`` and return None if it is bad."""
         if not session.allow():
             session.error(ErrorCode.RATE_LIMITED, None, "too many messages")
+            return None
+        if isinstance(raw, bytes):
+            session.error(ErrorCode.MALFORMED, None, BINARY_FRAME)
             return None
         try:
             message = decode(raw)

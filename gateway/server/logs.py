@@ -1,10 +1,14 @@
-"""Logs: readable lines (default) or one JSON object per line, on stderr or into a file."""
+"""Logs: readable lines (default) or one JSON object per line, on stderr or into a file;
+rate-limited per message (a storm of identical records, e.g. ``accept()`` failing while the
+process is out of file descriptors, becomes a few lines and a count of the suppressed ones),
+and one line per record from libraries (asyncio, websockets), without their tracebacks."""
 
 from __future__ import annotations
 
 import json
 import logging
 import sys
+import time
 from pathlib import Path
 from typing import Any, Literal, TextIO
 
@@ -51,11 +55,57 @@ class TextFormatter(logging.Formatter):
         return text
 
 
+class RateLimit(logging.Filter):
+    """Passes at most ``burst`` records with the same logger and message per ``window_s``;
+    the first record of the next window carries ``suppressed`` (how many were dropped)."""
+
+    def __init__(self, burst: int = 10, window_s: float = 10.0) -> None:
+        super().__init__()
+        self._burst = burst
+        self._window = window_s
+        self._seen: dict[tuple[str, str], tuple[float, int, int]] = {}
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        """True if the record may be written."""
+        key = (record.name, str(record.msg))
+        now = time.monotonic()
+        start, passed, dropped = self._seen.get(key, (now, 0, 0))
+        if now - start >= self._window:
+            if dropped:
+                record.suppressed = dropped
+            start, passed, dropped = now, 0, 0
+        if passed >= self._burst:
+            self._seen[key] = (start, passed, dropped + 1)
+            return False
+        if len(self._seen) > 10_000:
+            self._seen.clear()
+        self._seen[key] = (start, passed + 1, dropped)
+        return True
+
+
+class LibraryOneLine(logging.Filter):
+    """Makes a library's record (asyncio, websockets) one line, its exception folded into the
+    message: ``"...: OSError: [Errno 24] Too many open files"`` instead of a traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        """Always True (the record is changed in place)."""
+        if record.name.startswith("fleetgate"):
+            return True
+        text = " ".join(record.getMessage().split())
+        if record.exc_info:
+            exc = record.exc_info[1]
+            text = f"{text}: {type(exc).__name__}: {exc}"
+            record.exc_info = None
+            record.exc_text = None
+        record.msg, record.args = text, ()
+        return True
+
+
 def configure_logging(level: str = "INFO", fmt: LogFormat = "text", file: Path | None = None,
                       stream: Any = None) -> None:
-    """Send every ``fleetgate.*`` log record to ``file`` (appended), else to ``stream``
-    (default stderr), as readable lines or JSON lines. Raises OSError if ``file`` cannot be
-    opened."""
+    """Send every ``fleetgate.*`` log record (and warnings of ``asyncio`` and ``websockets``)
+    to ``file`` (appended), else to ``stream`` (default stderr), as readable lines or JSON
+    lines, rate-limited. Raises OSError if ``file`` cannot be opened."""
     handler: logging.Handler
     if file is not None:
         handler = logging.FileHandler(file, encoding="utf-8")
@@ -63,7 +113,14 @@ def configure_logging(level: str = "INFO", fmt: LogFormat = "text", file: Path |
         out: TextIO = stream if stream is not None else sys.stderr
         handler = logging.StreamHandler(out)
     handler.setFormatter(JsonFormatter() if fmt == "json" else TextFormatter())
+    handler.addFilter(RateLimit())
+    handler.addFilter(LibraryOneLine())
     root = logging.getLogger("fleetgate")
     root.handlers[:] = [handler]
     root.setLevel(level)
     root.propagate = False
+    for name in ("asyncio", "websockets"):
+        other = logging.getLogger(name)
+        other.handlers[:] = [handler]
+        other.setLevel(max(logging.WARNING, logging.getLevelName(level)))
+        other.propagate = False

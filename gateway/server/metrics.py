@@ -30,6 +30,11 @@ class Metrics:
         self.queue_depth = Gauge("fleetgate_event_queue_depth", "Events waiting for the owner",
                                  registry=r)
         self.errors = Counter("fleetgate_protocol_errors", "Error replies", ["code"], registry=r)
+        self.refused = Counter("fleetgate_handshakes_refused", "Websocket upgrades refused",
+                               ["status"], registry=r)
+        self.handler_failures = Counter(
+            "fleetgate_handler_failures", "Connections closed 1011 by an unexpected error",
+            registry=r)
 
     def render(self) -> bytes:
         """The Prometheus text exposition of every metric."""

@@ -3,7 +3,8 @@
 The owner task never awaits a peer: it builds a message and puts it in the session's queue.
 If that queue is full the peer is too slow and the session is closed (code 1013), so one slow
 client never stalls the others. Also counts the peer's protocol errors (closing the connection
-on repeated abuse, code 1008) and rate-limits it (token bucket on the loop clock).
+on repeated abuse, code 1008: an error budget of ``max_errors`` that forgets one error every
+``error_decay_s``) and rate-limits it (token bucket on the loop clock).
 """
 
 from __future__ import annotations
@@ -28,14 +29,18 @@ class Session:
     """An authenticated connection as the gateway sees it."""
 
     def __init__(self, link: Link, *, queue_size: int, max_errors: int, rate_per_s: float,
-                 rate_burst: float, on_error: Callable[[ErrorCode], None] | None = None) -> None:
+                 rate_burst: float, error_decay_s: float = 1.0,
+                 on_error: Callable[[ErrorCode], None] | None = None) -> None:
         self.link = link
         self.peer: Peer = link.peer
         self.id = next(_ids)
         self._queue: asyncio.Queue[str | None] = asyncio.Queue(queue_size)
         self._seq = itertools.count()
         self._max_errors = max_errors
+        self._error_decay_s = error_decay_s
         self.errors = 0
+        """Recent protocol errors (one forgotten per ``error_decay_s``)."""
+        self._errors_at = asyncio.get_running_loop().time()
         self._on_error = on_error
         self._rate = rate_per_s
         self._burst = rate_burst
@@ -67,13 +72,20 @@ class Session:
         return message
 
     def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
-        """Reply ``error``; close the connection (1008) after too many."""
+        """Reply ``error``; close the connection (1008) after too many in a short time."""
+        now = asyncio.get_running_loop().time()
+        forgiven = int((now - self._errors_at) / self._error_decay_s)
+        if forgiven >= self.errors:
+            self.errors, self._errors_at = 0, now
+        elif forgiven > 0:
+            self.errors -= forgiven
+            self._errors_at += forgiven * self._error_decay_s
         self.errors += 1
         if self._on_error is not None:
             self._on_error(code)
         self.send(Error, code=code, ref=ref, detail=detail)
         if self.errors >= self._max_errors:
-            self.close(1008, f"too many protocol errors ({self.errors})")
+            self.close(1008, f"too many protocol errors ({self._max_errors} recently)")
 
     def allow(self) -> bool:
         """Take one token of the rate limit; False if the peer sends too fast."""

@@ -19,7 +19,8 @@ from websockets.frames import Close
 from gateway.server.auth import Peer
 
 HARD_MAX_BYTES = 256 * 1024
-"""Frames above this close the connection (1009); up to it, oversize gets an error reply."""
+"""Frames above this many bytes close the connection (1009); up to it, a message over
+``MAX_MESSAGE_BYTES`` gets an error reply (``too_large``)."""
 
 
 class LinkClosed(Exception):
@@ -126,7 +127,9 @@ class MemoryClient:
         """Send a message; a frame over HARD_MAX_BYTES closes the connection (1009)."""
         if self._pipe.closed is not None:
             raise _closed_error(self._pipe.closed.code, self._pipe.closed.reason)
-        if len(message) > HARD_MAX_BYTES:
+        size = len(message.encode("utf-8", "surrogatepass") if isinstance(message, str)
+                   else message)
+        if size > HARD_MAX_BYTES:
             self._pipe.shut(1009, "message too big")
             raise _closed_error(1009, "message too big")
         await self._pipe.to_gateway.put(message)

@@ -4,6 +4,7 @@ measured in the same run, never an absolute time)."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import resource
 import subprocess
@@ -60,7 +61,10 @@ def test_python_dash_m_fleetgate_is_the_command() -> None:
 
 
 def test_simulate_offers_the_simulators_policies() -> None:
-    from sim_clients.cmd_simulate import POLICY_CHOICES
-    from sim_clients.des import POLICIES
+    from gateway.execution.policies import AUTONOMOUS_POLICIES
+    from sim_clients.cmd_simulate import register
 
-    assert POLICY_CHOICES == POLICIES
+    sub = argparse.ArgumentParser().add_subparsers()
+    register(sub)
+    (policy,) = [a for a in sub.choices["simulate"]._actions if a.dest == "policy"]
+    assert tuple(policy.choices or ()) == AUTONOMOUS_POLICIES  # what SimConfig accepts

@@ -14,11 +14,12 @@ CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-background-networking",
     "--disable-component-update", "--disable-sync", "--no-first-run",
 ]
-_URL = re.compile(r"GUI at (http://\S+/)")
+_URL = re.compile(r"GUI at (https?://\S+)")
 
 
 class DemoProcess:
-    """``fleetgate demo --port 0 ARGS`` serving the GUI; ``url`` is where (read from stderr)."""
+    """``fleetgate demo --port 0 ARGS`` serving the GUI; ``url`` is where (read from stderr:
+    its login URL, which carries the run's operator token in the fragment)."""
 
     def __init__(self, *args: str, timeout_s: float = 30.0) -> None:
         self.proc = subprocess.Popen(

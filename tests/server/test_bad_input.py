@@ -91,15 +91,28 @@ BAD_INPUTS = [
                  id="finish-never-dispatched"),
     pytest.param(_msg(type="finished", action_id="0.0.0"), ErrorCode.REJECTED, "bad-1",
                  id="finish-before-start"),
+    # strict input: no coercion, limits in bytes, depth and number length before parsing
+    pytest.param(_msg(type="hello", robot_id="0"), ErrorCode.INVALID, "bad-1",
+                 id="robot-id-as-string"),
+    pytest.param(json.dumps({"v": 1, "msg_id": "bad-1", "seq": True, "type": "state",
+                             "robot_id": 0}), ErrorCode.INVALID, "bad-1", id="seq-as-bool"),
+    pytest.param(_msg(type="ack", action_id="0.0.0", v=True), ErrorCode.UNSUPPORTED_VERSION,
+                 "bad-1", id="version-as-bool"),
+    pytest.param(_msg(type="state", robot_id=0, pad="é" * (MAX_MESSAGE_BYTES // 2 + 1)),
+                 ErrorCode.TOO_LARGE, None, id="oversized-in-bytes-not-chars"),
+    pytest.param("[" * 100_000, ErrorCode.TOO_LARGE, None, id="deeply-nested"),
+    pytest.param(_msg(type="state", robot_id=0).replace(": 0", ": " + "9" * 5000),
+                 ErrorCode.TOO_LARGE, None, id="5000-digit-integer"),
+    pytest.param(b'{"v": 1}', ErrorCode.MALFORMED, None, id="binary-frame"),
 ]
 
 
 @pytest.mark.parametrize(("raw", "code", "ref"), BAD_INPUTS)
-async def test_bad_input_gets_its_code_and_changes_nothing(fleet: Fleet, raw: str,
+async def test_bad_input_gets_its_code_and_changes_nothing(fleet: Fleet, raw: str | bytes,
                                                            code: ErrorCode,
                                                            ref: str | None) -> None:
     before = fingerprint(fleet.gw)
-    await fleet.bad.send_raw(raw)
+    await fleet.bad.link.send(raw)
     err = await fleet.bad.error_for(ref)
     assert err.code is code, err.detail
     assert fingerprint(fleet.gw) == before

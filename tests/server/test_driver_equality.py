@@ -18,7 +18,8 @@ from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
 from sim_clients.des import PolicyName, SimConfig, run_simulation
-from sim_clients.fleet import RunResult, fleet_for, run_in_process
+from sim_clients.fleet import fleet_for, run_in_process
+from sim_clients.summary import RunSummary
 from tracecheck import check_trace, read_trace
 
 SOLVER_MS = 500.0
@@ -32,12 +33,12 @@ def lab(scen: str, agents: int) -> tuple[Instance, Plan]:
 
 
 def driver2(inst: Instance, plan: Plan, seed: int, intruder: bool, policy: PolicyName,
-            trace: Path | None = None, lookahead: int = 1) -> RunResult:
+            trace: Path | None = None, lookahead: int = 1) -> RunSummary:
     """One run through the gateway: in-memory links, virtual clock, simulated fleet."""
     config = GatewayConfig(port=0, map=None, policy=policy, threshold_ms=2000.0, trace=trace,
                            dispatch_lookahead=lookahead)
 
-    async def main() -> RunResult:
+    async def main() -> RunSummary:
         async with Gateway(config, clock=VirtualClock(solver_time=SOLVER_MS)) as gw:
             fleet = fleet_for(gw, len(plan.paths), gw.connect, seed=seed, intruder=intruder)
             try:

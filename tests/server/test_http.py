@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from protocol import LoadPlan, Start
 from tests.server.conftest import LAB_PATHS, connector, make_config
@@ -37,6 +36,7 @@ async def served(tmp_path: Path) -> AsyncIterator[tuple[Gateway, int]]:
     static = tmp_path / "static"
     (static / "js").mkdir(parents=True)
     (static / "index.html").write_text("<html>token={{OPERATOR_TOKEN}}</html>")
+    (static / "login.html").write_text("<html>login</html>")
     (static / "js" / "app.js").write_text("console.log(1)")
     (static / "style.css").write_text("body{}")
     (tmp_path / "secret.txt").write_text("do not serve")
@@ -49,7 +49,7 @@ async def test_static_files_with_content_types(served: tuple[Gateway, int]) -> N
     _, port = served
     status, headers, body = await http_get(port, "/")
     assert status == 200 and headers["content-type"] == "text/html; charset=utf-8"
-    assert body == b"<html>token=demo-operator</html>"
+    assert body == b"<html>token={{OPERATOR_TOKEN}}</html>"  # served as is: no token in it
     status, headers, body = await http_get(port, "/js/app.js")
     assert status == 200 and "javascript" in headers["content-type"]
     assert body == b"console.log(1)"
@@ -93,10 +93,12 @@ async def test_metrics_after_a_run(served: tuple[Gateway, int]) -> None:
         t.cancel()
 
 
-def test_operator_token_is_embedded_only_on_loopback(tmp_path: Path) -> None:
-    (tmp_path / "index.html").write_text("t={{OPERATOR_TOKEN}}")
-    exposed = Gateway(GatewayConfig(host="0.0.0.0", allow_demo_tokens=True,
-                                    static_dir=tmp_path))
-    assert exposed.http("/").body == b"t={{OPERATOR_TOKEN}}"
-    local = Gateway(GatewayConfig(static_dir=tmp_path))
-    assert local.http("/").body == b"t=demo-operator"
+@pytest.mark.parametrize("path", ["/", "/index.html", "/login", "/login.html", "/app.js",
+                                  "/connection.js", "/healthz", "/readyz", "/session",
+                                  "/metrics"])
+async def test_no_page_holds_the_operator_token(path: str) -> None:
+    """The real GUI on a loopback gateway (which used to embed the token in ``/``)."""
+    async with Gateway(make_config()) as gw:
+        await gw.listen()
+        status, _, body = await http_get(gw.port or 0, path)
+    assert status in (200, 401) and b"demo-operator" not in body

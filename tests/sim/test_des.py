@@ -11,9 +11,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from gateway.execution.trace_records import Record
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.runtime.trace import Record
 from sim_clients.des import PolicyName, SimConfig, SimResult, SimulationError, run_simulation
 from sim_clients.intruder import IntruderConfig
 from tracecheck import check_trace

@@ -10,8 +10,8 @@ import random
 
 from hypothesis import HealthCheck, given, settings
 
+from gateway.execution.trace_records import Record
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.runtime.trace import Record
 from sim_clients.des import SimConfig
 from sim_clients.intruder import IntruderConfig
 from tests.sim.test_des import scenarios, traced

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import Dispatch
+from gateway.execution.trace_records import Record
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.runtime.trace import Record
 from sim_clients.des import SimConfig, run_simulation
 from sim_clients.intruder import IntruderConfig, pick_target
 from sim_clients.robot import RobotState, SimRobot, SimRobotError

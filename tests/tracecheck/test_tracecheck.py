@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from gateway.runtime.trace import (
-    JsonlWriter,
+from gateway.execution.trace_records import (
     event_record,
     intruder_record,
     plan_record,
     summary_record,
 )
+from gateway.runtime.trace import JsonlWriter
 from tracecheck import build_graph, check_trace, main, read_trace, slack_series
 
 # Robot 0 moves right twice; robot 1 waits twice then enters (1,0), which robot 0 leaves in
@@ -223,3 +223,14 @@ def test_turning_replan_must_start_from_the_held_headings() -> None:
     omni = plan_record(1000, 1, [T_PATHS[0][1:], [(1, 1), (1, 1)]])
     assert any("motion model changed" in e
                for e in check_trace(ordered(*head, omni, *tail)).errors)
+
+
+def test_the_command_reports_an_unreadable_trace_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([str(tmp_path / "missing.jsonl")]) == 2
+    assert capsys.readouterr().err.startswith("tracecheck: cannot read ")
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text('{"type": "plan"}\nnot json\n')
+    assert main([str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"tracecheck: {bad}:2: not JSON") and err.count("\n") == 1

@@ -1,6 +1,6 @@
 // The operator GUI: wires the connection, the fleet model, the map, the chart and the controls.
 
-import { Connection, operatorToken } from "./connection.js";
+import { Connection, loggedIn } from "./connection.js";
 import { FleetModel, fmtS } from "./model.js";
 import { MapView, robotColor } from "./mapview.js";
 import { SlackChart } from "./chart.js";
@@ -14,8 +14,11 @@ let snapshotAsked = 0; // performance.now() of the outstanding get_snapshot (0: 
 let tableDrawn = 0;
 
 const scheme = location.protocol === "https:" ? "wss" : "ws";
-const token = operatorToken();
-const url = `${scheme}://${location.host}/ws${token ? `?token=${encodeURIComponent(token)}` : ""}`;
+const url = `${scheme}://${location.host}/ws`; // the login cookie authenticates it
+if (!(await loggedIn())) {
+  location.replace(`/login${location.hash}`);
+  await new Promise(() => {}); // the page is being replaced
+}
 const conn = new Connection(url, { onMessage, onLink });
 
 // ------------------------------------------------------------------------- incoming

@@ -2,13 +2,28 @@
 
 const RETRY_MS = [250, 500, 1000, 2000, 4000];
 
-/** The operator token: ?token= in the page URL, else the one the gateway put in the page. */
-export function operatorToken() {
-  const fromUrl = new URLSearchParams(location.search).get("token");
-  if (fromUrl) return fromUrl;
-  const meta = document.querySelector('meta[name="fleetgate-token"]');
-  const value = meta ? meta.content : "";
-  return value && !value.startsWith("{{") ? value : "";
+/** True if this browser holds a live login (the HttpOnly cookie set by `login`). */
+export async function loggedIn() {
+  const res = await fetch("/session", { credentials: "same-origin", cache: "no-store" });
+  return res.ok;
+}
+
+/** Log in with an operator token: the gateway checks it and sets an HttpOnly, SameSite=Strict
+ * cookie that the operator websocket then carries (the page never keeps the token).
+ * Resolves with `{ ok, status, error }` (`error`: the gateway's reason when refused). */
+export async function login(token) {
+  const res = await fetch("/session", {
+    credentials: "same-origin", cache: "no-store",
+    headers: { Authorization: `Bearer ${token}` },
+  });
+  if (res.ok) return { ok: true, status: res.status, error: "" };
+  let error = `HTTP ${res.status}`;
+  try {
+    error = (await res.json()).error || error;
+  } catch {
+    // not JSON: keep the status
+  }
+  return { ok: false, status: res.status, error };
 }
 
 /** One operator connection to the gateway that reconnects by itself.
@@ -41,6 +56,10 @@ export class Connection {
       for (const [, resolve] of this.pending) resolve({ type: "error", detail: "link lost" });
       this.pending.clear();
       const why = ev.code === 1006 ? "gateway unreachable" : `closed (${ev.code}) ${ev.reason}`;
+      if (ev.code === 1006) {
+        // a refused handshake looks the same: back to the login page if the login expired
+        loggedIn().then((ok) => ok || location.replace("/login")).catch(() => {});
+      }
       this.onLink("off", why);
       const delay = RETRY_MS[Math.min(this.failures, RETRY_MS.length - 1)];
       this.failures += 1;

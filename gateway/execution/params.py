@@ -1,0 +1,38 @@
+"""The execution parameters and their defaults, the paper's (DESIGN section 2), in one place.
+
+Every driver, configuration model and command takes its defaults from :data:`PAPER`: the
+gateway's pydantic configuration, the simulator's and the campaign's dataclasses, the CLI
+options. A plain frozen dataclass, because the execution core imports no pydantic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class ExecutionParams:
+    """Timing of execution, monitoring, replanning and the simulated intruder (ms)."""
+
+    action_ms: float = 1000.0
+    """Expected duration ``t_x`` of every action (and the simulated robots' real one)."""
+    threshold_ms: float = 2000.0
+    """Fleet-slack threshold Δ̄T of the slack policy: replan when Δ̄F exceeds it."""
+    monitor_period_ms: int = 100
+    """Period of the executor's ticks (policy checks, clamping estimates to the present)."""
+    max_replans: int = 1
+    """Replans allowed per run (each experiment of the paper replans at most once)."""
+    intruder_appear_ms: float = 3000.0
+    """``T_a``: when the intruder appears (and the earliest random replan)."""
+    intruder_leave_ms: float = 10000.0
+    """``T_d``: when the intruder leaves."""
+    intruder_lead_ms: float = 2000.0
+    """The intruder takes the first cell its robot should enter at or after ``T_a`` + this."""
+    random_margin_ms: float = 3000.0
+    """A random replan happens before ``makespan_lb`` minus this margin."""
+    recheck_ms: float = 100.0
+    """How often a simulated robot (or the intruder) re-checks that its next cell is free."""
+
+
+PAPER = ExecutionParams()
+"""The paper's values: the default of every parameter above."""
