@@ -8,7 +8,7 @@ import sys
 
 from gateway.runtime.exits import EXIT_OK, UsageError
 
-SCHEDULER_CHOICES = ("greedy", "mincost")
+SCHEDULER_CHOICES = ("greedy", "mincost", "shortest")
 """``gateway.execution.tasks.SCHEDULERS`` (a test checks), named here so --help stays light."""
 
 
@@ -94,8 +94,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--planner-time", type=_planner_time, default="measured",
                    metavar="measured|zero|MS",
                    help="planner time charged per call (default: measured CPU time)")
-    p.add_argument("--scheduler", choices=SCHEDULER_CHOICES, default="greedy",
-                   help="task assignment (default greedy nearest-first)")
+    p.add_argument("--scheduler", choices=SCHEDULER_CHOICES, default="shortest",
+                   help="task assignment (default shortest: cheapest robot-task pairs by "
+                        "distance to the first errand plus the task's length)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction,
                    default=sys.stderr.isatty(), help="progress bar (default: on a terminal)")

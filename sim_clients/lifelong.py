@@ -103,7 +103,7 @@ class LifelongConfig:
     window: int = 0  # timesteps per planning call; 0: enough to cover a period
     planner_time: str | float = "measured"  # "measured", "zero" or ms per call
     tick_ms: float = TICK_MS
-    scheduler: str = "greedy"
+    scheduler: str = "shortest"
     seed: int = 0
     output_window: int = 1000
 
@@ -159,9 +159,11 @@ def run_lifelong(cfg: LifelongConfig,
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
-    pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)))
+    w = grid.width
+    pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)),
+                    leg=lambda a, b: abs(a % w - b % w) + abs(a // w - b // w))
     delays = DelayModel(prob.delay, n)
-    window = cfg.window or (math.ceil(cfg.period / counter) + 2)
+    window = cfg.window or (math.ceil(cfg.period / counter) + 1)
 
     cell = list(prob.starts)
     heading = list(headings)
@@ -221,6 +223,7 @@ def run_lifelong(cfg: LifelongConfig,
             while q and adg.done[r] >= q[0][0]:
                 errand_reached(r, q.popleft()[1], t)
 
+    delayed = [False] * n
     for t in range(cfg.ticks):
         if pending is not None and pending.arrival <= t:
             apply(t, pending.states, pending.reached, pending.tasks_of)
@@ -239,7 +242,9 @@ def run_lifelong(cfg: LifelongConfig,
             # a robot with a period's work committed waits in this window: backlogs stay short
             frozen = [adg.pending(r) * counter - progress[r] >= cfg.period + counter
                       for r in range(n)]
-            win = planner.plan(starts, goals, window, frozen)
+            # cells that robots in a delay will still drive through: plan others around them
+            avoid = [a.cell for r in range(n) if delayed[r] for a in adg.queue[r]]
+            win = planner.plan(starts, goals, window, frozen, avoid)
             tasks_of = list(plan_task)
             for r in range(n):
                 if win.reached[r]:

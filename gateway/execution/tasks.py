@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Protocol
 
 import numpy as np
@@ -26,6 +27,7 @@ class Task:
     robot: int = -1
     done: int = 0
     finish_tick: int = -1
+    length: int = 0  # estimated moves from its first errand to its last
 
 
 @dataclass
@@ -34,6 +36,7 @@ class TaskPool:
 
     task_list: Sequence[tuple[int, ...]]
     reveal: int
+    leg: Callable[[int, int], int] | None = None  # estimated moves between two cells
     tasks: dict[int, Task] = field(default_factory=dict)
     open: dict[int, Task] = field(default_factory=dict)
     finished: int = 0
@@ -49,8 +52,10 @@ class TaskPool:
     def top_up(self, tick: int) -> None:
         """Reveal tasks until ``reveal`` are revealed and unfinished."""
         while len(self.tasks) < self.reveal:
-            task = Task(self.next_id, tuple(self.task_list[self.next_id % len(self.task_list)]),
-                        tick)
+            errands = tuple(self.task_list[self.next_id % len(self.task_list)])
+            length = sum(self.leg(a, b) for a, b in pairwise(errands)) \
+                if self.leg is not None else 0
+            task = Task(self.next_id, errands, tick, length=length)
             self.tasks[task.id] = task
             self.open[task.id] = task
             self.next_id += 1
@@ -113,13 +118,28 @@ def min_cost(free: Sequence[tuple[int, int]], pool: TaskPool,
              distance_from: DistanceFrom) -> dict[int, int]:
     """Globally cheapest pairs first: repeatedly assign the (robot, task) pair with the
     smallest distance to the first errand (a greedy matching, better than robot order)."""
+    return _matching(free, pool, distance_from, with_length=False)
+
+
+def shortest_first(free: Sequence[tuple[int, int]], pool: TaskPool,
+                   distance_from: DistanceFrom) -> dict[int, int]:
+    """:func:`min_cost` on the whole task: distance to the first errand plus the task's own
+    length, so short tasks go first (most tasks finished in a fixed time)."""
+    return _matching(free, pool, distance_from, with_length=True)
+
+
+def _matching(free: Sequence[tuple[int, int]], pool: TaskPool, distance_from: DistanceFrom,
+              with_length: bool) -> dict[int, int]:
     if not free or not pool.open:
         return {}
     ids = np.fromiter(pool.open, np.int64, len(pool.open))
     first = [pool.open[int(i)].errands[0] for i in ids]
     big = np.iinfo(np.int64).max // 4
     cost = distance_from([cell for _, cell in free], first).astype(np.int64)
-    cost[cost < 0] = big
+    unreachable = cost < 0
+    if with_length:
+        cost += np.fromiter((pool.open[int(i)].length for i in ids), np.int64, ids.size)
+    cost[unreachable] = big
     out: dict[int, int] = {}
     flat = np.argsort(cost, axis=None, kind="stable")
     used_r = np.zeros(len(free), dtype=bool)
@@ -135,5 +155,6 @@ def min_cost(free: Sequence[tuple[int, int]], pool: TaskPool,
     return out
 
 
-SCHEDULERS: dict[str, Scheduler] = {"greedy": greedy_nearest, "mincost": min_cost}
+SCHEDULERS: dict[str, Scheduler] = {"greedy": greedy_nearest, "mincost": min_cost,
+                                     "shortest": shortest_first}
 """Schedulers by name (``fleetgate lifelong --scheduler``)."""

@@ -191,12 +191,15 @@ class WindowedPIBT:
         self._reserved = [0] * n_cells
         self._planned = [0] * n_robots
         self._stamp = 0
+        self._avoid = [0] * n_cells
+        self._call = 0
 
     def plan(self, states: Sequence[int], goals: Sequence[Sequence[int]], steps: int,
-             frozen: Sequence[bool] | None = None) -> Window:
+             frozen: Sequence[bool] | None = None, avoid: Sequence[int] = ()) -> Window:
         """Plan ``steps`` timesteps from ``states``; ``goals[r]`` are robot r's next goal cells
         in order (empty: no goal; it waits unless asked to move away). ``frozen`` robots wait
-        throughout (they have enough committed work); the others plan around them."""
+        throughout (they have enough committed work); the others plan around them and enter
+        no cell of ``avoid`` (e.g. cells a delayed robot will still drive through)."""
         space, n = self.space, self.n
         cell_of = space.cell_of
         cur = list(states)
@@ -209,6 +212,9 @@ class WindowedPIBT:
             self._arrive(r, cur[r], goals[r], progress, reached, 0)
         out = [cur]
         occupant = self._occupant
+        self._call += 1
+        for c in avoid:
+            self._avoid[c] = self._call
         for r, s in enumerate(cur):
             occupant[cell_of[s]] = r
         for step in range(1, steps + 1):
@@ -267,6 +273,7 @@ class WindowedPIBT:
         self._planned[r] = stamp
         space = self.space
         cell_of, occupant, reserved = space.cell_of, self._occupant, self._reserved
+        avoid, call = self._avoid, self._call
         s = cur[r]
         c = cell_of[s]
         table = tables[r]
@@ -285,7 +292,7 @@ class WindowedPIBT:
                 nxt[r] = rs
                 reserved[c] = stamp
                 return
-            if reserved[c2] == stamp:
+            if reserved[c2] == stamp or avoid[c2] == call:
                 continue
             o = occupant[c2]
             if o >= 0:
