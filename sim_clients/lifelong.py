@@ -163,7 +163,7 @@ def run_lifelong(cfg: LifelongConfig,
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)),
                     leg=lambda a, b: abs(a % w - b % w) + abs(a // w - b // w))
     delays = DelayModel(prob.delay, n)
-    window = cfg.window or (math.ceil(cfg.period / counter) + 1)
+    window = cfg.window or math.ceil(cfg.period / counter)
 
     cell = list(prob.starts)
     heading = list(headings)

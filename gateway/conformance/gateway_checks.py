@@ -346,11 +346,26 @@ async def _error_not_fatal(t: Target) -> None:
         await robot.conn.close()
 
 
-@check("binary-frame-refused", "WS-1", required=False)
+@check("binary-frame-refused", "WS-1")
 async def _binary(t: Target) -> None:
     """A binary frame gets ``malformed`` (messages travel in text frames)."""
     msg = State(msg_id="bin-0", seq=0, robot_id=t.options.robot_id)
     await _bad(t, encode(msg).encode(), ErrorCode.MALFORMED, None, timeout=2.0)
+
+
+@check("deep-nesting-refused", "LIMIT-6")
+async def _deep(t: Target) -> None:
+    """A message nested deeper than 8 levels gets `too_large` before it is parsed."""
+    await _bad(t, _raw("deep", type="state", robot_id=t.options.robot_id,
+                       pad=json.loads("[" * 20 + "]" * 20)), ErrorCode.TOO_LARGE, None)
+
+
+@check("long-number-refused", "LIMIT-6")
+async def _long_number(t: Target) -> None:
+    """A number of more than 32 digits gets `too_large` before it is parsed."""
+    raw = _raw("num", type="state", robot_id=t.options.robot_id, battery=0.5)
+    await _bad(t, raw.replace('"battery": 0.5', '"battery": 0.' + "5" * 40),
+               ErrorCode.TOO_LARGE, None)
 
 
 @check("oversize-frame-closes-1009", "LIMIT-2")
