@@ -8,6 +8,10 @@ per-instance cap.
 Times are CPU seconds of this process (the planner is single-threaded) for ``solve_cbs``,
 distance tables included, files not. Prints a table per map (seconds)
 and one final result line.
+
+``--motion turning`` plans the same instances under the turning model (every robot starting
+facing east, the documented default), against plain CBS under turning as the baseline, and
+also runs the omni planner in the same process so that the result line shows both.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from pathlib import Path
 
 from gateway.planning.cbs import CBSOptions, solve_cbs
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
+from gateway.planning.motion import MOTIONS, Motion
 from gateway.planning.plan import NoSolution
 from gateway.planning.validate import plan_violations
 
@@ -63,16 +68,18 @@ def instances(maps: Path) -> list[tuple[str, Callable[[], Instance]]]:
     return out
 
 
-def run(inst: Instance, options: CBSOptions, cap: float) -> tuple[float, int | None]:
+def run(inst: Instance, options: CBSOptions, cap: float,
+        motion: Motion = "omni") -> tuple[float, int | None]:
     """CPU seconds taken and SOC (None if not solved within ``cap``)."""
+    starts = inst.starts if motion == "omni" else inst.turning_starts()
     t0 = time.process_time()
     try:
-        sol = solve_cbs(inst.grid, inst.starts, inst.goals, deadline=CpuDeadline(cap),
-                        options=options)
+        sol = solve_cbs(inst.grid, starts, inst.goals, deadline=CpuDeadline(cap),
+                        options=options, motion=motion)
     except NoSolution:
         return time.process_time() - t0, None
     dt = time.process_time() - t0
-    bad = plan_violations(inst.grid, inst.starts, inst.goals, sol.plan)
+    bad = plan_violations(inst.grid, starts, inst.goals, sol.plan)
     if bad:
         raise SystemExit(f"invalid plan on {inst.name}: {bad[:3]}")
     return dt, sol.plan.soc
@@ -92,17 +99,26 @@ def main() -> None:
     ap.add_argument("--baseline-cap", type=float, default=2.0,
                     help="per-instance limit of the plain-CBS baseline, CPU seconds")
     ap.add_argument("--no-baseline", action="store_true")
+    ap.add_argument("--motion", choices=MOTIONS, default="omni",
+                    help="motion model (turning also runs omni for comparison)")
     args = ap.parse_args()
+    motion: Motion = args.motion
     rows: dict[str, list[tuple[float, int | None, float, int | None]]] = {}
+    omni: list[tuple[float, int | None]] = []
     for label, load in instances(args.maps_dir):
         inst = load()
-        dt, soc = run(inst, CBSOptions(), args.cap)
-        bdt, bsoc = (0.0, None) if args.no_baseline else run(inst, PLAIN, args.baseline_cap)
+        dt, soc = run(inst, CBSOptions(), args.cap, motion)
+        bdt, bsoc = ((0.0, None) if args.no_baseline
+                     else run(inst, PLAIN, args.baseline_cap, motion))
         if soc is not None and bsoc is not None and soc != bsoc:
             raise SystemExit(f"SOC differs on {inst.name} n={inst.num_agents}: {soc} vs {bsoc}")
         rows.setdefault(label, []).append((dt, soc, bdt, bsoc))
+        also = ""
+        if motion != "omni":
+            omni.append(run(inst, CBSOptions(), args.cap))
+            also = f"   omni: {omni[-1][0] * 1000:8.1f} ms soc={omni[-1][1]}"
         print(f"  {label:16s} {inst.name:22s} n={inst.num_agents:3d} soc={soc} "
-              f"{dt * 1000:8.1f} ms   plain: {bdt * 1000:8.1f} ms soc={bsoc}",
+              f"{dt * 1000:8.1f} ms   plain: {bdt * 1000:8.1f} ms soc={bsoc}{also}",
               file=sys.stderr, flush=True)
     print(f"{'map':16s} {'solved':>8s} {'median':>9s} {'p99':>9s} {'max':>9s}   "
           f"{'plain solved':>12s} {'plain median':>12s}")
@@ -123,11 +139,22 @@ def main() -> None:
     solved = sum(r[1] is not None for rs in rows.values() for r in rs)
     bsolved = sum(r[3] is not None for rs in rows.values() for r in rs)
     ratio = plain_sum / ours_sum if ours_sum else float("nan")
-    line = (f"RESULT cbs solved {solved}/{total} median {statistics.median(all_t) * 1000:.1f} ms "
-            f"max {max(all_t) * 1000:.0f} ms (CPU)")
+    name = "cbs" if motion == "omni" else f"cbs {motion}"
+    line = (f"RESULT {name} solved {solved}/{total} median "
+            f"{statistics.median(all_t) * 1000:.1f} ms max {max(all_t) * 1000:.0f} ms (CPU)")
+    if omni:
+        ots = [t for t, _ in omni]
+        osolved = sum(s is not None for _, s in omni)
+        line += (f"; omni solved {osolved}/{total} median {statistics.median(ots) * 1000:.1f} "
+                 f"ms max {max(ots) * 1000:.0f} ms")
     if not args.no_baseline:
-        line += (f"; plain CBS (cap {args.baseline_cap:g} s) solved {bsolved}/{total}; "
+        plain = "plain CBS" if motion == "omni" else f"plain {motion} CBS"
+        line += (f"; {plain} (cap {args.baseline_cap:g} s) solved {bsolved}/{total}; "
                  f"total CPU time plain/ours = {ratio:.1f}x (a lower bound: capped)")
+        both = [r for rs in rows.values() for r in rs if r[1] is not None and r[3] is not None]
+        if len(both) < total:
+            both_ratio = sum(r[2] for r in both) / sum(r[0] for r in both) if both else 0.0
+            line += f", {both_ratio:.1f}x on the {len(both)} instances both solved"
     print(line)
 
 

@@ -234,7 +234,8 @@ class InstanceRecord:
         return InstanceRecord(
             map=solution.map, agents=int(meta["agents"]), index=int(meta["index"]),
             generator_seed=int(meta["generator_seed"]), attempts=int(meta["attempts"]),
-            starts=solution.starts, goals=solution.goals, plan=solution.plan,
+            starts=tuple((s[0], s[1]) for s in solution.starts), goals=solution.goals,
+            plan=solution.plan,
             optimal=solution.optimal, runtime_s=solution.runtime_s,
             expanded_nodes=solution.expanded_nodes)
 

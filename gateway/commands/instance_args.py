@@ -5,10 +5,18 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
+from gateway.planning.motion import (
+    DEFAULT_START_HEADING,
+    HEADING_NAMES,
+    MOTIONS,
+    Motion,
+    parse_heading,
+)
 from gateway.runtime.exits import UsageError
 
 if TYPE_CHECKING:
     from gateway.planning.instance import Instance
+    from gateway.planning.problem import Place
 
 
 def add_instance_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,3 +60,29 @@ def instance_from_args(args: argparse.Namespace) -> Instance:
     except UnicodeDecodeError:
         given = " or ".join(str(f) for f in (args.map, args.scen, args.instance) if f)
         raise UsageError(f"cannot read {given}: not a text file") from None
+
+
+def add_motion_arguments(parser: argparse.ArgumentParser, default: Motion) -> None:
+    """Add ``--motion`` (with this entry point's ``default``) and ``--start-heading``."""
+    group = parser.add_argument_group("motion")
+    group.add_argument("--motion", choices=MOTIONS, default=default,
+                       help=f"motion model: omni (move to any neighbour) or turning (turn 90 "
+                            f"degrees in place, move forward); default {default}")
+    group.add_argument("--start-heading", metavar="H", default=None,
+                       help="turning: the start heading of every robot whose instance gives "
+                            "none (MovingAI scenarios give none): east, south, west, north or "
+                            f"0-3 (default {HEADING_NAMES[DEFAULT_START_HEADING]})")
+
+
+def starts_from_args(args: argparse.Namespace, instance: Instance) -> tuple[Place, ...]:
+    """The planner's starts under ``--motion``: cells, or ``(x, y, heading)`` when turning."""
+    if args.motion != "turning":
+        if args.start_heading is not None:
+            raise UsageError("--start-heading needs --motion turning")
+        return instance.starts
+    if args.start_heading is None:
+        return instance.turning_starts()
+    try:
+        return instance.turning_starts(parse_heading(args.start_heading))
+    except ValueError as exc:
+        raise UsageError(f"--start-heading: {exc}") from None

@@ -11,8 +11,12 @@ from gateway.commands.progress import StatusLine, ticking
 from gateway.runtime.exits import UsageError
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from gateway.planning.instance import Instance
+    from gateway.planning.motion import Motion
     from gateway.planning.plan import Solution
+    from gateway.planning.problem import Place
 
 
 def add_planning_arguments(parser: argparse.ArgumentParser, time_limit_s: float) -> None:
@@ -44,8 +48,11 @@ def no_solution_message(instance: Instance, args: argparse.Namespace, reason: st
 
 
 def solve_instance(instance: Instance, args: argparse.Namespace,
-                   status: StatusLine | None = None) -> Solution:
+                   status: StatusLine | None = None, *, motion: Motion = "omni",
+                   starts: Sequence[Place] | None = None) -> Solution:
     """Plan ``instance`` with the options' time limit and fallback; raises ``NoSolution``.
+
+    ``starts`` replace the instance's (``(x, y, heading)`` under ``motion="turning"``).
 
     While CBS works a terminal shows "planning NAME (N agents) ... 3 s"; a fallback plan is
     announced in one line on ``status``.
@@ -59,8 +66,8 @@ def solve_instance(instance: Instance, args: argparse.Namespace,
     fallback = WallDeadline(args.time_limit + args.fallback) if args.fallback else None
     with ticking(status, lambda s: f"planning {name} ({instance.num_agents} agents) ... "
                                    f"{s:.0f} s of {args.time_limit:g} s"):
-        solution = solve(instance.grid, instance.starts, instance.goals, deadline=deadline,
-                         fallback=fallback)
+        solution = solve(instance.grid, starts or instance.starts, instance.goals,
+                         deadline=deadline, fallback=fallback, motion=motion)
     if not solution.optimal:
         status.print(f"fleetgate: no optimal plan for {name} within {args.time_limit:g} s; "
                      f"using the prioritised planner's plan (SOC {solution.plan.soc}, not "

@@ -11,7 +11,21 @@ The high level is best-first on ``SOC + h`` with these improvements, each switch
 * bypassing: a child that keeps the cost and has fewer conflicts replaces the parent's path;
 * target reasoning: a conflict with an agent parked on its goal splits on that agent's arrival
   time (see :mod:`gateway.planning.cbs_conflicts`);
+* rectangle reasoning (``omni`` only, see below);
 * low level: space-time A* on exact distance tables, ties broken towards fewer conflicts.
+
+Under the ``turning`` model the low level, the MDDs and the distance tables are over
+``(cell, heading)`` states while constraints and conflicts stay on cells, so the conflict
+splits, MDD cardinality, the DG heuristic, bypassing and target reasoning keep their proofs
+(each is about which cells an agent can be on when, whatever its states are; an agent parked
+on its goal holds the cell whatever it turns). Rectangle reasoning does not: its barrier proof
+needs every cheapest path to reach cell c at exactly ``|c - start|`` (or one step later), and
+under ``turning`` two cheapest paths reach the same cell at times that differ by their numbers
+of turns (a staircase pays a turn per corner, an L-shaped path one), so barriers built on
+turning costs could cut off every optimal plan. As written (both costs equal to the Manhattan
+distances) it could never fire anyway: a rectangle needs both agents to move along both axes,
+which takes a turn, so a turning cost always exceeds the Manhattan distance. It is switched off
+for ``turning``.
 """
 
 from __future__ import annotations
@@ -24,7 +38,7 @@ from heapq import heappop, heappush
 
 from gateway.planning.cbs_conflicts import Branch, Conflict, pair_conflicts, rectangle
 from gateway.planning.constraints import FINISH, ConstraintTable, build_table
-from gateway.planning.grid import Cell, Grid
+from gateway.planning.grid import Grid
 from gateway.planning.low_level import (
     AvoidanceTable,
     build_mdd,
@@ -32,8 +46,9 @@ from gateway.planning.low_level import (
     mdds_compatible,
     space_time_astar,
 )
-from gateway.planning.plan import Deadline, NoSolution, Plan, Solution
-from gateway.planning.problem import Forbidden, Problem
+from gateway.planning.motion import Motion
+from gateway.planning.plan import Deadline, NoSolution, Solution
+from gateway.planning.problem import Forbidden, Place, Problem
 
 NON_CARDINAL, SEMI_CARDINAL, CARDINAL = 0, 1, 2
 
@@ -59,13 +74,14 @@ class _Node:
 
     __slots__ = (
         "best", "branch", "conflicts", "costs", "deps", "g", "h", "h_done", "mdds", "nconf",
-        "parent", "paths",
+        "parent", "paths", "states",
     )
 
     def __init__(
         self,
         parent: _Node | None,
         branch: Branch | None,
+        states: list[tuple[int, ...]],
         paths: list[tuple[int, ...]],
         conflicts: dict[tuple[int, int], list[Conflict]],
         mdds: dict[int, list[frozenset[int]]],
@@ -73,6 +89,7 @@ class _Node:
     ) -> None:
         self.parent = parent
         self.branch = branch
+        self.states = states
         self.paths = paths
         self.costs = [len(p) - 1 for p in paths]
         self.g = sum(self.costs)
@@ -91,13 +108,15 @@ class _Search:
     def __init__(
         self,
         grid: Grid,
-        starts: Sequence[Cell],
-        goals: Sequence[Cell],
+        starts: Sequence[Place],
+        goals: Sequence[Place],
         forbidden: Sequence[Forbidden],
         deadline: Deadline,
         options: CBSOptions,
+        motion: Motion,
     ) -> None:
-        problem = Problem(grid, starts, goals, forbidden)
+        problem = Problem(grid, starts, goals, forbidden, motion)
+        self.problem = problem
         self.grid = grid
         self.model = problem.model
         self.size = problem.size
@@ -170,27 +189,32 @@ class _Search:
 
     def _plan(
         self, agent: int, table: ConstraintTable, avoid: AvoidanceTable | None
-    ) -> tuple[int, ...] | None:
+    ) -> tuple[tuple[int, ...], tuple[int, ...]] | None:
+        """The agent's new path as (states, cells), or None if it has none."""
         states = space_time_astar(
             self.model, self.starts[agent], self.goals[agent], self.h[agent], table, avoid,
             self.deadline,
         )
         if states is None:
             return None
-        cells = self.model.cells
-        return tuple(cells[s] for s in states)
+        if self.problem.motion == "omni":
+            path = tuple(states)
+            return path, path
+        return tuple(states), self.problem.cells_of(states)
 
     # ----- nodes -----------------------------------------------------------------------------
 
     def root(self) -> _Node:
         n = len(self.starts)
         paths: list[tuple[int, ...] | None] = [None] * n
+        states: list[tuple[int, ...]] = []
         for k in range(n):
             avoid = self._occupancy(paths) if self.options.avoidance else None
-            path = self._plan(k, self._table(None, k), avoid)
-            if path is None:
+            got = self._plan(k, self._table(None, k), avoid)
+            if got is None:
                 raise NoSolution(f"agent {k} has no path under the forbidden windows")
-            paths[k] = path
+            states.append(got[0])
+            paths[k] = got[1]
         full = [p for p in paths if p is not None]
         conflicts: dict[tuple[int, int], list[Conflict]] = {}
         for i in range(n):
@@ -198,7 +222,7 @@ class _Search:
                 found = pair_conflicts(i, full[i], j, full[j], self.options.target)
                 if found:
                     conflicts[i, j] = found
-        return _Node(None, None, full, conflicts, {}, {})
+        return _Node(None, None, states, full, conflicts, {}, {})
 
     def child(
         self, node: _Node, branch: Branch, everyone: AvoidanceTable | None
@@ -209,11 +233,13 @@ class _Search:
         agent = branch[0]
         table = self._table(node, agent, branch)
         avoid = None if everyone is None else self._avoidance(everyone, node.paths[agent])
-        path = self._plan(agent, table, avoid)
-        if path is None:
+        got = self._plan(agent, table, avoid)
+        if got is None:
             return None
+        states = list(node.states)
+        states[agent] = got[0]
         paths = list(node.paths)
-        paths[agent] = path
+        paths[agent] = got[1]
         target = self.options.target
         conflicts = {pair: c for pair, c in node.conflicts.items() if agent not in pair}
         for j in range(len(paths)):
@@ -225,7 +251,7 @@ class _Search:
                 conflicts[i, k] = found
         mdds = {a: m for a, m in node.mdds.items() if a != agent}
         best = {pair: v for pair, v in node.best.items() if agent not in pair}
-        ch = _Node(node, branch, paths, conflicts, mdds, best)
+        ch = _Node(node, branch, states, paths, conflicts, mdds, best)
         ch.deps = {pair: v for pair, v in node.deps.items() if agent not in pair}
         ch.h = max(0, node.h - (ch.g - node.g))
         return ch
@@ -235,8 +261,7 @@ class _Search:
         if mdd is None:
             table = self._table(node, agent)
             mdd = build_mdd(
-                self.model, self.starts[agent], self.goals[agent], self.h[agent], table,
-                node.costs[agent],
+                self.model, self.starts[agent], self.h[agent], table, node.costs[agent]
             )
             node.mdds[agent] = mdd
         return mdd
@@ -277,7 +302,7 @@ class _Search:
             k = self.classify(node, c)
             if k > kind or (k == kind and c[0] < best[0]):
                 best, kind = c, k
-        if kind < CARDINAL and self.options.rectangle:
+        if kind < CARDINAL and self.options.rectangle and self.problem.motion == "omni":
             rect = self._rectangle(node, pair[0], pair[1], min(c[0] for c in found))
             if rect is not None:
                 best, kind = rect, CARDINAL
@@ -363,6 +388,7 @@ class _Search:
 
     def adopt(self, node: _Node, ch: _Node, agent: int) -> None:
         """Bypass: take the child's path for ``agent`` into ``node`` (same constraints)."""
+        node.states = ch.states
         node.paths = ch.paths
         node.costs = ch.costs
         node.conflicts = ch.conflicts
@@ -372,8 +398,7 @@ class _Search:
         node.h_done = False
 
     def solution(self, node: _Node) -> Solution:
-        cell = self.grid.cell
-        plan = Plan.of([[cell(v) for v in p] for p in node.paths])
+        plan = self.problem.plan_of(node.states)
         return Solution(plan, optimal=True, expanded_nodes=self.expanded)
 
 
@@ -400,17 +425,19 @@ def min_vertex_cover(edges: Sequence[tuple[int, int]]) -> int:
 
 def solve_cbs(
     grid: Grid,
-    starts: Sequence[Cell],
-    goals: Sequence[Cell],
+    starts: Sequence[Place],
+    goals: Sequence[Place],
     *,
     deadline: Deadline,
     forbidden: Sequence[Forbidden] = (),
     options: CBSOptions = CBSOptions(),
+    motion: Motion = "omni",
 ) -> Solution:
     """An SOC-optimal 1-robust plan (DESIGN section 2) found by CBS.
 
-    ``forbidden`` cells are closed to every agent during their time windows. Raises
-    ``NoSolution`` if there is none (``timed_out=True`` if the deadline expired first) and
-    ``ValueError`` on a malformed instance.
+    Under ``motion="turning"`` starts are ``(x, y, heading)`` and goals ``(x, y)`` (any final
+    heading) or ``(x, y, heading)``. ``forbidden`` cells are closed to every agent during their
+    time windows. Raises ``NoSolution`` if there is none (``timed_out=True`` if the deadline
+    expired first) and ``ValueError`` on a malformed instance.
     """
-    return _Search(grid, starts, goals, forbidden, deadline, options).run()
+    return _Search(grid, starts, goals, forbidden, deadline, options, motion).run()

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from gateway.planning.connectivity import component_labels
 from gateway.planning.grid import Cell, Grid
+from gateway.planning.motion import DEFAULT_START_HEADING, HeadedCell
 from gateway.planning.movingai import (
     AgentFile,
     MapFormatError,
@@ -20,16 +21,32 @@ from gateway.planning.movingai import (
 
 @dataclass(frozen=True)
 class Instance:
-    """A MAPF instance: agent k goes from ``starts[k]`` to ``goals[k]`` on ``grid``."""
+    """A MAPF instance: agent k goes from ``starts[k]`` to ``goals[k]`` on ``grid``.
+
+    ``start_headings`` are the agents' headings for the ``turning`` model, if the instance
+    gives them (MovingAI scenarios, mapf-IR and LoRR agent files do not).
+    """
 
     grid: Grid
     starts: tuple[Cell, ...]
     goals: tuple[Cell, ...]
     name: str = ""
+    start_headings: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         if len(self.starts) != len(self.goals):
             raise ValueError(f"{len(self.starts)} starts but {len(self.goals)} goals")
+        if self.start_headings is not None:
+            if len(self.start_headings) != len(self.starts):
+                raise ValueError(f"{len(self.starts)} starts but {len(self.start_headings)} "
+                                 "start headings")
+            if not all(h in (0, 1, 2, 3) for h in self.start_headings):
+                raise ValueError("start headings must be 0-3")
+
+    def turning_starts(self, default: int = DEFAULT_START_HEADING) -> tuple[HeadedCell, ...]:
+        """Starts as ``(x, y, heading)``: the instance's headings, else ``default`` for all."""
+        headings = self.start_headings or (default,) * len(self.starts)
+        return tuple((x, y, h) for (x, y), h in zip(self.starts, headings, strict=True))
 
     @property
     def num_agents(self) -> int:

@@ -1,20 +1,24 @@
 """Single-agent planning in space-time: motion models, A* under constraints, and MDDs.
 
 The low level works on *states* (ints) produced by a motion model; constraints and conflicts are
-on *cells*. With the ``omni`` model a state is the cell's flat id; a ``turning`` model would
-number ``(cell, heading)`` pairs and map each to its cell through ``cells``.
+on *cells*. With the ``omni`` model a state is the cell's flat id; the ``turning`` model numbers
+``(cell, heading)`` pairs ``4 * cell + heading`` and maps each to its cell through ``cells``.
+A state is a goal state when its heuristic (an exact distance table) is 0: the goal cell under
+``omni``, the goal cell with any heading (or the fixed goal heading) under ``turning``.
 """
 
 from __future__ import annotations
 
+import weakref
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from heapq import heappop, heappush
 
 from gateway.planning.constraints import INF, ConstraintTable
-from gateway.planning.distance import distance_tables
+from gateway.planning.distance import distance_tables, turning_distance_tables
 from gateway.planning.grid import Grid
+from gateway.planning.motion import HEADING_MOVES, Motion
 from gateway.planning.plan import Deadline, NoSolution
 
 DEADLINE_EVERY = 512
@@ -40,15 +44,93 @@ class OmniModel:
         object.__setattr__(self, "succ", succ)
         object.__setattr__(self, "cells", tuple(range(n)))
 
-    def state(self, cell: int) -> int:
-        """The state of an agent standing on ``cell`` at the start."""
+    def state(self, cell: int, heading: int = 0) -> int:
+        """The state of an agent standing on ``cell`` (the heading is ignored)."""
         return cell
 
-    def heuristics(self, goals: Sequence[int]) -> list[list[int]]:
+    def heading(self, state: int) -> int:
+        """Always 0: ``omni`` states have no heading."""
+        return 0
+
+    def heuristics(self, goals: Sequence[int],
+                   goal_headings: Sequence[int | None] | None = None) -> list[list[int]]:
         """For each goal cell, exact moves-to-go from every state (-1 where unreachable)."""
         cell = self.grid.cell
         result: list[list[int]] = distance_tables(self.grid, [cell(g) for g in goals]).tolist()
         return result
+
+
+@dataclass(frozen=True, eq=False)
+class TurningModel:
+    """The ``turning`` motion model: state ``4 * cell + heading``; wait, turn 90 degrees either
+    way in place, or move one cell forward along the heading, one timestep each.
+
+    ``succ[s]`` lists the successor states of state ``s`` (waiting first, then the turns
+    clockwise and counter-clockwise, then forward if that cell is free); ``cells[s]`` is the
+    cell of state ``s``.
+    """
+
+    grid: Grid
+    succ: tuple[tuple[int, ...], ...] = field(init=False, repr=False)
+    cells: tuple[int, ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        grid = self.grid
+        w, h = grid.width, grid.height
+        flat = grid.free.ravel()
+        succ: list[tuple[int, ...]] = []
+        for c in range(grid.size):
+            x, y = c % w, c // w
+            for d, (dx, dy) in enumerate(HEADING_MOVES):
+                if not flat[c]:
+                    succ.append(())
+                    continue
+                s = 4 * c + d
+                out = [s, 4 * c + (d + 1) % 4, 4 * c + (d + 3) % 4]
+                nx, ny = x + dx, y + dy
+                if 0 <= nx < w and 0 <= ny < h and flat[ny * w + nx]:
+                    out.append(4 * (ny * w + nx) + d)
+                succ.append(tuple(out))
+        object.__setattr__(self, "succ", tuple(succ))
+        object.__setattr__(self, "cells", tuple(s >> 2 for s in range(4 * grid.size)))
+
+    def state(self, cell: int, heading: int = 0) -> int:
+        """The state of an agent standing on ``cell`` with ``heading``."""
+        return 4 * cell + heading
+
+    def heading(self, state: int) -> int:
+        """The heading of a state."""
+        return state & 3
+
+    def heuristics(self, goals: Sequence[int],
+                   goal_headings: Sequence[int | None] | None = None) -> list[list[int]]:
+        """For each goal cell (with its heading if fixed, any heading if None), exact
+        timesteps-to-go from every state (-1 where unreachable)."""
+        cell = self.grid.cell
+        result: list[list[int]] = turning_distance_tables(
+            self.grid, [cell(g) for g in goals], goal_headings).tolist()
+        return result
+
+
+MotionModel = OmniModel | TurningModel
+"""A motion model the planners accept."""
+
+_MODELS: weakref.WeakKeyDictionary[Grid, dict[str, MotionModel]] = weakref.WeakKeyDictionary()
+
+
+def motion_model(grid: Grid, motion: Motion) -> MotionModel:
+    """The model of ``motion`` on ``grid`` (cached per grid: building one is O(cells))."""
+    models = _MODELS.setdefault(grid, {})
+    model = models.get(motion)
+    if model is None:
+        if motion == "omni":
+            model = OmniModel(grid)
+        elif motion == "turning":
+            model = TurningModel(grid)
+        else:
+            raise ValueError(f"unknown motion model {motion!r}: give omni or turning")
+        models[motion] = model
+    return model
 
 
 @dataclass(slots=True)
@@ -67,7 +149,7 @@ class AvoidanceTable:
 
 
 def space_time_astar(
-    model: OmniModel,
+    model: MotionModel,
     start: int,
     goal: int,
     h: list[int],
@@ -76,7 +158,8 @@ def space_time_astar(
     deadline: Deadline,
     max_expansions: int | None = None,
 ) -> list[int] | None:
-    """A cheapest path of states from ``start`` that ends on cell ``goal`` and may stay there.
+    """A cheapest path of states from ``start`` that ends in a goal state (``h == 0``, on cell
+    ``goal``) and may stay there.
 
     The path ends at time T with ``T > table.goal_block(goal)``, so staying on the goal after T
     breaks no constraint. Among cheapest paths it returns one with fewest conflicts counted by
@@ -112,7 +195,7 @@ def space_time_astar(
         if key in closed:
             continue
         closed.add(key)
-        if cells[s] == goal and t >= floor:
+        if h[s] == 0 and t >= floor:
             path = []
             node: object = entry
             while node is not None:
@@ -154,12 +237,12 @@ def space_time_astar(
 
 
 def build_mdd(
-    model: OmniModel, start: int, goal: int, h: list[int], table: ConstraintTable, cost: int
+    model: MotionModel, start: int, h: list[int], table: ConstraintTable, cost: int
 ) -> list[frozenset[int]]:
     """Layers of the multi-valued decision diagram: all cost-``cost`` paths under ``table``.
 
     ``mdd[t]`` holds the states that some such path visits at time t; ``mdd[cost]`` holds goal
-    states only. ``cost`` must be the agent's optimal cost under ``table``.
+    states (``h == 0``) only. ``cost`` must be the agent's optimal cost under ``table``.
     """
     succ = model.succ
     cells = model.cells
@@ -180,7 +263,7 @@ def build_mdd(
                     continue
                 cur.add(u)
         layers.append(cur)
-    layers[cost] = {s for s in layers[cost] if cells[s] == goal}
+    layers[cost] = {s for s in layers[cost] if h[s] == 0}
     for t in range(cost - 1, -1, -1):
         nxt = layers[t + 1]
         layers[t] = {s for s in layers[t] if any(u in nxt for u in succ[s])}
@@ -188,7 +271,7 @@ def build_mdd(
 
 
 def mdd_always_visits(
-    model: OmniModel, mdd: list[frozenset[int]], goal: int, cell: int, t0: int, t1: int
+    model: MotionModel, mdd: list[frozenset[int]], goal: int, cell: int, t0: int, t1: int
 ) -> bool:
     """True if every path of the MDD (staying on ``goal`` after its end) is on ``cell`` at
     some time in ``[t0, t1]``: a constraint forbidding that range raises the agent's cost."""
@@ -209,7 +292,7 @@ def mdd_always_visits(
 
 
 def mdds_compatible(
-    model: OmniModel, mdd_a: list[frozenset[int]], mdd_b: list[frozenset[int]]
+    model: MotionModel, mdd_a: list[frozenset[int]], mdd_b: list[frozenset[int]]
 ) -> bool:
     """True if some path of each MDD (each staying on its goal after its end) make a
     conflict-free pair under the 1-robust rule; False means one of the two agents must pay

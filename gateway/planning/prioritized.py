@@ -18,10 +18,11 @@ from collections.abc import Sequence
 
 from gateway.planning.connectivity import component_labels
 from gateway.planning.constraints import INF, ConstraintTable
-from gateway.planning.grid import Cell, Grid
+from gateway.planning.grid import Grid
 from gateway.planning.low_level import space_time_astar
-from gateway.planning.plan import Deadline, NoSolution, Plan, Solution
-from gateway.planning.problem import Forbidden, Problem
+from gateway.planning.motion import Motion
+from gateway.planning.plan import Deadline, NoSolution, Solution
+from gateway.planning.problem import Forbidden, Place, Problem
 
 EXPANSION_BUDGET = 300
 """An agent's search gives up after this many expansions per timestep of its horizon."""
@@ -86,10 +87,11 @@ class _Reservations:
 
 def _attempt(
     problem: Problem, order: Sequence[int], deadline: Deadline
-) -> list[tuple[int, ...]] | int:
-    """Plan agents in ``order``; the paths (indexed by agent) or the agent that failed."""
+) -> list[list[int]] | int:
+    """Plan agents in ``order``; the paths of states (indexed by agent) or the agent that
+    failed."""
     res = _Reservations(problem)
-    paths: list[tuple[int, ...]] = [()] * problem.num_agents
+    paths: list[list[int]] = [[] for _ in range(problem.num_agents)]
     for k in order:
         start_cell = problem.model.cells[problem.starts[k]]
         for t in range(1, START_HOLD + 1):
@@ -101,8 +103,8 @@ def _attempt(
         )
         if states is None:
             return k
-        paths[k] = problem.cells_of(states)
-        res.reserve(paths[k])
+        paths[k] = states
+        res.reserve(problem.cells_of(states))
     return paths
 
 
@@ -127,13 +129,14 @@ def _boxed_in(problem: Problem) -> set[int]:
 
 def solve_prioritized(
     grid: Grid,
-    starts: Sequence[Cell],
-    goals: Sequence[Cell],
+    starts: Sequence[Place],
+    goals: Sequence[Place],
     *,
     deadline: Deadline,
     forbidden: Sequence[Forbidden] = (),
     attempts: int = 20,
     seed: int = 0,
+    motion: Motion = "omni",
 ) -> Solution:
     """A valid 1-robust plan by prioritised planning (``optimal=False``; ``expanded_nodes`` is
     the number of orders tried).
@@ -143,7 +146,7 @@ def solve_prioritized(
     after ``attempts`` failed orders (``timed_out=True`` if the deadline expired first) and
     ``ValueError`` on a malformed instance.
     """
-    problem = Problem(grid, starts, goals, forbidden)
+    problem = Problem(grid, starts, goals, forbidden, motion)
     rng = random.Random(seed)
     boxed = _boxed_in(problem)
     order = sorted(range(problem.num_agents),
@@ -154,9 +157,7 @@ def solve_prioritized(
             raise NoSolution("deadline expired in prioritised planning", timed_out=True)
         got = _attempt(problem, order, deadline)
         if isinstance(got, list):
-            cell = grid.cell
-            plan = Plan.of([[cell(v) for v in p] for p in got])
-            return Solution(plan, optimal=False, expanded_nodes=attempt)
+            return Solution(problem.plan_of(got), optimal=False, expanded_nodes=attempt)
         if got in front:
             front.remove(got)
             rest = [k for k in order if k not in front and k != got]

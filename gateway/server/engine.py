@@ -176,8 +176,7 @@ class Engine:
         """Process queue items forever; tick while running."""
         next_tick: float | None = None
         while True:
-            ticking = (self.executor is not None and not self.paused
-                       and self.executor.mode is not Mode.DONE)
+            ticking = self.executor is not None and self.executor.mode is not Mode.DONE
             if not ticking:
                 next_tick = None
                 item = await self.queue.get()
@@ -242,8 +241,8 @@ class Engine:
 
     def _tick(self) -> None:
         ex = self.executor
-        if ex is None or self.paused or ex.mode is Mode.DONE:
-            return
+        if ex is None or ex.mode is Mode.DONE:
+            return  # while paused the monitor is kept true (the executor asks no policy)
         now = self.now_ms()
         ex.tick(now)
         slack = ex.monitor.fleet_slack()
@@ -608,6 +607,10 @@ class Engine:
 
     def _set_paused(self, paused: bool) -> None:
         self.paused = paused
+        ex = self.executor
+        if ex is not None and ex.paused != paused:
+            (ex.pause if paused else ex.resume)(self.now_ms())
+            self._route(ex.drain())
         for gs in self.robots.values():
             gs.set_paused(paused)
             self._flush(gs)
@@ -643,6 +646,7 @@ class Engine:
     def _loaded(self) -> None:
         for gs in self.robots.values():
             gs.new_run()
+            gs.pose = None  # where it stood in the previous world
         self.feed.slack_series.clear()
         self.summary = None
         self._status_changed()
@@ -699,7 +703,8 @@ class Engine:
         """What operators are shown, read-only (see :mod:`gateway.server.views`)."""
         feed = self.feed
         return FleetView(
-            t_ms=self.clock.now_ms(), status=self.status, threshold_ms=self.threshold_ms,
+            t_ms=self.now_ms(), max_replans=self.config.max_replans, status=self.status,
+            threshold_ms=self.threshold_ms,
             policy=self.policy_name, speed=self.clock.speed, slack_series=feed.slack_series,
             intruders=feed.intruders, replan_marks=feed.replan_marks, problem=self.problem,
             executor=self.executor, robots=self.robots)

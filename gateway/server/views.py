@@ -22,6 +22,8 @@ class FleetView:
     protocol sessions, and the operator-facing settings and series."""
 
     t_ms: float
+    """The present (the engine's time)."""
+    max_replans: int
     status: GatewayStatus
     threshold_ms: float
     policy: PolicyName
@@ -54,7 +56,9 @@ def snapshot_fields(view: FleetView) -> dict[str, Any]:
     """Everything a ``snapshot`` carries except msg_id/seq."""
     problem, ex = view.problem, view.executor
     out: dict[str, Any] = {
-        "t_ms": view.t_ms if ex is not None else 0.0,
+        # the clock stops with the run: a finished run's time is that of its last event
+        "t_ms": 0.0 if ex is None else ex.now_ms if ex.done else view.t_ms,
+        "max_replans": view.max_replans,
         "status": view.status,
         "threshold_ms": view.threshold_ms,
         "policy": view.policy,
@@ -78,15 +82,16 @@ def snapshot_fields(view: FleetView) -> dict[str, Any]:
     for r in range(problem.instance.num_agents):
         rec = view.robots.get(r) or GatewaySession(r)
         path = plan.paths[r] if plan is not None else (problem.instance.starts[r],)
-        cell = rec.pose.cell if rec.pose is not None else (
-            ex.robot_cell(r) if ex is not None else path[0])
+        # before a run, robots are shown on the instance's starts (what the run will use)
+        cell = path[0] if ex is None else rec.pose.cell if rec.pose is not None else (
+            ex.robot_cell(r))
         held = next(iter(rec.held.items()), None)
         for h in rec.held.values():
             counts[h.phase] += 1
         counts["finished"] += rec.next_index if ex is not None else 0
         robots.append(RobotView(
             robot_id=r, connected=rec.connected, cell=cell,
-            heading=_heading(rec.pose, ex, plan, r),
+            heading=_heading(rec.pose if ex is not None else None, ex, plan, r),
             activity=rec.activity(), action_id=held[0] if held else None, goal=goals[r],
             remaining=list(path[min(rec.next_index, len(path) - 1):]),
             slack_ms=ex.monitor.robot_slack(r) if ex is not None else 0.0))

@@ -8,6 +8,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from gateway.planning.grid import Cell, Grid
+from gateway.planning.motion import HeadedCell
 from gateway.planning.plan import Plan
 from gateway.planning.validate import plan_violations
 
@@ -33,8 +34,8 @@ class CountingDeadline:
 
 def assert_valid(
     grid: Grid,
-    starts: Sequence[Cell],
-    goals: Sequence[Cell],
+    starts: Sequence[Cell | HeadedCell],
+    goals: Sequence[Cell | HeadedCell],
     plan: Plan,
     forbidden: Sequence[Forbidden] = (),
 ) -> None:

@@ -94,7 +94,7 @@ def test_mdd_always_visits() -> None:
     model = OmniModel(grid)
     h = model.heuristics([2])[0]
     table = build_table(grid.size, [])
-    mdd = build_mdd(model, 0, 2, h, table, 2)  # the only 2-step path is 0, 1, 2
+    mdd = build_mdd(model, 0, h, table, 2)  # the only 2-step path is 0, 1, 2
     assert [sorted(layer) for layer in mdd] == [[0], [1], [2]]
     assert mdd_always_visits(model, mdd, 2, 1, 1, 1)
     assert not mdd_always_visits(model, mdd, 2, 1, 2, 3)

@@ -64,6 +64,30 @@ def test_plan_human_summary() -> None:
     assert len(done.stdout.splitlines()) == 1
 
 
+@pytest.mark.parametrize(("extra", "heading"), [((), 0), (("--start-heading", "south"), 1)])
+def test_plan_turning_json(extra: tuple[str, ...], heading: int) -> None:
+    # MovingAI scenarios give no start headings: east by default, or --start-heading.
+    done = call("plan", "--map", "lab", "--scen", "lab-random-1", "--agents", "8", "--json",
+                "--motion", "turning", *extra)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    inst = load_instance(SHIPPED / "lab.map", SHIPPED / "lab-random-1.scen", 8)
+    assert list(out) == KEYS
+    assert (out["motion"], out["robust"], out["optimal"]) == ("turning", 1, True)
+    starts = [tuple(a["start"]) for a in out["agents"]]
+    assert starts == [(x, y, heading) for x, y in inst.starts]
+    assert [tuple(a["goal"]) for a in out["agents"]] == list(inst.goals)
+    plan = Plan.from_json("turning", [a["path"] for a in out["agents"]])
+    assert plan_violations(inst.grid, starts, inst.goals, plan) == []
+    assert (out["soc"], out["makespan"]) == (plan.soc, plan.makespan)
+    omni = json.loads(call("plan", "--map", "lab", "--scen", "lab-random-1", "--agents", "8",
+                           "--json").stdout)
+    assert out["soc"] > omni["soc"]  # lab-random-1 needs turns: the omni optimum is lower
+    human = call("plan", "--map", "lab", "--scen", "lab-random-1", "--agents", "8",
+                 "--motion", "turning", *extra)
+    assert human.stdout.startswith(f"lab.map, 8 agents, turning: SOC {out['soc']}, ")
+
+
 @needs_shared
 def test_plan_movingai_scenario_by_name() -> None:
     done = call("plan", "--maps-dir", str(SHARED_MAPS), "--map", "random-32-32-20", "--scen",
@@ -110,6 +134,10 @@ def test_no_solution_in_time_exits_3(tmp_path: Path) -> None:
     (["--instance", "/nonexistent/i.txt"], "cannot read /nonexistent/i.txt: "),
     (["--map", "warehouse-small", "--scen", "lab-random-1"],
      "lab-random-1.scen:2: scenario is for a 14x10 map, the map is 23x14"),
+    (["--map", "lab", "--scen", "lab-random-1", "--start-heading", "north"],
+     "--start-heading needs --motion turning"),
+    (["--map", "lab", "--scen", "lab-random-1", "--motion", "turning", "--start-heading", "up"],
+     "--start-heading: bad heading 'up': give 0-3 or east, south, west, north"),
 ])
 def test_bad_input_exits_2_with_one_line(args: list[str], reason: str) -> None:
     done = call("plan", *args)
