@@ -12,6 +12,7 @@ Box plots may leave out outliers (counted in the tick labels), see :func:`plot_a
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -21,6 +22,8 @@ matplotlib.use("Agg")  # before pyplot: files only, no display
 
 import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from experiments.stats import Experiment, OutlierRules, map_order, outlier_reasons
 
@@ -40,14 +43,27 @@ def _boxes(ax: Axes, groups: Sequence[Sequence[Experiment]], labels: Sequence[st
         ticks.append(f"{lab}\n(n={len(values)})" + (f"\n+{hidden} outl." if hidden else ""))
     ax.boxplot([v or [math.nan] for v in shown], showmeans=True, tick_labels=ticks)
     ax.axhline(0, color="grey", linewidth=0.8, linestyle="--")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # whole milliseconds
 
 
 BOX_NOTE = ("boxes: quartiles and 1.5 IQR whiskers, line: median, triangle: mean; "
             "outliers by the summary's rules are not drawn")
+NOTE_CHARS_PER_INCH = 15
+"""Characters of the 7-point note per inch of figure width (with room to spare)."""
+NOTE_LINE_INCH = 0.13
 
 
-def plot_replan_decision(exps: Sequence[Experiment], path: Path,
-                         maps_first: Sequence[str] = (), hide: Hide = lambda e: False) -> Path:
+def _note_and_layout(fig: Figure) -> None:
+    """Put :data:`BOX_NOTE` under the panels, wrapped to the figure's width, and lay the
+    panels out above it (a narrow figure must not cut the note off)."""
+    width, height = fig.get_size_inches()
+    lines = textwrap.wrap(BOX_NOTE, int(width * NOTE_CHARS_PER_INCH))
+    fig.text(0.5, 0.004, "\n".join(lines), ha="center", va="bottom", fontsize=7, color="grey")
+    fig.tight_layout(rect=(0, (len(lines) * NOTE_LINE_INCH + 0.05) / height, 1, 1))
+
+
+def replan_decision_figure(exps: Sequence[Experiment], maps_first: Sequence[str] = (),
+                           hide: Hide = lambda e: False) -> Figure:
     """Per map: slack replanning frequency and the SOC difference, replanned vs not."""
     maps = map_order(exps, maps_first)
     fig, axes = plt.subplots(len(maps) or 1, 2, figsize=(9, 3.2 * max(1, len(maps))),
@@ -58,19 +74,17 @@ def plot_replan_decision(exps: Sequence[Experiment], path: Path,
         no = [e for e in mine if not e.slack_replanned]
         row[0].bar(REPLANNED_LABELS, [len(yes), len(no)], color=["tab:blue", "tab:grey"])
         row[0].set_ylabel("experiments")
+        row[0].yaxis.set_major_locator(MaxNLocator(integer=True))
         row[0].set_title(f"{name}: replanning frequency")
         _boxes(row[1], [yes, no], REPLANNED_LABELS, hide)
         row[1].set_ylabel("$T_c^P - T_c^R$ [ms]")
         row[1].set_title(f"{name}: SOC difference")
-    fig.text(0.99, 0.002, BOX_NOTE, ha="right", va="bottom", fontsize=7, color="grey")
-    fig.tight_layout(rect=(0, 0.02, 1, 1))
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    _note_and_layout(fig)
+    return fig
 
 
-def plot_fleet_size(exps: Sequence[Experiment], path: Path,
-                    maps_first: Sequence[str] = (), hide: Hide = lambda e: False) -> Path:
+def fleet_size_figure(exps: Sequence[Experiment], maps_first: Sequence[str] = (),
+                      hide: Hide = lambda e: False) -> Figure:
     """Per map: the SOC difference per number of agents where both methods replanned."""
     maps = map_order(exps, maps_first)
     cols = 2 if len(maps) > 1 else 1
@@ -87,8 +101,11 @@ def plot_fleet_size(exps: Sequence[Experiment], path: Path,
         ax.set_title(f"{name}: both methods replanned")
     for ax in flat[len(maps):]:
         ax.set_visible(False)
-    fig.text(0.99, 0.002, BOX_NOTE, ha="right", va="bottom", fontsize=7, color="grey")
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    _note_and_layout(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Path) -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
@@ -106,5 +123,6 @@ def plot_all(exps: Sequence[Experiment], folder: Path, maps_first: Sequence[str]
     def hide(e: Experiment) -> bool:
         return rules is not None and bool(outlier_reasons(e, rules))
 
-    return [plot_replan_decision(exps, folder / "replan_decision.png", maps_first, hide),
-            plot_fleet_size(exps, folder / "fleet_size.png", maps_first, hide)]
+    return [_save(replan_decision_figure(exps, maps_first, hide),
+                  folder / "replan_decision.png"),
+            _save(fleet_size_figure(exps, maps_first, hide), folder / "fleet_size.png")]

@@ -487,6 +487,8 @@ class Snapshot(Envelope):
     waits: list[WaitEdge] = Field(default_factory=list)
     intruders: list[Cell] = Field(default_factory=list)
     replans: int = 0
+    max_replans: int = 1
+    """Replans allowed per run (operator's included): "replan now" is refused beyond it."""
     replan_marks: list[ReplanMark] = Field(default_factory=list)
 
 

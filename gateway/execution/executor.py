@@ -38,6 +38,7 @@ import enum
 import math
 from collections import deque
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from gateway.execution.actions import ActionDurations, per_robot
 from gateway.execution.adg import ADG
@@ -62,6 +63,10 @@ from gateway.execution.trace_records import (
 )
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
 
 __all__ = ["MONITOR_PERIOD_MS", "ExecutionError", "Executor", "Mode"]
 
@@ -107,6 +112,10 @@ class Executor:
         self.drop_waits = drop_waits
         self.max_replans = max_replans
         self.replans = 0
+        self.paused = False
+        """Between :meth:`pause` and :meth:`resume`: the monitor is kept up to date at every
+        tick, but the policy is not asked."""
+        self._growth_at_pause: npt.NDArray[np.float64] | None = None
         self.mode = Mode.NEW
         self._record = record
         self._out: list[Command] = []
@@ -134,6 +143,8 @@ class Executor:
         self._queue: list[deque[int]] = [deque() for _ in range(adg.n_robots)]
         self._busy = 0  # vertices in all queues
         self._left = adg.n_vertices
+        if self.paused:  # a plan adopted during a pause: its slack counts from now
+            self._growth_at_pause = self.monitor.growth()
 
     # ------------------------------------------------------------------ queries
     @property
@@ -181,7 +192,7 @@ class Executor:
 
     def next_wakeup_ms(self) -> float | None:
         """Earliest time a time-based policy wants ``tick()`` (None if none)."""
-        if self.mode is Mode.RUNNING and self.replans < self.max_replans:
+        if self.mode is Mode.RUNNING and self.replans < self.max_replans and not self.paused:
             return self.policy.next_wakeup_ms()
         return None
 
@@ -331,13 +342,40 @@ class Executor:
 
     # ------------------------------------------------------------------ time and replanning
     def tick(self, now_ms: float) -> None:
-        """The present moved on: update the monitor's clamping and ask the policy."""
+        """The present moved on: update the monitor's clamping and ask the policy (unless
+        paused)."""
         self._check_time(now_ms)
         self._advance(now_ms)
         self.monitor.advance(self._now)
-        if (self.mode is Mode.RUNNING and self.replans < self.max_replans
+        if (self.mode is Mode.RUNNING and not self.paused and self.replans < self.max_replans
                 and self.policy.should_replan(self._now, self.monitor)):
             self._trigger(self.policy.name)
+
+    def pause(self, now_ms: float) -> None:
+        """The fleet stands still (running actions complete, no new one starts) until
+        :meth:`resume`. Ticks keep the monitor's estimates and slack true meanwhile."""
+        self._check_time(now_ms)
+        if self.paused:
+            raise ExecutionError("already paused")
+        self._advance(now_ms)
+        self.monitor.advance(self._now)
+        self.paused = True
+        self._growth_at_pause = self.monitor.growth()
+
+    def resume(self, now_ms: float) -> None:
+        """End of the pause. The slack growth the pause itself caused (every robot waited)
+        is discounted: each action's Δ̄ is what it was when the pause began, plus nothing, so
+        a block that cleared during the pause does not trigger a replan now; one that lasts
+        makes the slack grow again from there."""
+        self._check_time(now_ms)
+        if not self.paused:
+            raise ExecutionError("not paused")
+        self._advance(now_ms)
+        self.monitor.advance(self._now)
+        assert self._growth_at_pause is not None
+        self.monitor.keep_growth(self._growth_at_pause)
+        self.paused = False
+        self._growth_at_pause = None
 
     def request_replan(self, now_ms: float) -> None:
         """The operator's "replan now" (allowed with any policy, within ``max_replans``)."""

@@ -288,6 +288,20 @@ class Monitor:
         growth = self._np_delta[lo:hi] - self._np_delta0[lo:hi]
         return float(growth[waiting].max())
 
+    def growth(self) -> npt.NDArray[np.float64]:
+        """Δ̄ of every vertex (a copy): what :meth:`keep_growth` restores."""
+        self._flush()
+        return self._np_delta - self._np_delta0
+
+    def keep_growth(self, growth: npt.NDArray[np.float64]) -> None:
+        """Move Δ0 so that Δ̄ is ``growth`` again (from :meth:`growth` on this monitor): the
+        change of Δ since then stops counting as slack growth. After a pause, the waiting
+        that standing still caused everyone is not a delay that replanning could mend."""
+        if growth.shape != self._np_delta.shape:
+            raise ExecutionError("growth of another plan's monitor")
+        self._flush()
+        self._np_delta0[:] = self._np_delta - growth
+
     # ----------------------------------------------------------------- progress
     def _check_time(self, now_ms: float) -> None:
         if not now_ms >= self.now_ms:  # also rejects NaN

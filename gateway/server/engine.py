@@ -193,8 +193,7 @@ class Engine:
         """Process queue items forever; tick while running."""
         next_tick: float | None = None
         while True:
-            ticking = (self.executor is not None and not self.paused
-                       and self.executor.mode is not Mode.DONE)
+            ticking = self.executor is not None and self.executor.mode is not Mode.DONE
             if not ticking:
                 next_tick = None
                 item = await self.queue.get()
@@ -259,8 +258,8 @@ class Engine:
 
     def _tick(self) -> None:
         ex = self.executor
-        if ex is None or self.paused or ex.mode is Mode.DONE:
-            return
+        if ex is None or ex.mode is Mode.DONE:
+            return  # while paused the monitor is kept true (the executor asks no policy)
         now = self.now_ms()
         ex.tick(now)
         slack = ex.monitor.fleet_slack()
@@ -708,6 +707,10 @@ class Engine:
 
     def _set_paused(self, paused: bool) -> None:
         self.paused = paused
+        ex = self.executor
+        if ex is not None and ex.paused != paused:
+            (ex.pause if paused else ex.resume)(self.now_ms())
+            self._route(ex.drain())
         for rec in self.robots.values():
             if rec.session is not None:
                 if paused:
@@ -750,6 +753,7 @@ class Engine:
             rec.held.clear()
             rec.applied.clear()
             rec.next_index = 0
+            rec.pose = None  # where it stood in the previous world
         self.slack_series.clear()
         self.summary = None
         self._status_changed()

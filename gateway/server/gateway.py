@@ -37,6 +37,7 @@ import resource
 import time
 import weakref
 from types import TracebackType
+from urllib.parse import urlsplit
 
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
@@ -241,6 +242,11 @@ class Gateway:
         try:
             upgrade = single_header(request.headers, "Upgrade")
             if upgrade is None or upgrade.lower() != "websocket":
+                if urlsplit(request.path).path == "/ws":
+                    # a plain GET of /ws: how a browser learns why its websocket failed
+                    self.auth.handshake(request.headers, request.path, None)
+                    return response(426, b"websocket upgrade required\n",
+                                    extra=[("Upgrade", "websocket")])
                 return self.http(request)
             if len(self._sessions) >= self._max_connections:
                 return response(503, b"too many connections\n", extra=[("Retry-After", "5")])

@@ -32,7 +32,7 @@ DEFAULT_STATIC = Path(gateway.web.__file__).resolve().parent / "static"
 
 REASONS = {200: "OK", 204: "No Content", 303: "See Other", 400: "Bad Request",
            401: "Unauthorized", 403: "Forbidden", 404: "Not Found", 405: "Method Not Allowed",
-           500: "Internal Server Error", 503: "Service Unavailable"}
+           426: "Upgrade Required", 500: "Internal Server Error", 503: "Service Unavailable"}
 
 SECURITY_HEADERS = [("X-Content-Type-Options", "nosniff"), ("X-Frame-Options", "DENY"),
                     ("Referrer-Policy", "no-referrer")]

@@ -34,7 +34,9 @@ def snapshot_fields(engine: Engine) -> dict[str, Any]:
     """Everything a ``snapshot`` carries except msg_id/seq."""
     problem, ex = engine.problem, engine.executor
     out: dict[str, Any] = {
-        "t_ms": engine.clock.now_ms() if ex is not None else 0.0,
+        # the clock stops with the run: a finished run's time is that of its last event
+        "t_ms": 0.0 if ex is None else ex.now_ms if ex.done else engine.now_ms(),
+        "max_replans": engine.config.max_replans,
         "status": engine.status,
         "threshold_ms": engine.threshold_ms,
         "policy": engine.policy_name,
@@ -58,15 +60,16 @@ def snapshot_fields(engine: Engine) -> dict[str, Any]:
     for r in range(problem.instance.num_agents):
         rec = engine.robot(r)
         path = plan.paths[r] if plan is not None else (problem.instance.starts[r],)
-        cell = rec.pose.cell if rec.pose is not None else (
-            ex.robot_cell(r) if ex is not None else path[0])
+        # before a run, robots are shown on the instance's starts (what the run will use)
+        cell = path[0] if ex is None else rec.pose.cell if rec.pose is not None else (
+            ex.robot_cell(r))
         held = next(iter(rec.held.items()), None)
         for h in rec.held.values():
             counts[h.phase] += 1
         counts["finished"] += rec.next_index if ex is not None else 0
         robots.append(RobotView(
             robot_id=r, connected=rec.session is not None, cell=cell,
-            heading=_heading(rec.pose, ex, plan, r),
+            heading=_heading(rec.pose if ex is not None else None, ex, plan, r),
             activity=rec.activity(), action_id=held[0] if held else None, goal=goals[r],
             remaining=list(path[min(rec.next_index, len(path) - 1):]),
             slack_ms=ex.monitor.robot_slack(r) if ex is not None else 0.0))

@@ -118,3 +118,25 @@ def test_bad_input_gets_one_line_and_a_documented_code(scratch: Path, args: list
         assert len([ln for ln in lines if " error: " in ln]) == 1
     else:
         assert len(lines) == 1, done.stderr
+
+
+@pytest.mark.parametrize(("content", "says"), [
+    (None, "cannot read"),
+    ('{"t_ms": 0, "type": "plan", "plan": 0, "agents": [{"path": [[0, 0]]}]}\n{"t_ms": 1',
+     "not JSON"),
+    (b"\xff\xfe\x00\x00", "can't decode"),
+    ("[1, 2]\n", "must be a JSON object"),
+], ids=["missing", "truncated", "binary", "not-objects"])
+def test_the_trace_checker_refuses_what_is_not_a_trace(tmp_path: Path, content: str | bytes |
+                                                        None, says: str) -> None:
+    trace = tmp_path / "t.jsonl"
+    if isinstance(content, bytes):
+        trace.write_bytes(content)
+    elif content is not None:
+        trace.write_text(content)
+    done = subprocess.run([sys.executable, "-m", "tracecheck", str(trace)], capture_output=True,
+                          text=True, timeout=60, check=False)
+    assert "Traceback" not in done.stderr, done.stderr
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.startswith("tracecheck: ") and says in done.stderr
+    assert len(done.stderr.splitlines()) == 1

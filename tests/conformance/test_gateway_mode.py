@@ -19,10 +19,12 @@ import pytest
 
 from gateway.cli import main
 from gateway.conformance.gateway_checks import GATEWAY_CHECKS
+from gateway.server.config import TlsConfig
 from gateway.server.gateway import Gateway
 from gateway.server.session import Session
 from protocol import AnyMessage, Hello, ProtocolError, decode
 from tests.server.conftest import make_config
+from tests.server.tls_certs import make_certs
 
 KNOWN_FAILURES = {"no-resend-of-acknowledged"}
 """Required checks fleetgate's gateway fails today, each with the reason: the gateway resends
@@ -140,3 +142,34 @@ def test_refused_token_is_a_usage_error(served: str, capsys: pytest.CaptureFixtu
                                         ) -> None:
     assert main(["conformance", "gateway", served, "--token", "wrong"]) == 2
     assert "refused --token (HTTP 403)" in capsys.readouterr().err
+
+
+def test_over_tls_with_a_private_ca(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    certs = make_certs(tmp_path)
+    ready: list[int] = []
+    stop = threading.Event()
+
+    async def serve() -> None:
+        tls = TlsConfig(cert=certs.server_cert, key=certs.server_key)  # robots by token
+        async with Gateway(make_config(tls=tls)) as gw:
+            ready.append(await gw.listen())
+            while not stop.is_set():
+                await asyncio.sleep(0.05)
+
+    thread = threading.Thread(target=asyncio.run, args=(serve(),), daemon=True)
+    thread.start()
+    try:
+        while not ready:
+            assert thread.is_alive(), "the TLS gateway did not start"
+            stop.wait(0.05)
+        url = f"wss://127.0.0.1:{ready[0]}/ws"
+        args = ["conformance", "gateway", url, "--token", "demo-robot-{id}",
+                "--operator-token", "demo-operator", "--only",
+                "auth-missing-token-401,hello-gets-welcome,dispatch-fields"]
+        code = main([*args, "--cafile", str(certs.ca)])
+        assert code == 0, capsys.readouterr()
+        assert main(args) == 2  # the private CA is not trusted by default
+        assert "cannot" in capsys.readouterr().err
+    finally:
+        stop.set()
+        thread.join(10)

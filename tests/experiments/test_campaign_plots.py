@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.plots import plot_all
+import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
+
+from experiments.plots import fleet_size_figure, plot_all, replan_decision_figure
 from experiments.stats import Experiment, OutlierRules, outlier_reasons
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -30,3 +33,24 @@ def test_figures_with_an_outlier_and_an_empty_group(tmp_path: Path) -> None:
         assert [f.name for f in files] == ["replan_decision.png", "fleet_size.png"]
         for f in files:
             assert f.read_bytes()[:8] == PNG and f.stat().st_size > 5000
+
+
+def _inside_figure_and_integer_ticks(fig: Figure) -> None:
+    fig.canvas.draw()
+    page = fig.bbox
+    for text in fig.texts:
+        box = text.get_window_extent()
+        assert page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0, text.get_text()
+    for ax in fig.axes:
+        if ax.get_visible():
+            ticks = [t for t in ax.get_yticks() if ax.get_ylim()[0] <= t <= ax.get_ylim()[1]]
+            assert ticks and all(float(t).is_integer() for t in ticks), (ax.get_title(), ticks)
+
+
+def test_one_narrow_map_keeps_its_note_and_whole_ticks() -> None:
+    # the quick campaign: one map, few experiments, SOC differences of a few ms
+    exps = [_exp("lab", 5, 0, 13001, slack=True), _exp("lab", 5, 1, 13002, slack=True),
+            _exp("lab", 10, 0, 13000, slack=False)]
+    for figure in (fleet_size_figure(exps, ["lab"]), replan_decision_figure(exps, ["lab"])):
+        _inside_figure_and_integer_ticks(figure)
+        plt.close(figure)

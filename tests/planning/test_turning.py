@@ -24,6 +24,7 @@ from gateway.planning.motion import (
     turning_step,
 )
 from gateway.planning.plan import Plan
+from gateway.planning.solution_json import SolutionJson
 from gateway.planning.validate import check_plan, plan_violations
 from tests.planning.exhaustive import FORWARD, optimal_soc
 from tests.planning.support_planning import grid_of
@@ -286,3 +287,19 @@ def test_oracle_turning_by_hand() -> None:
     # it until t=2, and t=3 follows B's departure... B was there at t=2, so not at t=3), and
     # reaches (2,0) at t=5. SOC 9 (omni: 5, test_exhaustive).
     assert optimal_soc(grid_of("...."), [(0, 0, 0), (1, 0, 2)], [(2, 0), (3, 0)]) == 9
+
+
+def test_solution_json_writes_and_reads_turning_plans() -> None:
+    plan = Plan.of_poses([[(0, 0, 0), (0, 0, 1), (0, 1, 1)], [(2, 1, 2), (1, 1, 2)]])
+    written = SolutionJson("m.map", ((0, 0, 0), (2, 1, 2)), ((0, 1), (1, 1)), plan, True,
+                           0.5, 3).to_json()
+    assert written["motion"] == "turning"
+    assert [a["start"] for a in written["agents"]] == [[0, 0, 0], [2, 1, 2]]
+    assert written["agents"][0]["path"] == [[0, 0, 0], [0, 0, 1], [0, 1, 1]]
+    assert (written["soc"], written["makespan"]) == (3, 2)
+    read = SolutionJson.from_json(written)
+    assert (read.plan, read.starts, read.goals) == (plan, ((0, 0, 0), (2, 1, 2)),
+                                                     ((0, 1), (1, 1)))
+    omni = SolutionJson("m.map", ((0, 0),), ((0, 1),), Plan.of([[(0, 0), (0, 1)]]), True, 0.1,
+                        0).to_json()
+    assert omni["motion"] == "omni" and SolutionJson.from_json(omni).plan.motion == "omni"

@@ -32,7 +32,7 @@ function onMessage(msg) {
   } else if (msg.type === "event") {
     model.applyEvent(msg);
     if (["status", "plan", "summary"].includes(msg.event)) askSnapshot(true);
-    if (msg.event === "status") syncControls();
+    if (msg.event === "status" || msg.event === "plan") syncControls();
     if (msg.event !== "slack") renderLog();
   } else if (msg.type === "error") {
     notify(`gateway: ${msg.code} ${msg.detail}`, true);
@@ -42,7 +42,9 @@ function onMessage(msg) {
 function onLink(state, detail) {
   const el = $("link");
   el.dataset.state = state;
-  el.textContent = state === "on" ? "live" : `offline: ${detail}`;
+  el.textContent = state === "on" ? "live"
+    : state === "refused" ? `refused by the gateway: ${detail} (open /?token=<operator token>)`
+      : `offline: ${detail}`;
   if (state === "on") askSnapshot(true);
   syncControls();
 }
@@ -54,12 +56,15 @@ function askSnapshot(force = false) {
 }
 
 // ------------------------------------------------------------------------- commands
-async function command(type, fields, label) {
+/** Send a command; its refusal is shown in `noteId`, next to the control that sent it. */
+async function command(type, fields, label, noteId = "run-note") {
+  const note = $(noteId);
+  note.textContent = "";
   const reply = await conn.command(type, fields);
   if (reply.type === "ok") {
     notify(reply.detail || `${label}: ok`);
   } else {
-    notify(`${label} refused: ${reply.detail || reply.code}`, true);
+    note.textContent = `${label} refused: ${reply.detail || reply.code}`;
   }
   askSnapshot(true);
   return reply;
@@ -129,7 +134,7 @@ $("load-form").addEventListener("submit", (ev) => {
   if ($("generate").checked) fields.generate = { seed: Number($("gen-seed").value) || 0 };
   else if ($("scen-name").value.trim()) fields.scen = $("scen-name").value.trim();
   notify(`planning ${fields.map} with ${fields.agents} robots…`);
-  command("load_instance", fields, "load");
+  command("load_instance", fields, "load", "load-note");
 });
 
 // ------------------------------------------------------------------------- rendering
@@ -145,7 +150,10 @@ function syncControls() {
   $("btn-start").disabled = !live || !(status === "loaded" || status === "done");
   $("btn-pause").disabled = !live || !(status === "running" || status === "replanning");
   $("btn-resume").disabled = !live || status !== "paused";
-  $("btn-replan").disabled = !live || status !== "running";
+  const budgetUsed = !!s && s.replans >= s.max_replans;
+  $("btn-replan").disabled = !live || status !== "running" || budgetUsed;
+  $("btn-replan").title = budgetUsed
+    ? `the run's replan budget is used (${s.replans} of ${s.max_replans})` : "";
   $("btn-load").disabled = !live || BUSY.has(status);
   if (!s) return;
   const focused = document.activeElement;
@@ -264,6 +272,8 @@ window.fleetgate = {
   /** What the map last drew per robot: canvas centre, radius, heading angle, turning. */
   drawn: () => mapView.drawn || [],
   slack: () => (model.snap ? model.snap.fleet_slack.slice() : []),
+  /** The run's clock as the page shows it (plan ms). */
+  clock: () => model.now(),
   /** Page coordinates of the centre of cell (x, y) on the map. */
   cellCenter: (x, y) => {
     const box = $("map").getBoundingClientRect();

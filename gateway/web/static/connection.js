@@ -28,7 +28,8 @@ export async function login(token) {
 
 /** One operator connection to the gateway that reconnects by itself.
  *
- * `onMessage(msg)` gets every snapshot and event; `onLink(state, detail)` gets "on"/"off".
+ * `onMessage(msg)` gets every snapshot and event; `onLink(state, detail)` gets "on", "off"
+ * (it retries) or "refused" (the gateway answered 401/403: it stops retrying).
  * `command(type, fields)` sends a command and resolves with the gateway's `ok` or `error`.
  */
 export class Connection {
@@ -51,20 +52,42 @@ export class Connection {
       this.onLink("on", "connected");
     };
     ws.onmessage = (ev) => this.receive(ev.data);
-    ws.onclose = (ev) => {
+    ws.onclose = async (ev) => {
       this.ws = null;
       for (const [, resolve] of this.pending) resolve({ type: "error", detail: "link lost" });
       this.pending.clear();
-      const why = ev.code === 1006 ? "gateway unreachable" : `closed (${ev.code}) ${ev.reason}`;
+      let why = `closed (${ev.code}) ${ev.reason}`;
       if (ev.code === 1006) {
-        // a refused handshake looks the same: back to the login page if the login expired
-        loggedIn().then((ok) => ok || location.replace("/login")).catch(() => {});
+        const refused = await this.refusal();
+        if (refused) {
+          this.onLink("refused", refused); // retrying with the same token cannot help
+          if (!/[?&]token=/.test(this.url)) {
+            // no token of its own: back to the login page if the login expired
+            loggedIn().then((ok) => ok || location.replace("/login")).catch(() => {});
+          }
+          return;
+        }
+        why = "gateway unreachable";
       }
       this.onLink("off", why);
       const delay = RETRY_MS[Math.min(this.failures, RETRY_MS.length - 1)];
       this.failures += 1;
       setTimeout(() => this.open(), delay);
     };
+  }
+
+  /** Why the gateway refused the websocket ("403 unknown token"), or null if it did not
+   * (a browser does not tell: the same URL fetched over HTTP answers 401/403 with the reason). */
+  async refusal() {
+    try {
+      const resp = await fetch(this.url.replace(/^ws/, "http"), { cache: "no-store" });
+      if (resp.status === 401 || resp.status === 403) {
+        return `${resp.status} ${(await resp.text()).trim()}`;
+      }
+    } catch {
+      // unreachable: no answer at all
+    }
+    return null;
   }
 
   get connected() {
