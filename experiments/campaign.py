@@ -41,6 +41,7 @@ from gateway.execution.params import PAPER
 from gateway.execution.policies import PolicyName
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
+from gateway.planning.motion import Motion
 from gateway.planning.movingai import read_map
 from gateway.planning.plan import NoSolution, Plan
 from gateway.planning.solution_json import SolutionJson
@@ -154,6 +155,9 @@ class CampaignSpec:
     seed: int = 0
     plan_time_limit_s: float = 10.0
     sim: SimSettings = field(default_factory=SimSettings)
+    motion: Motion = "omni"
+    """The motion model of the plans; under ``turning`` every robot starts facing east
+    (:data:`~gateway.planning.motion.DEFAULT_START_HEADING`: generated instances have none)."""
 
     def __post_init__(self) -> None:
         if not self.groups:
@@ -170,7 +174,7 @@ class CampaignSpec:
     def settings(self) -> dict[str, Any]:
         """The settings that change results; an output folder is only reused with equal ones."""
         return {"seed": self.seed, "plan_time_limit_s": self.plan_time_limit_s,
-                **asdict(self.sim)}
+                "motion": self.motion, **asdict(self.sim)}
 
     def slots(self) -> list[tuple[str, int, int]]:
         """Every instance slot ``(map, agents, index)`` in campaign order."""
@@ -257,6 +261,7 @@ class PlanTask:
     index: int
     campaign_seed: int
     time_limit_s: float
+    motion: Motion = "omni"
 
 
 @lru_cache(maxsize=16)
@@ -271,9 +276,10 @@ def plan_instance(task: PlanTask) -> InstanceRecord:
     for attempt in range(MAX_GENERATION_ATTEMPTS):
         gen_seed = derived_seed(task.campaign_seed, task.map, task.agents, task.index, attempt)
         inst = random_instance(grid, task.agents, np.random.default_rng(gen_seed))
+        starts = inst.starts if task.motion == "omni" else inst.turning_starts()
         began = time.perf_counter()
         try:
-            solution = solve(grid, inst.starts, inst.goals,
+            solution = solve(grid, starts, inst.goals, motion=task.motion,
                              deadline=WallDeadline(task.time_limit_s))
         except NoSolution:
             continue
@@ -539,7 +545,7 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
 
     slots = spec.slots()
     records = _load_instances(folder, spec, slots)
-    todo = [PlanTask(m, map_paths[m], n, i, spec.seed, spec.plan_time_limit_s)
+    todo = [PlanTask(m, map_paths[m], n, i, spec.seed, spec.plan_time_limit_s, spec.motion)
             for m, n, i in slots if (m, n, i) not in records]
     report("instances", len(records), len(slots))
     began = time.perf_counter()

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from gateway.execution.params import PAPER as PAPER_PARAMS
+from gateway.planning.motion import MOTIONS
 from gateway.runtime.exits import EXIT_OK, UsageError
 from gateway.runtime.mapstore import MapNotFound, resolve
 
@@ -55,6 +56,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="slack threshold Δ̄T of the slack policy "
                    f"(default {PAPER_PARAMS.threshold_ms:g})")
     p.add_argument("--seed", type=int, default=0, help="seed of instance generation")
+    p.add_argument("--motion", choices=MOTIONS, default="omni",
+                   help="motion model of the plans (default omni); turning robots start "
+                        "facing east")
     p.add_argument("--maps-dir", help="folder searched first for map names")
     p.add_argument("--limit", type=int, metavar="N",
                    help="stop after N new experiments (rerun to resume)")
@@ -283,7 +287,8 @@ def run(args: argparse.Namespace) -> int:
             groups=tuple(named),
             instances=args.instances or (PAPER_INSTANCES if args.paper else 0),
             seeds=args.seeds or (PAPER_SEEDS if args.paper else 0),
-            seed=args.seed, plan_time_limit_s=args.plan_time_limit, sim=sim)
+            seed=args.seed, plan_time_limit_s=args.plan_time_limit, sim=sim,
+            motion=args.motion)
         rules = OutlierRules(args.outlier_margin_ms, args.outlier_similar_ms,
                              args.outlier_diff_frac)
     except (CampaignError, TypeError) as exc:

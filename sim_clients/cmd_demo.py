@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.commands.instance_args import add_instance_arguments
+from gateway.commands.instance_args import add_instance_arguments, add_motion_arguments
 from gateway.commands.progress import StatusLine
 from gateway.commands.solving import (
     add_planning_arguments,
@@ -171,7 +171,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
 def _run(args: argparse.Namespace) -> int:
     import asyncio
 
-    from gateway.commands.instance_args import instance_from_args
+    from gateway.commands.instance_args import instance_from_args, starts_from_args
     from gateway.planning.plan import NoSolution
     from gateway.server.config import ConfigError, load_config
     from gateway.server.logs import configure_logging
@@ -188,7 +188,8 @@ def _run(args: argparse.Namespace) -> int:
     instance = instance_from_args(args)
     status = StatusLine()
     try:
-        plan = solve_instance(instance, args, status).plan
+        plan = solve_instance(instance, args, status, motion=args.motion,
+                              starts=starts_from_args(args, instance)).plan
     except NoSolution as exc:
         why = no_solution_message(instance, args, str(exc), exc.timed_out)
         print(f"fleetgate: {why}", file=sys.stderr)
@@ -205,7 +206,7 @@ def _run(args: argparse.Namespace) -> int:
                              solver_time_limit_s=args.time_limit, fallback_s=args.fallback,
                              max_replans=args.max_replans, log_level=args.log_level,
                              log_format=args.log_format, log_file=args.log_file,
-                             dispatch_lookahead=args.lookahead,
+                             dispatch_lookahead=args.lookahead, motion=args.motion,
                              tokens={"operators": [secrets.token_urlsafe(24)]})
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
@@ -241,6 +242,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         '"collisions"}')
     p.add_argument("--trace", metavar="FILE.jsonl", help="write the JSON-lines trace here")
     add_instance_arguments(p)
+    add_motion_arguments(p, default="omni")
     p.set_defaults(map=DEFAULT_MAP, scen=DEFAULT_SCEN, agents=DEFAULT_AGENTS)
     p.add_argument("--speed", metavar="F", type=float, default=1.0,
                    help="the world runs F times faster than plan time (default 1)")

@@ -7,7 +7,7 @@ import json
 import sys
 from typing import TYPE_CHECKING
 
-from gateway.commands.instance_args import add_instance_arguments
+from gateway.commands.instance_args import add_instance_arguments, add_motion_arguments
 from gateway.commands.progress import StatusLine, ticking
 from gateway.commands.solving import (
     add_planning_arguments,
@@ -32,7 +32,7 @@ def _solver_time(text: str) -> SolverTime:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from gateway.commands.instance_args import instance_from_args
+    from gateway.commands.instance_args import instance_from_args, starts_from_args
     from gateway.planning.plan import NoSolution
     from gateway.runtime.trace import JsonlWriter
     from sim_clients.des import SimConfig, run_simulation
@@ -41,9 +41,10 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms:g}")
     check_planning_arguments(args)
     instance = instance_from_args(args)
+    starts = starts_from_args(args, instance)
     status = StatusLine()
     try:
-        solution = solve_instance(instance, args, status)
+        solution = solve_instance(instance, args, status, motion=args.motion, starts=starts)
     except NoSolution as exc:
         why = no_solution_message(instance, args, str(exc), exc.timed_out)
         print(f"fleetgate: {why}", file=sys.stderr)
@@ -70,8 +71,8 @@ def _run(args: argparse.Namespace) -> int:
     intruder = (f"intruder on {result.intruder_cell} from {result.intruder_on_ms:.0f} ms"
                 if result.intruder_cell is not None else "no intruder in the way"
                 if args.intruder else "no intruder")
-    print(f"{instance.name}: {instance.num_agents} robots, plan SOC {result.plan_soc} "
-          f"(makespan {result.plan_makespan})")
+    print(f"{instance.name}: {instance.num_agents} robots ({args.motion}), plan SOC "
+          f"{result.plan_soc} (makespan {result.plan_makespan})")
     print(f"executed SOC {result.soc_ms:.0f} ms, makespan {result.makespan_ms:.0f} ms; "
           f"{intruder}; {replan}; collisions {result.collisions}")
     return EXIT_OK
@@ -85,6 +86,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     "time (every action 1000 ms), optionally with the intruder and a replanning "
                     "policy. Exit codes: 0 success, 2 bad input, 3 no plan within the limit.")
     add_instance_arguments(p)
+    add_motion_arguments(p, default="omni")
     p.add_argument("--seed", metavar="K", type=int, default=0,
                    help="seed of the intruder's choice and the random policy (default 0)")
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,

@@ -31,7 +31,7 @@ from gateway.execution.policies import AUTONOMOUS_POLICIES, PolicyName, ReplanPo
 from gateway.execution.trace_records import TraceSink, intruder_record, summary_record
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import NoSolution, Plan
-from gateway.planning.solver import solve
+from gateway.planning.solver import Place, solve
 from gateway.runtime.deadline import WallDeadline
 from gateway.runtime.solver_time import SolverTime, run_charged
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
@@ -291,10 +291,15 @@ class _Simulation:
             self.push(wake, _POLICY, -1)
 
     def solve(self, request: SolveRequest, now: float) -> None:
+        hs = request.headings
+        starts: tuple[Place, ...] = request.starts if hs is None else tuple(
+            (x, y, h) for (x, y), h in zip(request.starts, hs, strict=True))
+
         def plan() -> Plan | None:
             try:
-                return solve(self.cfg.grid, request.starts, request.goals,
-                             deadline=WallDeadline(self.cfg.solver_time_limit_s)).plan
+                return solve(self.cfg.grid, starts, request.goals,
+                             deadline=WallDeadline(self.cfg.solver_time_limit_s),
+                             motion="omni" if hs is None else "turning").plan
             except NoSolution:
                 return None
 

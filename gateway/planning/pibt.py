@@ -14,8 +14,9 @@ Guarantees: every returned step is free of vertex conflicts and 1-robust (waitin
 always possible, and nobody else may enter a held cell), so :class:`~gateway.execution.
 live_adg.LiveADG` accepts it and its execution is collision-free under any delays. Each
 timestep costs O(robots x actions) plus the pushes. Like PIBT it is not complete: in rare
-cyclic jams robots may wait until priorities rotate. Distances are numpy breadth-first
-searches over the state graph, one table per goal cell, cached within a memory budget.
+cyclic jams robots may wait until priorities rotate. Distances are the exact tables of
+:mod:`gateway.planning.distance` (cells, or ``turning`` states), one per goal cell, cached
+within a memory budget.
 """
 
 from __future__ import annotations
@@ -27,45 +28,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from gateway.planning.distance import distance_tables, turning_distance_tables
 from gateway.planning.grid import Grid
 
 UNREACHABLE = 32000
 """Distance of a state that cannot reach the goal (tables are int16)."""
 MAX_PUSH_DEPTH = 64
 """Longest chain of robots asked to move away within one timestep."""
-
-
-def _bfs(pred: npt.NDArray[np.int64], sources: Sequence[npt.NDArray[np.int64]],
-         n_states: int) -> npt.NDArray[np.int16]:
-    """Distances from every state to the nearest of ``sources[k]`` (one row per k).
-
-    ``pred[s]`` lists the states one action before s, padded with the sentinel ``n_states``.
-    All searches run in one frontier expansion over disjoint copies of the state graph.
-    """
-    k = len(sources)
-    block = n_states + 1
-    dist = np.full(k * block, -1, dtype=np.int32)
-    offsets = np.arange(k, dtype=np.int64) * block
-    dist[offsets + n_states] = 0  # sentinels count as visited
-    frontier = np.concatenate([src + off for src, off in zip(sources, offsets, strict=True)])
-    dist[frontier] = 0
-    stamp = np.zeros(k * block, dtype=np.int64)
-    d = 0
-    while frontier.size:
-        d += 1
-        base = frontier - frontier % block
-        cand = (pred[frontier - base] + base[:, None]).ravel()
-        cand = cand[dist[cand] < 0]
-        order = np.arange(cand.size)
-        stamp[cand] = order
-        cand = cand[stamp[cand] == order]
-        dist[cand] = d
-        frontier = cand
-    out = dist.reshape(k, block)[:, :n_states]
-    out[out < 0] = UNREACHABLE
-    return np.minimum(out, UNREACHABLE).astype(np.int16)
 
 
 class StateSpace:
@@ -89,7 +59,6 @@ class StateSpace:
             ns = 4 * n
             self.cell_of: list[int] = [s >> 2 for s in range(ns)]
             deltas = (1, w, -1, -w)
-            pred = np.full((ns + 1, 3), ns, dtype=np.int64)
             for c in range(n):
                 x = c % w
                 dirs = {}
@@ -113,22 +82,14 @@ class StateSpace:
                             opts.append((nxt, 4 * nxt + d, min(turns, 4 - turns),
                                          4 * c + (h + step) % 4))
                     options.append(tuple(opts))
-                    pred[s, 0] = 4 * c + (h + 3) % 4  # turned clockwise into h
-                    pred[s, 1] = 4 * c + (h + 1) % 4  # turned counter-clockwise into h
-                    back = dirs.get((h + 2) % 4)  # forward into h comes from behind
-                    if back is not None:
-                        pred[s, 2] = 4 * back + h
         else:
             ns = n
             self.cell_of = list(range(n))
-            pred = np.full((ns + 1, 4), ns, dtype=np.int64)
             for c in range(n):
                 nb = grid.neighbour_ids(c)
-                pred[c, : len(nb)] = nb
                 options.append(((c, c, 0, c), *((v, v, 0, v) for v in nb)) if free[c] else ())
         self.n_states = ns
         self.options = options
-        self._pred = pred
         self._cache: OrderedDict[int, array[int]] = OrderedDict()
         self._capacity = max(16, budget_bytes // (2 * ns))
 
@@ -157,12 +118,11 @@ class StateSpace:
             return
         for i in range(0, len(missing), 32):
             chunk = missing[i : i + 32]
-            if self.turning:
-                sources = [np.arange(4 * g, 4 * g + 4, dtype=np.int64) for g in chunk]
-            else:
-                sources = [np.array([g], dtype=np.int64) for g in chunk]
-            rows = _bfs(self._pred, sources, self.n_states)
-            for g, row in zip(chunk, rows, strict=True):
+            cells = [self.grid.cell(g) for g in chunk]
+            found = (turning_distance_tables(self.grid, cells) if self.turning
+                     else distance_tables(self.grid, cells))
+            rows = np.where(found < 0, UNREACHABLE, np.minimum(found, UNREACHABLE))
+            for g, row in zip(chunk, rows.astype(np.int16), strict=True):
                 self._cache[g] = array("h", row.tobytes())
         while len(self._cache) > self._capacity:
             self._cache.popitem(last=False)

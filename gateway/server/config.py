@@ -92,6 +92,13 @@ class GatewayConfig(BaseSettings):
     generate_seed: int = 0
     autostart: bool = False
 
+    motion: Literal["omni", "turning"] = "turning"
+    """Motion model of the plans the gateway makes (a loaded plan brings its own): real
+    robots turn in place, so ``turning`` by default."""
+    start_heading: int = Field(default=0, ge=0, le=3)
+    """Turning: the start heading of robots whose instance gives none (0 east, 1 south, 2 west,
+    3 north)."""
+
     policy: PolicyName = "slack"
     policy_seed: int = 0
     threshold_ms: float = Field(default=PAPER.threshold_ms, ge=0)

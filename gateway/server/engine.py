@@ -21,7 +21,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Literal, cast
 
 from gateway.execution.actions import ActionDurations
@@ -38,7 +38,9 @@ from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Execut
 from gateway.execution.policies import ReplanPolicy, SlackReplan, make_policy
 from gateway.execution.trace_records import summary_record
 from gateway.planning.grid import Cell
+from gateway.planning.motion import Motion
 from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.solver import Place
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
@@ -414,7 +416,11 @@ class Engine:
                 self._status_changed()
             elif isinstance(c, SolveRequest):
                 assert self.problem is not None
-                self._spawn_solver("replan", self.problem, c.starts, c.goals, None, None)
+                hs = c.headings
+                starts: Sequence[Place] = c.starts if hs is None else [
+                    (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
+                self._spawn_solver("replan", self.problem, starts, c.goals, None, None,
+                                   "omni" if hs is None else "turning")
             elif isinstance(c, PlanAdopted):
                 for gs in self.robots.values():
                     gs.plan_adopted()
@@ -453,12 +459,12 @@ class Engine:
 
     # -------------------------------------------------------------------------- planning
     def _spawn_solver(self, purpose: Literal["load", "replan"], problem: Problem,
-                      starts: tuple[Cell, ...], goals: tuple[Cell, ...], reply: Reply,
-                      ref: str | None) -> None:
+                      starts: Sequence[Place], goals: tuple[Cell, ...], reply: Reply,
+                      ref: str | None, motion: Motion) -> None:
         grid, limit = problem.instance.grid, self.config.solver_time_limit_s
 
         def work() -> Plan:
-            return plan_for(grid, starts, goals, limit, self.config.fallback_s)
+            return plan_for(grid, starts, goals, limit, self.config.fallback_s, motion)
 
         async def run() -> None:
             t0 = time.perf_counter()
@@ -640,8 +646,10 @@ class Engine:
             return
         self.planning = True
         self._status_changed()
-        inst = problem.instance
-        self._spawn_solver("load", problem, inst.starts, inst.goals, reply, ref)
+        inst, motion = problem.instance, self.config.motion
+        starts = inst.starts if motion == "omni" else inst.turning_starts(
+            self.config.start_heading)
+        self._spawn_solver("load", problem, starts, inst.goals, reply, ref, motion)
 
     def _loaded(self) -> None:
         for gs in self.robots.values():

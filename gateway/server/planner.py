@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,9 +14,10 @@ from gateway.execution.errors import ExecutionError
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
+from gateway.planning.motion import Motion
 from gateway.planning.movingai import MapFormatError, read_map
 from gateway.planning.plan import Plan
-from gateway.planning.solver import solve
+from gateway.planning.solver import Place, solve
 from gateway.planning.validate import plan_violations
 from gateway.runtime import mapstore
 from gateway.runtime.deadline import WallDeadline
@@ -97,13 +99,15 @@ def problem_from_paths(map: str, paths: list[list[Cell]],
     return Problem(Instance(grid, starts, goals, map_name), map_name, plan)
 
 
-def plan_for(grid: Grid, starts: tuple[Cell, ...], goals: tuple[Cell, ...],
-             time_limit_s: float, fallback_s: float | None = None) -> Plan:
-    """A 1-robust plan from ``starts`` to ``goals`` (raises planning's NoSolution): CBS's
-    within ``time_limit_s``, else (given ``fallback_s``) the prioritised planner's, with a
-    warning."""
+def plan_for(grid: Grid, starts: Sequence[Place], goals: tuple[Cell, ...],
+             time_limit_s: float, fallback_s: float | None = None,
+             motion: Motion = "omni") -> Plan:
+    """A 1-robust plan from ``starts`` (``(x, y, heading)`` under ``turning``) to ``goals``
+    (raises planning's NoSolution): CBS's within ``time_limit_s``, else (given
+    ``fallback_s``) the prioritised planner's, with a warning."""
     fallback = WallDeadline(time_limit_s + fallback_s) if fallback_s else None
-    solution = solve(grid, starts, goals, deadline=WallDeadline(time_limit_s), fallback=fallback)
+    solution = solve(grid, starts, goals, deadline=WallDeadline(time_limit_s), fallback=fallback,
+                     motion=motion)
     if not solution.optimal:
         log.warning("no optimal plan within %g s: using the prioritised planner's plan "
                     "(SOC %d, not proven optimal)", time_limit_s, solution.plan.soc)

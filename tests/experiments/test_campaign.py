@@ -156,3 +156,22 @@ def test_a_simulation_that_raises_is_a_failure_not_a_crash(full: Path) -> None:
     assert [(f.instance, f.seed, f.variant) for f in failures] == [(0, 3, "lower_bound"),
                                                                    (0, 3, "slack")]
     assert all("threshold_ms" in f.error for f in failures)
+
+
+def test_a_turning_campaign_plans_turns_and_resumes(tmp_path: Path) -> None:
+    spec = CampaignSpec(groups=(("lab", 4),), instances=1, seeds=1, motion="turning",
+                        sim=SimSettings(solver_time="zero"), plan_time_limit_s=20)
+    assert _run(tmp_path, spec, workers=1) == (1, 1, True)
+    data = json.loads((tmp_path / "instances" / "lab-4-000.json").read_text())
+    assert data["motion"] == "turning"
+    assert all(len(c) == 3 and c[2] in range(4) for a in data["agents"] for c in a["path"])
+    assert all(a["path"][0][2] == 0 for a in data["agents"])  # every robot starts facing east
+    record = InstanceRecord.from_json(data)
+    assert record.plan.headings is not None and record.to_json(spec.seed) == data
+    rows = read_results(tmp_path / "results.csv")
+    lower = next(r for r in rows if r.variant == "lower_bound")
+    assert (lower.soc_ms, lower.makespan_ms) == (data["soc"] * 1000, data["makespan"] * 1000)
+    assert _run(tmp_path, spec, workers=1) == (0, 0, True)  # resumed: nothing left to do
+    with pytest.raises(CampaignError, match="motion: 'turning' there, 'omni' now"):
+        _run(tmp_path, CampaignSpec(groups=spec.groups, instances=1, seeds=1,
+                                    sim=SimSettings(solver_time="zero"), plan_time_limit_s=20))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from urllib.parse import urlsplit
 
 from playwright.sync_api import Page
 from websockets.sync.client import connect
@@ -20,8 +21,10 @@ HEADINGS = [[0, 0, 1, 1], [0, 1, 2, 2]]
 
 def _command(demo: DemoProcess, *messages: object) -> None:
     """Send operator commands over a websocket; each must be answered ``ok``."""
-    url = demo.url.replace("http://", "ws://") + "ws"
-    with connect(url, additional_headers={"Authorization": "Bearer demo-operator"},
+    parts = urlsplit(demo.url)  # http://HOST:PORT/login#token=OPERATOR-TOKEN (or no token)
+    token = parts.fragment.removeprefix("token=") or "demo-operator"
+    with connect(f"ws://{parts.netloc}/ws", additional_headers={"Authorization":
+                                                               f"Bearer {token}"},
                  proxy=None) as ws:
         for m in messages:
             ws.send(encode(m))  # type: ignore[arg-type]

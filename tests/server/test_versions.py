@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 
+from gateway.planning.validate import check_plan
 from gateway.server.gateway import Gateway
 from protocol import (
     Action,
@@ -12,6 +13,7 @@ from protocol import (
     ErrorCode,
     Finished,
     Hello,
+    LoadInstance,
     LoadPlan,
     Start,
     Started,
@@ -87,3 +89,17 @@ async def test_an_illegal_turning_plan_is_refused(gateway: Gateway) -> None:
     assert code is ErrorCode.BAD_REQUEST
     assert detail == ("invalid plan: robot 0 action 1: turn from heading 0 to 2 on (1, 0): a turn "
                       "is 90 degrees")
+
+
+async def test_the_gateway_plans_turning_by_default(gateway: Gateway) -> None:
+    """Real robots turn: the gateway's own plans are turning plans unless configured otherwise,
+    every robot of a MovingAI scenario starting east; the planning validator accepts them."""
+    assert gateway.config.motion == "turning"
+    code, detail = await gateway.command(LoadInstance(msg_id="i", seq=0, map="lab",
+                                                      scen="lab-random-1", agents=3))
+    assert code is None, detail
+    problem = gateway.engine.problem
+    assert problem is not None and problem.plan is not None
+    plan, inst = problem.plan, problem.instance
+    assert plan.headings is not None and [h[0] for h in plan.headings] == [0, 0, 0]
+    check_plan(inst.grid, inst.turning_starts(), inst.goals, plan)

@@ -14,7 +14,11 @@ from hypothesis import strategies as st
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import Dispatch
 from gateway.execution.trace_records import Record
+from gateway.planning.instance import load_instance
 from gateway.planning.random_plans import open_grid, random_plan
+from gateway.planning.solver import solve
+from gateway.runtime.deadline import WallDeadline
+from gateway.runtime.mapstore import resolve
 from sim_clients.des import SimConfig, run_simulation
 from sim_clients.intruder import IntruderConfig, pick_target
 from sim_clients.robot import RobotState, SimRobot, SimRobotError
@@ -105,3 +109,20 @@ def test_turning_runs_with_delays_and_intruder_stay_safe(
     undelayed = run_simulation(dataclasses.replace(config, intruder=False, extra_delay=None,
                                                    trace=None))
     assert result.soc_ms >= undelayed.soc_ms
+
+
+def test_a_turning_replan_solves_from_the_robots_poses() -> None:
+    # lab, 6 robots, turning CBS; a low slack threshold makes the intruder trigger a replan:
+    # the new plan starts from the cells and headings the robots hold (checked by the trace
+    # checker), and the run stays collision-free
+    inst = load_instance(resolve("lab", "map"), resolve("lab-random-1", "scen"), 6)
+    plan = solve(inst.grid, inst.turning_starts(), inst.goals, motion="turning",
+                 deadline=WallDeadline(30)).plan
+    records: list[Record] = []
+    result = run_simulation(SimConfig(inst.grid, plan, seed=0, policy="slack", threshold_ms=500,
+                                      solver_time="zero", trace=records.append))
+    assert result.replans == 1 and result.collisions == 0
+    report = check_trace(records)
+    assert report.ok, report.errors
+    adopted = [r for r in records if r["type"] == "plan"]
+    assert [r.get("motion") for r in adopted] == ["turning", "turning"]
