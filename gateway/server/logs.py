@@ -56,8 +56,12 @@ class TextFormatter(logging.Formatter):
 
 
 class RateLimit(logging.Filter):
-    """Passes at most ``burst`` records with the same logger and message per ``window_s``;
-    the first record of the next window carries ``suppressed`` (how many were dropped)."""
+    """Passes at most ``burst`` records with the same logger and message start per
+    ``window_s``; the first record of the next window carries ``suppressed`` (how many were
+    dropped). Messages are compared on their first ``KEY_CHARS`` characters: a library's
+    record embeds object reprs (asyncio's retry callbacks differ only in their timer handle)."""
+
+    KEY_CHARS = 64
 
     def __init__(self, burst: int = 10, window_s: float = 10.0) -> None:
         super().__init__()
@@ -67,7 +71,7 @@ class RateLimit(logging.Filter):
 
     def filter(self, record: logging.LogRecord) -> bool:
         """True if the record may be written."""
-        key = (record.name, str(record.msg))
+        key = (record.name, str(record.msg)[:self.KEY_CHARS])
         now = time.monotonic()
         start, passed, dropped = self._seen.get(key, (now, 0, 0))
         if now - start >= self._window:

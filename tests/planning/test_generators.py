@@ -52,7 +52,7 @@ def test_random_map_is_connected_and_seeded(width: int, height: int, share: floa
     if grid.free.any():
         assert is_connected(grid)
     # At least the asked share is blocked (more when cut-off pockets were filled).
-    assert int((~grid.free).sum()) >= round(share * width * height)
+    assert int((~grid.free).sum()) >= round(share * (width * height))  # as the generator
 
 
 @FAST
