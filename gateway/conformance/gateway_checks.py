@@ -87,6 +87,16 @@ class _Started:
             await self.run.__aexit__(*exc)
 
 
+async def _out_of_turn(t: Target, report: type[Finished | Unblocked | Cancelled],
+                       code: ErrorCode, *, at_goal: bool = False) -> None:
+    """Sends ``report`` about the first action of a fresh run before anything allows it (at
+    the action's start pose, or its goal pose), and expects an error reply with ``code``."""
+    async with _Started(t) as (_, robot, first):
+        pose = first.dst if at_goal else first.src
+        ref = await robot.conn.send(report, action_id=first.action_id, pose=pose)
+        await robot.conn.error_for(ref, code)
+
+
 def _other(t: Target) -> int:
     return t.options.peer
 
@@ -525,9 +535,7 @@ async def _never(t: Target) -> None:
 @check("finish-before-start", "REPORT-1")
 async def _finish_first(t: Target) -> None:
     """``finished`` without ``started`` gets ``rejected``."""
-    async with _Started(t) as (_, robot, first):
-        ref = await robot.conn.send(Finished, action_id=first.action_id, pose=first.dst)
-        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+    await _out_of_turn(t, Finished, ErrorCode.REJECTED, at_goal=True)
 
 
 @check("started-twice", "REPORT-4")
@@ -605,17 +613,13 @@ async def _blocked_late(t: Target) -> None:
 @check("unblocked-when-not-blocked", "BLOCK-2")
 async def _unblocked_stray(t: Target) -> None:
     """``unblocked`` of an action that is not blocked gets ``rejected``."""
-    async with _Started(t) as (_, robot, first):
-        ref = await robot.conn.send(Unblocked, action_id=first.action_id, pose=first.src)
-        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+    await _out_of_turn(t, Unblocked, ErrorCode.REJECTED)
 
 
 @check("cancelled-without-cancel", "CANCEL-5")
 async def _stray_cancelled(t: Target) -> None:
     """``cancelled`` with no ``cancel`` outstanding gets ``rejected``."""
-    async with _Started(t) as (_, robot, first):
-        ref = await robot.conn.send(Cancelled, action_id=first.action_id, pose=first.src)
-        await robot.conn.error_for(ref, ErrorCode.REJECTED)
+    await _out_of_turn(t, Cancelled, ErrorCode.REJECTED)
 
 
 # ---------------------------------------------------------------------- reconnecting
