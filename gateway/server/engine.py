@@ -290,7 +290,7 @@ class Engine:
             case State():
                 self._sender(session).state(msg.pose, session)
             case IntruderReport():
-                self._intruder(session, msg)
+                self._intruder(session, msg, self._arrival_ms(item.at_ms))
             case _:
                 self._command(msg, session)  # type: ignore[arg-type]
 
@@ -342,14 +342,19 @@ class Engine:
                 msg: Started | Finished | Blocked | Unblocked | Cancelled,
                 received: float, at_ms: float | None = None) -> None:
         gs = self._sender(session)
-        ex = self.executor
-        now = self.now_ms() if at_ms is None or ex is None else max(at_ms, ex.now_ms)
+        now = self._arrival_ms(at_ms)
         try:
             self._unlocked_at = received if msg.type == "finished" else None
             gs.report(msg.type, msg.action_id, msg.msg_id, session, now, msg.pose)
             self._flush(gs, session)
         finally:
             self._unlocked_at = None
+
+    def _arrival_ms(self, at_ms: float | None) -> float:
+        """The plan time at which a message that arrived at ``at_ms`` takes effect: its arrival,
+        but never before the executor's last input (trace records stay in time order)."""
+        ex = self.executor
+        return self.now_ms() if at_ms is None or ex is None else max(at_ms, ex.now_ms)
 
     def _flush(self, gs: GatewaySession, sender: Session | None = None) -> None:
         """Carry out a robot session's effects: messages to its connection, refusals to the
@@ -386,9 +391,9 @@ class Engine:
             self.metrics.finished.inc()
         self._route(ex.drain())
 
-    def _intruder(self, session: Session, msg: IntruderReport) -> None:
-        """Record a world's intruder report (trace and operators) if it is consistent: a free
-        cell of the loaded map, on only if it is off and off only if it is on."""
+    def _intruder(self, session: Session, msg: IntruderReport, now: float) -> None:
+        """Record a world's intruder report (trace and operators) at plan time ``now`` if it is
+        consistent: a free cell of the loaded map, on only if it is off and off only if it is on."""
         cell = (int(msg.cell[0]), int(msg.cell[1]))
         if self.problem is not None and not self.problem.instance.grid.is_free(cell):
             session.error(ErrorCode.REJECTED, msg.msg_id, f"{list(cell)} is not a free cell")
@@ -397,7 +402,7 @@ class Engine:
             session.error(ErrorCode.DUPLICATE, msg.msg_id,
                           f"the intruder on {list(cell)} is already {msg.state}")
             return
-        self.feed.intruder(self.clock.now_ms(), cell, msg.state)
+        self.feed.intruder(now, cell, msg.state)
 
     # -------------------------------------------------------------------------- routing
     def _route(self, commands: list[Command]) -> None:

@@ -5,15 +5,18 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from pathlib import Path
 
 import pytest
 
 from gateway.server.clock import RealClock, VirtualClock, run_virtual
 from gateway.server.gateway import Gateway
-from protocol import LoadPlan, Start
+from gateway.server.items import Inbound
+from protocol import IntruderReport, LoadPlan, Start
 from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import TestRobot
+from tracecheck import check_trace, read_trace
 
 
 async def _run_lab(trace: Path) -> tuple[float, float, float]:
@@ -88,3 +91,35 @@ async def test_real_clock_runs_the_solver_in_a_thread() -> None:
     main = threading.get_ident()
     worker, _ = await clock.run_solver(threading.get_ident)
     assert worker != main
+
+
+
+async def _intruder_handled_late(trace: Path) -> None:
+    async with Gateway(make_config(trace=trace), clock=VirtualClock()) as gw:
+        await gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS))
+        robots = [TestRobot(await gw.connect(f"demo-robot-{i}"), i, move_s=1.0)
+                  for i in range(3)]
+        for r in robots:
+            await r.hello()
+        await gw.connect("demo-world")
+        tasks = [asyncio.create_task(r.run()) for r in robots]
+        await gw.command(Start(msg_id="s", seq=1))
+        await gw.clock.sleep_until_ms(1250.0)  # the monitor ticked at 1200 ms
+        [world] = [s for s in gw._sessions if s.peer.role == "world"]
+        # what a busy owner task sees: a report that arrived at 1210 ms, handled at 1250 ms
+        report = IntruderReport(msg_id="i", seq=0, cell=(8, 1), state="on")
+        gw.engine.queue.put_nowait(Inbound(world, report, time.perf_counter(), 1210.0))
+        await gw.wait_done()
+        for t in tasks:
+            t.cancel()
+
+
+def test_an_intruder_report_takes_effect_when_it_arrived(tmp_path: Path) -> None:
+    # Stamped when the owner task handled it, an intruder report came after robot reports that
+    # arrived later but carry their arrival time: the trace's time went backwards (CI, stop 8).
+    trace = tmp_path / "t.jsonl"
+    run_virtual(_intruder_handled_late(trace))
+    records = read_trace(trace)
+    [on] = [r for r in records if r["type"] == "intruder"]
+    assert on["t_ms"] == 1210.0
+    assert check_trace(records).errors == []
