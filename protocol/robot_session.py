@@ -18,8 +18,10 @@ order. The rules, written once here for every robot:
   action completes, nothing new starts);
 * ``cancel`` of a queued action drops it and every action queued behind it (they cannot run
   without it), each confirmed with ``cancelled`` and forgotten (an abandoned replan may
-  dispatch it again); ``cancel`` of the current action drops it only while it waits for its
-  cell (``blocked``): a moving robot finishes; a cancel of anything else is stale and ignored;
+  dispatch it again); ``cancel`` of the current action drops it only while it is ``blocked``:
+  waiting for its cell (confirmed at once) or stopped on the way (protocol v2, a bumper: the
+  body goes back to the action's source, then :meth:`RobotSession.aborted` confirms); a moving
+  robot finishes; a cancel of anything else is stale and ignored;
 * ``pause`` / ``resume`` stop and allow new starts (a running move completes);
 * reports (``started``, ``finished``, ``blocked``, ``unblocked``) are sent while a link is up;
   what a link loss swallows is carried by the next ``hello``. A ``blocked`` after ``started``
@@ -77,10 +79,13 @@ class Send:
 
 @dataclass(frozen=True, slots=True)
 class Abort:
-    """The body must drop its current action ``action_id`` (it waits for its cell and has not
-    moved); the session already confirmed it with ``cancelled``."""
+    """The body must drop its current action ``action_id``. If it has not ``moved`` (it waits
+    for its cell) the session already confirmed it with ``cancelled``; if it ``moved`` (a move
+    stopped on the way) the body goes back to the action's source and then calls
+    :meth:`RobotSession.aborted`, which confirms."""
 
     action_id: str
+    moved: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,6 +148,7 @@ class RobotSession:
         """The action taken by the body and not finished (or dropped)."""
         self.phase: Literal["received", "running", "blocked"] = "received"
         self._moved = False  # the current action started (a later blocked is a stop on the way)
+        self._aborting = False  # the current action was cancelled on the way; going back
         self._finished: dict[str, None] = {}  # insertion-ordered, at most HISTORY
         self._queued: set[str] = set()
         self._check = check
@@ -177,6 +183,7 @@ class RobotSession:
         self._finished.clear()
         self.current = None
         self.phase = "received"
+        self._aborting = False
 
     # ------------------------------------------------------------------ link
     def connected(self, pose: Pose | None = None) -> None:
@@ -240,11 +247,23 @@ class RobotSession:
         if aid in self._queued:
             ids = [a.action_id for a in self.queue]
             self._drop_queue(ids.index(aid))
-        elif aid == self.current and self.phase == "blocked":
-            self._out.append(Abort(aid))
-            self.current = None
-            self._confirm(aid)
+        elif aid == self.current and self.phase == "blocked" and not self._aborting:
+            self._out.append(Abort(aid, self._moved))
+            if self._moved:
+                self._aborting = True  # confirmed by aborted() once back on the source
+            else:
+                self.current = None
+                self._confirm(aid)
             self._drop_queue(0)
+
+    def aborted(self, action_id: str, pose: Pose | None = None) -> None:
+        """The body is back on the source of ``action_id``, a move stopped on the way that a
+        ``cancel`` aborted (:class:`Abort` with ``moved``): confirm it with ``cancelled``."""
+        if pose is not None:
+            self.pose = pose
+        if action_id == self.current and self._aborting:
+            self.current, self.phase, self._aborting = None, "received", False
+            self._confirm(action_id)
 
     def _drop_queue(self, first: int) -> None:
         """Drop the queued actions from position ``first`` on, each confirmed."""
@@ -266,6 +285,7 @@ class RobotSession:
         action = self.queue.popleft()
         self._queued.discard(action.action_id)
         self.current, self.phase, self._moved = action.action_id, "received", False
+        self._aborting = False
         return action
 
     def report(self, kind: ReportKind, action_id: str, pose: Pose | None = None) -> None:

@@ -155,6 +155,30 @@ def test_cancel_of_the_current_action_only_while_it_waits_for_its_cell() -> None
     assert s.drain() == [] and s.current == "0.0.0"
 
 
+def test_cancel_of_a_move_stopped_on_the_way_is_confirmed_once_the_body_is_back() -> None:
+    s = RobotSession(0)
+    welcomed(s)
+    s.receive(action(0))
+    s.receive(action(1))
+    assert s.take() is not None
+    s.report("started", "0.0.0")
+    s.report("blocked", "0.0.0")  # a bumper: a stop on the way
+    s.drain()
+    s.receive(msg(CancelAction, action_id="0.0.0"))
+    effects = s.drain()
+    assert effects[0] == Abort("0.0.0", moved=True)
+    assert sent(effects) == [("cancelled", "0.0.1")]  # the queue at once, not the move yet
+    assert s.current == "0.0.0" and s.take() is None
+    s.receive(msg(CancelAction, action_id="0.0.0"))  # repeated: already going back
+    assert s.drain() == []
+    s.aborted("0.0.1")  # not the current action: ignored
+    assert s.drain() == []
+    s.aborted("0.0.0", Pose(cell=(0, 0)))
+    (confirm,) = [e.message for e in s.drain() if isinstance(e, Send)]
+    assert isinstance(confirm, Cancelled) and confirm.pose == Pose(cell=(0, 0))
+    assert s.current is None and s.activity() is None
+
+
 def test_pause_resume_and_a_link_loss_stop_new_starts() -> None:
     s = RobotSession(0)
     welcomed(s)

@@ -238,6 +238,36 @@ async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     assert [m.action_id for m in conn.of_type(Unblocked)] == ["0.3.1"]
 
 
+async def test_a_cancel_of_a_bumper_stopped_move_drives_back_then_confirms(robot: Robot) -> None:
+    # a replan cancels a move the bumper stopped on the way: the robot goes back to the move's
+    # source cell and heading, and only then confirms (the executor plans from that cell)
+    conn, _ = await handshake(robot, state_period_ms=60000.0)
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
+    await conn.send(Action, **action(1, (2, 1), (3, 1), "E", "E"))  # lookahead: queued
+    await conn.expect(Started, "0.3.0")
+    async with asyncio.timeout(10):
+        while robot.sim.x < 0.4 + 0.12:  # well on the way to (2, 1)
+            await asyncio.sleep(0.01)
+    robot.sim.bumper = 0x02
+    await conn.expect(Blocked, "0.3.0")
+    await conn.send(CancelAction, action_id="0.3.0")
+    # the queued action behind it is dropped at once; the stopped move once back
+    await conn.expect(Cancelled, "0.3.1")
+    await asyncio.sleep(0.2)
+    robot.sim.bumper = 0  # the obstacle stays in front for a while: the way back is free
+    done = await conn.expect(Cancelled, "0.3.0")
+    assert done.pose == Pose(cell=(1, 1), heading="E")
+    assert robot.at((1, 1)) < ARRIVED_M
+    assert abs(wrap_angle(robot.sim.theta)) < math.radians(4)
+    await asyncio.sleep(0.3)
+    assert not conn.of_type(Finished) and not conn.of_type(Unblocked)
+    assert robot.sim.command == (0, 0) and not robot.client.body.runner.busy
+    # the replan's first action from there runs as usual
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E") | {"action_id": "1.3.0"})
+    await conn.expect(Finished, "1.3.0")
+    assert robot.at((2, 1)) < ARRIVED_M
+
+
 async def test_a_cancel_drops_the_queued_actions_behind_it(robot: Robot) -> None:
     # lookahead dispatch: the robot holds a queue; a cancelled action takes the ones queued
     # behind it along (they cannot run without it), and each is confirmed
