@@ -223,7 +223,7 @@ class RobotClient:
                     del self.gateway_errors[:-100]
                     log.warning("gateway error %s (ref %s): %s", err.code, err.ref, err.detail)
                 elif isinstance(effect, Refused):
-                    log.error("refusing action %s: %s", effect.action.action_id, effect.reason)
+                    log.error("refused action %s: %s", effect.action.action_id, effect.reason)
                 elif isinstance(effect, Abort):  # a move stopped on the way by the bumper
                     log.info("cancelled on the way: %s goes back", effect.action_id)
                     self.body.runner.abort(self.clock.now_ms(), self.body.pose)
@@ -266,7 +266,12 @@ class RobotClient:
                 if action is not None:
                     grid = grid_action(action)
                     log.info("starting %s (%s)", grid.action_id, grid.kind)
-                    self.body.start(grid, now)
+                    try:
+                        self.body.start(grid, now)
+                    except ValueError as exc:  # e.g. a move whose start heading it lacks
+                        self.session.refuse_current("pose_mismatch", str(exc),
+                                                    self.wire_pose())
+                        await self._flush()
             deadline += period
             await asyncio.sleep(max(0.0, deadline - loop.time()))
 

@@ -20,6 +20,7 @@ import pytest
 from protocol import (
     Ack,
     Action,
+    ActionRefused,
     Blocked,
     CancelAction,
     Cancelled,
@@ -204,7 +205,7 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
 
 async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     conn, _ = await handshake(robot, paused=True, state_period_ms=60000.0)  # one snapshot only
-    await conn.send(Action, **action(0, (1, 1), (1, 0), "N", "N"))
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
     await conn.expect(Ack, "0.3.0")
     await asyncio.sleep(0.3)
     # paused: the action is held, not started
@@ -266,6 +267,25 @@ async def test_a_cancel_of_a_bumper_stopped_move_drives_back_then_confirms(robot
     await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E") | {"action_id": "1.3.0"})
     await conn.expect(Finished, "1.3.0")
     assert robot.at((2, 1)) < ARRIVED_M
+
+
+async def test_a_move_that_does_not_start_from_the_robots_heading_is_refused(
+        robot: Robot) -> None:
+    conn, _ = await handshake(robot, state_period_ms=60000.0)
+    await conn.send(Action, **action(0, (1, 1), (1, 0), "N", "N"))  # the robot faces E
+    await conn.send(Action, **action(1, (1, 0), (1, 0), "N", "W"))
+    refused = await conn.expect(ActionRefused, "0.3.0")
+    assert refused.code == "pose_mismatch" and refused.pose == Pose(cell=(1, 1), heading="E")
+    assert refused.detail == ("it starts at [1, 1] facing N, but the robot will stand at "
+                              "[1, 1] facing E")
+    behind = await conn.expect(ActionRefused, "0.3.1")
+    assert behind.code == "queued_behind"
+    await asyncio.sleep(0.3)
+    assert not conn.of_type(Ack) and not conn.of_type(Started)
+    assert robot.at((1, 1)) < 0.005 and robot.sim.command == (0, 0)
+    # the plan that turns first is taken
+    await conn.send(Action, **action(0, (1, 1), (1, 1), "E", "N") | {"action_id": "1.3.0"})
+    await conn.expect(Finished, "1.3.0")
 
 
 async def test_a_cancel_drops_the_queued_actions_behind_it(robot: Robot) -> None:
