@@ -22,6 +22,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any, Literal, cast
 
 from gateway.execution.actions import ActionDurations
@@ -503,7 +504,7 @@ class Engine:
         self.planning = False
         assert item.problem is not None
         if isinstance(item.result, Plan):
-            self.problem = Problem(item.problem.instance, item.problem.map_name, item.result)
+            self.problem = replace(item.problem, plan=item.result)
             self._reply(item.reply, item.ref, None,
                         f"loaded {item.problem.map_name}: {len(item.result.paths)} robots, "
                         f"SOC {item.result.soc}, makespan {item.result.makespan}")
