@@ -10,7 +10,7 @@ the engine's routing.
 
 from __future__ import annotations
 
-import logging
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from gateway.execution.actions import ActionDurations
@@ -44,9 +44,6 @@ from protocol import (
 
 if TYPE_CHECKING:
     from gateway.server.engine import Engine
-
-log = logging.getLogger("fleetgate.engine")
-
 
 class CommandError(Exception):
     """An operator command is refused with ``code``."""
@@ -218,7 +215,7 @@ class OperatorCommands:
         e.planning = False
         assert item.problem is not None
         if isinstance(item.result, Plan):
-            e.problem = Problem(item.problem.instance, item.problem.map_name, item.result)
+            e.problem = replace(item.problem, plan=item.result)
             reply_to(item.reply, item.ref, None,
                      f"loaded {item.problem.map_name}: {len(item.result.paths)} robots, "
                      f"SOC {item.result.soc}, makespan {item.result.makespan}")
