@@ -32,6 +32,8 @@ class ExecutionParams:
     """A random replan happens before ``makespan_lb`` minus this margin."""
     recheck_ms: float = 100.0
     """How often a simulated robot (or the intruder) re-checks that its next cell is free."""
+    oracle_step_ms: float = 250.0
+    """The step of the oracle's sweep of forced replans (``fleetgate experiment --oracle``)."""
 
 
 PAPER = ExecutionParams()
