@@ -37,7 +37,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from gateway.execution.params import PAPER
+from gateway.execution.params import PAPER, IntruderReading
 from gateway.execution.policies import PolicyName
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
@@ -145,6 +145,8 @@ class SimSettings:
     intruder_appear_ms: float = PAPER.intruder_appear_ms
     intruder_leave_ms: float = PAPER.intruder_leave_ms
     replan_time_limit_s: float = 10.0
+    intruder_reading: IntruderReading = "start"
+    """:attr:`~sim_clients.intruder.IntruderConfig.reading`."""
 
 
 @dataclass(frozen=True)
@@ -322,7 +324,8 @@ def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
         threshold_ms=sim.threshold_ms, solver_time=parse_solver_time(sim.solver_time),
         solver_time_limit_s=sim.replan_time_limit_s,
         intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
-                                       leave_ms=sim.intruder_leave_ms))
+                                       leave_ms=sim.intruder_leave_ms,
+                                       reading=sim.intruder_reading))
 
 
 def simulate_variant(grid: Grid, plan: Plan, seed: int, variant: str,
@@ -498,7 +501,9 @@ def _check_settings(out: Path, spec: CampaignSpec) -> None:
     path = out / "campaign.json"
     settings = spec.settings()
     if path.exists():
-        old = json.loads(path.read_text())
+        # A setting added since the folder was made had its default value there.
+        default = CampaignSpec(spec.groups, 1, 1).settings()
+        old = {**default, **json.loads(path.read_text())}
         diff = sorted(k for k in settings if old.get(k) != settings[k])
         if diff:
             raise CampaignError(

@@ -368,8 +368,10 @@ class Simulation:
         assert intr is not None
         if intr.state is IntruderState.ABSENT:
             ex = self.executor
-            target = pick_target(self.rng, ex.plan.paths, self.next_action,
-                                 ex.monitor.start_ms, now + intr.config.lead_ms)
+            visit = ex.monitor.start_ms if intr.config.reading == "start" else \
+                ex.monitor.completion_ms
+            target = pick_target(self.rng, ex.plan.paths, self.next_action, visit,
+                                 now + intr.config.lead_ms)
             events = intr.appear(now, target)
         else:
             events = intr.wake(now)

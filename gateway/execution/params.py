@@ -8,6 +8,12 @@ options. A plain frozen dataclass, because the execution core imports no pydanti
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
+
+IntruderReading = Literal["start", "arrival"]
+"""How the intruder reads "scheduled to visit the cell in T_a + 2 s" (see
+``sim_clients.intruder.IntruderConfig.reading``)."""
+INTRUDER_READINGS: tuple[IntruderReading, ...] = ("start", "arrival")
 
 
 @dataclass(frozen=True, slots=True)
