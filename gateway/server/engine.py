@@ -10,6 +10,14 @@ the operator feed; operator commands to the run. It also ticks the executor ever
 ``MONITOR_PERIOD_MS`` while running, and runs the planner off-loop (the clock decides how)
 while events keep queueing; the result comes back as a queue item.
 
+The journal (:mod:`gateway.runtime.journal`, optional): the executor is a
+:class:`~gateway.server.resume.JournaledExecutor` that journals each of its inputs before
+applying it; the engine journals the run, intruder reports and speed changes, and commits the
+journal (then flushes the trace) every time the owner task is about to yield to the event
+loop, so no message it queued leaves the process before its cause is durable. On start with a
+journaled run, :meth:`Engine.resume` replays it and carries on; reconnecting robots are
+re-synchronised by their ``hello``.
+
 Elsewhere: what operators and the trace file are told (:mod:`gateway.server.operator_feed`),
 what a snapshot shows (:mod:`gateway.server.views`, from a read model), the process's garbage
 collector (:mod:`gateway.server.gc_tuning`, hooked by the :class:`~gateway.server.gateway.Gateway`).
@@ -18,6 +26,7 @@ collector (:mod:`gateway.server.gc_tuning`, hooked by the :class:`~gateway.serve
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import math
 import time
@@ -34,13 +43,23 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
-from gateway.execution.policies import ReplanPolicy, SlackReplan, make_policy
+from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
 from gateway.execution.trace_records import summary_record
 from gateway.planning.grid import Cell
+from gateway.planning.instance import Instance
 from gateway.planning.motion import Motion
+from gateway.planning.movingai import format_map, parse_map
 from gateway.planning.plan import NoSolution, Plan
 from gateway.planning.solver import Place
+from gateway.runtime.journal import (
+    IntruderRecord,
+    Journal,
+    PolicyRecord,
+    ReportRecord,
+    RunRecord,
+    SpeedRecord,
+    new_run_id,
+)
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
@@ -61,6 +80,7 @@ from gateway.server.planner import (
     problem_from_paths,
     resolve_instance,
 )
+from gateway.server.resume import JournaledExecutor, Replayed, executor_for, plan_of, replay
 from gateway.server.session import Session
 from gateway.server.views import FleetView, snapshot_fields
 from protocol import (
@@ -115,7 +135,14 @@ class Engine:
         self.metrics = metrics
         self.queue: asyncio.Queue[Item] = asyncio.Queue()
         self.problem: Problem | None = None
-        self.executor: Executor | None = None
+        self.executor: JournaledExecutor | None = None
+        self.journal: Journal | None = None
+        """Where the runs are journaled (None: they are not, and do not survive a restart)."""
+        self.run_id = ""
+        """The current run's id, the first part of its action ids."""
+        self._runs = 0  # runs started by this process (ids of runs without a journal)
+        self._replaying = False
+        self._replayed_trace: list[str] = []  # the trace records a replay rebuilt
         self.planning = False
         self.paused = False
         self.robots: dict[int, GatewaySession] = {}
@@ -181,6 +208,7 @@ class Engine:
             ticking = self.executor is not None and self.executor.mode is not Mode.DONE
             if not ticking:
                 next_tick = None
+                self.commit()
                 item = await self.queue.get()
             else:
                 if next_tick is None:
@@ -190,6 +218,7 @@ class Engine:
                     # cancelling a timer per item (a busy fleet keeps this queue non-empty)
                     item = self.queue.get_nowait()
                 else:
+                    self.commit()
                     delay = (next_tick - self.clock.now_ms()) / self.clock.speed / 1000.0
                     try:
                         async with asyncio.timeout(max(0.0, delay)):
@@ -209,11 +238,19 @@ class Engine:
         """Handle everything of the present instant, including what the replies to it cause
         (a finish -> a dispatch -> the robot's start), before a tick looks at the monitor."""
         while True:
+            self.commit()
             await self.clock.settle()
             if self.queue.empty():
                 return
             while not self.queue.empty():
                 self._handle_safely(self.queue.get_nowait())
+
+    def commit(self) -> None:
+        """Make what was journaled durable, then write the trace records it caused (called
+        before the owner task yields: nothing queued for a peer leaves before this)."""
+        if self.journal is not None:
+            self.journal.commit()
+        self.feed.flush_trace()
 
     def _next_tick(self, after: float) -> float:
         period = float(MONITOR_PERIOD_MS)
@@ -402,6 +439,8 @@ class Engine:
             session.error(ErrorCode.DUPLICATE, msg.msg_id,
                           f"the intruder on {list(cell)} is already {msg.state}")
             return
+        if self.executor is not None and self.journal is not None:
+            self.journal.append(IntruderRecord(t_ms=now, cell=cell, state=msg.state))
         self.feed.intruder(now, cell, msg.state)
 
     # -------------------------------------------------------------------------- routing
@@ -412,7 +451,7 @@ class Engine:
                 self._dispatch(c)
             elif isinstance(c, Cancel):
                 gs = self.robot(c.robot)
-                gs.cancel(action_id(c.plan, c.robot, c.action))
+                gs.cancel(action_id(c.plan, c.robot, c.action, self.run_id))
                 self._flush(gs)
             elif isinstance(c, Trigger):
                 self.metrics.replans.inc()
@@ -421,6 +460,8 @@ class Engine:
                 self._status_changed()
             elif isinstance(c, SolveRequest):
                 assert self.problem is not None
+                if self._replaying:
+                    continue  # solved once the replay is over, if still unanswered
                 hs = c.headings
                 starts: Sequence[Place] = c.starts if hs is None else [
                     (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
@@ -434,7 +475,7 @@ class Engine:
                 self._completed(c)
 
     def _dispatch(self, c: Dispatch) -> None:
-        aid = action_id(c.plan, c.robot, c.action)
+        aid = action_id(c.plan, c.robot, c.action, self.run_id)
         fields: dict[str, Any] = {
             "action_id": aid, "sequence": c.action,
             "src": Pose(cell=c.src, heading=None if c.src_heading is None
@@ -454,7 +495,12 @@ class Engine:
 
     def _completed(self, c: Completed) -> None:
         self.summary = (c.soc_ms, c.makespan_ms)
-        self.feed.write_trace(summary_record(c.soc_ms, c.makespan_ms))
+        summary = summary_record(c.soc_ms, c.makespan_ms)
+        self.feed.write_trace(summary)
+        if self._replaying:
+            self._replayed_trace.append(json.dumps(summary) + "\n")
+            self.finished_event.set()
+            return
         self.feed.close_trace()
         self.feed.event("summary", self.now_ms(), soc_ms=c.soc_ms,
                               makespan_ms=c.makespan_ms)
@@ -494,7 +540,7 @@ class Engine:
                 return  # a new run was started meanwhile
             now = self.now_ms()
             if isinstance(item.result, Plan):
-                ex.adopt_plan(item.result, now)
+                ex.adopt_plan(item.result, now, self.solver_ms)
             else:
                 log.warning("replan found no plan, keeping the old one: %s", item.result)
                 ex.abandon_replan(now)
@@ -585,18 +631,18 @@ class Engine:
                 return "replanning"
             case SetPolicy():
                 self.policy_name, self.policy_seed = msg.policy, msg.seed
-                if self.executor is not None:
-                    self.executor.policy = self._make_policy(self.executor.plan)
+                self._policy_changed(replace=True)
                 self._status_changed()
                 return f"policy {self.policy_name}"
             case SetThreshold():
                 self.threshold_ms = msg.threshold_ms
-                if self.executor is not None and isinstance(self.executor.policy, SlackReplan):
-                    self.executor.policy.threshold_ms = self.threshold_ms
+                self._policy_changed(replace=False)
                 self._status_changed()
                 return f"threshold {self.threshold_ms} ms"
             case SetSpeed():
                 self.clock.set_speed(msg.speed)
+                if self.executor is not None and self.journal is not None:
+                    self.journal.append(SpeedRecord(speed=msg.speed))
                 for w in self.worlds:
                     w.send(SetSpeed, speed=msg.speed)
                 self._status_changed()
@@ -615,6 +661,15 @@ class Engine:
                     return None
                 return "snapshot"
         raise CommandError(ErrorCode.FORBIDDEN, f"{msg.type} is not an operator command")
+
+    def _policy_changed(self, *, replace: bool) -> None:
+        """Give the running executor the operator's policy (or threshold), journaled."""
+        ex = self.executor
+        if ex is not None:
+            ex.set_policy(PolicyRecord(
+                policy=self.policy_name, policy_seed=self.policy_seed,
+                threshold_ms=self.threshold_ms, replace=replace,
+                makespan_lb_ms=ex.plan.makespan * self.config.action_ms))
 
     def _set_paused(self, paused: bool) -> None:
         self.paused = paused
@@ -636,10 +691,6 @@ class Engine:
         return [models[cfg.robot_model[k]] if k in cfg.robot_model else uniform
                 for k in range(robots)]
 
-    def _make_policy(self, plan: Plan) -> ReplanPolicy:
-        return make_policy(self.policy_name, seed=self.policy_seed,
-                           threshold_ms=self.threshold_ms,
-                           makespan_lb_ms=plan.makespan * self.config.action_ms)
 
     def load(self, problem: Problem, reply: Reply = None, ref: str | None = None) -> None:
         """Plan ``problem`` (unless it has a plan) and make it the loaded one."""
@@ -688,18 +739,93 @@ class Engine:
         self.finished_event.clear()
         self.paused = False
         self.feed.new_run()
-        self.executor = Executor(plan, policy=self._make_policy(plan),
-                                 action_ms=self.config.action_ms,
-                                 drop_waits=self.config.drop_waits,
-                                 max_replans=self.config.max_replans, record=self.feed.record,
-                                 lookahead=self.config.dispatch_lookahead,
-                                 durations=self._durations(len(plan.paths)))
+        cfg = self.config
+        self._runs += 1
+        self.run_id = new_run_id() if self.journal is not None else (
+            "" if self._runs == 1 else str(self._runs))
+        run = RunRecord(
+            run_id=self.run_id, wall_start_s=0.0, speed=self.clock.speed,
+            map_name=self.problem.map_name, map_text=format_map(self.problem.instance.grid),
+            paths=[list(p) for p in plan.paths],
+            headings=None if plan.headings is None else [list(h) for h in plan.headings],
+            policy=self.policy_name, policy_seed=self.policy_seed,
+            threshold_ms=self.threshold_ms, makespan_lb_ms=plan.makespan * cfg.action_ms,
+            action_ms=cfg.action_ms, drop_waits=cfg.drop_waits, max_replans=cfg.max_replans,
+            lookahead=cfg.dispatch_lookahead,
+            durations=[(d.move_ms, d.turn_ms, d.wait_ms)
+                       for d in self._durations(len(plan.paths))])
+        journal = self.journal
+        self.executor = executor_for(run, journal.append if journal is not None else None,
+                                     self.feed.record)
         for hook in self.before_start:
             hook()
         self.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
+        if journal is not None:
+            journal.begin_run(run.model_copy(update={"wall_start_s": time.time()}))
         self.executor.start(0.0)
         self._status_changed()
         self._route(self.executor.drain())
+
+    def resume(self) -> bool:
+        """Rebuild the journaled run, if there is one, and carry on with it (robots are
+        re-synchronised by their ``hello``); False if the journal holds no run."""
+        journal = self.journal
+        if journal is None:
+            return False
+        records = list(journal.records())
+        if not records or not isinstance(records[0], RunRecord):
+            return False
+        trace: list[str] = []
+        self._replayed_trace = trace
+
+        def record(rec: dict[str, object]) -> None:
+            self.feed.record(rec)
+            trace.append(json.dumps(rec) + "\n")
+
+        run = records[0]
+        grid = parse_map(run.map_text, name=run.map_name)
+        first = plan_of(run.paths, run.headings)
+        self.problem = Problem(Instance(grid, tuple(p[0] for p in first.paths),
+                                        tuple(p[-1] for p in first.paths), run.map_name),
+                               run.map_name, first)
+        self.run_id = run.run_id
+        self._runs += 1
+        self._replaying = True
+        try:
+            done = replay(records, on_commands=self._route,
+                          on_report=self._replayed_report, trace=record)
+        finally:
+            self._replaying = False
+        assert done is not None
+        self._resumed(done, trace)
+        return True
+
+    def _replayed_report(self, rec: ReportRecord) -> None:
+        """A report the replayed executor took: the robot's session takes it too."""
+        aid = action_id(rec.plan, rec.robot, rec.index, self.run_id)
+        self.robot(rec.robot).accepted(Report(rec.event, rec.robot, rec.plan, rec.index, aid,
+                                              rec.t_ms, None))
+
+    def _resumed(self, done: Replayed, trace: list[str]) -> None:
+        run, ex = done.run, done.executor
+        self.executor = ex
+        self.policy_name = cast(PolicyName, done.policy)
+        self.policy_seed, self.threshold_ms = done.policy_seed, done.threshold_ms
+        self.solver_ms = done.solver_ms
+        self.paused = ex.paused
+        self.feed.intruders = set(done.intruders)
+        self.feed.resume_trace(trace)
+        ex.set_record(self.feed.record)
+        ex.sink = self.journal.append if self.journal is not None else None
+        self.clock.set_speed(done.speed)
+        away = (time.time() - run.wall_start_s) * 1000.0 * done.speed
+        self.clock.reset(max(done.last_t_ms, away))
+        log.info("resumed the journaled run", extra={
+            "run": run.run_id, "records": done.records, "plan": ex.plan_id,
+            "t_ms": round(self.clock.now_ms()), "status": self.status})
+        if ex.mode is Mode.SOLVING and done.solve is not None:
+            self._route([done.solve])
+        self._status_changed()
 
     # -------------------------------------------------------------------------- outputs
     def _status_changed(self) -> None:
@@ -726,4 +852,5 @@ class Engine:
         """Cancel running planner tasks and close the trace."""
         for task in list(self._tasks):
             task.cancel()
+        self.commit()
         self.feed.close_trace()
