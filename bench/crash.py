@@ -9,8 +9,8 @@ command line; robots reconnect by themselves. Each disturbed run is checked:
 
 * ``resumed``: restarts after which the gateway carried on with the run (``/healthz`` says
   ``running``, not ``empty``/``loaded``);
-* ``lost``: plan actions whose completion the gateway's trace lacks at the end (a run that
-  never completes loses what it did not finish);
+* ``lost``: completions the robots made that the gateway's trace lacks at the end (and, for a
+  run that never completes, the plan's actions it did not complete);
 * ``duplicated``: actions a robot executed more than once;
 * ``collisions``: what the independent trace checker (``tracecheck``) finds in the trace,
   plus its ``errors`` as ``trace_errors``;
@@ -63,11 +63,11 @@ def free_port() -> int:
 class GatewayProcess:
     """``python -m gateway serve`` with one fixed command line, killed and restarted."""
 
-    def __init__(self, workdir: Path, port: int, speed: float) -> None:
+    def __init__(self, workdir: Path, port: int, speed: float, policy: str) -> None:
         self.port = port
         self.trace = workdir / "trace.jsonl"
         config = workdir / "gateway.json"
-        config.write_text(json.dumps({"speed": speed, "policy": "none", "trace": str(self.trace),
+        config.write_text(json.dumps({"speed": speed, "policy": policy, "trace": str(self.trace),
                                       "ping_interval_s": 2.0, "ping_timeout_s": 2.0}))
         self.cmd = [sys.executable, "-m", "gateway", "serve", "--config", str(config),
                     "--journal", str(workdir / "journal.sqlite"), "--port", str(port),
@@ -146,10 +146,18 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
     delays (s) after the start or after the previous restart."""
     total = sum(len(p) - 1 for p in plan.paths)
     executed: Counter[tuple[int, int, int]] = Counter()
+    completed: set[tuple[int, int, int]] = set()
+
+    def on_event(kind: str, plan_id: int, robot: int, index: int) -> None:
+        if kind == "execute":
+            executed[(plan_id, robot, index)] += 1
+        elif kind == "finished":
+            completed.add((plan_id, robot, index))
+
     fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"),
                      range(len(plan.paths)), clock=LoopClock(speed), send_state=True,
                      reconnect_delay_s=0.05, seed=rng.randrange(1 << 30))
-    fleet.on_execute = lambda plan_id, robot, index: executed.update([(plan_id, robot, index)])
+    fleet.on_event = on_event
     resumed = 0
     await fleet.start()
     try:
@@ -158,7 +166,7 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
         t0 = time.perf_counter()
         for delay in kills:
             await asyncio.sleep(delay)
-            if len({k[1:] for k in executed}) >= total:
+            if (await asyncio.to_thread(gw.health)).get("gateway") == "done":
                 break  # done already: no point in killing
             gw.kill()
             await asyncio.sleep(rng.uniform(0.0, 0.3))  # down for a while
@@ -177,7 +185,10 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
     report = check_trace(records)
     finished = {(r["plan"], r["robot"], r["action"]) for r in records if r["type"] == "finish"}
     summary = next((r for r in records if r["type"] == "summary"), None)
-    return {"resumed": resumed, "lost": total - len(finished),
+    # lost: completions the robots made that the gateway's trace lacks, and, if the run did
+    # not complete, the plan's actions never completed
+    missing = 0 if summary is not None else max(0, total - len(finished))
+    return {"resumed": resumed, "lost": len(completed - finished) + missing,
             "duplicated": sum(n - 1 for n in executed.values() if n > 1),
             "collisions": len(report.collisions), "trace_errors": len(report.errors),
             "soc_ms": None if summary is None else float(summary["soc_ms"]),
@@ -185,7 +196,7 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
 
 
 def run(kills: int, seed: int, robots: int, steps: int, speed: float,
-        per_run: int) -> dict[str, Any]:
+        per_run: int, policy: str = "none") -> dict[str, Any]:
     """The baseline run, then disturbed runs until ``kills`` kills were made."""
     rng = random.Random(seed)
     plan = random_plan(open_grid(max(6, robots), max(6, robots)), robots, steps, rng)
@@ -194,7 +205,7 @@ def run(kills: int, seed: int, robots: int, steps: int, speed: float,
         work = Path(tmp)
         map_file = work / "open.map"
         write_map(open_grid(max(6, robots), max(6, robots)), map_file)
-        gw = GatewayProcess(work, free_port(), speed)
+        gw = GatewayProcess(work, free_port(), speed, policy)
         try:
             gw.start()
             base = asyncio.run(_run(gw, map_file, plan, speed, [], rng))
@@ -221,7 +232,7 @@ def run(kills: int, seed: int, robots: int, steps: int, speed: float,
             if socs and base["soc_ms"] else None,
             "baseline_soc_ms": base["soc_ms"], "baseline_lost": base["lost"],
             "mean_down_s": round(statistics.mean(gw.down_s), 2) if gw.down_s else None,
-            "robots": robots, "steps": steps, "speed": speed, "seed": seed}
+            "robots": robots, "steps": steps, "speed": speed, "seed": seed, "policy": policy}
 
 
 def main() -> int:
@@ -234,12 +245,15 @@ def main() -> int:
     p.add_argument("--speed", type=float, default=5.0,
                    help="plan time per real time (actions last 1000/speed ms)")
     p.add_argument("--kills-per-run", type=int, default=5)
+    p.add_argument("--policy", choices=["none", "random"], default="none",
+                   help="the gateway's replanning policy (random: one replan per run at a "
+                        "random time, so kills also hit replans)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON line")
     args = p.parse_args()
     if args.kills < 0 or args.robots < 1 or args.steps < 1 or args.kills_per_run < 1:
         p.error("--kills >= 0, --robots, --steps and --kills-per-run >= 1")
     result = run(args.kills, args.seed, args.robots, args.steps, args.speed,
-                 args.kills_per_run)
+                 args.kills_per_run, args.policy)
     if args.json:
         print(json.dumps(result))
     else:

@@ -357,8 +357,8 @@ class FleetRobot:
             assert sim is not None
         d = Dispatch(plan, robot, index, action.src.cell, action.dst.cell, action.duration_ms)
         self._ids[(plan, index)] = action.action_id  # the id carries the run: report with it
-        if self.fleet.on_execute is not None:
-            self.fleet.on_execute(plan, robot, index)
+        if self.fleet.on_event is not None:
+            self.fleet.on_event("execute", plan, robot, index)
         jitter = self.fleet.duration_jitter
         extra = action.duration_ms * self._rng.uniform(-jitter, jitter) if jitter else 0.0
         self._emit(sim.dispatch(d, self._now(), extra))
@@ -393,6 +393,8 @@ class FleetRobot:
         for e in events:
             if e.kind == "started" and e.plan >= self.plan:
                 self.plan, self.next_action = e.plan, e.action + 1
+            if self.fleet.on_event is not None:
+                self.fleet.on_event(e.kind, e.plan, e.robot, e.action)
             aid = self._ids.get((e.plan, e.action)) or action_id(e.plan, e.robot, e.action)
             if e.kind in ("finished", "cancelled"):
                 self._ids.pop((e.plan, e.action), None)
@@ -431,9 +433,10 @@ class SimFleet:
         self.reconnect_delay_s = reconnect_delay_s
         self.send_state = send_state
         self.stats = FleetStats()
-        self.on_execute: Callable[[int, int, int], None] | None = None
-        """Called with (plan, robot, index) whenever a robot begins to execute an action
-        (benchmarks count double executions with it)."""
+        self.on_event: Callable[[str, int, int, int], None] | None = None
+        """Called with (kind, plan, robot, index) when a robot takes an action to execute it
+        (kind "execute") and at each event of its body ("started", "finished", ...):
+        benchmarks count double executions and completions with it."""
         self.stopping = False
         self.robots: dict[int, FleetRobot] = {}
         self._world_token = world_token

@@ -63,7 +63,9 @@ class JournaledExecutor(Executor):
 
     def _report(self, event: ExecutorEvent, robot: int, plan: int, action: int,
                 now_ms: float) -> None:
-        self._log(ReportRecord(event=event, robot=robot, plan=plan, index=action, t_ms=now_ms))
+        if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
+            self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
+                                                   index=action, t_ms=now_ms))
 
     def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         self._report("started", robot, plan, action, now_ms)
@@ -90,7 +92,8 @@ class JournaledExecutor(Executor):
         super().cancelled(robot, plan, action, now_ms)
 
     def tick(self, now_ms: float) -> None:
-        self._log(TimeRecord(kind="tick", t_ms=now_ms))
+        if self.sink is not None:
+            self.sink(TimeRecord.model_construct(kind="tick", t_ms=now_ms))
         super().tick(now_ms)
 
     def pause(self, now_ms: float) -> None:
