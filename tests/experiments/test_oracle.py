@@ -27,7 +27,7 @@ from experiments.campaign import (
 from experiments.oracle import OracleRow, Sweep, read_oracle_rows, sample_experiments, sweep
 from experiments.oracle_stats import judge, summarize_policy, wilson
 from experiments.stats import Experiment, join_experiments
-from gateway.execution.monitor import Monitor
+from gateway.execution.policies import RandomReplan
 from gateway.runtime.mapstore import resolve
 from sim_clients.des import Simulation
 
@@ -36,23 +36,9 @@ SPEC = CampaignSpec(groups=(("lab", 5),), instances=2, seeds=2, sim=SIM, plan_ti
 MAPS = {"lab": str(resolve("lab", "map"))}
 
 
-class _ReplanAt:
-    """A policy that fires once at a fixed time (the reference for the sweep)."""
-
-    name = "operator"
-
-    def __init__(self, at_ms: float) -> None:
-        self.at_ms = at_ms
-        self.fired = False
-
-    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
-        if self.fired or now_ms < self.at_ms:
-            return False
-        self.fired = True
-        return True
-
-    def next_wakeup_ms(self) -> float | None:
-        return None if self.fired else self.at_ms
+def _replan_at(t_ms: float) -> RandomReplan:
+    """A policy that replans once at ``t_ms`` (an empty random interval starts there)."""
+    return RandomReplan(0, intruder_appear_ms=t_ms, makespan_lb_ms=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +69,7 @@ def test_the_memoised_sweep_equals_one_fresh_run_per_replan_time(campaign: tuple
             # ... and changed nothing: each point is a whole run with a policy firing then.
             for t, soc in got.curve:
                 sim = Simulation(config)
-                sim.executor.policy = _ReplanAt(t)
+                sim.executor.policy = _replan_at(t)
                 res = sim.run()
                 assert (t, res.soc_ms) == (t, soc) and res.replan_at_ms == t
             soc, at = got.best()
