@@ -7,11 +7,11 @@ moves are slow, 1-2.5 s; the executor is ticked every 100 ms). Each finish event
 events the full recomputation (``monitor.algorithm1`` over the whole ADG, the baseline) is
 timed on the same state and checked equal to the incremental one.
 
-No planner is needed: the plan is built here by prioritized random walks toward random goals
-with a space-time reservation table (1-robust by construction, then checked with the plan
-validator). Prints one line: the ratio of medians and the median microseconds per finish event
-(and, for information, the median cost of a 100 ms tick, which re-clamps the overdue frontier
-actions and propagates to their descendants).
+No planner is needed: the plan is random 1-robust walks
+(:func:`gateway.planning.random_plans.random_walks`, checked with the plan validator). Prints
+one line: the ratio of medians and the median microseconds per finish event (and, for
+information, the median cost of a 100 ms tick, which re-clamps the overdue frontier actions
+and propagates to their descendants).
 
     .venv/bin/python bench/monitor.py [--robots 500] [--size 64] [--steps 80] [--seed 1]
 """
@@ -25,52 +25,12 @@ import statistics
 import sys
 import time
 
-import numpy as np
-
 from gateway.execution.commands import Dispatch
 from gateway.execution.executor import MONITOR_PERIOD_MS, Executor
 from gateway.execution.monitor import algorithm1
-from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
+from gateway.planning.random_plans import open_grid, random_walks
 from gateway.planning.validate import plan_violations
-
-
-def robust_walks(size: int, robots: int, steps: int, rng: random.Random) -> list[list[Cell]]:
-    """Paths of ``steps`` moves on an open size x size grid, 1-robust by construction.
-
-    Robots are planned one after another against a table of (cell, t) -> robot: a step is
-    allowed if no earlier robot is on the cell at t or t-1 (vertex and following conflicts)
-    and none enters the robot's previous cell at t. Nobody steps on a later robot's start,
-    so standing still on one's start is always allowed (the fallback on a dead end).
-    """
-    cells = [(x, y) for x in range(size) for y in range(size)]
-    starts = rng.sample(cells, robots)
-    unplanned_starts = set(starts)
-    taken: dict[tuple[Cell, int], int] = {}
-    paths = []
-    for k, start in enumerate(starts):
-        unplanned_starts.discard(start)
-        goal = rng.choice(cells)
-        path = [start]
-        for t in range(1, steps + 1):
-            x, y = path[-1]
-            options = [(x + 1, y), (x - 1, y), (x, y + 1), (x, y - 1)]
-            options.sort(key=lambda c: abs(c[0] - goal[0]) + abs(c[1] - goal[1])
-                         + 3 * rng.random())
-            options.append((x, y))
-            for c in options:
-                if (0 <= c[0] < size and 0 <= c[1] < size and c not in unplanned_starts
-                        and (c, t) not in taken and (c, t - 1) not in taken
-                        and taken.get((path[-1], t), k) == k):
-                    path.append(c)
-                    break
-            else:
-                path = [start] * (steps + 1)
-                break
-        for t, c in enumerate(path):
-            taken[(c, t)] = k
-        paths.append(path)
-    return paths
 
 
 def main() -> int:
@@ -83,8 +43,8 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=25, help="full recomputations to time")
     args = ap.parse_args()
     rng = random.Random(args.seed)
-    paths = robust_walks(args.size, args.robots, args.steps, rng)
-    grid = Grid(np.ones((args.size, args.size), dtype=bool))
+    grid = open_grid(args.size, args.size)
+    paths = random_walks(grid, args.robots, args.steps, rng)
     violations = plan_violations(grid, [p[0] for p in paths], [p[-1] for p in paths], paths)
     if violations:
         print(f"generated plan is invalid: {violations[0]}", file=sys.stderr)

@@ -470,6 +470,8 @@ class Snapshot(Envelope):
     t_ms: float
     status: GatewayStatus
     map_name: str = ""
+    scen_name: str = ""
+    """The scenario the instance was read from ("" when generated or given as a plan)."""
     rows: list[str] = Field(default_factory=list)
     plan: int | None = None
     paths: list[list[Cell]] = Field(default_factory=list)

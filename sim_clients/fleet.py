@@ -677,4 +677,4 @@ async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) ->
     assert ex is not None
     return RunSummary(soc_ms=soc, makespan_ms=makespan, plan_soc=plan.soc, replans=ex.replans,
                      replan_at_ms=replan_at[0] if replan_at else None,
-                     solver_ms=engine.solver_ms, collisions=len(fleet.world.collisions))
+                     solver_ms=engine.solvers.solver_ms, collisions=len(fleet.world.collisions))

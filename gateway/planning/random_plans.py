@@ -20,9 +20,9 @@ def open_grid(width: int, height: int) -> Grid:
     return Grid(np.ones((height, width), dtype=bool), name=f"open-{width}x{height}")
 
 
-def random_plan(grid: Grid, robots: int, steps: int, rng: random.Random,
-                move_share: float = 0.7) -> Plan:
-    """A random 1-robust plan of ``robots`` walkers over ``steps`` timesteps."""
+def random_walks(grid: Grid, robots: int, steps: int, rng: random.Random,
+                 move_share: float = 0.7) -> list[list[Cell]]:
+    """``robots`` random walks of ``steps`` timesteps (``steps + 1`` cells each), 1-robust."""
     cells = list(grid.free_cells())
     positions: list[Cell] = rng.sample(cells, robots)
     paths = [[p] for p in positions]
@@ -39,4 +39,11 @@ def random_plan(grid: Grid, robots: int, steps: int, rng: random.Random,
             claimed.add(positions[k])
         for k in range(robots):
             paths[k].append(positions[k])
-    return Plan.of(paths)
+    return paths
+
+
+def random_plan(grid: Grid, robots: int, steps: int, rng: random.Random,
+                move_share: float = 0.7) -> Plan:
+    """A random 1-robust plan of ``robots`` walkers over ``steps`` timesteps
+    (:func:`random_walks`, trailing goal waits trimmed)."""
+    return Plan.of(random_walks(grid, robots, steps, rng, move_share))

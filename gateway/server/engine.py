@@ -6,9 +6,11 @@ robot's protocol session (:class:`~protocol.gateway_session.GatewaySession`: the
 acknowledgements, duplicates, what a reconnect catches up and resends), whose effects go to the
 robot's connection, the sender (refusals) or the executor (reports, applied with the clock's
 time); the executor's commands back to the sessions (dispatch, cancel), to the planner and to
-the operator feed; operator commands to the run. It also ticks the executor every
-``MONITOR_PERIOD_MS`` while running, and runs the planner off-loop (the clock decides how)
-while events keep queueing; the result comes back as a queue item.
+the operator feed; operator commands to :class:`~gateway.server.operator_commands.OperatorCommands`
+(which checks them and drives the run's lifecycle: load, start, pause, settings). It also ticks
+the executor every ``MONITOR_PERIOD_MS`` while running. The planner runs off-loop in
+:class:`~gateway.server.solver_tasks.SolverTasks` while events keep queueing; its result comes
+back as a queue item.
 
 Elsewhere: what operators and the trace file are told (:mod:`gateway.server.operator_feed`),
 what a snapshot shows (:mod:`gateway.server.views`, from a read model), the process's garbage
@@ -22,9 +24,8 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, Literal, cast
+from typing import Any, cast
 
-from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import (
     Cancel,
     Command,
@@ -35,11 +36,8 @@ from gateway.execution.commands import (
     Trigger,
 )
 from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
-from gateway.execution.policies import ReplanPolicy, SlackReplan, make_policy
 from gateway.execution.trace_records import summary_record
-from gateway.planning.grid import Cell
-from gateway.planning.motion import Motion
-from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.plan import Plan
 from gateway.planning.solver import Place
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
@@ -49,19 +47,14 @@ from gateway.server.items import (
     Inbound,
     InternalCommand,
     Item,
-    Reply,
     SolverDone,
 )
 from gateway.server.metrics import Metrics
+from gateway.server.operator_commands import OperatorCommands
 from gateway.server.operator_feed import OperatorFeed
-from gateway.server.planner import (
-    InstanceError,
-    Problem,
-    plan_for,
-    problem_from_paths,
-    resolve_instance,
-)
+from gateway.server.planner import Problem
 from gateway.server.session import Session
+from gateway.server.solver_tasks import SolverTasks
 from gateway.server.views import FleetView, snapshot_fields
 from protocol import (
     Ack,
@@ -69,23 +62,11 @@ from protocol import (
     Cancelled,
     ErrorCode,
     Finished,
-    GetSnapshot,
     Hello,
     IntruderReport,
-    LoadInstance,
-    LoadPlan,
-    Ok,
-    OperatorCommand,
-    Pause,
-    PlaceIntruder,
     Pose,
-    ReplanNow,
-    Resume,
-    SetPolicy,
     SetSpeed,
-    SetThreshold,
     Snapshot,
-    Start,
     Started,
     State,
     Unblocked,
@@ -96,18 +77,11 @@ from protocol.messages import HEADINGS, GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
 
-class CommandError(Exception):
-    """An operator command is refused with ``code``."""
-
-    def __init__(self, code: ErrorCode, detail: str) -> None:
-        super().__init__(detail)
-        self.code = code
-        self.detail = detail
-
 
 # ------------------------------------------------------------------------------ the engine
 class Engine:
-    """Executor owner: robot/operator/world bookkeeping, routing, ticks, planning."""
+    """Executor owner: routes queue items, robot sessions' effects and executor commands;
+    ticks the monitor. Operator commands: :attr:`operator`; planner tasks: :attr:`solvers`."""
 
     def __init__(self, config: GatewayConfig, clock: Clock, metrics: Metrics) -> None:
         self.config = config
@@ -128,14 +102,14 @@ class Engine:
         self.latencies_ms: list[float] = []
         self.summary: tuple[float, float] | None = None
         self.finished_event = asyncio.Event()
-        self._tasks: set[asyncio.Task[None]] = set()
+        self.solvers = SolverTasks(config, clock, self.queue)
+        self.operator = OperatorCommands(self)
         self._unlocked_at: float | None = None  # perf_counter of the finish being applied
         self.status_listeners: list[Callable[[GatewayStatus], None]] = []
         self.before_tick: list[Callable[[float], None]] = []
         """Called with the tick's time once the instant is quiet, just before each monitor
         tick (a simulated world in the same process steps its intruder here, in the order of
         the discrete-event driver: robot events, then the world, then the tick)."""
-        self.solver_ms = 0.0  # planner time charged for replans of the current run
         self.before_start: list[Callable[[], None]] = []
         """Called when a run's objects exist, just before its time 0 (the process driver
         tunes the garbage collector here; what they take is not charged to the run)."""
@@ -165,6 +139,11 @@ class Engine:
     def connected_robots(self) -> int:
         """How many robots are connected (said hello on a live connection)."""
         return len(self._online)
+
+    def all_online(self, n: int) -> bool:
+        """Whether robots 0..n-1 are all connected."""
+        # counting first: checking every robot on each hello would be O(n^2) per fleet
+        return len(self._online) >= n and all(r in self._online for r in range(n))
 
     def robot(self, r: int) -> GatewaySession:
         """The protocol session of robot ``r`` (created on first use)."""
@@ -237,7 +216,7 @@ class Engine:
         elif isinstance(item, Disconnected):
             self._disconnected(item.session)
         elif isinstance(item, InternalCommand):
-            self._command(item.message, item.reply)
+            self.operator.handle(item.message, item.reply)
         else:
             self._solver_done(item)
 
@@ -250,7 +229,7 @@ class Engine:
         slack = ex.monitor.fleet_slack()
         self.metrics.fleet_slack.set(slack)
         self.feed.slack(now, slack)
-        self._route(ex.drain())
+        self.route(ex.drain())
 
     # -------------------------------------------------------------------------- connections
     def _connected(self, session: Session) -> None:
@@ -284,7 +263,7 @@ class Engine:
             case Ack():
                 gs = self._sender(session)
                 gs.ack(msg.action_id, msg.msg_id, session)
-                self._flush(gs, session)
+                self.flush(gs, session)
             case Started() | Finished() | Blocked() | Unblocked() | Cancelled():
                 self._report(session, msg, item.received, item.at_ms)
             case State():
@@ -292,7 +271,7 @@ class Engine:
             case IntruderReport():
                 self._intruder(session, msg, self._arrival_ms(item.at_ms))
             case _:
-                self._command(msg, session)  # type: ignore[arg-type]
+                self.operator.handle(msg, session)  # type: ignore[arg-type]
 
     def _sender(self, session: Session) -> GatewaySession:
         """The protocol session of the robot a connection speaks for."""
@@ -320,16 +299,16 @@ class Engine:
             self.metrics.connected_robots.dec()
         now = self.now_ms()
         gs.hello(msg, now)
-        self._flush(gs, session)  # catch-ups; what they unlock is held for the resend
+        self.flush(gs, session)  # catch-ups; what they unlock is held for the resend
         resent = gs.welcome(session, version=session.version, start=self._start_pose(r),
                             plan=self.executor.plan_id if self.executor else None,
                             state_period_ms=self.config.state_period_ms, paused=self.paused)
-        self._flush(gs, session)
+        self.flush(gs, session)
         self._online.add(r)
         self.metrics.connected_robots.inc()
         self.feed.event("connection", now, robot=r, state="on")
         log.info("robot connected", extra={"robot": r, "resent": resent})
-        self._maybe_autostart()
+        self.operator.maybe_autostart()
 
     def _start_pose(self, r: int) -> Pose | None:
         plan = self.executor.plan if self.executor is not None else (
@@ -346,7 +325,7 @@ class Engine:
         try:
             self._unlocked_at = received if msg.type == "finished" else None
             gs.report(msg.type, msg.action_id, msg.msg_id, session, now, msg.pose)
-            self._flush(gs, session)
+            self.flush(gs, session)
         finally:
             self._unlocked_at = None
 
@@ -356,7 +335,7 @@ class Engine:
         ex = self.executor
         return self.now_ms() if at_ms is None or ex is None else max(at_ms, ex.now_ms)
 
-    def _flush(self, gs: GatewaySession, sender: Session | None = None) -> None:
+    def flush(self, gs: GatewaySession, sender: Session | None = None) -> None:
         """Carry out a robot session's effects: messages to its connection, refusals to the
         ``sender`` of the message being handled, reports to the executor."""
         while effects := gs.drain():
@@ -389,7 +368,7 @@ class Engine:
         gs.accepted(r)
         if r.kind == "finished":
             self.metrics.finished.inc()
-        self._route(ex.drain())
+        self.route(ex.drain())
 
     def _intruder(self, session: Session, msg: IntruderReport, now: float) -> None:
         """Record a world's intruder report (trace and operators) at plan time ``now`` if it is
@@ -405,7 +384,7 @@ class Engine:
         self.feed.intruder(now, cell, msg.state)
 
     # -------------------------------------------------------------------------- routing
-    def _route(self, commands: list[Command]) -> None:
+    def route(self, commands: list[Command]) -> None:
         """Turn executor commands into messages and planner calls."""
         for c in commands:
             if isinstance(c, Dispatch):
@@ -413,23 +392,23 @@ class Engine:
             elif isinstance(c, Cancel):
                 gs = self.robot(c.robot)
                 gs.cancel(action_id(c.plan, c.robot, c.action))
-                self._flush(gs)
+                self.flush(gs)
             elif isinstance(c, Trigger):
                 self.metrics.replans.inc()
                 log.info("replan triggered", extra={"policy": c.policy,
                                                     "fleet_slack_ms": c.fleet_slack_ms})
-                self._status_changed()
+                self.status_changed()
             elif isinstance(c, SolveRequest):
                 assert self.problem is not None
                 hs = c.headings
                 starts: Sequence[Place] = c.starts if hs is None else [
                     (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
-                self._spawn_solver("replan", self.problem, starts, c.goals, None, None,
+                self.solvers.spawn("replan", self.problem, starts, c.goals, None, None,
                                    "omni" if hs is None else "turning")
             elif isinstance(c, PlanAdopted):
                 for gs in self.robots.values():
                     gs.plan_adopted()
-                self._status_changed()
+                self.status_changed()
             elif isinstance(c, Completed):
                 self._completed(c)
 
@@ -445,7 +424,7 @@ class Engine:
         }
         gs = self.robot(c.robot)
         gs.dispatch(fields)
-        self._flush(gs)
+        self.flush(gs)
         self.metrics.dispatched.inc()
         if self._unlocked_at is not None:
             latency = (time.perf_counter() - self._unlocked_at) * 1000.0
@@ -458,251 +437,32 @@ class Engine:
         self.feed.close_trace()
         self.feed.event("summary", self.now_ms(), soc_ms=c.soc_ms,
                               makespan_ms=c.makespan_ms)
-        self._status_changed()
+        self.status_changed()
         self.finished_event.set()
         log.info("execution complete", extra={"soc_ms": c.soc_ms, "makespan_ms": c.makespan_ms})
 
-    # -------------------------------------------------------------------------- planning
-    def _spawn_solver(self, purpose: Literal["load", "replan"], problem: Problem,
-                      starts: Sequence[Place], goals: tuple[Cell, ...], reply: Reply,
-                      ref: str | None, motion: Motion) -> None:
-        grid, limit = problem.instance.grid, self.config.solver_time_limit_s
-
-        def work() -> Plan:
-            return plan_for(grid, starts, goals, limit, self.config.fallback_s, motion)
-
-        async def run() -> None:
-            t0 = time.perf_counter()
-            try:
-                result: Plan | Exception
-                result, charged = await self.clock.run_solver(work)
-                if purpose == "replan":
-                    self.solver_ms += charged
-            except (NoSolution, ValueError) as exc:
-                result = exc
-            wall = (time.perf_counter() - t0) * 1000.0
-            self.queue.put_nowait(SolverDone(purpose, result, problem, reply, ref, wall))
-
-        task = asyncio.get_running_loop().create_task(run(), name=f"solver-{purpose}")
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
-
     def _solver_done(self, item: SolverDone) -> None:
-        if item.purpose == "replan":
-            ex = self.executor
-            if ex is None or ex.mode is not Mode.SOLVING:
-                return  # a new run was started meanwhile
-            now = self.now_ms()
-            if isinstance(item.result, Plan):
-                ex.adopt_plan(item.result, now)
-            else:
-                log.warning("replan found no plan, keeping the old one: %s", item.result)
-                ex.abandon_replan(now)
-            self._route(ex.drain())
+        if item.purpose == "load":
+            self.operator.load_solved(item)
             return
-        self.planning = False
-        assert item.problem is not None
-        if isinstance(item.result, Plan):
-            self.problem = Problem(item.problem.instance, item.problem.map_name, item.result)
-            self._reply(item.reply, item.ref, None,
-                        f"loaded {item.problem.map_name}: {len(item.result.paths)} robots, "
-                        f"SOC {item.result.soc}, makespan {item.result.makespan}")
-            self._loaded()
-        else:
-            self._reply(item.reply, item.ref, ErrorCode.BAD_REQUEST,
-                        f"no plan for this instance: {item.result}")
-            self._status_changed()
-
-    # -------------------------------------------------------------------------- operator
-    def _command(self, msg: OperatorCommand, reply: Reply) -> None:
-        try:
-            detail = self._execute(msg, reply)
-        except CommandError as exc:
-            self._reply(reply, msg.msg_id, exc.code, exc.detail)
-            return
-        if detail is not None:
-            self._reply(reply, msg.msg_id, None, detail)
-
-    def _reply(self, reply: Reply, ref: str | None, code: ErrorCode | None,
-               detail: str) -> None:
-        if isinstance(reply, Session):
-            if code is None:
-                reply.send(Ok, ref=ref or "", detail=detail)
-            else:
-                reply.error(code, ref, detail)
-        elif reply is not None and not reply.done():
-            reply.set_result((code, detail))
-
-    def _idle(self, what: str) -> None:
-        if self.planning or self.status in ("running", "paused", "replanning"):
-            raise CommandError(ErrorCode.BAD_STATE, f"cannot {what} while {self.status}")
-
-    def _execute(self, msg: OperatorCommand, reply: Reply) -> str | None:
-        """Carry out a command; returns the Ok detail, or None if the reply comes later."""
-        match msg:
-            case LoadInstance():
-                self._idle("load an instance")
-                if msg.scen is not None and msg.generate is not None:
-                    raise CommandError(ErrorCode.BAD_REQUEST, "give scen or generate, not both")
-                seed = msg.generate.seed if msg.generate else self.config.generate_seed
-                try:
-                    problem = resolve_instance(msg.map, msg.scen, msg.agents, seed)
-                except InstanceError as exc:
-                    raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
-                self.load(problem, reply, msg.msg_id)
-                return None
-            case LoadPlan():
-                self._idle("load a plan")
-                try:
-                    problem = problem_from_paths(msg.map, msg.paths, msg.headings)
-                except InstanceError as exc:
-                    raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
-                self.executor = None
-                self.problem = problem
-                self._loaded()
-                return f"loaded a plan for {len(msg.paths)} robots"
-            case Start():
-                self.start()
-                return "started"
-            case Pause():
-                if self.status not in ("running", "replanning"):
-                    raise CommandError(ErrorCode.BAD_STATE, f"cannot pause while {self.status}")
-                self._set_paused(True)
-                return "paused"
-            case Resume():
-                if not self.paused:
-                    raise CommandError(ErrorCode.BAD_STATE, f"cannot resume while {self.status}")
-                self._set_paused(False)
-                return "resumed"
-            case ReplanNow():
-                if self.executor is None or self.paused:
-                    raise CommandError(ErrorCode.BAD_STATE, f"cannot replan while {self.status}")
-                try:
-                    self.executor.request_replan(self.now_ms())
-                except ExecutionError as exc:
-                    raise CommandError(ErrorCode.BAD_STATE, str(exc)) from None
-                self._route(self.executor.drain())
-                return "replanning"
-            case SetPolicy():
-                self.policy_name, self.policy_seed = msg.policy, msg.seed
-                if self.executor is not None:
-                    self.executor.policy = self._make_policy(self.executor.plan)
-                self._status_changed()
-                return f"policy {self.policy_name}"
-            case SetThreshold():
-                self.threshold_ms = msg.threshold_ms
-                if self.executor is not None and isinstance(self.executor.policy, SlackReplan):
-                    self.executor.policy.threshold_ms = self.threshold_ms
-                self._status_changed()
-                return f"threshold {self.threshold_ms} ms"
-            case SetSpeed():
-                self.clock.set_speed(msg.speed)
-                for w in self.worlds:
-                    w.send(SetSpeed, speed=msg.speed)
-                self._status_changed()
-                return f"speed {msg.speed}"
-            case PlaceIntruder():
-                if not self.worlds:
-                    raise CommandError(ErrorCode.BAD_STATE, "no world connection to place it")
-                if self.problem is not None and not self.problem.instance.grid.is_free(msg.cell):
-                    raise CommandError(ErrorCode.BAD_REQUEST, f"{msg.cell} is not a free cell")
-                for w in self.worlds:
-                    w.send(PlaceIntruder, cell=msg.cell, duration_ms=msg.duration_ms)
-                return f"intruder sent to {len(self.worlds)} world connection(s)"
-            case GetSnapshot():
-                if isinstance(reply, Session):
-                    self.send_snapshot(reply)
-                    return None
-                return "snapshot"
-        raise CommandError(ErrorCode.FORBIDDEN, f"{msg.type} is not an operator command")
-
-    def _set_paused(self, paused: bool) -> None:
-        self.paused = paused
         ex = self.executor
-        if ex is not None and ex.paused != paused:
-            (ex.pause if paused else ex.resume)(self.now_ms())
-            self._route(ex.drain())
-        for gs in self.robots.values():
-            gs.set_paused(paused)
-            self._flush(gs)
-        self._status_changed()
+        if ex is None or ex.mode is not Mode.SOLVING:
+            return  # a new run was started meanwhile
+        now = self.now_ms()
+        if isinstance(item.result, Plan):
+            ex.adopt_plan(item.result, now)
+        else:
+            log.warning("replan found no plan, keeping the old one: %s", item.result)
+            ex.abandon_replan(now)
+        self.route(ex.drain())
 
-    def _durations(self, robots: int) -> list[ActionDurations]:
-        """Each robot's t_x per action kind: its configured model, else ``action_ms``."""
-        cfg = self.config
-        models = {name: ActionDurations(m.move_ms, m.turn_ms, m.wait_ms)
-                  for name, m in cfg.robot_models.items()}
-        uniform = ActionDurations.uniform(cfg.action_ms)
-        return [models[cfg.robot_model[k]] if k in cfg.robot_model else uniform
-                for k in range(robots)]
-
-    def _make_policy(self, plan: Plan) -> ReplanPolicy:
-        return make_policy(self.policy_name, seed=self.policy_seed,
-                           threshold_ms=self.threshold_ms,
-                           makespan_lb_ms=plan.makespan * self.config.action_ms)
-
-    def load(self, problem: Problem, reply: Reply = None, ref: str | None = None) -> None:
+    def load(self, problem: Problem) -> None:
         """Plan ``problem`` (unless it has a plan) and make it the loaded one."""
-        self.executor = None
-        if problem.plan is not None:
-            self.problem = problem
-            self._loaded()
-            self._reply(reply, ref, None, "loaded")
-            return
-        self.planning = True
-        self._status_changed()
-        inst, motion = problem.instance, self.config.motion
-        starts = inst.starts if motion == "omni" else inst.turning_starts(
-            self.config.start_heading)
-        self._spawn_solver("load", problem, starts, inst.goals, reply, ref, motion)
-
-    def _loaded(self) -> None:
-        for gs in self.robots.values():
-            gs.new_run()
-            gs.pose = None  # where it stood in the previous world
-        self.feed.slack_series.clear()
-        self.summary = None
-        self._status_changed()
-        for op in self.feed.operators:
-            self.send_snapshot(op)
-        self._maybe_autostart()
-
-    def _maybe_autostart(self) -> None:
-        if not self.config.autostart or self.status != "loaded" or self.problem is None:
-            return
-        n = self.problem.instance.num_agents
-        # counting first: checking every robot on each hello would be O(n^2) per fleet
-        if len(self._online) >= n and all(r in self._online for r in range(n)):
-            self.start()
-
-    def start(self) -> None:
-        """Start executing the loaded plan from time 0."""
-        if self.problem is None or self.problem.plan is None or self.status not in (
-                "loaded", "done"):
-            raise CommandError(ErrorCode.BAD_STATE, f"cannot start while {self.status}")
-        plan = self.problem.plan
-        for gs in self.robots.values():
-            gs.new_run()
-        self.summary = None
-        self.solver_ms = 0.0
-        self.finished_event.clear()
-        self.paused = False
-        self.feed.new_run()
-        self.executor = Executor(plan, policy=self._make_policy(plan),
-                                 action_ms=self.config.action_ms,
-                                 drop_waits=self.config.drop_waits,
-                                 max_replans=self.config.max_replans, record=self.feed.record,
-                                 lookahead=self.config.dispatch_lookahead,
-                                 durations=self._durations(len(plan.paths)))
-        for hook in self.before_start:
-            hook()
-        self.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
-        self.executor.start(0.0)
-        self._status_changed()
-        self._route(self.executor.drain())
+        self.operator.load(problem)
 
     # -------------------------------------------------------------------------- outputs
-    def _status_changed(self) -> None:
+    def status_changed(self) -> None:
+        """Tell operators and status listeners what the gateway is doing now."""
         status = self.status
         self.feed.event("status", self.clock.now_ms(), status=status)
         for listener in self.status_listeners:
@@ -724,6 +484,5 @@ class Engine:
 
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""
-        for task in list(self._tasks):
-            task.cancel()
+        self.solvers.cancel_all()
         self.feed.close_trace()

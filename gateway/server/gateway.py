@@ -46,10 +46,11 @@ from gateway.server import gc_tuning
 from gateway.server.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
-from gateway.server.engine import CommandError, Engine
+from gateway.server.engine import Engine
 from gateway.server.http import HttpRoutes, json_response, response
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.metrics import Metrics
+from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.session import Session
 from gateway.server.tls import server_context

@@ -36,6 +36,8 @@ class Problem:
     instance: Instance
     map_name: str
     plan: Plan | None = None
+    scen_name: str = ""
+    """The scenario it was read from ("" for a generated instance or a given plan)."""
 
 
 def _map(name: str) -> tuple[Grid, str]:
@@ -54,9 +56,9 @@ def resolve_instance(map: str, scen: str | None, agents: int | None, seed: int =
             return Problem(inst, Path(instance_file).stem)
         grid, map_name = _map(map)
         if scen is not None:
-            inst = load_instance(mapstore.resolve(map, "map"), mapstore.resolve(scen, "scen"),
-                                 agents)
-            return Problem(inst, map_name)
+            scen_path = mapstore.resolve(scen, "scen")
+            inst = load_instance(mapstore.resolve(map, "map"), scen_path, agents)
+            return Problem(inst, map_name, scen_name=Path(scen_path).stem)
         if agents is None:
             raise InstanceError("give a scenario or a number of agents to generate")
         inst = random_instance(grid, agents, np.random.default_rng(seed), name=map_name)

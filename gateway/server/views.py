@@ -70,6 +70,7 @@ def snapshot_fields(view: FleetView) -> dict[str, Any]:
     if problem is None:
         return out
     out["map_name"] = problem.map_name
+    out["scen_name"] = problem.scen_name
     out["rows"] = map_rows(problem.instance.grid)
     plan = ex.plan if ex is not None else problem.plan
     if plan is not None:

@@ -1,8 +1,9 @@
 """Test-only helpers for the execution core: plan generation, independent oracles, a driver.
 
 Everything here is written from DESIGN section 2 directly, without the code under test: a
-1-robust check, the Type 2 edges by brute force over all pairs, random 1-robust plans, and a
-tiny discrete-event loop that plays the robots and checks the executor after every event.
+1-robust check, the Type 2 edges by brute force over all pairs, and a tiny discrete-event loop
+that plays the robots and checks the executor after every event. Random 1-robust plans come
+from the planning layer's generator and are re-checked with the 1-robust check.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from gateway.execution.executor import MONITOR_PERIOD_MS, Executor, Mode
 from gateway.execution.monitor import NOT_STARTED, Estimate, algorithm1
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
+from gateway.planning.random_plans import open_grid, random_walks
 
 Action = tuple[int, int]  # (robot, action index)
 
@@ -56,39 +58,13 @@ def is_one_robust(paths: Sequence[Sequence[Cell]]) -> bool:
 
 def random_robust_plan(seed: int, width: int, height: int, robots: int,
                        horizon: int) -> list[list[Cell]]:
-    """Random walks on a width x height grid, built robot by robot to be 1-robust.
-
-    A robot never steps onto a later robot's start; each step picks a random move (or wait)
-    that keeps every earlier robot pair 1-robust. Retries with a new stream on a dead end.
-    """
+    """Random walks of ``horizon`` steps on an open width x height grid, at most half full
+    (:func:`gateway.planning.random_plans.random_walks`, re-checked 1-robust here)."""
     if not 0 < robots <= width * height // 2:
         raise ValueError(f"{robots} robots do not fit on {width}x{height} (at most half full)")
-    rng = random.Random(seed)
-    cells = [(x, y) for x in range(width) for y in range(height)]
-    while True:
-        starts = rng.sample(cells, robots)
-        paths: list[list[Cell]] = []
-        for k in range(robots):
-            later = set(starts[k + 1:])
-            path = [starts[k]]
-            for t in range(1, horizon + 1):
-                x, y = path[-1]
-                options = [(x, y), (x + 1, y), (x - 1, y), (x, y + 1), (x, y - 1)]
-                rng.shuffle(options)
-                for c in options:
-                    if not (0 <= c[0] < width and 0 <= c[1] < height) or c in later:
-                        continue
-                    if all(c != q[t] and c != q[t - 1] and q[t] != path[t - 1] for q in paths):
-                        path.append(c)
-                        break
-                else:
-                    break
-            if len(path) != horizon + 1:
-                break
-            paths.append(path)
-        if len(paths) == robots:
-            assert is_one_robust(paths)
-            return paths
+    paths = random_walks(open_grid(width, height), robots, horizon, random.Random(seed))
+    assert is_one_robust(paths)
+    return paths
 
 
 STEP = {(1, 0): 0, (0, 1): 1, (-1, 0): 2, (0, -1): 3}

@@ -45,6 +45,14 @@ def test_load_draws_the_new_instance_only(page: Page) -> None:
         assert r["pos"] == [x, y]
         assert rows[y][x] == ".", f"robot {r['id']} drawn on a wall at {(x, y)}"
         assert r["remaining"][0] == [x, y]
+    # a page opened now shows the loaded instance in its Instance form, not the page's defaults
+    other = page.context.new_page()
+    other.goto(page.url)
+    other.wait_for_function("window.fleetgate && window.fleetgate.model.snap !== null")
+    expect(other.get_by_label("Map", exact=True)).to_have_value("warehouse-small")
+    expect(other.get_by_label("Scenario", exact=True)).to_have_value("warehouse-small-random-1")
+    expect(other.get_by_label("Robots", exact=True)).to_have_value("8")
+    other.close()
     # back to the module's instance for whoever runs next
     page.get_by_label("Map", exact=True).fill("lab")
     page.get_by_label("Scenario", exact=True).fill("lab-random-1")

@@ -27,6 +27,7 @@ function onMessage(msg) {
     snapshotAsked = 0;
     model.applySnapshot(msg);
     mapView.setRows(msg.rows);
+    showInstance(msg);
     syncControls();
     renderPanels();
   } else if (msg.type === "event") {
@@ -47,6 +48,21 @@ function onLink(state, detail) {
       : `offline: ${detail}`;
   if (state === "on") askSnapshot(true);
   syncControls();
+}
+
+let shownInstance = ""; // the loaded instance the Instance form last showed
+
+/** Show the gateway's loaded instance in the Instance form when it changes (a page opened
+ * on a running demo shows what runs), never while the operator is editing the form. */
+function showInstance(snap) {
+  const robots = (snap.paths || []).length;
+  const key = `${snap.map_name}|${snap.scen_name}|${robots}`;
+  if (!snap.map_name || key === shownInstance) return;
+  if ($("load-form").contains(document.activeElement)) return;
+  shownInstance = key;
+  $("map-name").value = snap.map_name;
+  if (snap.scen_name) $("scen-name").value = snap.scen_name;
+  if (robots > 0) $("agents").value = String(robots);
 }
 
 function askSnapshot(force = false) {
