@@ -33,11 +33,11 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
-from gateway.execution.params import PAPER
+from gateway.execution.params import PAPER, IntruderReading
 from gateway.execution.policies import PolicyName
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
@@ -72,6 +72,8 @@ MAX_GENERATION_ATTEMPTS = 50
 """Instances generated per slot before giving up when the planner keeps failing."""
 
 RowKey = tuple[str, int, int, int, str]
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 class CampaignError(ValueError):
@@ -143,6 +145,8 @@ class SimSettings:
     intruder_appear_ms: float = PAPER.intruder_appear_ms
     intruder_leave_ms: float = PAPER.intruder_leave_ms
     replan_time_limit_s: float = 10.0
+    intruder_reading: IntruderReading = "start"
+    """:attr:`~sim_clients.intruder.IntruderConfig.reading`."""
 
 
 @dataclass(frozen=True)
@@ -311,16 +315,23 @@ VARIANT_CONFIG: dict[str, tuple[bool, PolicyName]] = {
 """Each variant as (intruder on, replanning policy)."""
 
 
-def simulate_variant(grid: Grid, plan: Plan, seed: int, variant: str,
-                     sim: SimSettings) -> SimResult:
-    """One simulation of ``variant`` from the instance's initial plan."""
+def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
+                   sim: SimSettings) -> SimConfig:
+    """The simulation of ``variant`` from the instance's initial plan."""
     intruder, policy = VARIANT_CONFIG[variant]
-    return run_simulation(SimConfig(
+    return SimConfig(
         grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy,
         threshold_ms=sim.threshold_ms, solver_time=parse_solver_time(sim.solver_time),
         solver_time_limit_s=sim.replan_time_limit_s,
         intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
-                                       leave_ms=sim.intruder_leave_ms)))
+                                       leave_ms=sim.intruder_leave_ms,
+                                       reading=sim.intruder_reading))
+
+
+def simulate_variant(grid: Grid, plan: Plan, seed: int, variant: str,
+                     sim: SimSettings) -> SimResult:
+    """One simulation of ``variant`` from the instance's initial plan."""
+    return run_simulation(variant_config(grid, plan, seed, variant, sim))
 
 
 @dataclass(frozen=True)
@@ -447,6 +458,8 @@ class CampaignResult:
     """Wall time of the instance phase (generating and planning)."""
     running_s: float = 0.0
     """Wall time of the experiment phase (simulations, replans included)."""
+    records: dict[tuple[str, int, int], InstanceRecord] = field(default_factory=dict)
+    """The instances by slot ``(map, agents, index)``."""
 
 
 SCHEDULER_CONNECT_S = 5.0
@@ -488,7 +501,9 @@ def _check_settings(out: Path, spec: CampaignSpec) -> None:
     path = out / "campaign.json"
     settings = spec.settings()
     if path.exists():
-        old = json.loads(path.read_text())
+        # A setting added since the folder was made had its default value there.
+        default = CampaignSpec(spec.groups, 1, 1).settings()
+        old = {**default, **json.loads(path.read_text())}
         diff = sorted(k for k in settings if old.get(k) != settings[k])
         if diff:
             raise CampaignError(
@@ -518,7 +533,8 @@ def _load_instances(folder: Path, spec: CampaignSpec,
     return found
 
 
-def _chunks(items: Sequence[ExperimentTask], size: int) -> list[Sequence[ExperimentTask]]:
+def chunked(items: Sequence[T], size: int) -> list[Sequence[T]]:
+    """``items`` in consecutive pieces of ``size``."""
     return [items[k:k + size] for k in range(0, len(items), size)]
 
 
@@ -576,7 +592,7 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     # The largest fleets first: the long tasks do not straggle at the end.
     tasks.sort(key=lambda t: -t.record.agents)
     size = chunk_size or max(1, min(8, len(tasks) // (workers * 16)))
-    chunks = _chunks(tasks, size)
+    chunks = chunked(tasks, size)
 
     new_rows: list[Row] = []
     failures: list[Failure] = []
@@ -585,25 +601,14 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     appender = _Appender(results_path)
     failure_log = (out / "failures.jsonl").open("w")  # this run's failures (retried on rerun)
     try:
-        pending: set[Future[list[Outcome]]] = set()
-        queue = iter(chunks)
-        while True:
-            while len(pending) < in_flight_chunks * workers:
-                chunk = next(queue, None)
-                if chunk is None:
-                    break
-                pending.add(executor.submit(run_chunk, chunk))
-            if not pending:
-                break
-            ready, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in ready:
-                for rows, failed in fut.result():
-                    appender.append(rows)
-                    new_rows.extend(rows)
-                    failures.extend(failed)
-                    failure_log.writelines(json.dumps(asdict(x)) + "\n" for x in failed)
-                    failure_log.flush()
-                    finished += 1
+        for outcomes in run_chunks(executor, run_chunk, chunks, in_flight_chunks * workers):
+            for rows, failed in outcomes:
+                appender.append(rows)
+                new_rows.extend(rows)
+                failures.extend(failed)
+                failure_log.writelines(json.dumps(asdict(x)) + "\n" for x in failed)
+                failure_log.flush()
+                finished += 1
             report("experiments", finished, total)
     finally:
         appender.close()
@@ -615,4 +620,23 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     mine = [r for r in rows if r.key in wanted]
     return CampaignResult(sorted(mine, key=Row.sort_key), len(todo), len(tasks),
                           len(mine) == len(wanted), failures, round(planning_s, 3),
-                          round(running_s, 3))
+                          round(running_s, 3), records)
+
+
+def run_chunks(executor: Executor, fn: Callable[[Sequence[T]], R],
+               chunks: Iterable[Sequence[T]], in_flight: int) -> Iterator[R]:
+    """``fn(chunk)`` of every chunk on ``executor``, at most ``in_flight`` queued at a time;
+    yields the results as they complete."""
+    pending: set[Future[R]] = set()
+    queue = iter(chunks)
+    while True:
+        while len(pending) < max(1, in_flight):
+            chunk = next(queue, None)
+            if chunk is None:
+                break
+            pending.add(executor.submit(fn, chunk))
+        if not pending:
+            return
+        ready, pending = wait(pending, return_when=FIRST_COMPLETED)
+        for fut in ready:
+            yield fut.result()

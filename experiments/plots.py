@@ -5,6 +5,8 @@
   whether it replanned.
 * ``fleet_size.png`` (paper Fig. "effect of agents"): one panel per map, box plots of
   ``T_c^D`` per number of agents over the experiments where both methods replanned.
+* ``oracle.png`` (``--oracle``): each policy's saving against the oracle's, and its replan time
+  against the oracle's best one.
 
 Box plots may leave out outliers (counted in the tick labels), see :func:`plot_all`.
 """
@@ -25,6 +27,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from experiments.oracle_stats import POLICIES, Judged, policy_replanned, policy_soc
 from experiments.stats import Experiment, OutlierRules, map_order, outlier_reasons
 
 REPLANNED_LABELS = ("Replan", "No Replan")
@@ -126,3 +129,43 @@ def plot_all(exps: Sequence[Experiment], folder: Path, maps_first: Sequence[str]
     return [_save(replan_decision_figure(exps, maps_first, hide),
                   folder / "replan_decision.png"),
             _save(fleet_size_figure(exps, maps_first, hide), folder / "fleet_size.png")]
+
+
+def oracle_figure(judged: Sequence[Judged]) -> Figure:
+    """Left: each policy's saving against the oracle's per experiment (capture = slope);
+    right: each policy's replan time against the oracle's best replan time."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.6))
+    top = max((j.oracle_saving for j in judged), default=1.0) or 1.0
+    left.plot([0, top], [0, top], color="grey", linewidth=0.8, linestyle="--",
+              label="the oracle's saving")
+    left.axhline(0, color="grey", linewidth=0.8)
+    times = [j.oracle.best_at_ms for j in judged if j.oracle.best_at_ms is not None]
+    for policy, colour in zip(POLICIES, ("tab:orange", "tab:blue"), strict=True):
+        left.scatter([j.oracle_saving for j in judged],
+                     [j.exp.t_n - policy_soc(j.exp, policy) for j in judged], s=12,
+                     color=colour, alpha=0.7, label=policy)
+        pairs = [(j.oracle.best_at_ms, at) for j in judged
+                 if j.oracle.best_at_ms is not None
+                 and (at := policy_replanned(j.exp, policy)[1]) is not None]
+        right.scatter([b for b, _ in pairs], [a for _, a in pairs], s=12, color=colour,
+                      alpha=0.7, label=f"{policy} (n={len(pairs)})")
+        times.extend(a for _, a in pairs)
+    left.set_xlabel("oracle's saving $T_N - T_O$ [ms]")
+    left.set_ylabel("policy's saving $T_N - T_X$ [ms]")
+    left.set_title(f"saving per experiment (n={len(judged)})")
+    left.legend(fontsize=8)
+    end = max(times, default=1.0)
+    right.plot([0, end], [0, end], color="grey", linewidth=0.8, linestyle="--",
+               label="same time")
+    right.set_xlabel("oracle's best replan time [ms]")
+    right.set_ylabel("policy's replan time [ms]")
+    right.set_title("when to replan: policy vs oracle")
+    right.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plot_oracle(judged: Sequence[Judged], folder: Path) -> Path:
+    """Draw :func:`oracle_figure` into ``folder/oracle.png``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    return _save(oracle_figure(judged), folder / "oracle.png")

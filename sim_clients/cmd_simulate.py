@@ -15,7 +15,7 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
-from gateway.execution.params import PAPER
+from gateway.execution.params import INTRUDER_READINGS, PAPER
 from gateway.execution.policies import AUTONOMOUS_POLICIES
 from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
 
@@ -36,6 +36,7 @@ def _run(args: argparse.Namespace) -> int:
     from gateway.planning.plan import NoSolution
     from gateway.runtime.trace import JsonlWriter
     from sim_clients.des import SimConfig, run_simulation
+    from sim_clients.intruder import IntruderConfig
 
     if args.threshold_ms < 0:
         raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms:g}")
@@ -56,7 +57,8 @@ def _run(args: argparse.Namespace) -> int:
     config = SimConfig(instance.grid, solution.plan, seed=args.seed, intruder=args.intruder,
                        policy=args.policy, threshold_ms=args.threshold_ms,
                        solver_time=args.solver_time, solver_time_limit_s=args.time_limit,
-                       trace=writer)
+                       trace=writer,
+                       intruder_config=IntruderConfig(reading=args.intruder_reading))
     try:
         with ticking(status, lambda s: f"simulating {instance.num_agents} robots ... {s:.0f} s"):
             result = run_simulation(config)
@@ -92,6 +94,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
                    help=f"the intruder appears at {PAPER.intruder_appear_ms:g} ms and leaves at "
                    f"{PAPER.intruder_leave_ms:g} ms (default: on)")
+    p.add_argument("--intruder-reading", choices=INTRUDER_READINGS, default="start",
+                   help="the intruder takes the first cell its robot is estimated to START "
+                   "moving into (default, the paper's 2 s are the intruder's time to get there "
+                   "first) or to ARRIVE on, at or after T_a + 2 s")
     p.add_argument("--policy", choices=AUTONOMOUS_POLICIES, default="none",
                    help="replanning policy (default none; at most one replan)")
     p.add_argument("--threshold-ms", metavar="MS", type=float, default=PAPER.threshold_ms,

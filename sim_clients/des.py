@@ -11,10 +11,12 @@ seed, except for the solver's CPU time when ``solver_time="measured"``.
 
 from __future__ import annotations
 
+import copy
 import heapq
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Self
 
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import (
@@ -141,11 +143,13 @@ def policy_for(config: SimConfig) -> ReplanPolicy:
 
 def run_simulation(config: SimConfig) -> SimResult:
     """Execute ``config.plan`` in virtual time and return the measurements."""
-    return _Simulation(config).run()
+    return Simulation(config).run()
 
 
-class _Simulation:
-    """State of one run; :meth:`run` is the event loop."""
+class Simulation:
+    """State of one run: :meth:`run` is the whole event loop; :meth:`start`,
+    :meth:`run_until`, :meth:`fork` and :meth:`replan_now` let a caller stop a run at a time,
+    copy it and replan in the copy (the oracle's sweep, :mod:`experiments.oracle`)."""
 
     def __init__(self, config: SimConfig) -> None:
         self.cfg = config
@@ -173,23 +177,42 @@ class _Simulation:
         self.robot_blocks = 0
         self.last_progress = 0.0
         self.completed: Completed | None = None
+        self.now = 0.0
+        self.next_tick = 0.0
 
     def push(self, t: float, kind: int, who: int) -> None:
         self.seq += 1
         heapq.heappush(self.heap, (t, kind, self.seq, who))
 
     def run(self) -> SimResult:
-        ex = self.executor
-        ex.start(0.0)
+        """The whole run, from the start to the last robot's last action."""
+        self.start()
+        self.run_until(None)
+        return self.result()
+
+    def start(self) -> None:
+        """Time 0: the first plan is adopted and dispatched, the intruder scheduled."""
+        self.executor.start(0.0)
         self.handle(0.0)
         if self.intruder is not None:
             self.push(self.cfg.intruder_config.appear_ms, _INTRUDER, INTRUDER)
+
+    def finished(self) -> bool:
+        """True once the run has nothing more to do."""
+        return self.completed is not None
+
+    def run_until(self, until_ms: float | None) -> None:
+        """Process events until the run is finished or, given ``until_ms``, until every event
+        that comes before a policy decision at ``until_ms`` is done (so a replan decided then
+        sees the same state as a policy firing at ``until_ms`` would)."""
+        ex = self.executor
         heap = self.heap
-        next_tick = 0.0
-        now = 0.0
-        while self.completed is None:
-            if heap and heap[0][0] <= next_tick:
-                now, kind, _, who = heapq.heappop(heap)
+        while not self.finished():
+            if heap and heap[0][0] <= self.next_tick:
+                if until_ms is not None and heap[0][:2] >= (until_ms, _POLICY):
+                    return
+                self.now, kind, _, who = heapq.heappop(heap)
+                now = self.now
                 if kind <= _RECHECK:
                     self.wake_robot(who, now)
                 elif kind == _INTRUDER:
@@ -201,13 +224,33 @@ class _Simulation:
                     ex.tick(now)
                     self.handle(now)
             else:
-                now = next_tick
-                next_tick += MONITOR_PERIOD_MS
+                if until_ms is not None and self.next_tick >= until_ms:
+                    return
+                now = self.now = self.next_tick
+                self.next_tick += MONITOR_PERIOD_MS
                 if now - self.last_progress > self.cfg.stall_ms:
                     raise SimulationError(f"no robot moved for {self.cfg.stall_ms:.0f} ms "
                                           f"before {now:.0f} ms: deadlock")
                 ex.tick(now)
                 self.handle(now)
+
+    def fork(self, share: Sequence[object] = ()) -> Self:
+        """An independent copy of the run as it stands. What never changes is shared (the
+        configuration, the current plan and its ADG), and so are the objects of ``share``."""
+        ex = self.executor
+        shared = {id(o): o for o in (self.cfg, ex.plan, ex.adg, *share)}
+        return copy.deepcopy(self, shared)
+
+    def replan_now(self, now_ms: float) -> None:
+        """Decide a replan at ``now_ms`` (an operator's "replan now"), as if a policy fired;
+        call after :meth:`run_until` ``(now_ms)``."""
+        self.now = now_ms
+        self.executor.request_replan(now_ms)
+        self.handle(now_ms)
+
+    def result(self) -> SimResult:
+        """The measurements of a finished run."""
+        assert self.completed is not None, "the run has not finished"
         if self.cfg.trace is not None:
             self.cfg.trace(summary_record(self.completed.soc_ms, self.completed.makespan_ms))
         intr = self.intruder
@@ -219,7 +262,7 @@ class _Simulation:
             intruder_robot=intr.robot if intr is not None else None,
             intruder_cell=intr.cell if intr is not None and intr.entered_ms is not None
             else None,
-            intruder_on_ms=intr.entered_ms if intr is not None else None, end_ms=now)
+            intruder_on_ms=intr.entered_ms if intr is not None else None, end_ms=self.now)
 
     def wake_robot(self, k: int, now: float) -> None:
         if self.robot_wake[k] != now:
@@ -291,6 +334,13 @@ class _Simulation:
             self.push(wake, _POLICY, -1)
 
     def solve(self, request: SolveRequest, now: float) -> None:
+        self.pending_plan, charged = self.plan_for(request)
+        self.solver_ms += charged
+        self.last_progress = now + charged
+        self.push(now + charged, _SOLVED, -1)
+
+    def plan_for(self, request: SolveRequest) -> tuple[Plan | None, float]:
+        """Solve ``request`` (None: no plan in time) and the virtual ms it is charged."""
         hs = request.headings
         starts: tuple[Place, ...] = request.starts if hs is None else tuple(
             (x, y, h) for (x, y), h in zip(request.starts, hs, strict=True))
@@ -303,10 +353,7 @@ class _Simulation:
             except NoSolution:
                 return None
 
-        self.pending_plan, charged = run_charged(plan, self.cfg.solver_time)
-        self.solver_ms += charged
-        self.last_progress = now + charged
-        self.push(now + charged, _SOLVED, -1)
+        return run_charged(plan, self.cfg.solver_time)
 
     def solved(self, now: float) -> None:
         if self.pending_plan is None:
@@ -321,8 +368,10 @@ class _Simulation:
         assert intr is not None
         if intr.state is IntruderState.ABSENT:
             ex = self.executor
-            target = pick_target(self.rng, ex.plan.paths, self.next_action,
-                                 ex.monitor.start_ms, now + intr.config.lead_ms)
+            visit = ex.monitor.start_ms if intr.config.reading == "start" else \
+                ex.monitor.completion_ms
+            target = pick_target(self.rng, ex.plan.paths, self.next_action, visit,
+                                 now + intr.config.lead_ms)
             events = intr.appear(now, target)
         else:
             events = intr.wake(now)

@@ -122,6 +122,10 @@ class IntruderOracle(Protocol):
         """The monitor's estimated start of action ``action`` of ``robot``."""
         ...
 
+    def completion_ms(self, robot: int, action: int) -> float:
+        """The monitor's estimated completion of action ``action`` of ``robot``."""
+        ...
+
 
 @dataclass
 class FleetStats:
@@ -568,8 +572,9 @@ class SimFleet:
             robot = self.robots.get(k)
             if robot is not None and robot.plan == plan_id:
                 next_action[k] = robot.next_action
-        return pick_target(self._rng, oracle.paths(), next_action, oracle.start_ms,
-                           now + self._intruder_config.lead_ms)
+        config = self._intruder_config
+        visit = oracle.start_ms if config.reading == "start" else oracle.completion_ms
+        return pick_target(self._rng, oracle.paths(), next_action, visit, now + config.lead_ms)
 
     async def _poll_loop(self) -> None:
         """Poll the intruders at every multiple of ``recheck_ms`` (when no driver does it)."""
@@ -626,6 +631,12 @@ class EngineOracle:
         ex = self._engine.executor
         assert ex is not None
         return ex.monitor.start_ms(robot, action)
+
+    def completion_ms(self, robot: int, action: int) -> float:
+        """The monitor's estimated completion of an action."""
+        ex = self._engine.executor
+        assert ex is not None
+        return ex.monitor.completion_ms(robot, action)
 
 
 def fleet_for(gateway: Gateway, robots: int, connect: Connect, *, seed: int = 0,

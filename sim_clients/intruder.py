@@ -1,8 +1,9 @@
 """The intruder (DESIGN section 2; paper section 4.3): an unplanned occupant of one cell.
 
 It appears at ``appear_ms`` (T_a), picks a random robot that still has a move ahead, and
-targets the first cell that robot is estimated to begin entering at or after
-``appear_ms + lead_ms`` (else the cell of its last move). It waits until that cell is free
+targets the first cell that robot is estimated to begin entering (``reading="start"``, the
+default) or to arrive on (``"arrival"``) at or after ``appear_ms + lead_ms`` (else the cell of
+its last move). It waits until that cell is free
 (looking every 100 ms), holds it, and leaves at ``leave_ms`` (T_d), also through a replan. If
 the cell never became free by then, it never entered. The gateway knows none of this.
 """
@@ -14,13 +15,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
-from gateway.execution.params import PAPER
+from gateway.execution.params import INTRUDER_READINGS, PAPER, IntruderReading
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Path
 from sim_clients.world import INTRUDER, World
 
 StartEstimate = Callable[[int, int], float]
-"""``(robot, action) -> estimated start time in ms`` (``Monitor.start_ms``)."""
+"""``(robot, action) -> estimated time in ms`` of the robot's visit of the action's target:
+``Monitor.start_ms`` or ``Monitor.completion_ms`` (see :attr:`IntruderConfig.reading`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,8 +33,16 @@ class IntruderConfig:
     leave_ms: float = PAPER.intruder_leave_ms
     lead_ms: float = PAPER.intruder_lead_ms
     recheck_ms: float = PAPER.recheck_ms
+    reading: IntruderReading = "start"
+    """How the paper's "scheduled to visit the vertex in T_a + 2 s" is read: the robot's move
+    into the cell is estimated to START then (the default: the 2 s are the intruder's time to
+    take the cell before the robot needs it, the paper's stated purpose), or to ARRIVE then
+    (the robot may set off one action earlier: the intruder blocks it sooner)."""
 
     def __post_init__(self) -> None:
+        if self.reading not in INTRUDER_READINGS:
+            raise ValueError(f"reading must be one of {', '.join(INTRUDER_READINGS)}, got "
+                             f"{self.reading!r}")
         if not 0 <= self.appear_ms < self.leave_ms:
             raise ValueError(f"need 0 <= appear_ms < leave_ms, got {self.appear_ms} and "
                              f"{self.leave_ms}")

@@ -163,6 +163,11 @@ class Executor:
         return max(self._completion, default=0.0)
 
     @property
+    def completions_ms(self) -> tuple[float, ...]:
+        """Each robot's last completion time so far (its SOC term)."""
+        return tuple(self._completion)
+
+    @property
     def now_ms(self) -> float:
         """Time of the latest accepted input."""
         return self._now

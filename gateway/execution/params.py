@@ -8,6 +8,12 @@ options. A plain frozen dataclass, because the execution core imports no pydanti
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
+
+IntruderReading = Literal["start", "arrival"]
+"""How the intruder reads "scheduled to visit the cell in T_a + 2 s" (see
+``sim_clients.intruder.IntruderConfig.reading``)."""
+INTRUDER_READINGS: tuple[IntruderReading, ...] = ("start", "arrival")
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +38,8 @@ class ExecutionParams:
     """A random replan happens before ``makespan_lb`` minus this margin."""
     recheck_ms: float = 100.0
     """How often a simulated robot (or the intruder) re-checks that its next cell is free."""
+    oracle_step_ms: float = 250.0
+    """The step of the oracle's sweep of forced replans (``fleetgate experiment --oracle``)."""
 
 
 PAPER = ExecutionParams()

@@ -82,6 +82,14 @@ CASES: list[tuple[str, list[str], int, str]] = [
                                  "--scheduler", "tcp://127.0.0.1:9"], 2, "scheduler"),
     ("experiment-missing-out", ["experiment", "--maps", "lab"], 2,
      "fleetgate experiment: error"),
+    ("experiment-sample-without-oracle", ["experiment", "--maps", "lab", "--agents", "2",
+                                          "--instances", "1", "--seeds", "1", "--out",
+                                          "{tmp}/e", "--oracle-sample", "3"], 2,
+     "--oracle-sample needs --oracle"),
+    ("experiment-bad-oracle-step", ["experiment", "--maps", "lab", "--agents", "2",
+                                    "--instances", "1", "--seeds", "1", "--out", "{tmp}/e",
+                                    "--oracle", "--oracle-step-ms", "0"], 2,
+     "--oracle-step-ms"),
 ]
 
 

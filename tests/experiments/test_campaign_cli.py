@@ -33,3 +33,13 @@ def test_common_and_per_map_counts() -> None:
 def test_bad_groups(maps: list[str] | None, agents: list[str] | None, message: str) -> None:
     with pytest.raises(UsageError, match=message):
         parse_groups(maps, agents, paper=False)
+
+
+def test_the_papers_totals_computed_as_ours_are() -> None:
+    from experiments.cmd_experiment import PAPER, PAPER_MAP_MEANS
+
+    maps = ("lab", "arena", "room-32-32-4", "random-32-32-20")
+    means = [sum(float(PAPER[m][k].split()[0]) for m in maps) / 4 for k in ("mp", "mr")]
+    # Slack's printed total is the mean of its maps; random's (7.00) is not: 7.81.
+    assert PAPER_MAP_MEANS.startswith(f"{means[0]:.2f} / {means[1]:.2f} ")
+    assert PAPER_MAP_MEANS.split()[:3] == ["27.37", "/", "7.81"]

@@ -6,6 +6,9 @@ import random
 
 import pytest
 
+from gateway.planning.plan import Plan
+from gateway.planning.random_plans import open_grid
+from sim_clients.des import SimConfig, run_simulation
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
 from sim_clients.world import INTRUDER, World
 
@@ -88,3 +91,25 @@ def test_no_target_means_no_intruder_and_bad_config_is_refused() -> None:
         intr.appear(3000, None)
     with pytest.raises(ValueError, match="appear_ms < leave_ms"):
         IntruderConfig(appear_ms=5000, leave_ms=4000)
+
+
+@pytest.mark.parametrize(("reading", "cell"), [("start", (6, 0)), ("arrival", (5, 0))])
+def test_the_reading_of_visit_at_t_a_plus_2_s(reading: str, cell: tuple[int, int]) -> None:
+    # One robot drives along y=0 from (0,0), one cell per 1000 ms: the move into (k+1,0) starts
+    # at k*1000 and arrives at (k+1)*1000. T_a + 2 s = 5000: the first move STARTING then goes
+    # into (6,0), the first one ARRIVING then into (5,0). The intruder sits there until 9000 ms.
+    grid = open_grid(10, 1)
+    plan = Plan((tuple((x, 0) for x in range(10)),))
+    res = run_simulation(SimConfig(
+        grid=grid, plan=plan, solver_time="zero", intruder_config=IntruderConfig(
+            appear_ms=3000, leave_ms=9000, reading=reading)))  # type: ignore[arg-type]
+    assert (res.intruder_robot, res.intruder_cell, res.intruder_on_ms) == (0, cell, 3000)
+    # The robot finds the cell taken at (x - 1) * 1000 and looks again every 100 ms; at 9000
+    # its look comes before the intruder leaves (events at one instant: robots first), so it
+    # sets off at 9100 and has 10 - x moves of 1000 ms left.
+    assert res.soc_ms == 9100 + (10 - cell[0]) * 1000
+
+
+def test_an_unknown_reading_is_refused() -> None:
+    with pytest.raises(ValueError, match="reading must be one of start, arrival"):
+        IntruderConfig(reading="never")  # type: ignore[arg-type]

@@ -1,0 +1,368 @@
+"""The replanning oracle: one forced replan at every step of a run, the best one kept.
+
+For one experiment (instance + seed) the oracle runs the intruder variant without replanning
+and, at every ``step_ms`` of virtual time (0, step, 2 step, ... until the run ends), forks the
+run and forces a single replan there (an operator's "replan now"); each fork runs to the end.
+The oracle's SOC is the smallest of all these and of not replanning at all: what the best
+moment to replan once would have given. No online policy can know it (it sees the future);
+it is the yardstick of :mod:`experiments.oracle_stats`.
+
+Two memos make the sweep cheap, both exact:
+
+* solves: the same start configuration gives the same plan (and, under ``--solver-time
+  measured``, the same charge: the first solve's);
+* continuations: when a fork adopts its new plan, the rest of its run is a function of the
+  time, the robots' cells, headings and completion times, the intruder's state and the events
+  still due; forks that reach an equal state (a replan decided anywhere between the same two
+  robot starts, typically) share one simulation of the rest.
+
+A test checks that the memoised, forking sweep gives exactly what one fresh simulation per
+replan time gives.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Iterable, Sequence
+from concurrent.futures import Executor
+from dataclasses import astuple, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.campaign import (
+    CampaignError,
+    CampaignSpec,
+    Failure,
+    InstanceRecord,
+    Progress,
+    SimSettings,
+    chunked,
+    derived_seed,
+    load_grid,
+    run_chunks,
+    variant_config,
+)
+from gateway.execution.commands import SolveRequest
+from gateway.execution.params import PAPER
+from gateway.planning.plan import Plan
+from sim_clients.des import SimConfig, Simulation
+
+DEFAULT_STEP_MS = PAPER.oracle_step_ms
+"""The sweep's step in virtual ms (the executor ticks every 100 ms)."""
+
+CAVEATS: tuple[str, ...] = (
+    "The oracle knows the future: it tries one forced replan at every step and keeps the best; "
+    "no online policy can match it in general.",
+    "A forced replan before the intruder appears (T_a) changes the plan the intruder picks its "
+    "robot and cell from, so early oracle replans can win by changing whom the intruder "
+    "blocks (best_after_appear gives the oracle restricted to replans at or after T_a).",
+    "The sweep's grid (the step) and the executor's 100 ms ticks and the robots' 100 ms "
+    "re-checks make times coarse: a policy can beat the oracle by replanning between two "
+    "steps, so a capture above 100% is possible.",
+    "Under --solver-time measured, the solver's CPU time is charged; a memoised solve is "
+    "charged what its first solve cost.",
+)
+"""What the oracle's numbers do not say, printed with them."""
+
+
+Outcome = tuple[float, float]
+"""``(soc_ms, makespan_ms)`` of a finished run."""
+
+
+@dataclass
+class _Memo:
+    """The sweep's memos (shared by every fork of one experiment)."""
+
+    solves: dict[tuple[Any, ...], tuple[Plan | None, float]] = field(default_factory=dict)
+    outcomes: dict[tuple[Any, ...], Outcome] = field(default_factory=dict)
+
+
+class _OracleSimulation(Simulation):
+    """A simulation whose solves and post-replan continuations are memoised."""
+
+    def __init__(self, config: SimConfig, memo: _Memo) -> None:
+        super().__init__(config)
+        self.memo = memo
+        self.known: Outcome | None = None
+        """The outcome of this fork, found in the memo instead of simulated."""
+        self.state_key: tuple[Any, ...] | None = None
+        """The fingerprint this fork's continuation is memoised under."""
+
+    def plan_for(self, request: SolveRequest) -> tuple[Plan | None, float]:
+        key = (request.starts, request.headings)
+        got = self.memo.solves.get(key)
+        if got is None:
+            got = self.memo.solves[key] = super().plan_for(request)
+        return got
+
+    def solved(self, now: float) -> None:
+        if self.pending_plan is not None:  # an abandoned replan resumes the old plan: no key
+            key = self._fingerprint(now)
+            self.known = self.memo.outcomes.get(key)
+            if self.known is not None:
+                return
+            self.state_key = key
+        super().solved(now)
+
+    def _fingerprint(self, now: float) -> tuple[Any, ...]:
+        """Everything the rest of the run depends on once every robot is idle and the new
+        plan (a function of the robots' cells) is about to be adopted."""
+        ex = self.executor
+        n = len(self.robots)
+        intr = self.intruder
+        return (now, tuple(ex.robot_cell(k) for k in range(n)),
+                tuple(ex.robot_heading(k) for k in range(n)), ex.completions_ms,
+                None if intr is None else (intr.state, intr.cell, intr.next_wakeup_ms()),
+                tuple(sorted((t, kind, who) for t, kind, _, who in self.heap)))
+
+    def finished(self) -> bool:
+        return self.known is not None or super().finished()
+
+    def outcome(self) -> Outcome:
+        """The finished fork's SOC and makespan (memoising it)."""
+        if self.known is not None:
+            return self.known
+        assert self.completed is not None
+        got = (self.completed.soc_ms, self.completed.makespan_ms)
+        if self.state_key is not None:
+            self.memo.outcomes[self.state_key] = got
+        return got
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One experiment's oracle sweep (times in virtual ms)."""
+
+    none_soc_ms: float
+    """SOC without any replan (the campaign's ``intruder`` variant)."""
+    curve: tuple[tuple[float, float], ...]
+    """``(replan time, SOC)`` of every forced replan, in time order."""
+    solves: int
+    """Distinct solves (the rest came from the memo)."""
+    continuations: int
+    """Forks simulated after their replan (the rest came from the memo)."""
+
+    def best(self, not_before_ms: float = 0.0) -> tuple[float, float | None]:
+        """The smallest SOC of no replan and of the replans at or after ``not_before_ms``, with
+        its replan time (None: not replanning is best; ties go to not replanning, then to the
+        earliest replan)."""
+        soc, at = self.none_soc_ms, None
+        for t, s in self.curve:
+            if t >= not_before_ms and s < soc:
+                soc, at = s, t
+        return soc, at
+
+
+def sweep(config: SimConfig, step_ms: float = DEFAULT_STEP_MS) -> Sweep:
+    """Sweep one forced replan every ``step_ms`` over the run of ``config`` (which must have no
+    replanning policy of its own and a replan budget)."""
+    if not step_ms > 0:
+        raise ValueError(f"the sweep's step must be positive, got {step_ms}")
+    if config.policy != "none" or config.max_replans < 1:
+        raise ValueError("the oracle forces its own replans: give policy 'none' and "
+                         "max_replans >= 1")
+    memo = _Memo()
+    base = _OracleSimulation(config, memo)
+    base.start()
+    curve = []
+    t = 0.0
+    while True:
+        base.run_until(t)
+        if base.finished():
+            break
+        fork = base.fork(share=(memo,))
+        fork.replan_now(t)
+        fork.run_until(None)
+        curve.append((t, fork.outcome()[0]))
+        t += step_ms
+    assert base.completed is not None
+    return Sweep(base.completed.soc_ms, tuple(curve), len(memo.solves), len(memo.outcomes))
+
+
+# ---------------------------------------------------------------------------------------------
+# oracle.csv
+
+
+@dataclass(frozen=True)
+class OracleRow:
+    """One line of ``oracle.csv``: the oracle of one experiment."""
+
+    map: str
+    agents: int
+    instance: int
+    seed: int
+    step_ms: float
+    none_soc_ms: float
+    best_soc_ms: float
+    best_at_ms: float | None
+    best_after_appear_soc_ms: float
+    best_after_appear_at_ms: float | None
+    replans: int
+    solves: int
+    continuations: int
+    cpu_s: float
+    """CPU time of the sweep in its worker (the measured cost)."""
+
+    @property
+    def key(self) -> tuple[str, int, int, int]:
+        """The experiment (as in ``results.csv``)."""
+        return (self.map, self.agents, self.instance, self.seed)
+
+    @staticmethod
+    def of(key: tuple[str, int, int, int], step_ms: float, s: Sweep, appear_ms: float,
+           cpu_s: float) -> OracleRow:
+        """The row of one finished sweep."""
+        best, at = s.best()
+        after, after_at = s.best(appear_ms)
+        return OracleRow(*key, step_ms, s.none_soc_ms, best, at, after, after_at, len(s.curve),
+                         s.solves, s.continuations, round(cpu_s, 4))
+
+
+ORACLE_COLUMNS = tuple(f.name for f in fields(OracleRow))
+
+
+def _cell(value: object) -> str:
+    return "" if value is None else str(value)
+
+
+def write_oracle_rows(path: Path, rows: Iterable[OracleRow], *, append: bool) -> None:
+    """Write (or append, with a header on a new file) rows to ``oracle.csv``."""
+    fresh = not append or not path.exists() or path.stat().st_size == 0
+    with path.open("a" if append else "w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        if fresh:
+            writer.writerow(ORACLE_COLUMNS)
+        writer.writerows([_cell(v) for v in astuple(r)] for r in rows)
+
+
+def read_oracle_rows(path: Path) -> list[OracleRow]:
+    """The rows of ``oracle.csv`` (none if missing; a last line cut short is dropped)."""
+    if not path.exists():
+        return []
+    lines = path.read_text().splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines = lines[:-1]
+    reader = csv.reader(lines)
+    if tuple(next(reader, ORACLE_COLUMNS)) != ORACLE_COLUMNS:
+        raise ValueError(f"{path}: not an oracle.csv (unexpected header)")
+    out = []
+    for number, cells in enumerate(reader, start=2):
+        try:
+            out.append(_parse_row(cells))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path}:{number}: {exc}") from None
+    return out
+
+
+def _parse_row(cells: Sequence[str]) -> OracleRow:
+    if len(cells) != len(ORACLE_COLUMNS):
+        raise ValueError(f"expected {len(ORACLE_COLUMNS)} fields, got {len(cells)}")
+    values: list[Any] = []
+    for f, text in zip(fields(OracleRow), cells, strict=True):
+        kind = str(f.type)
+        if kind == "str":
+            values.append(text)
+        elif kind == "int":
+            values.append(int(text))
+        elif kind.endswith("| None"):
+            values.append(float(text) if text else None)
+        else:
+            values.append(float(text))
+    return OracleRow(*values)
+
+
+# ---------------------------------------------------------------------------------------------
+# running the oracle of a campaign
+
+
+@dataclass(frozen=True)
+class OracleTask:
+    """Sweep the oracle of one experiment (runs in a worker)."""
+
+    map_path: str
+    record: InstanceRecord
+    seed: int
+    sim: SimSettings
+    step_ms: float
+
+
+def run_oracle_task(task: OracleTask) -> OracleRow | Failure:
+    """The oracle row of one experiment, or a :class:`Failure` if its simulation raised."""
+    rec = task.record
+    config = variant_config(load_grid(task.map_path), rec.plan, task.seed, "intruder", task.sim)
+    began = time.process_time()
+    try:
+        got = sweep(config, task.step_ms)
+    except Exception as exc:  # one bad run must not sink a long sweep
+        return Failure(rec.map, rec.agents, rec.index, task.seed, "oracle",
+                       f"{type(exc).__name__}: {exc}")
+    return OracleRow.of((rec.map, rec.agents, rec.index, task.seed), task.step_ms, got,
+                        task.sim.intruder_appear_ms, time.process_time() - began)
+
+
+def run_oracle_chunk(tasks: Sequence[OracleTask]) -> list[OracleRow | Failure]:
+    """Several sweeps in one worker call."""
+    return [run_oracle_task(t) for t in tasks]
+
+
+ExperimentKey = tuple[str, int, int, int]
+
+
+def sample_experiments(keys: Sequence[ExperimentKey], n: int | None,
+                       seed: int) -> list[ExperimentKey]:
+    """``n`` of ``keys`` drawn without replacement (all if ``n`` is None or larger), in the
+    order of ``keys``. Seeded and nested: a larger sample holds every smaller one."""
+    if n is None or n >= len(keys):
+        return list(keys)
+    rng = np.random.default_rng(derived_seed(seed, "oracle-sample"))
+    picked = set(rng.permutation(len(keys))[:max(0, n)].tolist())
+    return [k for i, k in enumerate(keys) if i in picked]
+
+
+@dataclass
+class OracleRun:
+    """What :func:`run_oracle` did."""
+
+    rows: list[OracleRow]
+    """The oracle rows of the sample (old and new)."""
+    ran: int
+    failures: list[Failure]
+    running_s: float
+
+
+def run_oracle(spec: CampaignSpec, out: Path, map_paths: dict[str, str],
+               records: dict[tuple[str, int, int], InstanceRecord], *, executor: Executor,
+               workers: int = 1, step_ms: float = DEFAULT_STEP_MS, sample: int | None = None,
+               progress: Progress | None = None) -> OracleRun:
+    """Sweep the oracle of the campaign's experiments (or a seeded sample of ``sample`` of
+    them) into ``OUT/oracle.csv``; rows already there with the same step are reused."""
+    keys = [(m, n, i, s) for m, n, i in spec.slots() for s in spec.experiment_seeds(m, n, i)]
+    chosen = sample_experiments(keys, sample, spec.seed)
+    path = out / "oracle.csv"
+    try:
+        old = {r.key: r for r in read_oracle_rows(path) if r.step_ms == step_ms}
+    except ValueError as exc:
+        raise CampaignError(str(exc)) from None
+    write_oracle_rows(path, old.values(), append=False)
+    tasks = [OracleTask(map_paths[m], records[(m, n, i)], s, spec.sim, step_ms)
+             for m, n, i, s in chosen if (m, n, i, s) not in old]
+    tasks.sort(key=lambda t: -t.record.agents)  # the longest first
+    report = progress or (lambda _phase, _done, _total: None)
+    done = len(chosen) - len(tasks)
+    report("oracle", done, len(chosen))
+    failures: list[Failure] = []
+    began = time.perf_counter()
+    size = max(1, min(4, len(tasks) // (workers * 8)))
+    for got in run_chunks(executor, run_oracle_chunk, chunked(tasks, size), 2 * workers):
+        rows = [r for r in got if isinstance(r, OracleRow)]
+        failures.extend(r for r in got if isinstance(r, Failure))
+        write_oracle_rows(path, rows, append=True)
+        old.update((r.key, r) for r in rows)
+        done += len(got)
+        report("oracle", done, len(chosen))
+    mine = [old[k] for k in chosen if k in old]
+    write_oracle_rows(path, mine, append=False)
+    return OracleRun(mine, len(tasks), failures, round(time.perf_counter() - began, 3))
