@@ -33,15 +33,22 @@ class Checklist(Generic[C]):
         self.checks: list[Check[C]] = []
         self.time_limit_s = time_limit_s
 
+    def add(self, name: str, rule: str, run: Callable[[C], Awaitable[None]], doc: str, *,
+            required: bool = True) -> None:
+        """Register ``run`` as check ``name`` of rule ``rule``; ``doc`` says what it checks
+        (markdown; the reports show it with single backquotes)."""
+        if any(c.name == name for c in self.checks):
+            raise ValueError(f"check {name!r} is registered twice")
+        self.checks.append(Check(name, rule, required, run,
+                                 " ".join(doc.split()).replace("``", "`")))
+
     def check(self, name: str, rule: str, *, required: bool = True
               ) -> Callable[[Callable[[C], Awaitable[None]]], Callable[[C], Awaitable[None]]]:
-        """Register the decorated coroutine function as check ``name`` of rule ``rule``."""
+        """Register the decorated coroutine function as check ``name`` of rule ``rule`` (its
+        docstring says what it checks)."""
 
         def register(fn: Callable[[C], Awaitable[None]]) -> Callable[[C], Awaitable[None]]:
-            if any(c.name == name for c in self.checks):
-                raise ValueError(f"check {name!r} is registered twice")
-            doc = " ".join((fn.__doc__ or "").split()).replace("``", "`")
-            self.checks.append(Check(name, rule, required, fn, doc))
+            self.add(name, rule, fn, fn.__doc__ or "", required=required)
             return fn
 
         return register

@@ -6,6 +6,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from websockets.exceptions import ConnectionClosed, InvalidStatus
@@ -17,6 +19,7 @@ from protocol import (
     MAX_MESSAGE_BYTES,
     Ack,
     Action,
+    AnyMessage,
     CancelAction,
     Cancelled,
     Error,
@@ -85,16 +88,6 @@ class _Started:
     async def __aexit__(self, *exc: object) -> None:
         if self.run is not None:
             await self.run.__aexit__(*exc)
-
-
-async def _out_of_turn(t: Target, report: type[Finished | Unblocked | Cancelled],
-                       code: ErrorCode, *, at_goal: bool = False) -> None:
-    """Sends ``report`` about the first action of a fresh run before anything allows it (at
-    the action's start pose, or its goal pose), and expects an error reply with ``code``."""
-    async with _Started(t) as (_, robot, first):
-        pose = first.dst if at_goal else first.src
-        ref = await robot.conn.send(report, action_id=first.action_id, pose=pose)
-        await robot.conn.error_for(ref, code)
 
 
 def _other(t: Target) -> int:
@@ -182,59 +175,52 @@ async def _hello_other(t: Target) -> None:
         await robot.conn.close()
 
 
-@check("report-about-another-robot", "AUTH-5")
-async def _report_other(t: Target) -> None:
-    """A report about another robot's action gets ``not_yourself``."""
-    robot = await t.robot()
-    try:
-        ref = await robot.conn.send(Finished, action_id=f"0.{_other(t)}.0")
-        await robot.conn.error_for(ref, ErrorCode.NOT_YOURSELF)
-    finally:
-        await robot.conn.close()
+# ---------------------------------------------------------------------- refusals
+RobotFields = Callable[[Target, Robot], dict[str, Any]]
 
 
-@check("state-about-another-robot", "AUTH-5")
-async def _state_other(t: Target) -> None:
-    """A ``state`` naming another robot gets ``not_yourself``."""
-    robot = await t.robot()
-    try:
-        ref = await robot.conn.send(State, robot_id=_other(t))
-        await robot.conn.error_for(ref, ErrorCode.NOT_YOURSELF)
-    finally:
-        await robot.conn.close()
+@dataclass(frozen=True)
+class Refusal:
+    """A check that a connected robot's message of type ``kind`` (with ``fields``) gets an
+    ``error`` with ``code`` naming it (after ``hello`` unless ``hello`` is false)."""
+
+    name: str
+    rule: str
+    doc: str
+    code: ErrorCode
+    kind: type[AnyMessage]
+    fields: RobotFields
+    hello: bool = True
+
+    async def __call__(self, t: Target) -> None:
+        robot = await t.robot(hello=self.hello)
+        try:
+            ref = await robot.conn.send(self.kind, **self.fields(t, robot))
+            await robot.conn.error_for(ref, self.code)
+        finally:
+            await robot.conn.close()
 
 
-@check("robot-may-not-command", "AUTH-6")
-async def _robot_command(t: Target) -> None:
-    """An operator command from a robot gets ``forbidden``."""
-    robot = await t.robot()
-    try:
-        ref = await robot.conn.send(Start)
-        await robot.conn.error_for(ref, ErrorCode.FORBIDDEN)
-    finally:
-        await robot.conn.close()
-
-
-@check("robot-may-not-report-intruders", "AUTH-6")
-async def _robot_world(t: Target) -> None:
-    """A world report (``intruder``) from a robot gets ``forbidden``."""
-    robot = await t.robot()
-    try:
-        ref = await robot.conn.send(IntruderReport, cell=(0, 0), state="on")
-        await robot.conn.error_for(ref, ErrorCode.FORBIDDEN)
-    finally:
-        await robot.conn.close()
-
-
-@check("report-before-hello", "HS-4")
-async def _before_hello(t: Target) -> None:
-    """A report before ``hello`` gets ``bad_state``."""
-    robot = await t.robot(hello=False)
-    try:
-        ref = await robot.conn.send(Started, action_id=f"0.{robot.id}.0")
-        await robot.conn.error_for(ref, ErrorCode.BAD_STATE)
-    finally:
-        await robot.conn.close()
+REFUSALS = [
+    Refusal("report-about-another-robot", "AUTH-5",
+            "A report about another robot's action gets ``not_yourself``.",
+            ErrorCode.NOT_YOURSELF, Finished, lambda t, r: {"action_id": f"0.{_other(t)}.0"}),
+    Refusal("state-about-another-robot", "AUTH-5",
+            "A ``state`` naming another robot gets ``not_yourself``.",
+            ErrorCode.NOT_YOURSELF, State, lambda t, r: {"robot_id": _other(t)}),
+    Refusal("robot-may-not-command", "AUTH-6",
+            "An operator command from a robot gets ``forbidden``.",
+            ErrorCode.FORBIDDEN, Start, lambda t, r: {}),
+    Refusal("robot-may-not-report-intruders", "AUTH-6",
+            "A world report (``intruder``) from a robot gets ``forbidden``.",
+            ErrorCode.FORBIDDEN, IntruderReport, lambda t, r: {"cell": (0, 0), "state": "on"}),
+    Refusal("report-before-hello", "HS-4", "A report before ``hello`` gets ``bad_state``.",
+            ErrorCode.BAD_STATE, Started, lambda t, r: {"action_id": f"0.{r.id}.0"},
+            hello=False),
+]
+"""Messages a robot may not send (yet)."""
+for _r in REFUSALS:
+    GATEWAY_CHECKS.add(_r.name, _r.rule, _r, _r.doc)
 
 
 @check("second-hello-resyncs", "HS-5")
@@ -275,60 +261,69 @@ async def _state_ok(t: Target) -> None:
 
 
 # ---------------------------------------------------------------------- bad messages
-async def _bad(t: Target, raw: str | bytes, code: ErrorCode, ref: str | None,
-               timeout: float = 5.0) -> None:
-    robot = await t.robot()
-    try:
-        await robot.conn.send_raw(raw)
-        await robot.conn.error_for(ref, code, timeout)
-    finally:
-        await robot.conn.close()
+@dataclass(frozen=True)
+class BadFrame:
+    """A check that a frame, sent by a robot after ``hello``, gets an ``error`` with ``code``
+    and ``ref`` (the offending msg_id, or null if the gateway cannot read one)."""
+
+    name: str
+    rule: str
+    doc: str
+    frame: Callable[[Target], str | bytes]
+    code: ErrorCode
+    ref: str | None = None
+    timeout: float = 5.0
+
+    async def __call__(self, t: Target) -> None:
+        robot = await t.robot()
+        try:
+            await robot.conn.send_raw(self.frame(t))
+            await robot.conn.error_for(self.ref, self.code, self.timeout)
+        finally:
+            await robot.conn.close()
 
 
-@check("malformed-json", "ERR-3")
-async def _malformed(t: Target) -> None:
-    """Text that is not JSON gets ``malformed`` with ``ref`` null."""
-    await _bad(t, "{not json", ErrorCode.MALFORMED, None)
+def _long_number(t: Target) -> str:
+    raw = _raw("num", type="state", robot_id=t.options.robot_id, battery=0.5)
+    return raw.replace('"battery": 0.5', '"battery": 0.' + "5" * 40)
 
 
-@check("not-a-json-object", "MSG-1")
-async def _not_object(t: Target) -> None:
-    """A JSON value that is not an object gets ``malformed``."""
-    await _bad(t, "[1, 2]", ErrorCode.MALFORMED, None)
-
-
-@check("unsupported-version", "VER-1")
-async def _version(t: Target) -> None:
-    """``v`` 3 (not 1 or 2) gets ``unsupported_version`` naming the msg_id."""
-    await _bad(t, _raw("x", type="state", robot_id=t.options.robot_id, v=3),
-               ErrorCode.UNSUPPORTED_VERSION, "x-raw")
-
-
-@check("missing-version", "VER-1")
-async def _no_version(t: Target) -> None:
-    """A message without ``v`` gets ``unsupported_version``."""
-    raw = json.dumps({"type": "state", "msg_id": "y-raw", "seq": 0,
-                      "robot_id": t.options.robot_id})
-    await _bad(t, raw, ErrorCode.UNSUPPORTED_VERSION, "y-raw")
-
-
-@check("unknown-type", "MSG-1")
-async def _unknown_type(t: Target) -> None:
-    """An unknown ``type`` gets ``unknown_type`` naming the msg_id."""
-    await _bad(t, _raw("z", type="teleport"), ErrorCode.UNKNOWN_TYPE, "z-raw")
-
-
-@check("invalid-field", "MSG-1")
-async def _invalid(t: Target) -> None:
-    """A field of the wrong form gets ``invalid`` naming the msg_id."""
-    await _bad(t, _raw("w", type="ack", action_id="nonsense"), ErrorCode.INVALID, "w-raw")
-
-
-@check("unknown-field", "MSG-1")
-async def _extra(t: Target) -> None:
-    """An unknown field gets ``invalid`` (no extra fields)."""
-    await _bad(t, _raw("u", type="state", robot_id=t.options.robot_id, colour="red"),
-               ErrorCode.INVALID, "u-raw")
+BAD_FRAMES = [
+    BadFrame("malformed-json", "ERR-3", "Text that is not JSON gets ``malformed`` with ``ref`` "
+             "null.", lambda t: "{not json", ErrorCode.MALFORMED),
+    BadFrame("not-a-json-object", "MSG-1", "A JSON value that is not an object gets "
+             "``malformed``.", lambda t: "[1, 2]", ErrorCode.MALFORMED),
+    BadFrame("unsupported-version", "VER-1", "``v`` 3 (not 1 or 2) gets ``unsupported_version`` "
+             "naming the msg_id.",
+             lambda t: _raw("x", type="state", robot_id=t.options.robot_id, v=3),
+             ErrorCode.UNSUPPORTED_VERSION, "x-raw"),
+    BadFrame("missing-version", "VER-1", "A message without ``v`` gets "
+             "``unsupported_version``.",
+             lambda t: json.dumps({"type": "state", "msg_id": "y-raw", "seq": 0,
+                                   "robot_id": t.options.robot_id}),
+             ErrorCode.UNSUPPORTED_VERSION, "y-raw"),
+    BadFrame("unknown-type", "MSG-1", "An unknown ``type`` gets ``unknown_type`` naming the "
+             "msg_id.", lambda t: _raw("z", type="teleport"), ErrorCode.UNKNOWN_TYPE, "z-raw"),
+    BadFrame("invalid-field", "MSG-1", "A field of the wrong form gets ``invalid`` naming the "
+             "msg_id.", lambda t: _raw("w", type="ack", action_id="nonsense"),
+             ErrorCode.INVALID, "w-raw"),
+    BadFrame("unknown-field", "MSG-1", "An unknown field gets ``invalid`` (no extra fields).",
+             lambda t: _raw("u", type="state", robot_id=t.options.robot_id, colour="red"),
+             ErrorCode.INVALID, "u-raw"),
+    BadFrame("binary-frame-refused", "WS-1", "A binary frame gets ``malformed`` (messages "
+             "travel in text frames).",
+             lambda t: encode(State(msg_id="bin-0", seq=0, robot_id=t.options.robot_id)).encode(),
+             ErrorCode.MALFORMED, timeout=2.0),
+    BadFrame("deep-nesting-refused", "LIMIT-6", "A message nested deeper than 8 levels gets "
+             "`too_large` before it is parsed.",
+             lambda t: _raw("deep", type="state", robot_id=t.options.robot_id,
+                            pad=json.loads("[" * 20 + "]" * 20)), ErrorCode.TOO_LARGE),
+    BadFrame("long-number-refused", "LIMIT-6", "A number of more than 32 digits gets "
+             "`too_large` before it is parsed.", _long_number, ErrorCode.TOO_LARGE),
+]
+"""Frames a gateway must refuse, each with its error code."""
+for _f in BAD_FRAMES:
+    GATEWAY_CHECKS.add(_f.name, _f.rule, _f, _f.doc)
 
 
 @check("too-large", "LIMIT-1")
@@ -354,28 +349,6 @@ async def _error_not_fatal(t: Target) -> None:
         await robot.hello()
     finally:
         await robot.conn.close()
-
-
-@check("binary-frame-refused", "WS-1")
-async def _binary(t: Target) -> None:
-    """A binary frame gets ``malformed`` (messages travel in text frames)."""
-    msg = State(msg_id="bin-0", seq=0, robot_id=t.options.robot_id)
-    await _bad(t, encode(msg).encode(), ErrorCode.MALFORMED, None, timeout=2.0)
-
-
-@check("deep-nesting-refused", "LIMIT-6")
-async def _deep(t: Target) -> None:
-    """A message nested deeper than 8 levels gets `too_large` before it is parsed."""
-    await _bad(t, _raw("deep", type="state", robot_id=t.options.robot_id,
-                       pad=json.loads("[" * 20 + "]" * 20)), ErrorCode.TOO_LARGE, None)
-
-
-@check("long-number-refused", "LIMIT-6")
-async def _long_number(t: Target) -> None:
-    """A number of more than 32 digits gets `too_large` before it is parsed."""
-    raw = _raw("num", type="state", robot_id=t.options.robot_id, battery=0.5)
-    await _bad(t, raw.replace('"battery": 0.5', '"battery": 0.' + "5" * 40),
-               ErrorCode.TOO_LARGE, None)
 
 
 @check("oversize-frame-closes-1009", "LIMIT-2")
@@ -516,35 +489,61 @@ async def _completes(t: Target) -> None:
                               f"{errors[0].detail}")
 
 
-@check("ack-unknown-action", "ACK-2")
-async def _ack_unknown(t: Target) -> None:
-    """An ``ack`` of an action never dispatched gets ``unknown_action``."""
-    async with _Started(t) as (_, robot, _first):
-        ref = await robot.conn.send(Ack, action_id=f"0.{robot.id}.9")
-        await robot.conn.error_for(ref, ErrorCode.UNKNOWN_ACTION)
+ActionFields = Callable[[Robot, Action], dict[str, Any]]
 
 
-@check("report-never-dispatched", "REPORT-3")
-async def _never(t: Target) -> None:
-    """A report about an action never dispatched gets ``unknown_action``."""
-    async with _Started(t) as (_, robot, _first):
-        ref = await robot.conn.send(Started, action_id=f"0.{robot.id}.9")
-        await robot.conn.error_for(ref, ErrorCode.UNKNOWN_ACTION)
+def _at_src(robot: Robot, a: Action) -> dict[str, Any]:
+    return {"action_id": a.action_id, "pose": a.src}
 
 
-@check("finish-before-start", "REPORT-1")
-async def _finish_first(t: Target) -> None:
-    """``finished`` without ``started`` gets ``rejected``."""
-    await _out_of_turn(t, Finished, ErrorCode.REJECTED, at_goal=True)
+def _at_dst(robot: Robot, a: Action) -> dict[str, Any]:
+    return {"action_id": a.action_id, "pose": a.dst}
 
 
-@check("started-twice", "REPORT-4")
-async def _started_twice(t: Target) -> None:
-    """A second ``started`` of a running action gets ``duplicate``."""
-    async with _Started(t) as (_, robot, first):
-        await robot.report(Started, first.action_id)
-        ref = await robot.conn.send(Started, action_id=first.action_id, pose=first.src)
-        await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
+def _never_sent(robot: Robot, a: Action) -> dict[str, Any]:
+    return {"action_id": f"0.{robot.id}.9"}
+
+
+@dataclass(frozen=True)
+class RunRefusal:
+    """A check that, in a fresh run started with the robot's first action dispatched, the
+    robot's ``messages`` (type and fields from the robot and that action), sent in order, end
+    in an ``error`` with ``code`` for the last one."""
+
+    name: str
+    rule: str
+    doc: str
+    code: ErrorCode
+    messages: tuple[tuple[type[AnyMessage], ActionFields], ...]
+
+    async def __call__(self, t: Target) -> None:
+        async with _Started(t) as (_, robot, first):
+            ref = ""
+            for kind, fields in self.messages:
+                ref = await robot.conn.send(kind, **fields(robot, first))
+            await robot.conn.error_for(ref, self.code)
+
+
+RUN_REFUSALS = [
+    RunRefusal("ack-unknown-action", "ACK-2", "An ``ack`` of an action never dispatched gets "
+               "``unknown_action``.", ErrorCode.UNKNOWN_ACTION, ((Ack, _never_sent),)),
+    RunRefusal("report-never-dispatched", "REPORT-3", "A report about an action never "
+               "dispatched gets ``unknown_action``.", ErrorCode.UNKNOWN_ACTION,
+               ((Started, _never_sent),)),
+    RunRefusal("finish-before-start", "REPORT-1", "``finished`` without ``started`` gets "
+               "``rejected``.", ErrorCode.REJECTED, ((Finished, _at_dst),)),
+    RunRefusal("started-twice", "REPORT-4", "A second ``started`` of a running action gets "
+               "``duplicate``.", ErrorCode.DUPLICATE, ((Started, _at_src), (Started, _at_src))),
+    RunRefusal("blocked-twice", "REPORT-4", "A second ``blocked`` gets ``duplicate``.",
+               ErrorCode.DUPLICATE, ((BlockedReport, _at_src), (BlockedReport, _at_src))),
+    RunRefusal("unblocked-when-not-blocked", "BLOCK-2", "``unblocked`` of an action that is "
+               "not blocked gets ``rejected``.", ErrorCode.REJECTED, ((Unblocked, _at_src),)),
+    RunRefusal("cancelled-without-cancel", "CANCEL-5", "``cancelled`` with no ``cancel`` "
+               "outstanding gets ``rejected``.", ErrorCode.REJECTED, ((Cancelled, _at_src),)),
+]
+"""Reports and acks out of turn in a run, each with its error code."""
+for _rr in RUN_REFUSALS:
+    GATEWAY_CHECKS.add(_rr.name, _rr.rule, _rr, _rr.doc)
 
 
 @check("finished-twice-applied-once", "DUP-2")
@@ -587,15 +586,6 @@ async def _blocked_ok(t: Target) -> None:
         await robot.conn.quiet("error", lambda m: isinstance(m, Error), QUIET_S)
 
 
-@check("blocked-twice", "REPORT-4")
-async def _blocked_twice(t: Target) -> None:
-    """A second ``blocked`` gets ``duplicate``."""
-    async with _Started(t) as (_, robot, first):
-        await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
-        ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
-        await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
-
-
 @check("blocked-after-start", "BLOCK-2")
 async def _blocked_late(t: Target) -> None:
     """``blocked`` of a started move (v2: stopped on the way) is accepted, so a second one is
@@ -608,18 +598,6 @@ async def _blocked_late(t: Target) -> None:
             return
         ref = await robot.conn.send(BlockedReport, action_id=first.action_id, pose=first.src)
         await robot.conn.error_for(ref, ErrorCode.DUPLICATE)
-
-
-@check("unblocked-when-not-blocked", "BLOCK-2")
-async def _unblocked_stray(t: Target) -> None:
-    """``unblocked`` of an action that is not blocked gets ``rejected``."""
-    await _out_of_turn(t, Unblocked, ErrorCode.REJECTED)
-
-
-@check("cancelled-without-cancel", "CANCEL-5")
-async def _stray_cancelled(t: Target) -> None:
-    """``cancelled`` with no ``cancel`` outstanding gets ``rejected``."""
-    await _out_of_turn(t, Cancelled, ErrorCode.REJECTED)
 
 
 # ---------------------------------------------------------------------- reconnecting

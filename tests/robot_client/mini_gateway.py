@@ -1,4 +1,6 @@
-"""A minimal gateway for client tests: real websockets on 127.0.0.1 speaking protocol v1.
+"""A minimal gateway for client tests, speaking protocol v1: over real websockets on
+127.0.0.1 (:meth:`MiniGateway.start`), or in memory as the client's connector
+(:meth:`MiniGateway.connect`, for tests in virtual time).
 
 It checks the bearer token at the handshake (401 otherwise), can refuse every connection
 (503) to hold a link down, and hands each accepted connection to the test, which scripts the
@@ -9,20 +11,41 @@ from __future__ import annotations
 
 import asyncio
 import uuid
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.datastructures import Headers
+from websockets.exceptions import InvalidStatus
 from websockets.http11 import Request, Response
 
+from gateway.server.auth import Peer
+from gateway.server.transport import MemoryClient, memory_pair
 from protocol import AnyMessage, decode, encode
+from robot_client.config import RobotSettings
 
 M = TypeVar("M")
+
+
+class Link(Protocol):
+    """The gateway's end of a connection: a websockets server connection or a memory link."""
+
+    async def send(self, text: str) -> None:
+        """Send one text frame."""
+        ...
+
+    async def recv(self) -> str | bytes:
+        """The next frame."""
+        ...
+
+    async def close(self, code: int = 1000, reason: str = "") -> None:
+        """Close the connection."""
+        ...
 
 
 class Conn:
     """The gateway's end of one robot connection."""
 
-    def __init__(self, ws: ServerConnection) -> None:
+    def __init__(self, ws: Link) -> None:
         self.ws = ws
         self.seq = 0
         self.received: list[AnyMessage] = []
@@ -74,13 +97,28 @@ class MiniGateway:
                                    process_request=self._check)
         return int(self._server.sockets[0].getsockname()[1])
 
-    def _check(self, connection: ServerConnection, request: Request) -> Response | None:
+    def _refusal(self, authorization: str | None) -> tuple[int, str] | None:
+        """Count an attempt; the HTTP status and body it is refused with, if it is."""
         self.attempts += 1
         if self.refuse:
-            return connection.respond(503, "down\n")
-        if request.headers.get("Authorization") != f"Bearer {self.token}":
-            return connection.respond(401, "bad token\n")
+            return 503, "down\n"
+        if authorization != f"Bearer {self.token}":
+            return 401, "bad token\n"
         return None
+
+    def _check(self, connection: ServerConnection, request: Request) -> Response | None:
+        refusal = self._refusal(request.headers.get("Authorization"))
+        return None if refusal is None else connection.respond(*refusal)
+
+    async def connect(self, settings: RobotSettings) -> MemoryClient:
+        """The robot client's connector in memory: refused as the handshake would be
+        (InvalidStatus 503 or 401), else a connection handed to :meth:`accept`."""
+        refusal = self._refusal(f"Bearer {settings.token.get_secret_value()}")
+        if refusal is not None:
+            raise InvalidStatus(Response(refusal[0], "refused", Headers(), refusal[1].encode()))
+        client, link = memory_pair(Peer("robot", settings.robot_id))
+        await self.connections.put(Conn(link))
+        return client
 
     async def _handler(self, ws: ServerConnection) -> None:
         await self.connections.put(Conn(ws))

@@ -1,7 +1,9 @@
-"""The robot client over real websockets against a scripted protocol-v1 gateway.
+"""The robot client against a scripted protocol-v1 gateway.
 
-Real parts: websockets on 127.0.0.1, protocol models, the Kobuki driver on a real pty, the
-odometry, the AprilTag localiser on rendered frames, the runner. Simulated: the Kobuki's
+Real parts: protocol models, the Kobuki driver on a real pty, the odometry, the runner; in the
+real-time test also websockets on 127.0.0.1 and the AprilTag localiser on rendered frames. The
+other tests run in virtual time (a ``looptime`` loop, the client's injectable clock and
+connector, the gateway in memory), so their waits cost no wall time. Simulated: the Kobuki's
 motors (tests/robot_client/kobuki_side.py) and the camera (frames rendered at the simulated
 base's true pose).
 """
@@ -11,12 +13,14 @@ from __future__ import annotations
 import asyncio
 import math
 import os
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable, Coroutine
+from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from typing import Any
 
 import pytest
 
+from gateway.server.clock import LoopClock, run_virtual
 from protocol import (
     Ack,
     Action,
@@ -33,7 +37,7 @@ from protocol import (
     Welcome,
 )
 from protocol.messages import Heading
-from robot_client.client import RobotClient, build_client
+from robot_client.client import RobotClient, build_client, websocket_connect
 from robot_client.config import load_settings
 from robot_client.floor import FloorGrid
 from robot_client.frames import CapturedFrame, monotonic_ms
@@ -73,7 +77,7 @@ class Robot:
     gateway: MiniGateway
     client: RobotClient
     sim: SimulatedBase
-    frames: RenderedFrames
+    frames: RenderedFrames | None
 
     def at(self, cell: tuple[int, int]) -> float:
         """True distance of the simulated base from the centre of ``cell``."""
@@ -88,34 +92,67 @@ def action(i: int, src: tuple[int, int], dst: tuple[int, int], h0: Heading | Non
             "dst": Pose(cell=dst, heading=h1), "duration_ms": 1000.0}
 
 
-@pytest.fixture
-async def robot(request: pytest.FixtureRequest) -> AsyncIterator[Robot]:
-    token = getattr(request, "param", TOKEN)
+@asynccontextmanager
+async def scripted_robot(token: str = TOKEN, *, virtual: bool) -> AsyncIterator[Robot]:
+    """Robot 3 on cell (1, 1) facing E, and the scripted gateway it connects to: over
+    websockets with the camera in real time, or in memory without a camera in virtual time
+    (run it under :func:`run_virtual`)."""
     gateway = MiniGateway(TOKEN)
-    port = await gateway.start()
+    url = "ws://in-memory/" if virtual else f"ws://127.0.0.1:{await gateway.start()}/"
     master, slave = os.openpty()
     sim = SimulatedBase(x=0.4, y=-0.4, theta=0.0)  # centre of cell (1, 1), facing E
     base = KobukiSerial(os.ttyname(slave))
-    frames = RenderedFrames(sim)
+    frames = None if virtual else RenderedFrames(sim)
     settings = load_settings(
-        None, robot_id=3, token=token, gateway_url=f"ws://127.0.0.1:{port}/",
+        None, robot_id=3, token=token, gateway_url=url,
         grid_width=5, grid_height=4, cell_m=0.4, tag_size_m=0.12, start_x=1, start_y=1,
         max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0, camera_period_ms=50,
         reconnect_min_s=0.1, reconnect_max_s=0.3, ping_interval_s=1.0, ping_timeout_s=1.0,
         bumper_pause_ms=400.0)
-    client = build_client(settings, base, frames)
+    client = build_client(settings, base, frames, clock=LoopClock() if virtual else None,
+                          connect=gateway.connect if virtual else websocket_connect)
     stop = asyncio.Event()
     sim_task = asyncio.create_task(run_realtime(sim, master, stop))
     client_task = asyncio.create_task(client.run())
-    yield Robot(gateway, client, sim, frames)
-    client.stop()
-    await client_task
-    stop.set()
-    await sim_task
-    await gateway.close()
-    base.close()
-    os.close(slave)
-    os.close(master)
+    try:
+        yield Robot(gateway, client, sim, frames)
+    finally:
+        client.stop()
+        await client_task
+        stop.set()
+        await sim_task
+        await gateway.close()
+        base.close()
+        os.close(slave)
+        os.close(master)
+
+
+@pytest.fixture
+async def robot() -> AsyncIterator[Robot]:
+    """The real-time setup (websockets, camera)."""
+    async with scripted_robot(virtual=False) as r:
+        yield r
+
+
+Scripted = Callable[[Robot], Coroutine[Any, Any, None]]
+
+
+def in_virtual_time(token: str = TOKEN) -> Callable[[Scripted], Callable[[], None]]:
+    """Make ``test(robot)`` a test run in virtual time against :func:`scripted_robot` (with
+    ``token``)."""
+
+    def wrap(test: Scripted) -> Callable[[], None]:
+        def run() -> None:
+            async def main() -> None:
+                async with scripted_robot(token, virtual=True) as robot:
+                    await test(robot)
+
+            run_virtual(main())
+
+        run.__name__, run.__doc__ = test.__name__, test.__doc__
+        return run
+
+    return wrap
 
 
 async def handshake(robot: Robot, **welcome: object) -> tuple[Conn, Hello]:
@@ -164,9 +201,11 @@ async def test_executes_acknowledges_and_drops_duplicates(robot: Robot) -> None:
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs) and hello.seq == 0
     assert len({m.msg_id for m in conn.received}) == len(conn.received)
     assert {"running", "idle"} <= {s.activity for s in conn.of_type(State)}
-    assert robot.frames.frames > 5 and robot.client.body.localiser.last_fix is not None
+    assert robot.frames is not None and robot.frames.frames > 5
+    assert robot.client.body.localiser.last_fix is not None
 
 
+@in_virtual_time()
 async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) -> None:
     conn, _ = await handshake(robot)
     await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
@@ -175,7 +214,7 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
     await conn.expect(Ack, "0.3.1")
     await conn.expect(Started, "0.3.0")
     robot.gateway.refuse = True
-    conn.ws.transport.abort()  # the link dies without a close frame
+    await conn.ws.close(1006, "link lost")  # the link dies without a close frame
     # The robot completes action 0 on its own...
     async with asyncio.timeout(10):
         while robot.client.body.runner.busy:
@@ -202,6 +241,7 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
     assert len(conn2.of_type(Started)) == 1
 
 
+@in_virtual_time()
 async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     conn, _ = await handshake(robot, paused=True, state_period_ms=60000.0)  # one snapshot only
     await conn.send(Action, **action(0, (1, 1), (1, 0), "N", "N"))
@@ -238,6 +278,7 @@ async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     assert [m.action_id for m in conn.of_type(Unblocked)] == ["0.3.1"]
 
 
+@in_virtual_time()
 async def test_a_cancel_drops_the_queued_actions_behind_it(robot: Robot) -> None:
     # lookahead dispatch: the robot holds a queue; a cancelled action takes the ones queued
     # behind it along (they cannot run without it), and each is confirmed
@@ -261,7 +302,7 @@ async def test_a_cancel_drops_the_queued_actions_behind_it(robot: Robot) -> None
     assert not conn.of_type(Started) and robot.at((1, 1)) < 0.005  # paused: nothing moved
 
 
-@pytest.mark.parametrize("robot", ["wrong-token"], indirect=True)
+@in_virtual_time("wrong-token")
 async def test_a_refused_token_is_retried_with_backoff_and_never_moves(robot: Robot) -> None:
     await asyncio.sleep(0.8)
     # backoff 0.1 s growing to 0.3 s: a handful of attempts, not a tight loop

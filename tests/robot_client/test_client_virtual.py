@@ -14,7 +14,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 
-from gateway.server.clock import VirtualClock, run_virtual
+from gateway.server.clock import LoopClock, VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig, TokensConfig
 from gateway.server.gateway import Gateway
 from protocol import LoadPlan, Start
@@ -27,13 +27,6 @@ from tests.robot_client.kobuki_side import SimulatedBase, run_realtime
 LAB = FloorGrid(14, 10, 0.4, 0.12)  # the lab map is 14 x 10 cells
 TOKEN = "robot-0-token"
 ARRIVED_M = 0.012  # lockstep in virtual time: no scheduling stalls (the runner tests' bound)
-
-
-class LoopClock:
-    """The robot's clock read from the running loop (virtual on a looptime loop)."""
-
-    def now_ms(self) -> float:
-        return asyncio.get_running_loop().time() * 1000.0
 
 
 @dataclass
