@@ -65,6 +65,7 @@ from protocol.messages import (
     Unblocked,
     Welcome,
     parse_action_id,
+    plan_key,
 )
 
 HISTORY = 256
@@ -158,7 +159,7 @@ class RobotSession:
         self.current: str | None = None
         """The action taken by the body and not finished (or dropped)."""
         self._current_action: Action | None = None
-        self._refused: tuple[int, int] | None = None  # (plan, index) of the last refusal
+        self._refused: tuple[str, int] | None = None  # (plan_key, index) of the last refusal
         self.phase: Literal["received", "running", "blocked"] = "received"
         self._moved = False  # the current action started (a later blocked is a stop on the way)
         self._aborting = False  # the current action was cancelled on the way; going back
@@ -256,12 +257,12 @@ class RobotSession:
 
     def _refusal(self, msg: Action) -> tuple[RefuseCode, str] | None:
         """Why the robot refuses ``msg`` (None: it takes it)."""
-        plan, _, index = parse_action_id(msg.action_id)
+        key, index = plan_key(msg.action_id), parse_action_id(msg.action_id)[2]
         if self._refused is not None:
-            refused_plan, refused_index = self._refused
-            if plan == refused_plan and index > refused_index:
-                return "queued_behind", (f"action {refused_plan}.{self.robot_id}."
-                                         f"{refused_index} before it was refused")
+            refused_key, refused_index = self._refused
+            if key == refused_key and index > refused_index:
+                return "queued_behind", (f"action {refused_key}.{refused_index} before it was "
+                                         "refused")
             self._refused = None  # a new plan, or the refused action dispatched again
         due = self.queue[-1].dst if self.queue else (
             self._current_action.dst if self._current_action is not None else self.pose)
@@ -278,8 +279,7 @@ class RobotSession:
         return None
 
     def _refuse(self, msg: Action, code: RefuseCode, detail: str) -> None:
-        plan, _, index = parse_action_id(msg.action_id)
-        self._refused = (plan, index)
+        self._refused = (plan_key(msg.action_id), parse_action_id(msg.action_id)[2])
         self._out.append(Refused(msg, detail))
         self._send(ActionRefused, action_id=msg.action_id, pose=self.pose, code=code,
                    detail=detail[:500])
