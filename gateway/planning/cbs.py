@@ -7,7 +7,13 @@ The high level is best-first on ``SOC + h`` with these improvements, each switch
   on the agents' MDDs (multi-valued decision diagrams of their cheapest paths);
 * ``h``: the minimum vertex cover of the graph of agent pairs that have a cardinal conflict or
   whose MDDs hold no conflict-free pair of paths (DG heuristic), admissible because each such
-  edge forces one of its two agents to pay at least one more step;
+  edge forces one of its two agents to pay at least one more step; with ``weighted`` (WDG,
+  by default under ``turning`` only)
+  each edge weighs what the pair must pay together, ``Δ`` = its optimal 1-robust SOC under
+  the node's constraints minus its current costs (a two-agent CBS, cached per pair and
+  constraint sets; if that search hits its node budget, its best lower bound, at least 1),
+  and ``h`` is the minimum weighted vertex cover (integers ``x_a`` with
+  ``x_a + x_b >= Δ_ab``), admissible because the pairs' extra costs are paid by their agents;
 * bypassing: a child that keeps the cost and has fewer conflicts replaces the parent's path;
 * target reasoning: a conflict with an agent parked on its goal splits on that agent's arrival
   time (see :mod:`gateway.planning.cbs_conflicts`);
@@ -37,7 +43,7 @@ from dataclasses import dataclass
 from heapq import heappop, heappush
 
 from gateway.planning.cbs_conflicts import Branch, Conflict, pair_conflicts, rectangle
-from gateway.planning.constraints import FINISH, ConstraintTable, build_table
+from gateway.planning.constraints import FINISH, Constraint, ConstraintTable, build_table
 from gateway.planning.grid import Grid
 from gateway.planning.low_level import (
     AvoidanceTable,
@@ -51,6 +57,15 @@ from gateway.planning.plan import Deadline, NoSolution, Solution
 from gateway.planning.problem import Forbidden, Place, Problem
 
 NON_CARDINAL, SEMI_CARDINAL, CARDINAL = 0, 1, 2
+
+PAIR_BUDGET = 32
+"""Node expansions a WDG edge's two-agent CBS may make before it settles for a lower bound."""
+
+WEIGHTED_COVER_MAX = 12
+"""Largest connected component of the WDG solved exactly (larger: its unweighted cover)."""
+
+NO_PAIR_PLAN = 1 << 20
+"""The weight of a pair that has no joint plan under the node's constraints."""
 
 DENSE_AVOIDANCE = 1 << 21
 """Largest (cells x timesteps) for which the conflict-avoidance table is a flat list."""
@@ -67,6 +82,15 @@ class CBSOptions:
     bypass: bool = True
     target: bool = True
     avoidance: bool = True
+    weighted: bool | None = None
+    """WDG instead of DG: on, off, or None = under ``turning`` only (under ``omni`` the DG is
+    nearly as strong on the benchmark and the pair searches cost more than they save)."""
+
+
+_PairNode = tuple[int, int, tuple[Constraint, ...], tuple[Constraint, ...], tuple[int, ...],
+                  tuple[int, ...]]
+"""A node of a WDG edge's two-agent CBS: (joint cost, tie, constraints on each agent, cell
+paths of each)."""
 
 
 class _Node:
@@ -134,6 +158,10 @@ class _Search:
         self.options = options
         self.expanded = 0
         self.tie = 0
+        self.weighted = options.weighted if options.weighted is not None else (
+            motion == "turning")
+        self.pair_deltas: dict[tuple[int, int, tuple[Constraint, ...], tuple[Constraint, ...]],
+                               int] = {}
 
     # ----- low level -------------------------------------------------------------------------
 
@@ -143,12 +171,19 @@ class _Search:
         cons = list(self.base)
         if extra is not None:
             cons.extend(extra[1])
+        cons.extend(self._constraints(node, agent))
+        return build_table(self.size, cons)
+
+    @staticmethod
+    def _constraints(node: _Node | None, agent: int) -> tuple[Constraint, ...]:
+        """The branch constraints on ``agent`` from ``node`` up to the root."""
+        cons: list[Constraint] = []
         while node is not None:
             b = node.branch
             if b is not None and b[0] == agent:
                 cons.extend(b[1])
             node = node.parent
-        return build_table(self.size, cons)
+        return tuple(cons)
 
     def _occupancy(self, paths: Sequence[tuple[int, ...] | None]) -> AvoidanceTable:
         """Conflict counts of a visit to every (cell, time) against all the given paths."""
@@ -326,13 +361,55 @@ class _Search:
         return best
 
     def heuristic(self, node: _Node) -> int:
-        """Minimum vertex cover of the pairs that have a cardinal conflict."""
+        """Minimum vertex cover of the pairs that have a cardinal conflict or are dependent
+        (weighted by the pairs' extra costs with ``options.weighted``)."""
         edges = [
             pair for pair in node.conflicts
             if self.pair_best(node, pair)[0] == CARDINAL
             or (self.options.dependency and self.dependent(node, pair))
         ]
-        return min_vertex_cover(edges)
+        if not self.weighted:
+            return min_vertex_cover(edges)
+        return min_weighted_vertex_cover({pair: self.pair_delta(node, pair) for pair in edges})
+
+    def pair_delta(self, node: _Node, pair: tuple[int, int]) -> int:
+        """What agents ``pair`` must pay together beyond their costs in ``node`` (at least 1:
+        the pair is an edge of the dependency graph), by a two-agent CBS (cached)."""
+        a, b = pair
+        cons_a, cons_b = self._constraints(node, a), self._constraints(node, b)
+        key = (a, b, cons_a, cons_b)
+        got = self.pair_deltas.get(key)
+        if got is None:
+            got = max(1, self._pair_cbs(node, pair, cons_a, cons_b))
+            self.pair_deltas[key] = got
+        return got
+
+    def _pair_cbs(self, node: _Node, pair: tuple[int, int], cons_a: tuple[Constraint, ...],
+                  cons_b: tuple[Constraint, ...]) -> int:
+        """The pair's optimal joint cost minus its current one (a lower bound if the search
+        ran out of its budget; :data:`NO_PAIR_PLAN` if it has no joint plan)."""
+        a, b = pair
+        base = node.costs[a] + node.costs[b]
+        target = self.options.target
+        tie = 0
+        open_list: list[_PairNode] = [(base, 0, cons_a, cons_b, node.paths[a], node.paths[b])]
+        for _ in range(PAIR_BUDGET):
+            if not open_list:
+                return NO_PAIR_PLAN
+            g, _, ca, cb, pa, pb = heappop(open_list)
+            found = pair_conflicts(a, pa, b, pb, target)
+            if not found:
+                return g - base
+            for agent, extra in found[0][1:]:
+                na, nb = (ca + extra, cb) if agent == a else (ca, cb + extra)
+                got = self._plan(agent, build_table(
+                    self.size, [*self.base, *(na if agent == a else nb)]), None)
+                if got is None:
+                    continue
+                qa, qb = (got[1], pb) if agent == a else (pa, got[1])
+                tie += 1
+                heappush(open_list, (len(qa) + len(qb) - 2, tie, na, nb, qa, qb))
+        return open_list[0][0] - base if open_list else NO_PAIR_PLAN
 
     def dependent(self, node: _Node, pair: tuple[int, int]) -> bool:
         """True if no two paths at the agents' current costs avoid each other (cached)."""
@@ -421,6 +498,58 @@ def min_vertex_cover(edges: Sequence[tuple[int, int]]) -> int:
         return best
 
     return cover(frozenset(edges))
+
+
+def min_weighted_vertex_cover(weights: dict[tuple[int, int], int]) -> int:
+    """Least ``sum(x_v)`` over integers ``x_v >= 0`` with ``x_a + x_b >= w`` for every edge
+    ``(a, b)`` of weight ``w``: exact per connected component of at most
+    :data:`WEIGHTED_COVER_MAX` vertices, else that component's unweighted cover (a lower
+    bound, as every edge weighs at least 1)."""
+    nbrs: dict[int, dict[int, int]] = defaultdict(dict)
+    for (a, b), w in weights.items():
+        nbrs[a][b] = nbrs[b][a] = w
+    total, seen = 0, set()
+    for v0 in sorted(nbrs):
+        if v0 in seen:
+            continue
+        comp, stack = [], [v0]
+        seen.add(v0)
+        while stack:
+            v = stack.pop()
+            comp.append(v)
+            for u in nbrs[v]:
+                if u not in seen:
+                    seen.add(u)
+                    stack.append(u)
+        if len(comp) > WEIGHTED_COVER_MAX:
+            total += min_vertex_cover([e for e in weights if e[0] in comp])
+            continue
+        comp.sort(key=lambda v: -len(nbrs[v]))
+        total += _weighted_cover(comp, nbrs)
+    return total
+
+
+def _weighted_cover(comp: list[int], nbrs: dict[int, dict[int, int]]) -> int:
+    """Exact weighted vertex cover of one component, vertices assigned in ``comp`` order."""
+    best = sum(max(nbrs[v].values()) for v in comp)
+    value: dict[int, int] = {}
+
+    def assign(i: int, cost: int) -> None:
+        nonlocal best
+        if cost >= best:
+            return
+        if i == len(comp):
+            best = cost
+            return
+        v = comp[i]
+        low = max([w - value[u] for u, w in nbrs[v].items() if u in value] + [0])
+        for x in range(low, max(nbrs[v].values()) + 1):
+            value[v] = x
+            assign(i + 1, cost + x)
+        del value[v]
+
+    assign(0, 0)
+    return best
 
 
 def solve_cbs(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
@@ -207,3 +209,28 @@ def test_sparse_avoidance_table_gives_the_same_optimum(monkeypatch: pytest.Monke
     starts = [(0, 0), (1, 0), (2, 0), (3, 2), (4, 2)]
     goals = [(4, 0), (1, 0), (0, 2), (3, 2), (2, 2)]
     check_against_oracle(grid, starts[:3], goals[:3], [])
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.dictionaries(st.tuples(st.integers(0, 5), st.integers(0, 5)).filter(
+    lambda e: e[0] < e[1]), st.integers(1, 3), max_size=10))
+def test_weighted_vertex_cover_is_the_brute_force_minimum(
+        weights: dict[tuple[int, int], int]) -> None:
+    # the WDG heuristic's cover: least sum of integer x_v with x_a + x_b >= w on every edge
+    def feasible(x: tuple[int, ...]) -> bool:
+        return all(x[a] + x[b] >= w for (a, b), w in weights.items())
+
+    best = min(sum(x) for x in itertools.product(range(4), repeat=6) if feasible(x))
+    assert cbs_module.min_weighted_vertex_cover(weights) == best
+    # with unit weights it is the plain vertex cover of the DG heuristic
+    assert cbs_module.min_weighted_vertex_cover(dict.fromkeys(weights, 1)) == \
+        cbs_module.min_vertex_cover(list(weights))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(small_instances(5, 4, (2, 3)))
+def test_weighted_dependency_heuristic_keeps_the_optimum_under_omni(
+    inst: tuple[Grid, list[Cell], list[Cell], list[Forbidden]],
+) -> None:
+    # WDG is on by default under turning only (test_turning_cbs checks it there)
+    check_against_oracle(*inst, options=CBSOptions(weighted=True))
