@@ -62,7 +62,11 @@ PAIR_BUDGET = 32
 """Node expansions a WDG edge's two-agent CBS may make before it settles for a lower bound."""
 
 WEIGHTED_COVER_MAX = 12
-"""Largest connected component of the WDG solved exactly (larger: its unweighted cover)."""
+"""Largest connected component of the WDG solved exactly (larger, or with a weight above
+:data:`WEIGHT_MAX`: a lower bound, see :func:`min_weighted_vertex_cover`)."""
+
+WEIGHT_MAX = 4
+"""Largest edge weight of a component solved exactly."""
 
 NO_PAIR_PLAN = 1 << 20
 """The weight of a pair that has no joint plan under the node's constraints."""
@@ -370,7 +374,10 @@ class _Search:
         ]
         if not self.weighted:
             return min_vertex_cover(edges)
-        return min_weighted_vertex_cover({pair: self.pair_delta(node, pair) for pair in edges})
+        weights = {pair: self.pair_delta(node, pair) for pair in edges}
+        if any(w >= NO_PAIR_PLAN for w in weights.values()):
+            return NO_PAIR_PLAN  # a pair without a joint plan: so is the node
+        return min_weighted_vertex_cover(weights)
 
     def pair_delta(self, node: _Node, pair: tuple[int, int]) -> int:
         """What agents ``pair`` must pay together beyond their costs in ``node`` (at least 1:
@@ -503,8 +510,9 @@ def min_vertex_cover(edges: Sequence[tuple[int, int]]) -> int:
 def min_weighted_vertex_cover(weights: dict[tuple[int, int], int]) -> int:
     """Least ``sum(x_v)`` over integers ``x_v >= 0`` with ``x_a + x_b >= w`` for every edge
     ``(a, b)`` of weight ``w``: exact per connected component of at most
-    :data:`WEIGHTED_COVER_MAX` vertices, else that component's unweighted cover (a lower
-    bound, as every edge weighs at least 1)."""
+    :data:`WEIGHTED_COVER_MAX` vertices and weights of at most :data:`WEIGHT_MAX`, else a lower
+    bound: the larger of the component's unweighted cover (every edge weighs at least 1) and
+    the weight of a greedy matching (its edges need disjoint vertices)."""
     nbrs: dict[int, dict[int, int]] = defaultdict(dict)
     for (a, b), w in weights.items():
         nbrs[a][b] = nbrs[b][a] = w
@@ -521,8 +529,15 @@ def min_weighted_vertex_cover(weights: dict[tuple[int, int], int]) -> int:
                 if u not in seen:
                     seen.add(u)
                     stack.append(u)
-        if len(comp) > WEIGHTED_COVER_MAX:
-            total += min_vertex_cover([e for e in weights if e[0] in comp])
+        edges = {e: w for e, w in weights.items() if e[0] in comp}
+        if len(comp) > WEIGHTED_COVER_MAX or max(edges.values()) > WEIGHT_MAX:
+            matched: set[int] = set()
+            matching = 0
+            for (a, b), w in sorted(edges.items(), key=lambda item: -item[1]):
+                if a not in matched and b not in matched:
+                    matched |= {a, b}
+                    matching += w
+            total += max(matching, min_vertex_cover(list(edges)))
             continue
         comp.sort(key=lambda v: -len(nbrs[v]))
         total += _weighted_cover(comp, nbrs)
