@@ -248,12 +248,14 @@ def run_lifelong(cfg: LifelongConfig,
             goals = [pool.tasks[plan_task[r]].errands[plan_idx[r]:] if plan_task[r] >= 0
                      else () for r in range(n)]
             starts = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
-            # a robot with a period's work committed waits in this window: backlogs stay short
-            frozen = [adg.pending(r) * counter - progress[r] >= cfg.period + counter
-                      for r in range(n)]
+            # a robot's new moves start when it can make them: it waits in the window for its
+            # committed actions but one (the one it finishes while the next window arrives), so
+            # others do not plan to enter cells it leaves long after the plan says
+            hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
+                    for r in range(n)]
             # cells that robots in a delay will still drive through: plan others around them
             avoid = [a.cell for r in range(n) if delayed[r] for a in adg.queue[r]]
-            win = planner.plan(starts, goals, window, frozen, avoid)
+            win = planner.plan(starts, goals, window, hold, avoid)
             tasks_of = list(plan_task)
             for r in range(n):
                 if win.reached[r]:

@@ -105,3 +105,16 @@ def test_estimates_are_exact_without_unknown_delays(seed: int, turning: bool, k:
     for r in range(8):
         for i, tc in enumerate(est[r]):
             assert done[(r, i)] == tc
+
+
+def test_held_robot_moves_after_its_hold() -> None:
+    """A robot held for two steps waits through them, then drives on; the other one, free
+    from the start, plans around it (1-robust, so the ADG accepts the window)."""
+    grid = Grid(np.ones((2, 5), dtype=bool))  # cells 0..4 over 5..9
+    space = StateSpace(grid, turning=False)
+    planner = WindowedPIBT(space, 2, seed=1)
+    win = planner.plan([0, 9], [[4], [5]], 6, hold=[2, 0])
+    path0 = [row[0] for row in win.states]
+    assert path0 == [0, 0, 0, 1, 2, 3, 4]
+    assert [row[1] for row in win.states][1] != 9  # robot 1 is not held: it moves at once
+    LiveADG(grid, [0, 9]).append([list(row) for row in win.states])
