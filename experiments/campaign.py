@@ -51,7 +51,11 @@ from sim_clients.des import SimConfig, SimResult, parse_solver_time, run_simulat
 from sim_clients.intruder import IntruderConfig
 
 VARIANTS: tuple[str, ...] = ("lower_bound", "intruder", "random", "slack")
-"""The four simulations of one experiment, in the order rows are sorted."""
+"""The four simulations of one experiment (the paper's)."""
+EXTRA_VARIANTS: tuple[str, ...] = ("informed",)
+"""Variants a campaign runs on request (``--informed``): not the paper's."""
+ALL_VARIANTS = VARIANTS + EXTRA_VARIANTS
+"""Every variant, in the order rows are sorted."""
 
 COLUMNS: tuple[str, ...] = ("map", "agents", "instance", "seed", "variant", "soc_ms",
                             "makespan_ms", "replanned", "replan_at_ms", "solver_ms")
@@ -102,7 +106,8 @@ class Row:
 
     def sort_key(self) -> tuple[str, int, int, int, int]:
         """The order of the final, sorted ``results.csv``."""
-        return (self.map, self.agents, self.instance, self.seed, VARIANTS.index(self.variant))
+        return (self.map, self.agents, self.instance, self.seed,
+                ALL_VARIANTS.index(self.variant))
 
     def to_csv(self) -> list[str]:
         """The row's CSV fields (times with at most 3 decimals, ``replanned`` as 0/1)."""
@@ -117,7 +122,7 @@ class Row:
         if len(fields) != len(COLUMNS):
             raise ValueError(f"expected {len(COLUMNS)} fields, got {len(fields)}")
         m, agents, inst, seed, variant, soc, mk, replanned, at, solver = fields
-        if variant not in VARIANTS:
+        if variant not in ALL_VARIANTS:
             raise ValueError(f"unknown variant {variant!r}")
         if replanned not in ("0", "1"):
             raise ValueError(f"replanned must be 0 or 1, got {replanned!r}")
@@ -162,6 +167,14 @@ class CampaignSpec:
     motion: Motion = "omni"
     """The motion model of the plans; under ``turning`` every robot starts facing east
     (:data:`~gateway.planning.motion.DEFAULT_START_HEADING`: generated instances have none)."""
+    extra_variants: tuple[str, ...] = ()
+    """Variants run besides the paper's four (of :data:`EXTRA_VARIANTS`); a folder is reused
+    with or without them (they only add rows)."""
+
+    @property
+    def variants(self) -> tuple[str, ...]:
+        """The variants of every experiment, in row order."""
+        return tuple(v for v in ALL_VARIANTS if v in VARIANTS or v in self.extra_variants)
 
     def __post_init__(self) -> None:
         if not self.groups:
@@ -309,18 +322,20 @@ class ExperimentTask:
     sim: SimSettings
 
 
-VARIANT_CONFIG: dict[str, tuple[bool, PolicyName]] = {
-    "lower_bound": (False, "none"), "intruder": (True, "none"),
-    "random": (True, "random"), "slack": (True, "slack")}
-"""Each variant as (intruder on, replanning policy)."""
+VARIANT_CONFIG: dict[str, tuple[bool, PolicyName, bool]] = {
+    "lower_bound": (False, "none", False), "intruder": (True, "none", False),
+    "random": (True, "random", False), "slack": (True, "slack", False),
+    "informed": (True, "slack", True)}
+"""Each variant as (intruder on, replanning policy, informed replanning). ``informed``
+replans when the slack policy does, with the blocks the fleet reported as obstacles."""
 
 
 def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
                    sim: SimSettings) -> SimConfig:
     """The simulation of ``variant`` from the instance's initial plan."""
-    intruder, policy = VARIANT_CONFIG[variant]
+    intruder, policy, informed = VARIANT_CONFIG[variant]
     return SimConfig(
-        grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy,
+        grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy, informed=informed,
         threshold_ms=sim.threshold_ms, solver_time=parse_solver_time(sim.solver_time),
         solver_time_limit_s=sim.replan_time_limit_s,
         intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
@@ -580,8 +595,8 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     wanted: set[RowKey] = set()
     for m, n, i in slots:
         for s in spec.experiment_seeds(m, n, i):
-            wanted.update((m, n, i, s, v) for v in VARIANTS)
-            variants = tuple(v for v in VARIANTS if (m, n, i, s, v) not in done)
+            wanted.update((m, n, i, s, v) for v in spec.variants)
+            variants = tuple(v for v in spec.variants if (m, n, i, s, v) not in done)
             if variants:
                 tasks.append(ExperimentTask(map_paths[m], records[(m, n, i)], s, variants,
                                             spec.sim))

@@ -91,11 +91,13 @@ class _OracleSimulation(Simulation):
         self.state_key: tuple[Any, ...] | None = None
         """The fingerprint this fork's continuation is memoised under."""
 
-    def plan_for(self, request: SolveRequest) -> tuple[Plan | None, float]:
+    def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
+        if request.obstacles:  # (not from the oracle's own replans) no memo
+            return super().plan_for(request, now)
         key = (request.starts, request.headings)
         got = self.memo.solves.get(key)
         if got is None:
-            got = self.memo.solves[key] = super().plan_for(request)
+            got = self.memo.solves[key] = super().plan_for(request, now)
         return got
 
     def solved(self, now: float) -> None:

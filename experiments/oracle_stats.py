@@ -30,8 +30,8 @@ from experiments.stats import Experiment, describe_mean, mitigation
 
 JsonDict = dict[str, Any]
 
-POLICIES: tuple[str, ...] = ("random", "slack")
-"""The campaign's replanning variants, compared with the oracle."""
+POLICIES: tuple[str, ...] = ("random", "slack", "informed")
+"""The campaign's replanning variants, compared with the oracle (``informed`` when run)."""
 
 
 @dataclass(frozen=True)
@@ -54,14 +54,24 @@ class Judged:
 
 def policy_soc(exp: Experiment, policy: str) -> float:
     """The SOC of ``policy``'s variant."""
-    return {"random": exp.t_r, "slack": exp.t_p}[policy]
+    got = {"random": exp.t_r, "slack": exp.t_p, "informed": exp.t_i}[policy]
+    assert got is not None, f"{policy} was not run"
+    return got
 
 
 def policy_replanned(exp: Experiment, policy: str) -> tuple[bool, float | None]:
     """Whether ``policy`` decided to replan, and when."""
     if policy == "random":
         return exp.random_replanned, exp.random_at_ms
+    if policy == "informed":
+        return exp.informed_at_ms is not None, exp.informed_at_ms
     return exp.slack_replanned, exp.slack_at_ms
+
+
+def policies_run(judged: Sequence[Judged]) -> tuple[str, ...]:
+    """The policies every experiment of ``judged`` ran."""
+    return tuple(p for p in POLICIES
+                 if p != "informed" or (judged and all(j.exp.t_i is not None for j in judged)))
 
 
 def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float] | None:
@@ -188,7 +198,7 @@ def summarize_oracle(exps: Sequence[Experiment], oracle: Sequence[OracleRow], *,
                 [t - appear_ms for t in best_at], seed=seed, resamples=resamples)),
         },
         "policies": {p: summarize_policy(judged, p, seed=seed, resamples=resamples)
-                     for p in POLICIES},
+                     for p in policies_run(judged)},
         "cost": {"cpu_s_total": round(sum(cpu), 3),
                  "cpu_s_mean": float(np.mean(cpu)) if cpu else None,
                  "replans": sum(j.oracle.replans for j in judged),

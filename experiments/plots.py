@@ -27,7 +27,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from experiments.oracle_stats import POLICIES, Judged, policy_replanned, policy_soc
+from experiments.oracle_stats import Judged, policies_run, policy_replanned, policy_soc
 from experiments.stats import Experiment, OutlierRules, map_order, outlier_reasons
 
 REPLANNED_LABELS = ("Replan", "No Replan")
@@ -140,7 +140,9 @@ def oracle_figure(judged: Sequence[Judged]) -> Figure:
               label="the oracle's saving")
     left.axhline(0, color="grey", linewidth=0.8)
     times = [j.oracle.best_at_ms for j in judged if j.oracle.best_at_ms is not None]
-    for policy, colour in zip(POLICIES, ("tab:orange", "tab:blue"), strict=True):
+    colours = {"random": "tab:orange", "slack": "tab:blue", "informed": "tab:green"}
+    for policy in policies_run(judged):
+        colour = colours[policy]
         left.scatter([j.oracle_saving for j in judged],
                      [j.exp.t_n - policy_soc(j.exp, policy) for j in judged], s=12,
                      color=colour, alpha=0.7, label=policy)

@@ -41,8 +41,9 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("ticks", "period"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name} must be positive, got {getattr(args, name)}")
-    if args.window < 0:
-        raise UsageError(f"--window must be >= 0, got {args.window}")
+    for name in ("window", "reassign"):
+        if getattr(args, name) < 0:
+            raise UsageError(f"--{name} must be >= 0, got {getattr(args, name)}")
     try:
         problem = read_problem(args.problem)
     except LorrFormatError as exc:
@@ -56,7 +57,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = LifelongConfig(problem=problem, ticks=args.ticks, turning=args.motion == "turning",
                          period=args.period, window=args.window,
                          planner_time=args.planner_time, scheduler=args.scheduler,
-                         seed=args.seed)
+                         reassign=args.reassign, seed=args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("ticks, {task.fields[done]} tasks"),
                   disable=not args.progress, transient=True,
@@ -97,6 +98,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--scheduler", choices=SCHEDULER_CHOICES, default="shortest",
                    help="task assignment (default shortest: cheapest robot-task pairs by "
                         "distance to the first errand plus the task's length)")
+    p.add_argument("--reassign", type=int, default=1, metavar="CALLS",
+                   help="planning calls between reassignments of tasks not started yet "
+                        "(default 1: every call; 0: never)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction,
                    default=sys.stderr.isatty(), help="progress bar (default: on a terminal)")

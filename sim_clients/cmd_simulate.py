@@ -57,7 +57,7 @@ def _run(args: argparse.Namespace) -> int:
     config = SimConfig(instance.grid, solution.plan, seed=args.seed, intruder=args.intruder,
                        policy=args.policy, threshold_ms=args.threshold_ms,
                        solver_time=args.solver_time, solver_time_limit_s=args.time_limit,
-                       trace=writer,
+                       trace=writer, informed=args.informed,
                        intruder_config=IntruderConfig(reading=args.intruder_reading))
     try:
         with ticking(status, lambda s: f"simulating {instance.num_agents} robots ... {s:.0f} s"):
@@ -98,6 +98,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the intruder takes the first cell its robot is estimated to START "
                    "moving into (default, the paper's 2 s are the intruder's time to get there "
                    "first) or to ARRIVE on, at or after T_a + 2 s")
+    p.add_argument("--informed", action="store_true",
+                   help="informed replanning: the replan keeps robots off the cells they "
+                   "reported blocked until each block's estimated end")
     p.add_argument("--policy", choices=AUTONOMOUS_POLICIES, default="none",
                    help="replanning policy (default none; at most one replan)")
     p.add_argument("--threshold-ms", metavar="MS", type=float, default=PAPER.threshold_ms,

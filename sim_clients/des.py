@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import heapq
+import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -89,6 +90,9 @@ class SimConfig:
     max_replans: int = PAPER.max_replans
     lookahead: int = 0
     """Actions the executor may queue on a robot beyond its current one (see Executor)."""
+    informed: bool = False
+    """Informed replanning: a replan keeps the robots off the cells the fleet reported blocked
+    until each block's estimated end (:mod:`gateway.execution.blocks`)."""
     stall_ms: float = 600_000.0
     """Give up (SimulationError) this long after the last robot finished or started an action."""
 
@@ -162,7 +166,7 @@ class Simulation:
         self.executor = Executor(plan, policy=policy_for(config),
                                  action_ms=config.action_ms, max_replans=config.max_replans,
                                  record=config.trace, lookahead=config.lookahead,
-                                 durations=config.durations)
+                                 durations=config.durations, informed=config.informed)
         self.intruder = Intruder(self.world, config.intruder_config) if config.intruder else None
         self.rng = random.Random(derive_seed(config.seed, "intruder"))
         self.heap: list[tuple[float, int, int, int]] = []
@@ -334,14 +338,19 @@ class Simulation:
             self.push(wake, _POLICY, -1)
 
     def solve(self, request: SolveRequest, now: float) -> None:
-        self.pending_plan, charged = self.plan_for(request)
+        self.pending_plan, charged = self.plan_for(request, now)
         self.solver_ms += charged
         self.last_progress = now + charged
         self.push(now + charged, _SOLVED, -1)
 
-    def plan_for(self, request: SolveRequest) -> tuple[Plan | None, float]:
-        """Solve ``request`` (None: no plan in time) and the virtual ms it is charged."""
+    def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
+        """Solve ``request`` at ``now`` (None: no plan in time) and the virtual ms it is
+        charged. A reported block is forbidden from the plan's first timestep until the
+        first one that starts at or after its expected end."""
         hs = request.headings
+        action_ms = self.cfg.action_ms
+        forbidden = [(cell, 0, math.ceil((until - now) / action_ms))
+                     for cell, until in request.obstacles if until > now]
         starts: tuple[Place, ...] = request.starts if hs is None else tuple(
             (x, y, h) for (x, y), h in zip(request.starts, hs, strict=True))
 
@@ -349,6 +358,7 @@ class Simulation:
             try:
                 return solve(self.cfg.grid, starts, request.goals,
                              deadline=WallDeadline(self.cfg.solver_time_limit_s),
+                             forbidden=forbidden,
                              motion="omni" if hs is None else "turning").plan
             except NoSolution:
                 return None

@@ -31,17 +31,13 @@ import numpy.typing as npt
 
 from gateway.execution.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.tasks import SCHEDULERS, TaskPool
-from gateway.planning.distance import distance_tables
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
-from gateway.planning.pibt import StateSpace, WindowedPIBT
+from gateway.planning.pibt import UNREACHABLE, StateSpace, WindowedPIBT
 
 TICK_MS = 100.0
 """LoRR's default execution tick (``actionMoveTimeLimit``)."""
 PLAN_PERIOD_MS = 1000.0
 """LoRR's default minimum time between plan updates (``planCommTimeLimit``)."""
-EXACT_SCHEDULING_WORK = 4_000_000
-"""The scheduler uses exact distances (a search from each free robot) while free robots x
-free cells stays below this; Manhattan distances beyond (a large fleet's first call)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -104,6 +100,7 @@ class LifelongConfig:
     planner_time: str | float = "measured"  # "measured", "zero" or ms per call
     tick_ms: float = TICK_MS
     scheduler: str = "shortest"
+    reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
     seed: int = 0
     output_window: int = 1000
 
@@ -159,9 +156,11 @@ def run_lifelong(cfg: LifelongConfig,
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
-    w = grid.width
+    # the scheduler's distances: exact moves (cells), one cached table per first errand; the
+    # graph is undirected, so a table gives the moves from every cell to its errand and back
+    cells_space = StateSpace(grid, turning=False, budget_bytes=256 << 20)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)),
-                    leg=lambda a, b: abs(a % w - b % w) + abs(a // w - b // w))
+                    leg=lambda a, b: int(cells_space.distances(a)[b]))
     delays = DelayModel(prob.delay, n)
     window = cfg.window or math.ceil(cfg.period / counter)
 
@@ -172,6 +171,7 @@ def run_lifelong(cfg: LifelongConfig,
     snapshots: list[list[tuple[int, int, int]]] = [[] for _ in range(n)]
     events: list[tuple[int, int, int, int]] = []
     released: list[tuple[int, int, tuple[int, ...]]] = []
+    recorded: set[int] = set()
     # planning view: each robot's task and how many of its errands the committed plan reaches
     plan_task = [-1] * n
     plan_idx = [0] * n
@@ -184,14 +184,15 @@ def run_lifelong(cfg: LifelongConfig,
     max_pending = 0
     idle = [0, 0, 0]  # robot-ticks delayed, waiting for a dependency, without committed work
     width = grid.width
-    n_free = int(grid.free.sum())
 
     def distance_from(cells: Sequence[int], targets: Sequence[int]) -> npt.NDArray[np.int64]:
-        tgt = np.asarray(targets, dtype=np.int64)
-        if len(cells) * n_free <= EXACT_SCHEDULING_WORK:
-            return distance_tables(grid, [grid.cell(c) for c in cells])[:, tgt].astype(np.int64)
-        src = np.asarray(cells, dtype=np.int64)[:, None]
-        return np.abs(src % width - tgt % width) + np.abs(src // width - tgt // width)
+        cells_space.prefetch(targets)
+        src = np.asarray(cells, dtype=np.int64)
+        out = np.empty((len(cells), len(targets)), dtype=np.int64)
+        for j, g in enumerate(targets):
+            out[:, j] = np.frombuffer(cells_space.distances(g), dtype=np.int16)[src]
+        out[out >= UNREACHABLE] = -1
+        return out
 
     def errand_reached(r: int, task_id: int, t: int) -> None:
         task = pool.tasks[task_id]
@@ -230,11 +231,19 @@ def run_lifelong(cfg: LifelongConfig,
             pending = None
         if pending is None and t >= next_call:
             cpu0 = time.thread_time()
+            if cfg.reassign and len(planner_times) % cfg.reassign == 0:
+                # unstarted tasks (first errand not planned yet) go back to the scheduler
+                for r in range(n):
+                    if plan_task[r] >= 0 and plan_idx[r] == 0:
+                        pool.release(plan_task[r])
+                        plan_task[r] = -1
             free = [(r, adg.end_cell[r]) for r in range(n) if plan_task[r] < 0]
             for r, task_id in schedule(free, pool, distance_from).items():
                 pool.assign(task_id, r)
-                released_task = pool.tasks[task_id]
-                released.append((task_id, released_task.release_tick, released_task.errands))
+                if task_id not in recorded:
+                    recorded.add(task_id)
+                    task = pool.tasks[task_id]
+                    released.append((task_id, task.release_tick, task.errands))
                 plan_task[r], plan_idx[r] = task_id, 0
             goals = [pool.tasks[plan_task[r]].errands[plan_idx[r]:] if plan_task[r] >= 0
                      else () for r in range(n)]

@@ -76,6 +76,10 @@ class SolveRequest:
     starts: tuple[Cell, ...]
     goals: tuple[Cell, ...]
     headings: tuple[int, ...] | None = None
+    obstacles: tuple[tuple[Cell, float], ...] = ()
+    """Informed replanning only: cells the fleet reported blocked, each with the time (ms)
+    until which it is expected to stay blocked; the planner keeps every robot off them until
+    then."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING
 
 from gateway.execution.actions import ActionDurations, per_robot
 from gateway.execution.adg import ADG
+from gateway.execution.blocks import BlockTracker
 from gateway.execution.commands import (
     Cancel,
     Command,
@@ -99,8 +100,8 @@ class Executor:
                  action_ms: float = PAPER.action_ms, drop_waits: bool = False,
                  max_replans: int = PAPER.max_replans, record: TraceSink | None = None,
                  lookahead: int = 0,
-                 durations: ActionDurations | Sequence[ActionDurations] | None = None
-                 ) -> None:
+                 durations: ActionDurations | Sequence[ActionDurations] | None = None,
+                 informed: bool = False) -> None:
         if not (math.isfinite(action_ms) and action_ms > 0):
             raise ExecutionError(f"action_ms must be a positive number, got {action_ms}")
         if max_replans < 0:
@@ -108,6 +109,10 @@ class Executor:
         if lookahead < 0:
             raise ExecutionError(f"lookahead must be >= 0, got {lookahead}")
         self.lookahead = lookahead
+        self.informed = informed
+        """Informed replanning: a ``SolveRequest`` carries the reported blocks as obstacles."""
+        self.blocks = BlockTracker(min_ms=action_ms)
+        """Cells robots wait for that no robot is planned to hold (kept across plans)."""
         self.policy: ReplanPolicy = policy if policy is not None else NoReplan()
         self.drop_waits = drop_waits
         self.max_replans = max_replans
@@ -269,6 +274,8 @@ class Executor:
         self._advance(now_ms)
         self._status[v] = _STARTED
         self._blocked[v] = self._cancelling[v] = 0
+        if self.adg.src[v] != self.adg.dst[v]:
+            self.blocks.cleared(self.adg.dst[v], now_ms)  # a robot got in: the block is gone
         self.monitor.action_started(v, now_ms)
         self._trace("start", robot, action)
 
@@ -318,7 +325,23 @@ class Executor:
         self._expect(not self._blocked[v], "blocked", robot, action, "it is already blocked")
         self._advance(now_ms)
         self._blocked[v] = 1
+        cell = self.adg.dst[v]
+        if not self._planned_occupant(cell, robot):
+            self.blocks.opened(cell, now_ms)
         self._trace("blocked", robot, action)
+
+    def _planned_occupant(self, cell: Cell, robot: int) -> bool:
+        """True if a robot other than ``robot`` stands on ``cell`` or is moving into it."""
+        adg = self.adg
+        for r in range(adg.n_robots):
+            if r == robot:
+                continue
+            if self._cells[r] == cell:
+                return True
+            queue = self._queue[r]
+            if queue and self._status[queue[0]] == _STARTED and adg.dst[queue[0]] == cell:
+                return True
+        return False
 
     def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """The action's target cell became free again."""
@@ -327,6 +350,7 @@ class Executor:
                      "unblocked", robot, action, "it is not blocked")
         self._advance(now_ms)
         self._blocked[v] = 0
+        self.blocks.cleared(self.adg.dst[v], now_ms)
         self._trace("unblocked", robot, action)
 
     def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
@@ -520,5 +544,7 @@ class Executor:
             self._complete()
             return
         self.mode = Mode.SOLVING
-        self._out.append(SolveRequest(tuple(self._cells), self._goals,
-                                      None if self._headings is None else tuple(self._headings)))
+        self._out.append(SolveRequest(
+            tuple(self._cells), self._goals,
+            None if self._headings is None else tuple(self._headings),
+            self.blocks.obstacles(self._now) if self.informed else ()))

@@ -27,7 +27,7 @@ class Task:
     robot: int = -1
     done: int = 0
     finish_tick: int = -1
-    length: int = 0  # estimated moves from its first errand to its last
+    length: int = -1  # estimated moves from its first errand to its last (-1: not yet known)
 
 
 @dataclass
@@ -53,18 +53,33 @@ class TaskPool:
         """Reveal tasks until ``reveal`` are revealed and unfinished."""
         while len(self.tasks) < self.reveal:
             errands = tuple(self.task_list[self.next_id % len(self.task_list)])
-            length = sum(self.leg(a, b) for a, b in pairwise(errands)) \
-                if self.leg is not None else 0
-            task = Task(self.next_id, errands, tick, length=length)
+            task = Task(self.next_id, errands, tick)
             self.tasks[task.id] = task
             self.open[task.id] = task
             self.next_id += 1
+
+    def length(self, task: Task) -> int:
+        """The task's estimated moves from its first errand to its last (by ``leg``, 0
+        without one), computed when first asked (schedulers ask for open tasks only)."""
+        if task.length < 0:
+            task.length = sum(self.leg(a, b) for a, b in pairwise(task.errands)) \
+                if self.leg is not None else 0
+        return task.length
 
     def assign(self, task_id: int, robot: int) -> Task:
         """Give an open task to ``robot``."""
         task = self.open.pop(task_id)
         task.robot = robot
         return task
+
+    def release(self, task_id: int) -> None:
+        """Take an assigned task whose first errand is not done back into ``open`` (so a
+        scheduler may give it to another robot)."""
+        task = self.tasks[task_id]
+        if task.robot < 0 or task.done:
+            raise ValueError(f"task {task_id} is not assigned or already started")
+        task.robot = -1
+        self.open[task_id] = task
 
     def errand_done(self, task_id: int, tick: int) -> bool:
         """Its robot reached the task's next errand; True if that finished the task (which
@@ -137,8 +152,8 @@ def _matching(free: Sequence[tuple[int, int]], pool: TaskPool, distance_from: Di
     big = np.iinfo(np.int64).max // 4
     cost = distance_from([cell for _, cell in free], first).astype(np.int64)
     unreachable = cost < 0
-    if with_length:
-        cost += np.fromiter((pool.open[int(i)].length for i in ids), np.int64, ids.size)
+    if with_length:  # after distance_from: its tables may serve ``leg``
+        cost += np.fromiter((pool.length(pool.open[int(i)]) for i in ids), np.int64, ids.size)
     cost[unreachable] = big
     out: dict[int, int] = {}
     flat = np.argsort(cost, axis=None, kind="stable")

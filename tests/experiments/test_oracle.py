@@ -3,8 +3,10 @@ and ``fleetgate experiment --oracle`` end to end (lab, 5 robots, solver time cha
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -17,14 +19,15 @@ from experiments.campaign import (
     SimSettings,
     load_grid,
     open_executor,
+    read_results,
     run_campaign,
     simulate_variant,
     variant_config,
 )
 from experiments.oracle import OracleRow, Sweep, read_oracle_rows, sample_experiments, sweep
 from experiments.oracle_stats import judge, summarize_policy, wilson
-from experiments.stats import Experiment
-from gateway.execution.monitor import Monitor
+from experiments.stats import Experiment, join_experiments
+from gateway.execution.policies import RandomReplan
 from gateway.runtime.mapstore import resolve
 from sim_clients.des import Simulation
 
@@ -33,23 +36,9 @@ SPEC = CampaignSpec(groups=(("lab", 5),), instances=2, seeds=2, sim=SIM, plan_ti
 MAPS = {"lab": str(resolve("lab", "map"))}
 
 
-class _ReplanAt:
-    """A policy that fires once at a fixed time (the reference for the sweep)."""
-
-    name = "operator"
-
-    def __init__(self, at_ms: float) -> None:
-        self.at_ms = at_ms
-        self.fired = False
-
-    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
-        if self.fired or now_ms < self.at_ms:
-            return False
-        self.fired = True
-        return True
-
-    def next_wakeup_ms(self) -> float | None:
-        return None if self.fired else self.at_ms
+def _replan_at(t_ms: float) -> RandomReplan:
+    """A policy that replans once at ``t_ms`` (an empty random interval starts there)."""
+    return RandomReplan(0, intruder_appear_ms=t_ms, makespan_lb_ms=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +69,7 @@ def test_the_memoised_sweep_equals_one_fresh_run_per_replan_time(campaign: tuple
             # ... and changed nothing: each point is a whole run with a policy firing then.
             for t, soc in got.curve:
                 sim = Simulation(config)
-                sim.executor.policy = _ReplanAt(t)
+                sim.executor.policy = _replan_at(t)
                 res = sim.run()
                 assert (t, res.soc_ms) == (t, soc) and res.replan_at_ms == t
             soc, at = got.best()
@@ -88,6 +77,24 @@ def test_the_memoised_sweep_equals_one_fresh_run_per_replan_time(campaign: tuple
             assert at is None if soc == got.none_soc_ms else (at, soc) in got.curve
             improved += soc < got.none_soc_ms
     assert improved  # the oracle found a better replan at least once
+
+
+def test_the_informed_variant_adds_rows_to_a_finished_folder(campaign: tuple[
+        Path, dict[tuple[str, int, int], InstanceRecord]], tmp_path: Path) -> None:
+    shutil.copytree(campaign[0], tmp_path / "c")
+    before = read_results(tmp_path / "c" / "results.csv")
+    spec = dataclasses.replace(SPEC, extra_variants=("informed",))
+    with open_executor(1) as (pool, n):
+        res = run_campaign(spec, tmp_path / "c", MAPS, executor=pool, workers=n)
+    assert (res.planned, res.ran, res.complete) == (0, 4, True)
+    rows = read_results(tmp_path / "c" / "results.csv")
+    assert [r for r in rows if r.variant != "informed"] == before
+    exps, _ = join_experiments(rows)
+    for e in exps:
+        # Informed replans exactly when slack does (the same trigger on the same run).
+        assert e.t_i is not None and e.informed_at_ms == e.slack_at_ms
+        if e.slack_at_ms is None:
+            assert e.t_i == e.t_p == e.t_n
 
 
 def test_best_prefers_not_replanning_then_the_earliest() -> None:
@@ -167,13 +174,15 @@ def test_cli_oracle_json_csv_plot_and_resume(campaign: tuple[Path, object],
     cmd = [str(Path(sys.executable).with_name("fleetgate")), "experiment", "--maps", "lab",
            "--agents", "5", "--instances", "2", "--seeds", "2", "--solver-time", "zero",
            "--plan-time-limit", "20", "--out", str(out), "--workers", "1", "--no-progress",
-           "--oracle", "--oracle-sample", "3", "--oracle-step-ms", "500", "--resamples", "200"]
+           "--oracle", "--oracle-sample", "3", "--oracle-step-ms", "500", "--resamples", "200",
+           "--informed"]
     done = subprocess.run([*cmd, "--json"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     oracle = summary["oracle"]
     assert oracle["experiments"] == 3 and oracle["step_ms"] == 500
-    for policy in ("random", "slack"):
+    assert list(oracle["policies"]) == ["random", "slack", "informed"]
+    for policy in ("random", "slack", "informed"):
         got = oracle["policies"][policy]
         for key in ("capture", "capture_median", "worse_than_none", "mitigation", "replanned"):
             assert set(got[key]) >= {"value", "ci95", "n"}

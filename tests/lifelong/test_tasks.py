@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+import pytest
 
 from gateway.execution.tasks import TaskPool, greedy_nearest, min_cost, shortest_first
 
@@ -33,3 +34,18 @@ def test_schedulers() -> None:
     # the long one; with one free robot it takes the short task although it is farther
     assert shortest_first(free, pool, line) == {1: 1, 0: 0}
     assert shortest_first([(0, 9)], pool, line) == {0: 1}
+
+
+def test_released_task_goes_back_to_the_scheduler() -> None:
+    pool = TaskPool([(10, 40), (12, 13)], reveal=2, leg=lambda a, b: abs(a - b))
+    assert pool.tasks[0].length == -1  # lengths are computed when a scheduler asks
+    assert shortest_first([(0, 9)], pool, line) == {0: 1}  # 3 + 1 < 1 + 30
+    assert pool.tasks[1].length == 1 and pool.tasks[0].length == 30
+    pool.assign(1, 0)
+    pool.release(1)  # not started: another robot may take it
+    assert pool.tasks[1].robot == -1 and 1 in pool.open
+    assert shortest_first([(0, 39), (5, 11)], pool, line) == {5: 1, 0: 0}  # 1 + 1, 29 + 30
+    pool.assign(1, 5)
+    assert pool.errand_done(1, tick=3) is False
+    with pytest.raises(ValueError, match="already started"):
+        pool.release(1)  # its first errand is done
