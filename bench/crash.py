@@ -72,7 +72,8 @@ class GatewayProcess:
         self.cmd = [sys.executable, "-m", "gateway", "serve", "--config", str(config),
                     "--journal", str(workdir / "journal.sqlite"), "--port", str(port),
                     "--log-level", "WARNING"]
-        self.log = (workdir / "gateway.log").open("a")
+        self.log_path = workdir / "gateway.log"
+        self.log = self.log_path.open("a")
         self.proc: subprocess.Popen[bytes] | None = None
         self.starts = 0
         self.down_s: list[float] = []
@@ -86,7 +87,10 @@ class GatewayProcess:
         deadline = time.monotonic() + 60.0
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"the gateway exited with {self.proc.returncode}")
+                self.log.flush()
+                tail = self.log_path.read_text().splitlines()[-5:]
+                raise RuntimeError(f"the gateway exited with {self.proc.returncode}: "
+                                   + " | ".join(tail))
             with contextlib.suppress(OSError), urllib.request.urlopen(
                     f"http://127.0.0.1:{self.port}/readyz", timeout=1):
                 if self._killed_at is not None:
