@@ -101,7 +101,9 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
             for r in range(problem.instance.num_agents):
                 fleet.add_robot(r)
         if now == "running" and was in ("loaded", "done") and engine.executor is not None:
-            fleet.place_all([p[0] for p in engine.executor.plan.paths])
+            plan = engine.executor.plan
+            fleet.place_all([p[0] for p in plan.paths],
+                            None if plan.headings is None else [h[0] for h in plan.headings])
         if now == "done" and was != "done":
             status.print(run_summary(engine))
 

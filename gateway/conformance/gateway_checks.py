@@ -19,6 +19,7 @@ from protocol import (
     MAX_MESSAGE_BYTES,
     Ack,
     Action,
+    ActionRefused,
     AnyMessage,
     CancelAction,
     Cancelled,
@@ -813,6 +814,38 @@ async def _new_plan(t: Target) -> None:
         if tuple(nxt.src.cell) != _lane(t)[1]:
             raise CheckFailed(f"plan 1 starts on {nxt.src.cell}, the robot is on "
                               f"{_lane(t)[1]}")
+    finally:
+        await run.__aexit__(None, None, None)
+
+
+@check("refused-action-taken-back", "REFUSE-2")
+async def _refused_back(t: Target) -> None:
+    """A ``refused`` action (not started) is taken back without an ``error``: the robot gets
+    nothing more of the plan, the operators an event ``refused`` with the robot's reason, and
+    a replan gives the robot a new plan from where it stands."""
+    op, _ = t.need_operator()
+    run, robot, first = await _started_run(t)
+    try:
+        await asyncio.sleep(QUIET_S)  # what lookahead dispatched with it has arrived
+        held = robot.collect()
+        await robot.conn.send(ActionRefused, action_id=first.action_id, pose=first.src,
+                              code="pose_mismatch", detail="conformance")
+        robot.done.update(a.action_id for a in held)
+        event = await op.refusal()
+        if (event.robot, event.action) != (robot.id, first.sequence) or \
+                "conformance" not in (event.reason or ""):
+            raise CheckFailed(f"event refused names robot {event.robot} action "
+                              f"{event.action} because {event.reason!r}")
+        await robot.conn.quiet("error or action", lambda m: isinstance(m, Error | Action),
+                               QUIET_S)
+        await op.command(ReplanNow)
+        nxt = await robot.conn.expect_type(
+            Action, 15.0, lambda a: parse_action_id(a.action_id)[0] == 1,
+            what="an action of plan 1")
+        robot.actions[nxt.action_id] = nxt
+        if tuple(nxt.src.cell) != tuple(first.src.cell):
+            raise CheckFailed(f"plan 1 starts on {nxt.src.cell}, the robot is on "
+                              f"{first.src.cell}")
     finally:
         await run.__aexit__(None, None, None)
 
