@@ -12,7 +12,7 @@ from typing import Any
 
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from gateway.conformance.checklist import Checklist
+from gateway.conformance.checklist import Checklist, add_envelope_checks
 from gateway.conformance.report import CheckFailed, CheckResult
 from gateway.conformance.target import Cell, Options, Robot, Run, Target
 from protocol import (
@@ -880,28 +880,7 @@ async def _op_bad_state(t: Target) -> None:
 
 
 # ---------------------------------------------------------------------- envelope (passive)
-@check("gateway-messages-valid", "MSG-1")
-async def _valid(t: Target) -> None:
-    """Every message the gateway sent decoded under the strict schema."""
-    t.breaches.verdict("MSG-1")
-
-
-@check("gateway-seq-increments", "MSG-2")
-async def _seq(t: Target) -> None:
-    """The gateway's ``seq`` starts at 0 and grows by 1 on every connection."""
-    t.breaches.verdict("MSG-2")
-
-
-@check("gateway-msg-ids-unique", "MSG-3")
-async def _ids(t: Target) -> None:
-    """The gateway never reused a ``msg_id`` on a connection."""
-    t.breaches.verdict("MSG-3")
-
-
-@check("gateway-text-frames", "WS-1")
-async def _text(t: Target) -> None:
-    """The gateway sent text frames only."""
-    t.breaches.verdict("WS-1")
+add_envelope_checks(GATEWAY_CHECKS, "gateway")
 
 
 async def run_gateway_checks(options: Options, only: set[str] | None = None
