@@ -34,6 +34,7 @@ from websockets.exceptions import ConnectionClosed
 from gateway.execution.commands import Dispatch
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Path
+from gateway.planning.seeds import run_seed
 from gateway.server.clock import LoopClock
 from gateway.server.engine import Engine
 from gateway.server.gateway import Gateway
@@ -67,7 +68,6 @@ from protocol.robot_session import (
     Send,
     Welcomed,
 )
-from sim_clients.des import derive_seed
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
 from sim_clients.robot import RECHECK_MS, RobotEvent, RobotState, SimRobot
 from sim_clients.summary import RunSummary
@@ -455,7 +455,7 @@ class SimFleet:
         self._world_ready = asyncio.Event()
         self._oracle = oracle
         self._intruder_config = intruder_config or IntruderConfig()
-        self._rng = random.Random(derive_seed(seed, "intruder"))
+        self._rng = random.Random(run_seed(seed, "intruder"))
         # the automatic intruder (absent until T_a), then any the operator places
         self._intruders: list[Intruder] = (
             [Intruder(self.world, self._intruder_config)] if oracle is not None else [])

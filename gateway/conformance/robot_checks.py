@@ -19,7 +19,7 @@ from urllib.parse import parse_qs, urlsplit
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
-from gateway.conformance.checklist import Checklist
+from gateway.conformance.checklist import Checklist, add_envelope_checks
 from gateway.conformance.report import CheckFailed, CheckResult, UsageProblem
 from gateway.conformance.wire import Breaches, Conn
 from protocol import (
@@ -725,28 +725,7 @@ def _valid_reports(kinds: list[str], moving_stops: bool) -> bool:
     return True
 
 
-@check("robot-messages-valid", "MSG-1")
-async def _valid(g: FakeGateway) -> None:
-    """Every message the robot sent decoded under the strict schema."""
-    g.breaches.verdict("MSG-1")
-
-
-@check("robot-seq-increments", "MSG-2")
-async def _seq(g: FakeGateway) -> None:
-    """The robot's ``seq`` starts at 0 and grows by 1 on every connection."""
-    g.breaches.verdict("MSG-2")
-
-
-@check("robot-msg-ids-unique", "MSG-3")
-async def _ids(g: FakeGateway) -> None:
-    """The robot never reused a ``msg_id`` on a connection."""
-    g.breaches.verdict("MSG-3")
-
-
-@check("robot-text-frames", "WS-1")
-async def _text(g: FakeGateway) -> None:
-    """The robot sent text frames only."""
-    g.breaches.verdict("WS-1")
+add_envelope_checks(ROBOT_CHECKS, "robot")
 
 
 async def run_robot_checks(options: RobotOptions, only: set[str] | None = None

@@ -549,7 +549,7 @@ class Engine:
         """A report the replayed executor took: the robot's session takes it too."""
         aid = action_id(rec.plan, rec.robot, rec.index, self.run_id)
         self.robot(rec.robot).accepted(Report(rec.event, rec.robot, rec.plan, rec.index, aid,
-                                              rec.t_ms, None))
+                                              rec.t_ms, None, rec.reason))
 
     def _resumed(self, done: Replayed, trace: list[str]) -> None:
         run, ex = done.run, done.executor

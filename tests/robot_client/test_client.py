@@ -45,8 +45,9 @@ from robot_client.frames import CapturedFrame, monotonic_ms
 from robot_client.kobuki import KobukiSerial
 from robot_client.odometry import wrap_angle
 from tests.robot_client.floor_render import FloorRenderer
-from tests.robot_client.kobuki_side import SimulatedBase, run_realtime
+from tests.robot_client.kobuki_side import SimulatedBase
 from tests.robot_client.mini_gateway import Conn, MiniGateway
+from tests.robot_client.on_pty import client_on_pty
 
 FLOOR = FloorGrid(5, 4, 0.4, 0.12)
 RENDERER = FloorRenderer(5, 4, 0.4, 0.12)
@@ -100,9 +101,7 @@ async def scripted_robot(token: str = TOKEN, *, virtual: bool) -> AsyncIterator[
     (run it under :func:`run_virtual`)."""
     gateway = MiniGateway(TOKEN)
     url = "ws://in-memory/" if virtual else f"ws://127.0.0.1:{await gateway.start()}/"
-    master, slave = os.openpty()
     sim = SimulatedBase(x=0.4, y=-0.4, theta=0.0)  # centre of cell (1, 1), facing E
-    base = KobukiSerial(os.ttyname(slave))
     frames = None if virtual else RenderedFrames(sim)
     settings = load_settings(
         None, robot_id=3, token=token, gateway_url=url,
@@ -110,22 +109,16 @@ async def scripted_robot(token: str = TOKEN, *, virtual: bool) -> AsyncIterator[
         max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0, camera_period_ms=50,
         reconnect_min_s=0.1, reconnect_max_s=0.3, ping_interval_s=1.0, ping_timeout_s=1.0,
         bumper_pause_ms=400.0)
-    client = build_client(settings, base, frames, clock=LoopClock() if virtual else None,
-                          connect=gateway.connect if virtual else websocket_connect)
-    stop = asyncio.Event()
-    sim_task = asyncio.create_task(run_realtime(sim, master, stop))
-    client_task = asyncio.create_task(client.run())
+
+    def build(base: KobukiSerial) -> RobotClient:
+        return build_client(settings, base, frames, clock=LoopClock() if virtual else None,
+                            connect=gateway.connect if virtual else websocket_connect)
+
     try:
-        yield Robot(gateway, client, sim, frames)
+        async with client_on_pty(sim, build) as client:
+            yield Robot(gateway, client, sim, frames)
     finally:
-        client.stop()
-        await client_task
-        stop.set()
-        await sim_task
         await gateway.close()
-        base.close()
-        os.close(slave)
-        os.close(master)
 
 
 @pytest.fixture
