@@ -107,7 +107,7 @@ class GcPauses:
 
 
 # ------------------------------------------------------------------ the gateway process
-async def _serve(plan_file: Path, lookahead: int) -> dict[str, Any]:
+async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[str, Any]:
     data = json.loads(plan_file.read_text())
     plan = Plan.of(data["paths"])
     size = int(data["size"])
@@ -116,7 +116,7 @@ async def _serve(plan_file: Path, lookahead: int) -> dict[str, Any]:
                     "load")
     config = GatewayConfig(port=0, map=None, autostart=True, policy="none",
                            ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING",
-                           dispatch_lookahead=lookahead)
+                           dispatch_lookahead=lookahead, journal=journal)
     pauses = GcPauses()
     async with Gateway(config) as gw:
         gw.engine.status_listeners.append(lambda status: pauses.reset()
@@ -133,7 +133,8 @@ async def _serve(plan_file: Path, lookahead: int) -> dict[str, Any]:
                 "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
 
 
-def serve_main(plan_file: Path, profile: Path | None, lookahead: int) -> None:
+def serve_main(plan_file: Path, profile: Path | None, lookahead: int,
+               journal: Path | None) -> None:
     """``--serve``: run the gateway until the plan is executed; print its port, then a
     JSON line of its own measurements."""
     _raise_fd_limit()
@@ -142,7 +143,7 @@ def serve_main(plan_file: Path, profile: Path | None, lookahead: int) -> None:
     profiler = cProfile.Profile(time.process_time) if profile is not None else None
     if profiler is not None:
         profiler.enable()
-    result = asyncio.run(_serve(plan_file, lookahead))
+    result = asyncio.run(_serve(plan_file, lookahead, journal))
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(str(profile))
@@ -228,7 +229,7 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
 
 
 def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
-             profile: Path | None = None) -> dict[str, Any]:
+             profile: Path | None = None, journal: bool = False) -> dict[str, Any]:
     """One gateway process + one fleet; the measurements as a dict."""
     size, plan = workload(robots, seconds, seed)
     with tempfile.TemporaryDirectory() as tmp:
@@ -238,6 +239,8 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
                "--lookahead", str(lookahead)]
         if profile is not None:
             cmd += ["--profile", str(profile)]
+        if journal:
+            cmd += ["--serve-journal", str(Path(tmp) / "journal.sqlite")]
         gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
         sleeper = subprocess.Popen([sys.executable, "-c", _SLEEPER, str(seconds)],
                                    stdout=subprocess.PIPE, text=True)
@@ -262,7 +265,8 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
     steady = latencies_ms(plan, stats, from_step=2)
     offered = total / plan.makespan  # actions per second if nobody is ever late
     achieved = total / wall_s if wall_s > 0 else 0.0
-    return {"robots": robots, "lookahead": lookahead, "actions": len(stats.received),
+    return {"robots": robots, "lookahead": lookahead, "journal": journal,
+            "actions": len(stats.received),
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
             "p99_after_step1_ms": round(_percentile(steady, 0.99), 3) if steady else None,
@@ -328,16 +332,20 @@ def main() -> int:
                    help="the gateway's dispatch_lookahead (default 0: classic dispatch, so that "
                    "every dispatch after the first is unlocked by a finish and measured)")
     p.add_argument("--profile", type=Path, help="cProfile the gateway process into this file")
+    p.add_argument("--journal", action="store_true",
+                   help="the gateway journals the run (SQLite WAL in a temporary directory, "
+                        "as fleetgate serve does by default); the baseline run too")
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--serve-journal", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.serve is not None:
-        serve_main(args.serve, args.profile, args.lookahead)
+        serve_main(args.serve, args.profile, args.lookahead, args.serve_journal)
         return 0
     _raise_fd_limit()
     if args.lookahead < 0:
         p.error("--lookahead must be >= 0")
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
-                        args.lookahead)
+                        args.lookahead, journal=args.journal)
     if args.find_max:
         best, runs = find_max(args.seconds, args.seed, args.jitter, args.lookahead, 250,
                               args.max_robots)
@@ -345,7 +353,7 @@ def main() -> int:
         result = {"max_robots": best, **result}
     else:
         result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                          args.profile)
+                          args.profile, args.journal)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99

@@ -19,7 +19,7 @@ cancel/pause/resume, state snapshots that make reconnecting simple, coded reject
     robot                                   gateway
       hello(robot_id, pose, acked, finished, current) -->
                                           <-- welcome(start pose, plan, resend[actions], paused)
-                                          <-- action(action_id "plan.robot.i", src, dst,
+                                          <-- action(action_id "run.plan.robot.i", src, dst,
                                                      duration_ms, sequence=i)
       ack(action_id)                        -->   (robot drops a duplicate action_id silently)
       blocked(action_id, pose)              -->   target cell taken; re-check ...
@@ -119,6 +119,7 @@ from protocol.messages import (
     Welcome,
     WorldMessage,
     action_id,
+    action_run,
     parse_action_id,
 )
 from protocol.schema import json_schema
@@ -176,6 +177,7 @@ __all__ = [
     "Welcome",
     "WorldMessage",
     "action_id",
+    "action_run",
     "decode",
     "encode",
     "json_schema",

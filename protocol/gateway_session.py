@@ -22,7 +22,9 @@ The rules, written once here:
   those neither acknowledged in its ``hello`` (``acked``, ``current``) nor finished. An action
   acknowledged on an earlier connection but missing from the ``hello`` was lost by the robot (a
   restart) and is resent too. Cancels still owed for actions the robot holds follow the
-  welcome as ``cancel`` messages;
+  welcome as ``cancel`` messages, and so do cancels of the actions the robot says it holds
+  but the gateway does not stand behind (never dispatched in this run, e.g. after a restart
+  that started a fresh run); their ``cancelled`` confirmations are taken silently;
 * each ``ack`` is recorded; an ``ack`` of an action never dispatched is refused
   (``unknown_action``);
 * a report about an applied action is a ``duplicate`` (a completion reported twice is applied
@@ -124,6 +126,8 @@ class GatewaySession:
     """Action id -> "finished" / "cancelled", for the current run."""
     next_index: int = 0
     """Actions of the current plan finished."""
+    disowned: set[str] = field(default_factory=set)
+    """Actions the robot said it holds that the gateway never dispatched: cancelled."""
     _out: list[GatewayEffect] = field(default_factory=list)
 
     # ------------------------------------------------------------------ state
@@ -144,6 +148,7 @@ class GatewaySession:
         """Forget the actions of the previous run."""
         self.held.clear()
         self.applied.clear()
+        self.disowned.clear()
         self.next_index = 0
 
     def drain(self) -> list[GatewayEffect]:
@@ -177,6 +182,8 @@ class GatewaySession:
             elif current.state == "blocked" and h.phase == "dispatched":
                 self._report("blocked", current.action_id, t_ms, None)
         finished = set(msg.finished)
+        self.disowned = {aid for aid in holds
+                         if aid not in self.held and aid not in self.applied}
         for aid, h in self.held.items():
             if aid in finished:
                 continue
@@ -199,6 +206,8 @@ class GatewaySession:
         for aid, h in self.held.items():
             if h.cancel:
                 self._send(CancelAction, action_id=aid)
+        for aid in sorted(self.disowned):
+            self._send(CancelAction, action_id=aid)
         return len(resend)
 
     def disconnected(self, link: object) -> bool:
@@ -227,6 +236,9 @@ class GatewaySession:
             return
         if pose is not None:
             self.pose = pose
+        if kind == "cancelled" and aid in self.disowned:
+            self.disowned.discard(aid)  # the robot dropped what the gateway disowned
+            return
         if aid in self.applied:
             self._refuse(ErrorCode.DUPLICATE, ref,
                          f"{kind} of {aid}: the action was already {self.applied[aid]}")

@@ -52,22 +52,34 @@ RobotId = Annotated[int, Field(ge=0)]
 
 MsgId = Annotated[str, Field(min_length=1, max_length=64)]
 
-_ACTION_ID = re.compile(r"^(\d+)\.(\d+)\.(\d+)$")
-ActionId = Annotated[str, Field(pattern=_ACTION_ID.pattern, max_length=40)]
-"""``"<plan>.<robot>.<index>"``: action ``index`` (a_index^robot) of plan number ``plan``."""
+_ACTION_ID = re.compile(r"^(?:([0-9a-z]{1,16})\.)?(\d+)\.(\d+)\.(\d+)$")
+ActionId = Annotated[str, Field(pattern=_ACTION_ID.pattern, max_length=48)]
+"""``"<run>.<plan>.<robot>.<index>"``: action ``index`` (a_index^robot) of plan epoch ``plan``
+of run ``run`` (1-16 lower-case letters and digits). A gateway with a journal gives every run an
+id that never repeats across runs or restarts; without a journal the first run of the process
+has the empty id and its actions are ``"<plan>.<robot>.<index>"``."""
 
 
-def action_id(plan: int, robot: int, index: int) -> str:
-    """The action id of action ``index`` of ``robot`` in plan ``plan``."""
-    return f"{plan}.{robot}.{index}"
+def action_id(plan: int, robot: int, index: int, run: str = "") -> str:
+    """The action id of action ``index`` of ``robot`` in plan epoch ``plan`` of run ``run``."""
+    return f"{run}.{plan}.{robot}.{index}" if run else f"{plan}.{robot}.{index}"
 
 
 def parse_action_id(value: str) -> tuple[int, int, int]:
     """``(plan, robot, index)`` of an action id; ValueError if it is not one."""
     m = _ACTION_ID.match(value)
     if m is None:
-        raise ValueError(f"not an action id (expected '<plan>.<robot>.<index>'): {value!r}")
-    return int(m[1]), int(m[2]), int(m[3])
+        raise ValueError("not an action id (expected '<run>.<plan>.<robot>.<index>' or "
+                         f"'<plan>.<robot>.<index>'): {value!r}")
+    return int(m[2]), int(m[3]), int(m[4])
+
+
+def action_run(value: str) -> str:
+    """The run id of an action id (empty if it has none); ValueError if it is not one."""
+    m = _ACTION_ID.match(value)
+    if m is None:
+        raise ValueError(f"not an action id: {value!r}")
+    return m[1] or ""
 
 
 class _Model(BaseModel):

@@ -50,6 +50,7 @@ from protocol import (
     SetSpeed,
     Start,
     Welcome,
+    action_id,
     decode,
     encode,
     parse_action_id,
@@ -154,6 +155,7 @@ class FleetRobot:
         self.plan = -1
         """Plan of the latest started action (with :attr:`next_action`: first not started)."""
         self.next_action = 0
+        self._ids: dict[tuple[int, int], str] = {}  # (plan, index) -> action id, while it runs
         self._conn: ClientConnection | None = None
         self._outbox: asyncio.Queue[str | None] = asyncio.Queue()
         self._timer: asyncio.TimerHandle | None = None
@@ -182,6 +184,7 @@ class FleetRobot:
     def place(self, cell: Cell) -> None:
         """Put the robot on ``cell`` for a new run: forget every action of the previous one."""
         self._put(cell)
+        self._ids.clear()
         self.session.reset()
         self.plan, self.next_action = -1, 0
 
@@ -353,6 +356,9 @@ class FleetRobot:
             sim = self.sim
             assert sim is not None
         d = Dispatch(plan, robot, index, action.src.cell, action.dst.cell, action.duration_ms)
+        self._ids[(plan, index)] = action.action_id  # the id carries the run: report with it
+        if self.fleet.on_event is not None:
+            self.fleet.on_event("execute", plan, robot, index)
         jitter = self.fleet.duration_jitter
         extra = action.duration_ms * self._rng.uniform(-jitter, jitter) if jitter else 0.0
         self._emit(sim.dispatch(d, self._now(), extra))
@@ -387,8 +393,12 @@ class FleetRobot:
         for e in events:
             if e.kind == "started" and e.plan >= self.plan:
                 self.plan, self.next_action = e.plan, e.action + 1
-            self.session.report(cast(ReportKind, e.kind), f"{e.plan}.{e.robot}.{e.action}",
-                                pose)
+            if self.fleet.on_event is not None:
+                self.fleet.on_event(e.kind, e.plan, e.robot, e.action)
+            aid = self._ids.get((e.plan, e.action)) or action_id(e.plan, e.robot, e.action)
+            if e.kind in ("finished", "cancelled"):
+                self._ids.pop((e.plan, e.action), None)
+            self.session.report(cast(ReportKind, e.kind), aid, pose)
 
 
 class SimFleet:
@@ -423,6 +433,10 @@ class SimFleet:
         self.reconnect_delay_s = reconnect_delay_s
         self.send_state = send_state
         self.stats = FleetStats()
+        self.on_event: Callable[[str, int, int, int], None] | None = None
+        """Called with (kind, plan, robot, index) when a robot takes an action to execute it
+        (kind "execute") and at each event of its body ("started", "finished", ...):
+        benchmarks count double executions and completions with it."""
         self.stopping = False
         self.robots: dict[int, FleetRobot] = {}
         self._world_token = world_token

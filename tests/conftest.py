@@ -2,13 +2,26 @@
 
 ``HYPOTHESIS_PROFILE`` picks the profile; without it, ``ci`` when ``CI`` is set (as CI services
 do) and ``dev`` otherwise. ``scripts/test.sh`` always uses ``ci``.
+
+Every test gets its own state directory (``XDG_STATE_HOME``): a ``fleetgate serve`` it starts
+journals there, never in the user's, and never resumes another test's run.
 """
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, settings
+
+
+@pytest.fixture(autouse=True)
+def _own_state_dir(tmp_path_factory: pytest.TempPathFactory,
+                   monkeypatch: pytest.MonkeyPatch) -> None:
+    state: Path = tmp_path_factory.mktemp("state")
+    monkeypatch.setenv("XDG_STATE_HOME", str(state))
+    monkeypatch.delenv("STATE_DIRECTORY", raising=False)
 
 settings.register_profile(
     "ci",

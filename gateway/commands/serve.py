@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import signal
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gateway.runtime.exits import EXIT_OK, UsageError
@@ -14,7 +15,7 @@ if TYPE_CHECKING:
     from gateway.server.config import GatewayConfig
 
 
-async def _serve(config: GatewayConfig) -> None:
+async def _serve(config: GatewayConfig, fresh: bool) -> None:
     import asyncio
 
     from gateway.server.gateway import Gateway
@@ -24,7 +25,7 @@ async def _serve(config: GatewayConfig) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError):
             loop.add_signal_handler(sig, stop.set)
-    async with Gateway(config) as gateway:
+    async with Gateway(config, fresh=fresh) as gateway:
         port = await gateway.listen()
         s = "s" if config.tls is not None else ""
         print(f"fleetgate gateway on ws{s}://{config.host}:{port}/ws "
@@ -36,7 +37,7 @@ async def _serve(config: GatewayConfig) -> None:
 def _run(args: argparse.Namespace) -> int:
     import asyncio
 
-    from gateway.server.config import ConfigError, load_config
+    from gateway.server.config import ConfigError, default_journal, load_config
     from gateway.server.logs import configure_logging
 
     try:
@@ -44,13 +45,21 @@ def _run(args: argparse.Namespace) -> int:
                              log_level=args.log_level, log_format=args.log_format)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
+    if args.no_journal:
+        if args.journal is not None or args.fresh:
+            raise UsageError("--no-journal excludes --journal and --fresh")
+        config = config.model_copy(update={"journal": None})
+    elif args.journal is not None:
+        config = config.model_copy(update={"journal": Path(args.journal)})
+    elif config.journal is None:
+        config = config.model_copy(update={"journal": default_journal()})
     try:
         configure_logging(config.log_level, config.log_format, config.log_file)
     except OSError as exc:
         raise UsageError(f"cannot write the log file {config.log_file}: {exc.strerror}"
                          ) from None
     try:
-        asyncio.run(_serve(config))
+        asyncio.run(_serve(config, args.fresh))
     except ValueError as exc:  # the configured instance cannot be loaded
         raise UsageError(str(exc)) from None
     except OSError as exc:
@@ -72,6 +81,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument("--config", metavar="FILE", help="configuration file (.json or .toml)")
     parser.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port to listen on (default 8080; 0 = any)")
+    parser.add_argument("--journal", metavar="FILE",
+                        help="the run journal (SQLite; default: journal.sqlite in the state "
+                             "directory, $STATE_DIRECTORY under systemd): a restart resumes "
+                             "the journaled run where it stopped")
+    parser.add_argument("--no-journal", action="store_true",
+                        help="journal nothing (a restart loses the run)")
+    parser.add_argument("--fresh", action="store_true",
+                        help="abandon the journaled run, if any, and start afresh (the only "
+                             "way a restart does not resume it)")
     parser.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     parser.add_argument("--log-format", choices=["text", "json"],
                         help="log lines on stderr (or log_file): readable text (default) or "

@@ -696,6 +696,26 @@ async def _running_in_hello(t: Target) -> None:
                                lambda m: isinstance(m, Error) and m.ref == ref, QUIET_S)
 
 
+@check("foreign-held-action-cancelled", "RESEND-5")
+async def _foreign_in_hello(t: Target) -> None:
+    """An action id in ``hello.acked`` that the gateway never dispatched in this run (here: of
+    another run) is cancelled after the ``welcome``; its ``cancelled`` gets no error."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        await run.start()
+        first = await robot.action(0)
+        await robot.conn.send(Ack, action_id=first.action_id)
+        await robot.conn.close()
+        foreign = f"zz{t.options.robot_id}.0.{t.options.robot_id}.0"
+        again = await run.robot(robot.id, acked=[first.action_id, foreign])
+        cancel = await again.conn.expect(f"cancel of {foreign}", lambda m: isinstance(
+            m, CancelAction) and m.action_id == foreign)
+        assert isinstance(cancel, CancelAction)
+        ref = await again.report(Cancelled, foreign)
+        await again.conn.quiet(f"error for {ref}",
+                               lambda m: isinstance(m, Error) and m.ref == ref, QUIET_S)
+
+
 # ---------------------------------------------------------------------- two robots
 def _pair(t: Target) -> Run:
     """Robot R moves lane[1] -> lane[2]; the peer waits on lane[0], then enters lane[1]."""

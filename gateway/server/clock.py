@@ -39,10 +39,10 @@ class LoopClock:
     def _loop_s() -> float:
         return asyncio.get_running_loop().time()
 
-    def reset(self) -> None:
-        """Make now 0 ms (called when the gateway starts)."""
+    def reset(self, at_ms: float = 0.0) -> None:
+        """Make now ``at_ms`` (0 when the gateway or a run starts; a resumed run's time)."""
         self._base_loop_s = self._loop_s()
-        self._base_ms = 0.0
+        self._base_ms = at_ms
 
     @property
     def speed(self) -> float:
@@ -96,14 +96,14 @@ class VirtualClock(LoopClock):
         super().__init__(speed)
         self.solver_time = solver_time
 
-    def reset(self) -> None:
-        """Make now 0 ms; refuses to run on a loop without virtual time."""
+    def reset(self, at_ms: float = 0.0) -> None:
+        """Make now ``at_ms``; refuses to run on a loop without virtual time."""
         import looptime  # imported here: it pulls in pytest, ~0.5 s at every CLI start
 
         loop = asyncio.get_running_loop()
         if not isinstance(loop, looptime.LoopTimeEventLoop) or not loop.looptime_on:
             raise RuntimeError("VirtualClock needs a looptime event loop: use run_virtual()")
-        super().reset()
+        super().reset(at_ms)
 
     def now_ms(self) -> float:
         """Plan time, rounded to the loop's resolution (1 µs) so that integral instants are

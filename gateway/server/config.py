@@ -8,6 +8,7 @@ non-loopback host unless ``allow_demo_tokens`` is set.
 from __future__ import annotations
 
 import ipaddress
+import os
 from pathlib import Path
 from typing import Any, Literal
 
@@ -141,6 +142,10 @@ class GatewayConfig(BaseSettings):
 
     static_dir: Path | None = None
     trace: Path | None = None
+    journal: Path | None = None
+    """The run journal (SQLite, docs/journal.md): a restarted gateway resumes the journaled run.
+    ``fleetgate serve`` defaults to ``journal.sqlite`` in its state directory
+    (:func:`default_journal`); None here (the library) journals nothing."""
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
     log_format: Literal["text", "json"] = "text"
     log_file: Path | None = None
@@ -176,6 +181,17 @@ class GatewayConfig(BaseSettings):
             raise ValueError(f"map = {self.map!r} needs scen or agents to load an instance at "
                              "start (leave map out to start empty and load from the GUI)")
         return self
+
+
+def default_journal() -> Path:
+    """``journal.sqlite`` in the state directory: systemd's ``$STATE_DIRECTORY``, else
+    ``$XDG_STATE_HOME/fleetgate``, else ``~/.local/state/fleetgate``."""
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    if state:
+        return Path(state) / "journal.sqlite"
+    xdg = os.environ.get("XDG_STATE_HOME")
+    base = Path(xdg) if xdg else Path.home() / ".local" / "state"
+    return base / "fleetgate" / "journal.sqlite"
 
 
 def _is_loopback(host: str) -> bool:

@@ -12,6 +12,14 @@ the executor every ``MONITOR_PERIOD_MS`` while running. The planner runs off-loo
 :class:`~gateway.server.solver_tasks.SolverTasks` while events keep queueing; its result comes
 back as a queue item.
 
+The journal (:mod:`gateway.runtime.journal`, optional): the executor is a
+:class:`~gateway.server.resume.JournaledExecutor` that journals each of its inputs before
+applying it; the run's start, intruder reports and speed changes are journaled too, and the
+engine commits the journal (then flushes the trace) every time the owner task is about to
+yield to the event loop, so no message it queued leaves the process before its cause is
+durable. On start with a journaled run, :meth:`Engine.resume` replays it and carries on;
+reconnecting robots are re-synchronised by their ``hello``.
+
 Elsewhere: what operators and the trace file are told (:mod:`gateway.server.operator_feed`),
 what a snapshot shows (:mod:`gateway.server.views`, from a read model), the process's garbage
 collector (:mod:`gateway.server.gc_tuning`, hooked by the :class:`~gateway.server.gateway.Gateway`).
@@ -20,6 +28,7 @@ collector (:mod:`gateway.server.gc_tuning`, hooked by the :class:`~gateway.serve
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import math
 import time
@@ -35,10 +44,13 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
+from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
 from gateway.execution.trace_records import summary_record
+from gateway.planning.instance import Instance
+from gateway.planning.movingai import parse_map
 from gateway.planning.plan import Plan
 from gateway.planning.solver import Place
+from gateway.runtime.journal import IntruderRecord, Journal, ReportRecord, RunRecord
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
@@ -53,6 +65,7 @@ from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import OperatorCommands
 from gateway.server.operator_feed import OperatorFeed
 from gateway.server.planner import Problem
+from gateway.server.resume import JournaledExecutor, Replayed, plan_of, replay
 from gateway.server.session import Session
 from gateway.server.solver_tasks import SolverTasks
 from gateway.server.views import FleetView, snapshot_fields
@@ -89,7 +102,15 @@ class Engine:
         self.metrics = metrics
         self.queue: asyncio.Queue[Item] = asyncio.Queue()
         self.problem: Problem | None = None
-        self.executor: Executor | None = None
+        self.executor: JournaledExecutor | None = None
+        self.journal: Journal | None = None
+        """Where the runs are journaled (None: they are not, and do not survive a restart)."""
+        self.run_id = ""
+        """The current run's id, the first part of its action ids."""
+        self.runs = 0
+        """Runs started (or resumed) by this process (ids of runs without a journal)."""
+        self._replaying = False
+        self._replayed_trace: list[str] = []  # the trace records a replay rebuilt
         self.planning = False
         self.paused = False
         self.robots: dict[int, GatewaySession] = {}
@@ -160,6 +181,7 @@ class Engine:
             ticking = self.executor is not None and self.executor.mode is not Mode.DONE
             if not ticking:
                 next_tick = None
+                self.commit()
                 item = await self.queue.get()
             else:
                 if next_tick is None:
@@ -169,6 +191,7 @@ class Engine:
                     # cancelling a timer per item (a busy fleet keeps this queue non-empty)
                     item = self.queue.get_nowait()
                 else:
+                    self.commit()
                     delay = (next_tick - self.clock.now_ms()) / self.clock.speed / 1000.0
                     try:
                         async with asyncio.timeout(max(0.0, delay)):
@@ -188,11 +211,19 @@ class Engine:
         """Handle everything of the present instant, including what the replies to it cause
         (a finish -> a dispatch -> the robot's start), before a tick looks at the monitor."""
         while True:
+            self.commit()
             await self.clock.settle()
             if self.queue.empty():
                 return
             while not self.queue.empty():
                 self._handle_safely(self.queue.get_nowait())
+
+    def commit(self) -> None:
+        """Make what was journaled durable, then write the trace records it caused (called
+        before the owner task yields: nothing queued for a peer leaves before this)."""
+        if self.journal is not None:
+            self.journal.commit()
+        self.feed.flush_trace()
 
     def _next_tick(self, after: float) -> float:
         period = float(MONITOR_PERIOD_MS)
@@ -381,6 +412,8 @@ class Engine:
             session.error(ErrorCode.DUPLICATE, msg.msg_id,
                           f"the intruder on {list(cell)} is already {msg.state}")
             return
+        if self.executor is not None and self.journal is not None:
+            self.journal.append(IntruderRecord(t_ms=now, cell=cell, state=msg.state))
         self.feed.intruder(now, cell, msg.state)
 
     # -------------------------------------------------------------------------- routing
@@ -391,7 +424,7 @@ class Engine:
                 self._dispatch(c)
             elif isinstance(c, Cancel):
                 gs = self.robot(c.robot)
-                gs.cancel(action_id(c.plan, c.robot, c.action))
+                gs.cancel(action_id(c.plan, c.robot, c.action, self.run_id))
                 self.flush(gs)
             elif isinstance(c, Trigger):
                 self.metrics.replans.inc()
@@ -400,6 +433,8 @@ class Engine:
                 self.status_changed()
             elif isinstance(c, SolveRequest):
                 assert self.problem is not None
+                if self._replaying:
+                    continue  # solved once the replay is over, if still unanswered
                 hs = c.headings
                 starts: Sequence[Place] = c.starts if hs is None else [
                     (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
@@ -413,7 +448,7 @@ class Engine:
                 self._completed(c)
 
     def _dispatch(self, c: Dispatch) -> None:
-        aid = action_id(c.plan, c.robot, c.action)
+        aid = action_id(c.plan, c.robot, c.action, self.run_id)
         fields: dict[str, Any] = {
             "action_id": aid, "sequence": c.action,
             "src": Pose(cell=c.src, heading=None if c.src_heading is None
@@ -433,7 +468,12 @@ class Engine:
 
     def _completed(self, c: Completed) -> None:
         self.summary = (c.soc_ms, c.makespan_ms)
-        self.feed.write_trace(summary_record(c.soc_ms, c.makespan_ms))
+        summary = summary_record(c.soc_ms, c.makespan_ms)
+        self.feed.write_trace(summary)
+        if self._replaying:
+            self._replayed_trace.append(json.dumps(summary) + "\n")
+            self.finished_event.set()
+            return
         self.feed.close_trace()
         self.feed.event("summary", self.now_ms(), soc_ms=c.soc_ms,
                               makespan_ms=c.makespan_ms)
@@ -450,7 +490,7 @@ class Engine:
             return  # a new run was started meanwhile
         now = self.now_ms()
         if isinstance(item.result, Plan):
-            ex.adopt_plan(item.result, now)
+            ex.adopt_plan(item.result, now, self.solvers.solver_ms)
         else:
             log.warning("replan found no plan, keeping the old one: %s", item.result)
             ex.abandon_replan(now)
@@ -459,6 +499,68 @@ class Engine:
     def load(self, problem: Problem) -> None:
         """Plan ``problem`` (unless it has a plan) and make it the loaded one."""
         self.operator.load(problem)
+
+    # -------------------------------------------------------------------------- resume
+    def resume(self) -> bool:
+        """Rebuild the journaled run, if there is one, and carry on with it (robots are
+        re-synchronised by their ``hello``); False if the journal holds no run."""
+        journal = self.journal
+        if journal is None:
+            return False
+        records = list(journal.records())
+        if not records or not isinstance(records[0], RunRecord):
+            return False
+        run = records[0]
+        grid = parse_map(run.map_text, name=run.map_name)
+        first = plan_of(run.paths, run.headings)
+        self.problem = Problem(Instance(grid, tuple(p[0] for p in first.paths),
+                                        tuple(p[-1] for p in first.paths), run.map_name),
+                               run.map_name, first)
+        self.run_id = run.run_id
+        self.runs += 1
+        trace: list[str] = []
+        self._replayed_trace = trace
+
+        def record(rec: dict[str, object]) -> None:
+            self.feed.record(rec)
+            trace.append(json.dumps(rec) + "\n")
+
+        self._replaying = True
+        try:
+            done = replay(records, on_commands=self.route,
+                          on_report=self._replayed_report, trace=record)
+        finally:
+            self._replaying = False
+        assert done is not None
+        self._resumed(done, trace)
+        return True
+
+    def _replayed_report(self, rec: ReportRecord) -> None:
+        """A report the replayed executor took: the robot's session takes it too."""
+        aid = action_id(rec.plan, rec.robot, rec.index, self.run_id)
+        self.robot(rec.robot).accepted(Report(rec.event, rec.robot, rec.plan, rec.index, aid,
+                                              rec.t_ms, None))
+
+    def _resumed(self, done: Replayed, trace: list[str]) -> None:
+        run, ex = done.run, done.executor
+        self.executor = ex
+        self.policy_name = cast(PolicyName, done.policy)
+        self.policy_seed, self.threshold_ms = done.policy_seed, done.threshold_ms
+        self.solvers.solver_ms = done.solver_ms
+        self.paused = ex.paused
+        self.feed.intruders = set(done.intruders)
+        self.feed.resume_trace(trace)
+        ex.set_record(self.feed.record)
+        ex.sink = self.journal.append if self.journal is not None else None
+        self.clock.set_speed(done.speed)
+        away = (time.time() - run.wall_start_s) * 1000.0 * done.speed
+        self.clock.reset(max(done.last_t_ms, away))
+        log.info("resumed the journaled run", extra={
+            "run": run.run_id, "records": done.records, "plan": ex.plan_id,
+            "t_ms": round(self.clock.now_ms()), "status": self.status})
+        if ex.mode is Mode.SOLVING and done.solve is not None:
+            self.route([done.solve])
+        self.status_changed()
 
     # -------------------------------------------------------------------------- outputs
     def status_changed(self) -> None:
@@ -485,4 +587,5 @@ class Engine:
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""
         self.solvers.cancel_all()
+        self.commit()
         self.feed.close_trace()

@@ -42,6 +42,7 @@ from urllib.parse import urlsplit
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
+from gateway.runtime.journal import Journal, JournalError
 from gateway.server import gc_tuning
 from gateway.server.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.clock import Clock, RealClock
@@ -107,8 +108,8 @@ def _restore_gc_when_done(status: str) -> None:
 class Gateway:
     """The fleetgate gateway server; see the module docstring for how to run it."""
 
-    def __init__(self, config: GatewayConfig | None = None, *, clock: Clock | None = None
-                 ) -> None:
+    def __init__(self, config: GatewayConfig | None = None, *, clock: Clock | None = None,
+                 fresh: bool = False) -> None:
         self.config = config if config is not None else GatewayConfig()
         self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
         self.metrics = Metrics()
@@ -130,6 +131,9 @@ class Gateway:
                                tls=tls is not None, static_dir=self.config.static_dir)
         self.port: int | None = None
         """The bound port once :meth:`listen` returned."""
+        self._fresh = fresh
+        self.resumed = False
+        """Whether :meth:`start` resumed a journaled run."""
 
     # ------------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
@@ -138,7 +142,19 @@ class Gateway:
             return
         self.clock.reset()
         cfg = self.config
-        if cfg.instance is not None or (cfg.map is not None and (cfg.scen or cfg.agents)):
+        if cfg.journal is not None:
+            try:
+                journal = self.engine.journal = Journal(cfg.journal)
+                if self._fresh:
+                    journal.discard()
+                    log.warning("journaled run abandoned: starting fresh",
+                                extra={"journal": str(cfg.journal)})
+                self.resumed = self.engine.resume() and self.engine.status != "done"
+            except JournalError as exc:
+                raise ValueError(str(exc)) from None
+        configured = cfg.instance is not None or (
+            cfg.map is not None and (cfg.scen or cfg.agents))
+        if configured and not self.resumed:  # a resumed run goes on instead
             try:
                 problem = resolve_instance(cfg.map or "", cfg.scen, cfg.agents,
                                            cfg.generate_seed, cfg.instance)
@@ -164,6 +180,9 @@ class Gateway:
                 await self._owner
             self._owner = None
         await self.engine.aclose()
+        if self.engine.journal is not None:
+            self.engine.journal.close()
+            self.engine.journal = None
 
     async def __aenter__(self) -> Gateway:
         await self.start()

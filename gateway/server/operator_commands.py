@@ -10,13 +10,15 @@ the engine's routing.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from gateway.execution.actions import ActionDurations
-from gateway.execution.executor import ExecutionError, Executor
-from gateway.execution.policies import ReplanPolicy, SlackReplan, make_policy
+from gateway.execution.executor import ExecutionError
+from gateway.planning.movingai import format_map
 from gateway.planning.plan import Plan
+from gateway.runtime.journal import PolicyRecord, RunRecord, SpeedRecord, new_run_id
 from gateway.server.items import Reply, SolverDone
 from gateway.server.planner import (
     InstanceError,
@@ -24,6 +26,7 @@ from gateway.server.planner import (
     problem_from_paths,
     resolve_instance,
 )
+from gateway.server.resume import executor_for
 from gateway.server.session import Session
 from protocol import (
     ErrorCode,
@@ -136,18 +139,18 @@ class OperatorCommands:
                 return "replanning"
             case SetPolicy():
                 e.policy_name, e.policy_seed = msg.policy, msg.seed
-                if e.executor is not None:
-                    e.executor.policy = self._make_policy(e.executor.plan)
+                self._policy_changed(replace=True)
                 e.status_changed()
                 return f"policy {e.policy_name}"
             case SetThreshold():
                 e.threshold_ms = msg.threshold_ms
-                if e.executor is not None and isinstance(e.executor.policy, SlackReplan):
-                    e.executor.policy.threshold_ms = e.threshold_ms
+                self._policy_changed(replace=False)
                 e.status_changed()
                 return f"threshold {e.threshold_ms} ms"
             case SetSpeed():
                 e.clock.set_speed(msg.speed)
+                if e.executor is not None and e.journal is not None:
+                    e.journal.append(SpeedRecord(speed=msg.speed))
                 for w in e.worlds:
                     w.send(SetSpeed, speed=msg.speed)
                 e.status_changed()
@@ -166,6 +169,15 @@ class OperatorCommands:
                     return None
                 return "snapshot"
         raise CommandError(ErrorCode.FORBIDDEN, f"{msg.type} is not an operator command")
+
+    def _policy_changed(self, *, replace: bool) -> None:
+        """Give the running executor the operator's policy (or threshold), journaled."""
+        e = self._engine
+        ex = e.executor
+        if ex is not None:
+            ex.set_policy(PolicyRecord(
+                policy=e.policy_name, policy_seed=e.policy_seed, threshold_ms=e.threshold_ms,
+                replace=replace, makespan_lb_ms=ex.plan.makespan * e.config.action_ms))
 
     def _set_paused(self, paused: bool) -> None:
         e = self._engine
@@ -187,11 +199,6 @@ class OperatorCommands:
         uniform = ActionDurations.uniform(cfg.action_ms)
         return [models[cfg.robot_model[k]] if k in cfg.robot_model else uniform
                 for k in range(robots)]
-
-    def _make_policy(self, plan: Plan) -> ReplanPolicy:
-        e = self._engine
-        return make_policy(e.policy_name, seed=e.policy_seed, threshold_ms=e.threshold_ms,
-                           makespan_lb_ms=plan.makespan * e.config.action_ms)
 
     def load(self, problem: Problem, reply: Reply = None, ref: str | None = None) -> None:
         """Plan ``problem`` (unless it has a plan) and make it the loaded one."""
@@ -259,13 +266,30 @@ class OperatorCommands:
         e.paused = False
         e.feed.new_run()
         cfg = e.config
-        e.executor = Executor(plan, policy=self._make_policy(plan), action_ms=cfg.action_ms,
-                              drop_waits=cfg.drop_waits, max_replans=cfg.max_replans,
-                              record=e.feed.record, lookahead=cfg.dispatch_lookahead,
-                              durations=self._durations(len(plan.paths)))
+        e.runs += 1
+        journal = e.journal
+        # a journaled run's id never repeats (random); without a journal, the first run of
+        # the process has none and later ones are numbered
+        e.run_id = new_run_id() if journal is not None else (
+            "" if e.runs == 1 else str(e.runs))
+        run = RunRecord(
+            run_id=e.run_id, wall_start_s=0.0, speed=e.clock.speed,
+            map_name=e.problem.map_name, map_text=format_map(e.problem.instance.grid),
+            paths=[list(p) for p in plan.paths],
+            headings=None if plan.headings is None else [list(h) for h in plan.headings],
+            policy=e.policy_name, policy_seed=e.policy_seed, threshold_ms=e.threshold_ms,
+            makespan_lb_ms=plan.makespan * cfg.action_ms, action_ms=cfg.action_ms,
+            drop_waits=cfg.drop_waits, max_replans=cfg.max_replans,
+            lookahead=cfg.dispatch_lookahead,
+            durations=[(d.move_ms, d.turn_ms, d.wait_ms)
+                       for d in self._durations(len(plan.paths))])
+        e.executor = executor_for(run, journal.append if journal is not None else None,
+                                  e.feed.record)
         for hook in e.before_start:
             hook()
         e.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
+        if journal is not None:  # the plan boundary: the previous run's records go
+            journal.begin_run(run.model_copy(update={"wall_start_s": time.time()}))
         e.executor.start(0.0)
         e.status_changed()
         e.route(e.executor.drain())

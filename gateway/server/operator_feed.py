@@ -4,11 +4,18 @@ The engine hands every executor trace record, status change, fleet-slack sample,
 change and intruder report to one :class:`OperatorFeed`; it writes the run's trace (DESIGN
 section 3) and sends operators their events, and keeps what a snapshot shows besides the
 executor (the slack series, the replan marks, the intruders).
+
+The trace is only ever appended to: records are buffered and written, then flushed, by
+:meth:`OperatorFeed.flush_trace` (the engine calls it right after each journal commit, so the
+trace never runs ahead of the journal). A new run moves an existing trace file aside
+(``NAME.1``, ``NAME.2``, ...) rather than truncating it; a resumed run appends to it
+(:meth:`OperatorFeed.resume_trace` first adds what the journal holds and the file lacks).
 """
 
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 from collections import deque
 from pathlib import Path
@@ -31,6 +38,7 @@ class OperatorFeed:
         self.intruders: set[Cell] = set()
         self._trace_path = trace
         self._trace: IO[str] | None = None
+        self._pending: list[str] = []
 
     def event(self, kind: str, t_ms: float, **fields: Any) -> None:
         """Send every operator an ``event``."""
@@ -38,12 +46,41 @@ class OperatorFeed:
             op.send(Event, event=kind, t_ms=t_ms, **fields)
 
     def new_run(self) -> None:
-        """A run starts: fresh series and marks, a fresh trace file (if configured)."""
+        """A run starts: fresh series and marks, a fresh trace file (if configured; an
+        existing one is moved aside, never truncated)."""
         self.slack_series.clear()
         self.replan_marks.clear()
         self.close_trace()
-        if self._trace_path is not None:
-            self._trace = self._trace_path.open("w")
+        path = self._trace_path
+        if path is not None:
+            if path.exists() and path.stat().st_size > 0:
+                for n in itertools.count(1):
+                    aside = path.with_name(f"{path.name}.{n}")
+                    if not aside.exists():
+                        path.rename(aside)
+                        break
+            self._trace = path.open("a", encoding="utf-8")
+
+    def resume_trace(self, records: list[str]) -> None:
+        """A resumed run: reopen its trace for appending, after adding the tail of
+        ``records`` (the run's whole trace, rebuilt by replay) that the file lacks (it is
+        written after the journal, so a crash can leave it behind, never ahead). A torn last
+        line is completed the same way."""
+        self.close_trace()
+        self._pending.clear()
+        path = self._trace_path
+        if path is None:
+            return
+        have = path.read_text(encoding="utf-8").splitlines(keepends=True) \
+            if path.exists() else []
+        if have and not have[-1].endswith("\n"):
+            have.pop()
+        with path.open("w" if not have else "r+", encoding="utf-8") as f:
+            f.seek(sum(len(line.encode()) for line in have))
+            f.truncate()
+        self._trace = path.open("a", encoding="utf-8")
+        self._pending.extend(records[len(have):])
+        self.flush_trace()
 
     def record(self, rec: dict[str, object]) -> None:
         """An executor trace record: to the trace file, and to operators as an event."""
@@ -82,13 +119,21 @@ class OperatorFeed:
         self.event("intruder", t_ms, cell=cell, state=state)
 
     def write_trace(self, rec: dict[str, object]) -> None:
-        """One record to the trace file (if one is open)."""
+        """One record for the trace file (if one is open), written by :meth:`flush_trace`."""
         if self._trace is not None:
-            self._trace.write(json.dumps(rec) + "\n")
+            self._pending.append(json.dumps(rec) + "\n")
+
+    def flush_trace(self) -> None:
+        """Write and flush the buffered records (after the journal committed their cause)."""
+        if self._pending and self._trace is not None:
+            self._trace.write("".join(self._pending))
+            self._trace.flush()
+        self._pending.clear()
 
     def close_trace(self) -> None:
-        """Close the trace file (the run is complete, or the gateway stops)."""
+        """Flush and close the trace file (the run is complete, or the gateway stops)."""
         if self._trace is not None:
             with contextlib.suppress(OSError):
+                self.flush_trace()
                 self._trace.close()
             self._trace = None

@@ -3,9 +3,10 @@
 export const ACTION_MS = 1000; // t_x of every action in plan time (DESIGN section 2)
 const ACTIVE = new Set(["running", "paused", "replanning"]);
 
-/** "<plan>.<robot>.<index>" -> [plan, robot, index] (null if absent or malformed). */
+/** "<run>.<plan>.<robot>.<index>" (or without the run) -> [plan, robot, index] (null if
+ * absent or malformed). */
 export function parseActionId(id) {
-  const m = /^(\d+)\.(\d+)\.(\d+)$/.exec(id || "");
+  const m = /^(?:[0-9a-z]{1,16}\.)?(\d+)\.(\d+)\.(\d+)$/.exec(id || "");
   return m ? [Number(m[1]), Number(m[2]), Number(m[3])] : null;
 }
 

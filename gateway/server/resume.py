@@ -1,0 +1,241 @@
+"""Journaling the executor's inputs, and replaying them to rebuild it after a crash.
+
+:class:`JournaledExecutor` is the engine's executor: each input (a robot report, a tick, a
+pause, a replan request, a plan) is handed to its journal sink before it is applied. The
+executor is deterministic, so :func:`replay` of those records through a fresh one rebuilds it,
+its monitor and policy included, field by field; it hands the commands the executor gives on
+the way (dispatches, cancels, a solve request, completion) and the reports it took to the
+caller, which rebuilds its robot sessions from them. No I/O here, no clock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from gateway.execution.actions import ActionDurations
+from gateway.execution.commands import Command, SolveRequest
+from gateway.execution.errors import ExecutionError
+from gateway.execution.executor import Executor
+from gateway.execution.policies import SlackReplan, make_policy
+from gateway.execution.trace_records import Record, intruder_record
+from gateway.planning.grid import Cell
+from gateway.planning.plan import Plan
+from gateway.runtime.journal import (
+    AdoptRecord,
+    ExecutorEvent,
+    IntruderRecord,
+    JournalError,
+    JournalRecord,
+    PolicyRecord,
+    ReportRecord,
+    RunRecord,
+    SpeedRecord,
+    TimeRecord,
+)
+
+Sink = Callable[[Any], None]
+"""Where a journaled executor hands its input records (a journal's ``append``)."""
+
+
+def plan_of(paths: Sequence[Sequence[Cell]], headings: Sequence[Sequence[int]] | None) -> Plan:
+    """The plan of journaled paths (and headings)."""
+    cells = tuple(tuple((int(x), int(y)) for x, y in p) for p in paths)
+    return Plan(cells, None if headings is None else tuple(tuple(h) for h in headings))
+
+
+class JournaledExecutor(Executor):
+    """An :class:`Executor` that hands every input to ``sink`` before applying it."""
+
+    def __init__(self, plan: Plan, *, sink: Sink | None = None, **kwargs: Any) -> None:
+        super().__init__(plan, **kwargs)
+        self.sink = sink
+
+    def set_record(self, record: Callable[[Record], None] | None) -> None:
+        """Where trace records go from now on (a resumed run's trace)."""
+        self._record = record
+
+    def _log(self, record: Any) -> None:
+        if self.sink is not None:
+            self.sink(record)
+
+    def _report(self, event: ExecutorEvent, robot: int, plan: int, action: int,
+                now_ms: float) -> None:
+        if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
+            self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
+                                                   index=action, t_ms=now_ms))
+
+    def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("started", robot, plan, action, now_ms)
+        super().started(robot, plan, action, now_ms)
+
+    def finished(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("finished", robot, plan, action, now_ms)
+        super().finished(robot, plan, action, now_ms)
+
+    def blocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("blocked", robot, plan, action, now_ms)
+        super().blocked(robot, plan, action, now_ms)
+
+    def stopped(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("stopped", robot, plan, action, now_ms)
+        super().stopped(robot, plan, action, now_ms)
+
+    def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("unblocked", robot, plan, action, now_ms)
+        super().unblocked(robot, plan, action, now_ms)
+
+    def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("cancelled", robot, plan, action, now_ms)
+        super().cancelled(robot, plan, action, now_ms)
+
+    def tick(self, now_ms: float) -> None:
+        if self.sink is not None:
+            self.sink(TimeRecord.model_construct(kind="tick", t_ms=now_ms))
+        super().tick(now_ms)
+
+    def pause(self, now_ms: float) -> None:
+        self._log(TimeRecord(kind="pause", t_ms=now_ms))
+        super().pause(now_ms)
+
+    def resume(self, now_ms: float) -> None:
+        self._log(TimeRecord(kind="resume", t_ms=now_ms))
+        super().resume(now_ms)
+
+    def request_replan(self, now_ms: float) -> None:
+        self._log(TimeRecord(kind="replan", t_ms=now_ms))
+        super().request_replan(now_ms)
+
+    def abandon_replan(self, now_ms: float) -> None:
+        self._log(TimeRecord(kind="abandon", t_ms=now_ms))
+        super().abandon_replan(now_ms)
+
+    def adopt_plan(self, plan: Plan, now_ms: float, solver_ms: float = 0.0) -> None:
+        """Adopt ``plan``; ``solver_ms`` is the run's solver time charged so far."""
+        self._log(AdoptRecord(
+            t_ms=now_ms, paths=[list(p) for p in plan.paths], solver_ms=solver_ms,
+            headings=None if plan.headings is None else [list(h) for h in plan.headings]))
+        super().adopt_plan(plan, now_ms)
+
+    def set_policy(self, rec: PolicyRecord) -> None:
+        """The operator's policy (``rec.replace``) or slack threshold, journaled."""
+        self._log(rec)
+        if rec.replace:
+            self.policy = make_policy(rec.policy, seed=rec.policy_seed,
+                                      threshold_ms=rec.threshold_ms,
+                                      makespan_lb_ms=rec.makespan_lb_ms)
+        elif isinstance(self.policy, SlackReplan):
+            self.policy.threshold_ms = rec.threshold_ms
+
+
+def executor_for(run: RunRecord, sink: Sink | None = None,
+                 record: Callable[[Record], None] | None = None) -> JournaledExecutor:
+    """A fresh executor for ``run`` (not started)."""
+    return JournaledExecutor(
+        plan_of(run.paths, run.headings), sink=sink,
+        policy=make_policy(run.policy, seed=run.policy_seed, threshold_ms=run.threshold_ms,
+                           makespan_lb_ms=run.makespan_lb_ms),
+        action_ms=run.action_ms, drop_waits=run.drop_waits, max_replans=run.max_replans,
+        record=record, lookahead=run.lookahead,
+        durations=[ActionDurations(m, t, w) for m, t, w in run.durations])
+
+
+@dataclass
+class Replayed:
+    """What a replay rebuilt besides the robot sessions."""
+
+    run: RunRecord
+    executor: JournaledExecutor
+    policy: str
+    policy_seed: int
+    threshold_ms: float
+    speed: float
+    solver_ms: float = 0.0
+    intruders: set[Cell] = field(default_factory=set)
+    last_t_ms: float = 0.0
+    solve: SolveRequest | None = None
+    """The solver request still unanswered (the replan must be solved again)."""
+    records: int = 0
+
+
+def replay(records: Iterable[JournalRecord], *,
+           on_commands: Callable[[list[Command]], None],
+           on_report: Callable[[ReportRecord], None],
+           trace: Callable[[Record], None] | None = None) -> Replayed | None:
+    """Rebuild the journaled run (None if there is none): its executor, started and fed every
+    record in order. ``on_commands`` gets what the executor commands after each record,
+    ``on_report`` every report it accepted (a report it refused live is refused again),
+    ``trace`` the run's trace records. JournalError if the journal is not a run's."""
+    it = iter(records)
+    first = next(it, None)
+    if first is None:
+        return None
+    if not isinstance(first, RunRecord):
+        raise JournalError(f"the journal starts with a {first.kind} record, not a run")
+    ex = executor_for(first, record=trace)
+    out = Replayed(first, ex, first.policy, first.policy_seed, first.threshold_ms, first.speed,
+                   records=1)
+    ex.start(0.0)
+    _commands(ex, out, on_commands)
+    for rec in it:
+        out.records += 1
+        t = getattr(rec, "t_ms", None)
+        if t is not None:
+            out.last_t_ms = max(out.last_t_ms, t)
+        with contextlib.suppress(ExecutionError):  # refused live as well: nothing changed
+            _apply(ex, out, rec, on_report, trace)
+        _commands(ex, out, on_commands)
+    return out
+
+
+def _commands(ex: Executor, out: Replayed, on_commands: Callable[[list[Command]], None]
+              ) -> None:
+    commands = ex.drain()
+    for c in commands:
+        if isinstance(c, SolveRequest):
+            out.solve = c
+    if commands:
+        on_commands(commands)
+
+
+def _apply(ex: JournaledExecutor, out: Replayed, rec: JournalRecord,
+           on_report: Callable[[ReportRecord], None],
+           trace: Callable[[Record], None] | None) -> None:
+    match rec:
+        case ReportRecord():
+            getattr(ex, rec.event)(rec.robot, rec.plan, rec.index, rec.t_ms)
+            on_report(rec)
+        case TimeRecord(kind="tick"):
+            ex.tick(rec.t_ms)
+        case TimeRecord(kind="pause"):
+            ex.pause(rec.t_ms)
+        case TimeRecord(kind="resume"):
+            ex.resume(rec.t_ms)
+        case TimeRecord(kind="replan"):
+            ex.request_replan(rec.t_ms)
+        case TimeRecord(kind="abandon"):
+            out.solve = None
+            ex.abandon_replan(rec.t_ms)
+        case AdoptRecord():
+            out.solve = None
+            out.solver_ms = rec.solver_ms
+            ex.adopt_plan(plan_of(rec.paths, rec.headings), rec.t_ms)
+        case PolicyRecord():
+            if rec.replace:
+                out.policy, out.policy_seed = rec.policy, rec.policy_seed
+            out.threshold_ms = rec.threshold_ms
+            ex.set_policy(rec)
+        case IntruderRecord():
+            cell = (rec.cell[0], rec.cell[1])
+            if rec.state == "on":
+                out.intruders.add(cell)
+            else:
+                out.intruders.discard(cell)
+            if trace is not None:
+                trace(intruder_record(rec.t_ms, cell, rec.state))
+        case SpeedRecord():
+            out.speed = rec.speed
+        case RunRecord():
+            raise JournalError("a second run record in the journal")
