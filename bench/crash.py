@@ -72,7 +72,8 @@ class GatewayProcess:
         self.cmd = [sys.executable, "-m", "gateway", "serve", "--config", str(config),
                     "--journal", str(workdir / "journal.sqlite"), "--port", str(port),
                     "--log-level", "WARNING"]
-        self.log = (workdir / "gateway.log").open("a")
+        self.log_path = workdir / "gateway.log"
+        self.log = self.log_path.open("a")
         self.proc: subprocess.Popen[bytes] | None = None
         self.starts = 0
         self.down_s: list[float] = []
@@ -86,7 +87,10 @@ class GatewayProcess:
         deadline = time.monotonic() + 60.0
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"the gateway exited with {self.proc.returncode}")
+                self.log.flush()
+                tail = self.log_path.read_text().splitlines()[-5:]
+                raise RuntimeError(f"the gateway exited with {self.proc.returncode}: "
+                                   + " | ".join(tail))
             with contextlib.suppress(OSError), urllib.request.urlopen(
                     f"http://127.0.0.1:{self.port}/readyz", timeout=1):
                 if self._killed_at is not None:
@@ -121,16 +125,14 @@ class GatewayProcess:
         self.log.close()
 
 
-async def _operator(port: int, map_file: Path, plan: Plan) -> None:
-    """Load the plan and start it, as an operator would."""
+async def _operator(port: int, *commands: LoadPlan | Start) -> None:
+    """Send operator commands, as an operator would; each must be accepted."""
     from websockets.asyncio.client import connect
 
     async with connect(f"ws://127.0.0.1:{port}/ws",
                        additional_headers={"Authorization": f"Bearer {OPERATOR}"},
                        proxy=None) as ws:
-        for msg in (LoadPlan(msg_id="load", seq=0, map=str(map_file),
-                             paths=[list(p) for p in plan.paths]),
-                    Start(msg_id="start", seq=1)):
+        for msg in commands:
             await ws.send(encode(msg))
             while True:
                 reply = decode(await ws.recv())
@@ -159,10 +161,13 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
                      reconnect_delay_s=0.05, seed=rng.randrange(1 << 30))
     fleet.on_event = on_event
     resumed = 0
+    # loaded first: robots are welcomed with their start in this plan, not the last run's
+    await _operator(gw.port, LoadPlan(msg_id="load", seq=0, map=str(map_file),
+                                      paths=[list(p) for p in plan.paths]))
     await fleet.start()
     try:
         await fleet.wait_connected(timeout=60.0)
-        await _operator(gw.port, map_file, plan)
+        await _operator(gw.port, Start(msg_id="start", seq=0))
         t0 = time.perf_counter()
         for delay in kills:
             await asyncio.sleep(delay)

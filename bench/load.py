@@ -64,6 +64,7 @@ from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.gc_tuning import GC_THRESHOLDS
 from gateway.server.planner import Problem
+from protocol import parse_action_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
 
@@ -155,15 +156,18 @@ def latencies_ms(plan: Plan, stats: FleetStats, from_step: int = 0) -> list[floa
     """Per dispatched action with predecessors (at plan step ``from_step`` or later): last
     predecessor's finish sent -> received."""
     adg = ADG(plan)
+    # by (plan, robot, index): a journaled run's ids carry its run id as well
+    received = {parse_action_id(a): t for a, t in stats.received.items()}
+    finish_sent = {parse_action_id(a): t for a, t in stats.finish_sent.items()}
     out = []
     for v in range(adg.n_vertices):
         if adg.step_of[v] < from_step:
             continue
         preds = adg.pred[adg.pred_ptr[v]:adg.pred_ptr[v + 1]]
-        got = stats.received.get(f"0.{adg.robot_of[v]}.{adg.step_of[v]}")
+        got = received.get((0, adg.robot_of[v], adg.step_of[v]))
         if not preds or got is None:
             continue
-        sent = [stats.finish_sent.get(f"0.{adg.robot_of[p]}.{adg.step_of[p]}") for p in preds]
+        sent = [finish_sent.get((0, adg.robot_of[p], adg.step_of[p])) for p in preds]
         if any(s is None for s in sent):
             continue
         out.append((got - max(s for s in sent if s is not None)) * 1000.0)

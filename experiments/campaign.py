@@ -19,7 +19,6 @@ import csv
 import json
 import os
 import time
-import zlib
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import (
     FIRST_COMPLETED,
@@ -44,6 +43,7 @@ from gateway.planning.grid import Cell, Grid
 from gateway.planning.motion import Motion
 from gateway.planning.movingai import read_map
 from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.seeds import derive_seed
 from gateway.planning.solution_json import SolutionJson
 from gateway.planning.solver import solve
 from gateway.runtime.deadline import WallDeadline
@@ -204,7 +204,7 @@ class CampaignSpec:
         random choices (the intruder's robot, the random replan time) would otherwise repeat
         across instances that share a seed number.
         """
-        return [derived_seed(self.seed, map, agents, index, k, bits=31)
+        return [derive_seed(self.seed, map, agents, index, k, bits=31)
                 for k in range(self.seeds)]
 
 
@@ -261,13 +261,6 @@ class InstanceRecord:
             expanded_nodes=solution.expanded_nodes)
 
 
-def derived_seed(*parts: int | str, bits: int = 63) -> int:
-    """A stable seed of ``bits`` bits from ints and strings (independent of PYTHONHASHSEED)."""
-    entropy = [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) for p in parts]
-    state = np.random.SeedSequence(entropy).generate_state(2, dtype=np.uint64)
-    return int(state[0]) >> (64 - bits)
-
-
 @dataclass(frozen=True)
 class PlanTask:
     """Generate and plan one instance slot (runs in a worker)."""
@@ -291,7 +284,7 @@ def plan_instance(task: PlanTask) -> InstanceRecord:
     """Generate instances from derived seeds until the planner solves one within the limit."""
     grid = load_grid(task.map_path)
     for attempt in range(MAX_GENERATION_ATTEMPTS):
-        gen_seed = derived_seed(task.campaign_seed, task.map, task.agents, task.index, attempt)
+        gen_seed = derive_seed(task.campaign_seed, task.map, task.agents, task.index, attempt)
         inst = random_instance(grid, task.agents, np.random.default_rng(gen_seed))
         starts = inst.starts if task.motion == "omni" else inst.turning_starts()
         began = time.perf_counter()

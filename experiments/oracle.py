@@ -40,7 +40,6 @@ from experiments.campaign import (
     Progress,
     SimSettings,
     chunked,
-    derived_seed,
     load_grid,
     run_chunks,
     variant_config,
@@ -48,6 +47,7 @@ from experiments.campaign import (
 from gateway.execution.commands import SolveRequest
 from gateway.execution.params import PAPER
 from gateway.planning.plan import Plan
+from gateway.planning.seeds import derive_seed
 from sim_clients.des import SimConfig, Simulation
 
 DEFAULT_STEP_MS = PAPER.oracle_step_ms
@@ -319,7 +319,7 @@ def sample_experiments(keys: Sequence[ExperimentKey], n: int | None,
     order of ``keys``. Seeded and nested: a larger sample holds every smaller one."""
     if n is None or n >= len(keys):
         return list(keys)
-    rng = np.random.default_rng(derived_seed(seed, "oracle-sample"))
+    rng = np.random.default_rng(derive_seed(seed, "oracle-sample"))
     picked = set(rng.permutation(len(keys))[:max(0, n)].tolist())
     return [k for i, k in enumerate(keys) if i in picked]
 

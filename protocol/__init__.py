@@ -29,6 +29,8 @@ cancel/pause/resume, state snapshots that make reconnecting simple, coded reject
                                           <-- action(...)  next one (see "Action queue")
                                           <-- cancel(action_id)   replan: drop it if not moving
       cancelled(action_id, pose)            -->   (or finished, if it was already moving)
+      refused(action_id, code, detail, pose) -->  v2: will not execute it (instead of ack or
+                                                  started), nor what follows it in the plan
                                           <-- pause / resume
       state(robot_id, pose, activity, current) every welcome.state_period_ms
                                           <-- error(code, ref=offending msg_id, detail)
@@ -78,6 +80,7 @@ from protocol.messages import (
     Ack,
     Action,
     ActionCounts,
+    ActionRefused,
     Activity,
     AnyMessage,
     Blocked,
@@ -135,6 +138,7 @@ __all__ = [
     "Ack",
     "Action",
     "ActionCounts",
+    "ActionRefused",
     "Activity",
     "AnyMessage",
     "Blocked",

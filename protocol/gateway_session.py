@@ -33,7 +33,9 @@ The rules, written once here:
   still reject it (``rejected``);
 * protocol v2 (the version of the robot's ``hello``): a ``blocked`` of a move under way is a
   stop on the way (a bumper), told to the executor as ``stopped``; its ``unblocked`` resumes
-  the move.
+  the move. A ``refused`` action that has not started goes to the executor as ``refused``
+  (with the robot's reason); once taken, it and the robot's later actions of that plan are
+  no longer held, and a repeated or ``queued_behind`` refusal of them is dropped silently.
 """
 
 from __future__ import annotations
@@ -55,11 +57,13 @@ from protocol.messages import (
     ToRobotMessage,
     Welcome,
     parse_action_id,
+    plan_key,
 )
 
-ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled"]
+ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled", "refused"]
 """What a robot reports."""
-ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked", "cancelled"]
+ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked", "cancelled",
+                        "refused"]
 """What the executor is told: a v2 robot's ``blocked`` of a move under way is ``stopped``."""
 Phase = Literal["dispatched", "running", "blocked"]
 
@@ -84,7 +88,8 @@ class Refuse:
 @dataclass(frozen=True, slots=True)
 class Report:
     """Robot ``robot`` reports ``kind`` of action ``index`` of plan ``plan`` at ``t_ms``;
-    ``ref`` is the report's msg_id (None for what a ``hello`` caught up)."""
+    ``ref`` is the report's msg_id (None for what a ``hello`` caught up); ``reason`` the
+    robot's words for a refusal."""
 
     kind: ExecutorEvent
     robot: int
@@ -93,6 +98,7 @@ class Report:
     action_id: str
     t_ms: float
     ref: str | None
+    reason: str = ""
 
 
 GatewayEffect = ToRobot | Refuse | Report
@@ -123,7 +129,7 @@ class GatewaySession:
     """The protocol version of the robot's latest ``hello``."""
     held: dict[str, Held] = field(default_factory=dict)
     applied: dict[str, str] = field(default_factory=dict)
-    """Action id -> "finished" / "cancelled", for the current run."""
+    """Action id -> "finished" / "cancelled" / "refused", for the current run."""
     next_index: int = 0
     """Actions of the current plan finished."""
     disowned: set[str] = field(default_factory=set)
@@ -230,12 +236,15 @@ class GatewaySession:
                          f"action {aid} was never dispatched to robot {self.robot_id}")
 
     def report(self, kind: ReportKind, aid: str, ref: str, link: object, t_ms: float,
-               pose: Pose | None = None) -> None:
-        """A ``started`` / ``finished`` / ``blocked`` / ``unblocked`` / ``cancelled`` report."""
+               pose: Pose | None = None, reason: str = "") -> None:
+        """A ``started`` / ``finished`` / ``blocked`` / ``unblocked`` / ``cancelled`` /
+        ``refused`` (``reason``) report."""
         if not self._linked(link, ref):
             return
         if pose is not None:
             self.pose = pose
+        if kind == "refused" and self.applied.get(aid) == "refused":
+            return  # taken back already (a refusal of an earlier action covered it)
         if kind == "cancelled" and aid in self.disowned:
             self.disowned.discard(aid)  # the robot dropped what the gateway disowned
             return
@@ -254,7 +263,7 @@ class GatewaySession:
         if kind == "blocked" and h.phase == "running" and self.version >= 2:
             self._report("stopped", aid, t_ms, ref)
         else:
-            self._report(kind, aid, t_ms, ref)
+            self._report(kind, aid, t_ms, ref, reason)
 
     def state(self, pose: Pose | None, link: object) -> None:
         """A periodic ``state``: only the pose is kept."""
@@ -272,6 +281,10 @@ class GatewaySession:
             h.phase = "blocked"
         elif r.kind == "unblocked":
             h.phase = "running" if h.moved else "dispatched"
+        elif r.kind == "refused":  # the executor took back this action and the later ones
+            for aid in [a for a in self.held if self._taken_back_with(a, r)]:
+                del self.held[aid]
+                self.applied[aid] = "refused"
         else:
             del self.held[r.action_id]
             self.applied[r.action_id] = r.kind
@@ -288,6 +301,7 @@ class GatewaySession:
         """The executor released an action (``fields`` of an ``action`` message); it is sent
         now if the robot is online, else in the next welcome."""
         self.held[fields["action_id"]] = Held(fields)
+        self.applied.pop(fields["action_id"], None)  # dispatched again (an abandoned replan)
         if self.link is not None:
             self._send(Action, **fields)
 
@@ -319,9 +333,16 @@ class GatewaySession:
             return False
         return True
 
-    def _report(self, kind: ExecutorEvent, aid: str, t_ms: float, ref: str | None) -> None:
+    def _report(self, kind: ExecutorEvent, aid: str, t_ms: float, ref: str | None,
+                reason: str = "") -> None:
         plan, _, index = parse_action_id(aid)
-        self._out.append(Report(kind, self.robot_id, plan, index, aid, t_ms, ref))
+        self._out.append(Report(kind, self.robot_id, plan, index, aid, t_ms, ref, reason))
+
+    @staticmethod
+    def _taken_back_with(aid: str, r: Report) -> bool:
+        """Whether the refusal ``r`` also takes back held action ``aid`` (same plan, not
+        before it)."""
+        return plan_key(aid) == plan_key(r.action_id) and parse_action_id(aid)[2] >= r.index
 
     def _refuse(self, code: ErrorCode, ref: str | None, detail: str) -> None:
         self._out.append(Refuse(code, ref, detail))

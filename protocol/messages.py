@@ -22,7 +22,8 @@ Version 2 adds the ``turning`` motion model: an action's ``src`` and ``dst`` pos
 headings, a turn is an action whose cell stays (only the heading changes by 90 degrees) and a
 move keeps its heading and goes one cell forward; and a ``blocked`` after ``started`` reports a
 move stopped on the way (a bumper contact), which a ``cancel`` may then void (the robot goes
-back to the move's source cell and answers ``cancelled``). A robot's ``hello`` fixes the
+back to the move's source cell and answers ``cancelled``); a robot may refuse an action
+(``refused``, e.g. its start pose or heading is not the robot's). A robot's ``hello`` fixes the
 version of its connection: the gateway answers in it, and serves version 1 robots (no
 headings: ``omni`` plans only)."""
 
@@ -80,6 +81,12 @@ def action_run(value: str) -> str:
     if m is None:
         raise ValueError(f"not an action id: {value!r}")
     return m[1] or ""
+
+
+def plan_key(action_id: str) -> str:
+    """The part of an action id that names its run, plan and robot (all but the index): the
+    actions of one plan of one robot share it."""
+    return action_id.rsplit(".", 1)[0]
 
 
 class _Model(BaseModel):
@@ -193,6 +200,23 @@ class Cancelled(_ActionReport):
     """The robot confirms a ``cancel``: it dropped the action and stays where it is."""
 
     type: Literal["cancelled"] = "cancelled"
+
+
+RefuseCode = Literal["pose_mismatch", "cannot_execute", "queued_behind"]
+"""Why a robot refuses an action: its ``src`` pose is not where the robot stands when the
+action is due (``pose_mismatch``), its body cannot execute it (``cannot_execute``), or it
+comes after an action of the same plan the robot refused (``queued_behind``)."""
+
+
+class ActionRefused(_ActionReport):
+    """Protocol v2: the robot will not execute ``action_id`` (instead of ``ack``, or of
+    ``started`` if it finds out when the action is due) and drops every action of the same
+    plan after it; ``code`` says why, ``detail`` in words, ``pose`` is where the robot is. The
+    gateway takes the action, and those it dispatched to the robot after it, as not executed."""
+
+    type: Literal["refused"] = "refused"
+    code: RefuseCode
+    detail: Annotated[str, Field(max_length=500)] = ""
 
 
 class State(Envelope):
@@ -508,7 +532,7 @@ class Snapshot(Envelope):
 
 
 EventKind = Literal[
-    "dispatch", "start", "finish", "blocked", "unblocked", "cancel", "plan", "trigger",
+    "dispatch", "start", "finish", "blocked", "unblocked", "cancel", "refused", "plan", "trigger",
     "slack", "intruder", "summary", "status", "connection",
 ]
 
@@ -517,9 +541,10 @@ class Event(Envelope):
     """One entry of the operator event stream; mirrors the trace records of DESIGN section 3.
 
     Fields beyond ``event`` and ``t_ms`` are set as the kind needs: dispatch..cancel use
-    plan/robot/action; plan uses plan/paths; trigger policy/fleet_slack_ms; slack
-    fleet_slack_ms; intruder cell/state; summary soc_ms/makespan_ms; status status;
-    connection robot/state ("on"/"off"). A ``turning`` plan's event also has ``headings``.
+    plan/robot/action, refused too with the robot's ``reason``; plan uses plan/paths; trigger
+    policy/fleet_slack_ms; slack fleet_slack_ms; intruder cell/state; summary
+    soc_ms/makespan_ms; status status; connection robot/state ("on"/"off"). A ``turning``
+    plan's event also has ``headings``.
     """
 
     type: Literal["event"] = "event"
@@ -537,12 +562,15 @@ class Event(Envelope):
     soc_ms: float | None = None
     makespan_ms: float | None = None
     status: GatewayStatus | None = None
+    reason: str | None = None
 
 
 # --------------------------------------------------------------------------------------------
 # unions
 
-RobotMessage = Hello | Ack | Started | Finished | Blocked | Unblocked | Cancelled | State
+RobotMessage = (
+    Hello | Ack | Started | Finished | Blocked | Unblocked | Cancelled | ActionRefused | State
+)
 """What a robot may send."""
 
 ToRobotMessage = Welcome | Action | CancelAction | Pause | Resume | Error
@@ -561,7 +589,7 @@ WorldMessage = IntruderReport
 """What the "world" connection may send (it receives ``place_intruder`` and ``set_speed``)."""
 
 AnyMessage = (
-    Hello | Ack | Started | Finished | Blocked | Unblocked | Cancelled | State
+    Hello | Ack | Started | Finished | Blocked | Unblocked | Cancelled | ActionRefused | State
     | Welcome | Action | CancelAction | Pause | Resume | Error | Ok
     | LoadInstance | LoadPlan | Start | Pause | Resume | ReplanNow | SetPolicy
     | SetThreshold | SetSpeed | PlaceIntruder | GetSnapshot

@@ -10,16 +10,24 @@ order. The rules, written once here for every robot:
 
 * ``hello`` on every new link: pose, the actions held (acknowledged, not finished), the recent
   finishes (:data:`HISTORY` of them: their reports may have been lost) and the current activity;
-* every ``action`` is acknowledged; a duplicate (held, current or recently finished) is
-  acknowledged again but never executed twice, and a duplicate of a finished action gets its
-  ``finished`` again (the gateway resends an action only if it has no finish for it);
+* every ``action`` is acknowledged, unless the robot refuses it (protocol v2 ``refused``): its
+  ``src`` is not the pose the robot will stand on when the action is due (its own pose, or the
+  ``dst`` of the last action it holds; a heading counts when both have one) or ``check``
+  fails; every later action of the same plan is then refused too (``queued_behind``), and
+  :meth:`RobotSession.refuse_current` refuses an action the body finds it cannot start when it
+  is due (the actions queued behind it are dropped with it); a duplicate (held, current or
+  recently finished) is acknowledged again but never executed twice, and a duplicate of a
+  finished action gets its ``finished`` again (the gateway resends an action only if it has no
+  finish for it);
 * actions are held in a queue and executed strictly in index order, one after the other, and
   only while the robot is welcomed on a live link and not paused (on link loss the current
   action completes, nothing new starts);
 * ``cancel`` of a queued action drops it and every action queued behind it (they cannot run
   without it), each confirmed with ``cancelled`` and forgotten (an abandoned replan may
-  dispatch it again); ``cancel`` of the current action drops it only while it waits for its
-  cell (``blocked``): a moving robot finishes; a cancel of anything else is stale and ignored;
+  dispatch it again); ``cancel`` of the current action drops it only while it is ``blocked``:
+  waiting for its cell (confirmed at once) or stopped on the way (protocol v2, a bumper: the
+  body goes back to the action's source, then :meth:`RobotSession.aborted` confirms); a moving
+  robot finishes; a cancel of anything else is stale and ignored;
 * ``pause`` / ``resume`` stop and allow new starts (a running move completes);
 * reports (``started``, ``finished``, ``blocked``, ``unblocked``) are sent while a link is up;
   what a link loss swallows is carried by the next ``hello``. A ``blocked`` after ``started``
@@ -37,6 +45,7 @@ from typing import Any, Literal, TypeVar
 from protocol.messages import (
     Ack,
     Action,
+    ActionRefused,
     Activity,
     AnyMessage,
     Blocked,
@@ -47,6 +56,7 @@ from protocol.messages import (
     Hello,
     Pause,
     Pose,
+    RefuseCode,
     Resume,
     RobotActivity,
     RobotMessage,
@@ -54,6 +64,8 @@ from protocol.messages import (
     State,
     Unblocked,
     Welcome,
+    parse_action_id,
+    plan_key,
 )
 
 HISTORY = 256
@@ -77,10 +89,13 @@ class Send:
 
 @dataclass(frozen=True, slots=True)
 class Abort:
-    """The body must drop its current action ``action_id`` (it waits for its cell and has not
-    moved); the session already confirmed it with ``cancelled``."""
+    """The body must drop its current action ``action_id``. If it has not ``moved`` (it waits
+    for its cell) the session already confirmed it with ``cancelled``; if it ``moved`` (a move
+    stopped on the way) the body goes back to the action's source and then calls
+    :meth:`RobotSession.aborted`, which confirms."""
 
     action_id: str
+    moved: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,7 +115,8 @@ class Received:
 
 @dataclass(frozen=True, slots=True)
 class Refused:
-    """An action the robot's body cannot execute (``reason``): not acknowledged, not held."""
+    """The robot refused an action (``reason``; ``refused`` was sent): not acknowledged, not
+    held."""
 
     action: Action
     reason: str
@@ -120,7 +136,8 @@ RobotEffect = Send | Abort | Welcomed | Received | Refused | GatewayError
 class RobotSession:
     """One robot's protocol state across links (see module doc).
 
-    ``check`` may refuse an action the body cannot execute (raise ValueError with the reason).
+    ``check`` may refuse an action the body cannot execute (raise ValueError with the reason);
+    an action that does not start where the robot will stand is refused in any case.
     Messages get ``msg_id`` ``"<msg_prefix><n>"`` (``n`` counts every message of the session,
     so ids stay unique across links) and ``seq`` counting from 0 on each link.
     """
@@ -141,8 +158,11 @@ class RobotSession:
         """Actions acknowledged and not started, in index order."""
         self.current: str | None = None
         """The action taken by the body and not finished (or dropped)."""
+        self._current_action: Action | None = None
+        self._refused: tuple[str, int] | None = None  # (plan_key, index) of the last refusal
         self.phase: Literal["received", "running", "blocked"] = "received"
         self._moved = False  # the current action started (a later blocked is a stop on the way)
+        self._aborting = False  # the current action was cancelled on the way; going back
         self._finished: dict[str, None] = {}  # insertion-ordered, at most HISTORY
         self._queued: set[str] = set()
         self._check = check
@@ -175,8 +195,9 @@ class RobotSession:
         self.queue.clear()
         self._queued.clear()
         self._finished.clear()
-        self.current = None
+        self.current, self._current_action, self._refused = None, None, None
         self.phase = "received"
+        self._aborting = False
 
     # ------------------------------------------------------------------ link
     def connected(self, pose: Pose | None = None) -> None:
@@ -225,26 +246,82 @@ class RobotSession:
             if aid in self._finished:
                 self._send(Finished, action_id=aid, pose=self.pose)
             return
-        if self._check is not None:
-            try:
-                self._check(msg)
-            except ValueError as exc:
-                self._out.append(Refused(msg, str(exc)))
-                return
+        refusal = self._refusal(msg)
+        if refusal is not None:
+            self._refuse(msg, *refusal)
+            return
         self.queue.append(msg)
         self._queued.add(aid)
         self._out.append(Received(msg, False))
         self._send(Ack, action_id=aid)
 
+    def _refusal(self, msg: Action) -> tuple[RefuseCode, str] | None:
+        """Why the robot refuses ``msg`` (None: it takes it)."""
+        key, index = plan_key(msg.action_id), parse_action_id(msg.action_id)[2]
+        if self._refused is not None:
+            refused_key, refused_index = self._refused
+            if key == refused_key and index > refused_index:
+                return "queued_behind", (f"action {refused_key}.{refused_index} before it was "
+                                         "refused")
+            self._refused = None  # a new plan, or the refused action dispatched again
+        due = self.queue[-1].dst if self.queue else (
+            self._current_action.dst if self._current_action is not None else self.pose)
+        src = msg.src
+        if due is not None and (tuple(src.cell) != tuple(due.cell) or (
+                None not in (src.heading, due.heading) and src.heading != due.heading)):
+            return "pose_mismatch", (f"it starts at {_pose_text(src)}, but the robot will "
+                                     f"stand at {_pose_text(due)}")
+        if self._check is not None:
+            try:
+                self._check(msg)
+            except ValueError as exc:
+                return "cannot_execute", str(exc)
+        return None
+
+    def _refuse(self, msg: Action, code: RefuseCode, detail: str) -> None:
+        self._refused = (plan_key(msg.action_id), parse_action_id(msg.action_id)[2])
+        self._out.append(Refused(msg, detail))
+        self._send(ActionRefused, action_id=msg.action_id, pose=self.pose, code=code,
+                   detail=detail[:500])
+
+    def refuse_current(self, code: RefuseCode, detail: str, pose: Pose | None = None) -> None:
+        """The body cannot start the current action now that it is due (e.g. it does not hold
+        the action's start heading): refuse it; the actions queued behind it are dropped too
+        (the gateway takes them back with it)."""
+        if pose is not None:
+            self.pose = pose
+        action = self._current_action
+        if action is None or self._moved:
+            return
+        self.current, self._current_action, self.phase = None, None, "received"
+        self.queue.clear()
+        self._queued.clear()
+        self._refuse(action, code, detail)
+
     def _cancel(self, aid: str) -> None:
         if aid in self._queued:
             ids = [a.action_id for a in self.queue]
             self._drop_queue(ids.index(aid))
-        elif aid == self.current and self.phase == "blocked":
-            self._out.append(Abort(aid))
-            self.current = None
-            self._confirm(aid)
+        elif aid == self.current and self.phase == "blocked" and not self._aborting:
+            self._out.append(Abort(aid, self._moved))
+            if self._moved:
+                self._aborting = True  # confirmed by aborted() once back on the source
+            else:
+                self.current, self._current_action = None, None
+                self._confirm(aid)
             self._drop_queue(0)
+
+    def aborted(self, action_id: str, pose: Pose | None = None) -> None:
+        """The body is back on the source of ``action_id``, a move stopped on the way that a
+        ``cancel`` aborted (:class:`Abort` with ``moved``): confirm it with ``cancelled``."""
+        if pose is not None:
+            self.pose = pose
+        if action_id == self.current and self._aborting:
+            if self._current_action is not None:
+                self.pose = self._current_action.src if pose is None else pose
+            self.current, self.phase, self._aborting = None, "received", False
+            self._current_action = None
+            self._confirm(action_id)
 
     def _drop_queue(self, first: int) -> None:
         """Drop the queued actions from position ``first`` on, each confirmed."""
@@ -266,6 +343,7 @@ class RobotSession:
         action = self.queue.popleft()
         self._queued.discard(action.action_id)
         self.current, self.phase, self._moved = action.action_id, "received", False
+        self._current_action, self._aborting = action, False
         return action
 
     def report(self, kind: ReportKind, action_id: str, pose: Pose | None = None) -> None:
@@ -274,7 +352,9 @@ class RobotSession:
             self.pose = pose
         if kind == "finished":
             if action_id == self.current:
-                self.current = None
+                if pose is None and self._current_action is not None:
+                    self.pose = self._current_action.dst
+                self.current, self._current_action = None, None
             self._finished[action_id] = None
             if len(self._finished) > HISTORY:
                 del self._finished[next(iter(self._finished))]
@@ -313,3 +393,8 @@ class RobotSession:
         """What the driver must do, in order, since the last call (then forgotten)."""
         out, self._out = self._out, []
         return out
+
+
+def _pose_text(pose: Pose) -> str:
+    cell = f"[{pose.cell[0]}, {pose.cell[1]}]"
+    return cell if pose.heading is None else f"{cell} facing {pose.heading}"

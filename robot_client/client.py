@@ -5,7 +5,8 @@ Three tasks share one event loop:
 * control: every ``control_period_ms`` it ticks the body (base feedback in, wheel command
   out), reports the runner's events (``started``, ``finished``; a bumper pause as ``blocked``
   / ``unblocked`` during a move and as ``state`` with activity ``blocked``, see
-  :meth:`RobotClient._report`), and starts the next
+  :meth:`RobotClient._report`; a replan's ``cancel`` of such a stopped move makes the robot
+  drive back to the move's source, then confirm ``cancelled``), and starts the next
   held action when the robot is idle, connected and not paused;
 * camera: reads frames in a worker thread, measures tag fixes there and applies them;
 * link: connects with the robot's token, runs the protocol session and sends a ``state``
@@ -222,9 +223,10 @@ class RobotClient:
                     del self.gateway_errors[:-100]
                     log.warning("gateway error %s (ref %s): %s", err.code, err.ref, err.detail)
                 elif isinstance(effect, Refused):
-                    log.error("refusing action %s: %s", effect.action.action_id, effect.reason)
-                elif isinstance(effect, Abort):  # only a blocked action; the runner has none
-                    log.warning("cannot abort %s: it is under way", effect.action_id)
+                    log.error("refused action %s: %s", effect.action.action_id, effect.reason)
+                elif isinstance(effect, Abort):  # a move stopped on the way by the bumper
+                    log.info("cancelled on the way: %s goes back", effect.action_id)
+                    self.body.runner.abort(self.clock.now_ms(), self.body.pose)
 
     async def _report(self, event: RunnerEvent) -> None:
         """Tell the gateway about a runner event.
@@ -239,6 +241,8 @@ class RobotClient:
             self._moved = True
         if event.kind in ("started", "finished"):
             self.session.report(event.kind, event.action_id, self.wire_pose())
+        elif event.kind == "cancelled":  # back on the source of a move a cancel aborted
+            self.session.aborted(event.action_id, self.wire_pose())
         else:
             current = self.body.runner.action
             if current is not None and current.kind == "move":
@@ -262,7 +266,12 @@ class RobotClient:
                 if action is not None:
                     grid = grid_action(action)
                     log.info("starting %s (%s)", grid.action_id, grid.kind)
-                    self.body.start(grid, now)
+                    try:
+                        self.body.start(grid, now)
+                    except ValueError as exc:  # e.g. a move whose start heading it lacks
+                        self.session.refuse_current("pose_mismatch", str(exc),
+                                                    self.wire_pose())
+                        await self._flush()
             deadline += period
             await asyncio.sleep(max(0.0, deadline - loop.time()))
 

@@ -16,6 +16,8 @@ heading); an ``omni`` move (no headings) first spins to face the target and, if 
 heading is given that differs from the direction of travel, spins to it at the end. A bumper
 contact during a turn or move stops the base and pauses the action until ``bumper_pause_ms``
 (5 s, as on the demonstrator) after the last contact; it then continues where it is.
+:meth:`ActionRunner.abort` drops the current action: a move under way (a bumper stop that a
+replan cancels) first drives back to its source cell and heading, then reports ``cancelled``.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from robot_client.kobuki import twist_to_base_control
 from robot_client.odometry import Pose, wrap_angle
 
 ActionKind = Literal["wait", "turn", "move"]
-EventKind = Literal["started", "blocked", "unblocked", "finished"]
+EventKind = Literal["started", "blocked", "unblocked", "finished", "cancelled"]
 STOP: tuple[int, int] = (0, 0)
 
 
@@ -119,6 +121,7 @@ class ActionRunner:
     _t_start: float = 0.0
     _pause_until: float | None = None
     _started: bool = False
+    _returning: bool = False
     _events: list[RunnerEvent] = field(default_factory=list)
 
     @property
@@ -146,8 +149,24 @@ class ActionRunner:
                     f"{action.src_heading}, but the robot faces {facing} (heading "
                     f"{math.degrees(pose.theta):.0f} deg): turn first")
         self.action, self._t_start, self._started = action, now_ms, False
-        self._pause_until = None
+        self._pause_until, self._returning = None, False
         self.phase = _FIRST_PHASE[action.kind]
+
+    def abort(self, now_ms: float, pose: Pose) -> None:
+        """Drop the current action (a ``cancel``). A move that started drives back to its
+        source cell (turning round if need be) and, if it had a start heading, turns back to
+        it; ``cancelled`` is reported once there. Anything else stops at once, reported as
+        ``cancelled`` on the spot."""
+        a = self.action
+        if a is None or self._returning:
+            return
+        self._pause_until = None
+        if a.kind != "move" or not self._started:
+            self._emit("cancelled", now_ms, pose)
+            self.action, self.phase = None, "idle"
+            return
+        self.action = GridAction(a.action_id, a.dst, a.src, None, a.src_heading, a.duration_ms)
+        self.phase, self._returning = "align", True
 
     def drain(self) -> list[RunnerEvent]:
         """The events since the last call, oldest first."""
@@ -171,6 +190,8 @@ class ActionRunner:
 
     def _emit(self, kind: EventKind, now_ms: float, pose: Pose) -> None:
         assert self.action is not None
+        if self._returning and kind in ("blocked", "unblocked"):
+            return  # a bumper holds the way back too, but the action is no longer reported
         self._events.append(RunnerEvent(kind, self.action.action_id, now_ms, pose))
 
     def _bumper_holds(self, now_ms: float, pose: Pose, bumper: bool) -> bool:
@@ -189,8 +210,8 @@ class ActionRunner:
         return False
 
     def _finish(self, now_ms: float, pose: Pose) -> tuple[float, float]:
-        self._emit("finished", now_ms, pose)
-        self.action, self.phase = None, "idle"
+        self._emit("cancelled" if self._returning else "finished", now_ms, pose)
+        self.action, self.phase, self._returning = None, "idle", False
         return 0.0, 0.0
 
     def _control(self, a: GridAction, now_ms: float, pose: Pose) -> tuple[float, float]:

@@ -101,7 +101,9 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
             for r in range(problem.instance.num_agents):
                 fleet.add_robot(r)
         if now == "running" and was in ("loaded", "done") and engine.executor is not None:
-            fleet.place_all([p[0] for p in engine.executor.plan.paths])
+            plan = engine.executor.plan
+            fleet.place_all([p[0] for p in plan.paths],
+                            None if plan.headings is None else [h[0] for h in plan.headings])
         if now == "done" and was != "done":
             status.print(run_summary(engine))
 
@@ -173,10 +175,10 @@ def _run(args: argparse.Namespace) -> int:
 
     from gateway.commands.instance_args import instance_from_args, starts_from_args
     from gateway.planning.plan import NoSolution
+    from gateway.planning.seeds import run_seed
     from gateway.server.config import ConfigError, load_config
     from gateway.server.logs import configure_logging
     from gateway.server.planner import Problem
-    from sim_clients.des import derive_seed
 
     if not 0 < args.speed <= 100:
         raise UsageError(f"--speed must be in (0, 100], got {args.speed:g}")
@@ -202,7 +204,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         config = load_config(None, host=args.host, port=args.port, map=None, speed=args.speed,
                              policy=args.policy, threshold_ms=args.threshold_ms,
-                             policy_seed=derive_seed(args.seed, "replan"), trace=args.trace,
+                             policy_seed=run_seed(args.seed, "replan"), trace=args.trace,
                              solver_time_limit_s=args.time_limit, fallback_s=args.fallback,
                              max_replans=args.max_replans, log_level=args.log_level,
                              log_format=args.log_format, log_file=args.log_file,

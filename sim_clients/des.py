@@ -34,6 +34,7 @@ from gateway.execution.policies import AUTONOMOUS_POLICIES, PolicyName, ReplanPo
 from gateway.execution.trace_records import TraceSink, intruder_record, summary_record
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.seeds import run_seed
 from gateway.planning.solver import Place, solve
 from gateway.runtime.deadline import WallDeadline
 from gateway.runtime.solver_time import SolverTime, run_charged
@@ -132,14 +133,9 @@ class SimResult(RunSummary):
     end_ms: float
 
 
-def derive_seed(seed: int, purpose: str) -> int:
-    """An independent 64-bit seed for one consumer of randomness in a run."""
-    return random.Random(f"{purpose}/{seed}").getrandbits(64)
-
-
 def policy_for(config: SimConfig) -> ReplanPolicy:
     """The executor's replanning policy for ``config`` (its own seed, derived from the run's)."""
-    return make_policy(config.policy, seed=derive_seed(config.seed, "replan"),
+    return make_policy(config.policy, seed=run_seed(config.seed, "replan"),
                        threshold_ms=config.threshold_ms,
                        makespan_lb_ms=config.plan.makespan * config.action_ms,
                        intruder_appear_ms=config.intruder_config.appear_ms)
@@ -168,7 +164,7 @@ class Simulation:
                                  record=config.trace, lookahead=config.lookahead,
                                  durations=config.durations, informed=config.informed)
         self.intruder = Intruder(self.world, config.intruder_config) if config.intruder else None
-        self.rng = random.Random(derive_seed(config.seed, "intruder"))
+        self.rng = random.Random(run_seed(config.seed, "intruder"))
         self.heap: list[tuple[float, int, int, int]] = []
         self.seq = 0
         self.robot_wake: list[float | None] = [None] * len(starts)

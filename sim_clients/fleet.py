@@ -34,6 +34,7 @@ from websockets.exceptions import ConnectionClosed
 from gateway.execution.commands import Dispatch
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Path
+from gateway.planning.seeds import run_seed
 from gateway.server.clock import LoopClock
 from gateway.server.engine import Engine
 from gateway.server.gateway import Gateway
@@ -55,6 +56,7 @@ from protocol import (
     encode,
     parse_action_id,
 )
+from protocol.messages import HEADINGS, Heading
 from protocol.robot_session import (
     Abort,
     GatewayError,
@@ -66,7 +68,6 @@ from protocol.robot_session import (
     Send,
     Welcomed,
 )
-from sim_clients.des import derive_seed
 from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
 from sim_clients.robot import RECHECK_MS, RobotEvent, RobotState, SimRobot
 from sim_clients.summary import RunSummary
@@ -181,18 +182,18 @@ class FleetRobot:
             self._timer.cancel()
             self._timer = None
 
-    def place(self, cell: Cell) -> None:
-        """Put the robot on ``cell`` for a new run: forget every action of the previous one."""
-        self._put(cell)
-        self._ids.clear()
-        self.session.reset()
-        self.plan, self.next_action = -1, 0
-
-    def _put(self, cell: Cell) -> None:
+    def place(self, pose: Pose) -> None:
+        """Put the robot on ``pose`` (cell, and heading under ``turning``) for a new run:
+        forget every action of the previous one."""
         self.unplace()
         world = self.fleet.world
-        world.occupy(cell, self.robot_id, self.fleet.clock.now_ms())
-        self.sim = SimRobot(self.robot_id, world, cell, recheck_ms=self.fleet.recheck_ms)
+        world.occupy(pose.cell, self.robot_id, self.fleet.clock.now_ms())
+        self.sim = SimRobot(self.robot_id, world, pose.cell, recheck_ms=self.fleet.recheck_ms,
+                            heading=_heading_number(pose.heading))
+        self._ids.clear()
+        self.session.reset()
+        self.session.pose = pose
+        self.plan, self.next_action = -1, 0
 
     # ------------------------------------------------------------------ connection
     async def run(self) -> None:
@@ -234,8 +235,10 @@ class FleetRobot:
             await self._conn.close(1011, "simulated link loss")
 
     def _pose(self) -> Pose | None:
-        cell = self.cell
-        return Pose(cell=cell) if cell is not None else None
+        sim = self.sim
+        if sim is None:
+            return None
+        return Pose(cell=sim.cell, heading=None if sim.heading is None else HEADINGS[sim.heading])
 
     async def _write(self, conn: ClientConnection) -> None:
         while True:
@@ -262,14 +265,14 @@ class FleetRobot:
         and afresh when a new run's first action arrives."""
         if isinstance(msg, Welcome):
             if self.sim is None and msg.start is not None:
-                self.place(msg.start.cell)
+                self.place(msg.start)
             actions = msg.resend
         else:
             actions = [msg] if isinstance(msg, Action) else []
         for action in actions:
             if action.sequence == 0 and parse_action_id(action.action_id)[0] == 0 \
                     and self._new_run(action):
-                self.place(action.src.cell)
+                self.place(action.src)
 
     def _new_run(self, action: Action) -> bool:
         """A first action of plan 0 arriving after this robot did anything, or before it was
@@ -348,14 +351,16 @@ class FleetRobot:
         if action is None:
             return
         plan, robot, index = parse_action_id(action.action_id)
-        if sim.cell != action.src.cell:
-            self.fleet.stats.errors.append(
-                f"robot {self.robot_id} is on {sim.cell} but {action.action_id} starts at "
-                f"{action.src.cell}: moved there")
-            self._put(action.src.cell)  # a simulated robot follows the plan it is given
-            sim = self.sim
-            assert sim is not None
-        d = Dispatch(plan, robot, index, action.src.cell, action.dst.cell, action.duration_ms)
+        src_heading = _heading_number(action.src.heading)
+        if sim.cell != tuple(action.src.cell) or (
+                None not in (src_heading, sim.heading) and src_heading != sim.heading):
+            self.session.refuse_current("pose_mismatch", (
+                f"it starts at {list(action.src.cell)} facing {action.src.heading}, but the "
+                f"robot is on {list(sim.cell)} facing {sim.heading}"), self._pose())
+            self._pump()
+            return
+        d = Dispatch(plan, robot, index, action.src.cell, action.dst.cell, action.duration_ms,
+                     src_heading, _heading_number(action.dst.heading))
         self._ids[(plan, index)] = action.action_id  # the id carries the run: report with it
         if self.fleet.on_event is not None:
             self.fleet.on_event("execute", plan, robot, index)
@@ -399,6 +404,11 @@ class FleetRobot:
             if e.kind in ("finished", "cancelled"):
                 self._ids.pop((e.plan, e.action), None)
             self.session.report(cast(ReportKind, e.kind), aid, pose)
+
+
+def _heading_number(heading: Heading | None) -> int | None:
+    """A plan's heading number of a protocol heading (None stays None)."""
+    return None if heading is None else HEADINGS.index(heading)
 
 
 class SimFleet:
@@ -445,7 +455,7 @@ class SimFleet:
         self._world_ready = asyncio.Event()
         self._oracle = oracle
         self._intruder_config = intruder_config or IntruderConfig()
-        self._rng = random.Random(derive_seed(seed, "intruder"))
+        self._rng = random.Random(run_seed(seed, "intruder"))
         # the automatic intruder (absent until T_a), then any the operator places
         self._intruders: list[Intruder] = (
             [Intruder(self.world, self._intruder_config)] if oracle is not None else [])
@@ -516,13 +526,15 @@ class SimFleet:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
 
-    def place_all(self, starts: Sequence[Cell]) -> None:
-        """Put robot k on ``starts[k]`` for a new run (other robots leave the world)."""
+    def place_all(self, starts: Sequence[Cell], headings: Sequence[int] | None = None) -> None:
+        """Put robot k on ``starts[k]`` (facing ``headings[k]`` under ``turning``) for a new
+        run (other robots leave the world)."""
         for robot in self.robots.values():
             robot.unplace()
         for k, cell in enumerate(starts):
             if k in self.robots:
-                self.robots[k].place(cell)
+                heading = None if headings is None else HEADINGS[headings[k]]
+                self.robots[k].place(Pose(cell=cell, heading=heading))
 
     # ------------------------------------------------------------------ the world
     async def _run_world(self) -> None:

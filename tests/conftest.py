@@ -4,16 +4,25 @@
 do) and ``dev`` otherwise. ``scripts/test.sh`` always uses ``ci``.
 
 Every test gets its own state directory (``XDG_STATE_HOME``): a ``fleetgate serve`` it starts
-journals there, never in the user's, and never resumes another test's run.
+journals there, never in the user's, and never resumes another test's run. Module- and
+session-scoped fixtures (instantiated before it) get the test process's own directory.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
+
+_STATE = tempfile.mkdtemp(prefix="fleetgate-test-state-")
+os.environ["XDG_STATE_HOME"] = _STATE
+os.environ.pop("STATE_DIRECTORY", None)
+atexit.register(shutil.rmtree, _STATE, True)
 
 
 @pytest.fixture(autouse=True)

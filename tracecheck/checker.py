@@ -263,7 +263,8 @@ class _Replay:
         self.now = max(self.now, t)
         if kind == "plan":
             self.plan(where, t, rec)
-        elif kind in ("dispatch", "start", "finish", "blocked", "unblocked", "cancel"):
+        elif kind in ("dispatch", "start", "finish", "blocked", "unblocked", "cancel",
+                      "refused"):
             self.event(where, t, str(kind), rec)
         elif kind == "intruder":
             cell = (int(rec["cell"][0]), int(rec["cell"][1]))
@@ -348,6 +349,11 @@ class _Replay:
             if missing:
                 self.error(where, f"action {a} dispatched before {missing} finished")
             st.dispatched.add(a)
+        elif kind == "refused":
+            # the robot would not execute it: taken back like a cancel, before any start
+            if a not in st.dispatched or a in st.cancelled or a in st.started:
+                self.error(where, f"refused action {a} that is not waiting to start")
+            st.cancelled.add(a)
         elif kind in ("blocked", "unblocked", "cancel"):
             # the executor records a cancel when the robot confirms it did not move, or that
             # it went back to the source of a move stopped on the way (blocked after start)

@@ -6,11 +6,12 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Generic, Protocol, TypeVar
 
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
 from gateway.conformance.report import CheckFailed, CheckResult
+from gateway.conformance.wire import Breaches
 
 C = TypeVar("C")
 
@@ -80,3 +81,34 @@ class Checklist(Generic[C]):
         except (OSError, InvalidHandshake) as exc:
             return False, f"connection failed: {exc}"
         return True, c.doc
+
+
+class Watched(Protocol):
+    """A checklist's context that records what the other side broke on every connection."""
+
+    @property
+    def breaches(self) -> Breaches:
+        """The envelope rules the other side broke so far."""
+        ...
+
+
+W = TypeVar("W", bound=Watched)
+
+_ENVELOPE = [
+    ("messages-valid", "MSG-1", "Every message the {side} sent decoded under the strict schema."),
+    ("seq-increments", "MSG-2",
+     "The {side}'s ``seq`` starts at 0 and grows by 1 on every connection."),
+    ("msg-ids-unique", "MSG-3", "The {side} never reused a ``msg_id`` on a connection."),
+    ("text-frames", "WS-1", "The {side} sent text frames only."),
+]
+
+
+def add_envelope_checks(checklist: Checklist[W], side: str) -> None:
+    """Register the passive checks of the envelope rules, ``<side>-<what>``: verdicts on
+    everything ``side`` ("gateway" or "robot") sent during the checks before them."""
+    for what, rule, doc in _ENVELOPE:
+
+        async def verdict(context: W, rule: str = rule) -> None:
+            context.breaches.verdict(rule)
+
+        checklist.add(f"{side}-{what}", rule, verdict, doc.format(side=side))

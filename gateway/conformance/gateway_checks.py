@@ -12,13 +12,14 @@ from typing import Any
 
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from gateway.conformance.checklist import Checklist
+from gateway.conformance.checklist import Checklist, add_envelope_checks
 from gateway.conformance.report import CheckFailed, CheckResult
 from gateway.conformance.target import Cell, Options, Robot, Run, Target
 from protocol import (
     MAX_MESSAGE_BYTES,
     Ack,
     Action,
+    ActionRefused,
     AnyMessage,
     CancelAction,
     Cancelled,
@@ -263,8 +264,10 @@ async def _state_ok(t: Target) -> None:
 # ---------------------------------------------------------------------- bad messages
 @dataclass(frozen=True)
 class BadFrame:
-    """A check that a frame, sent by a robot after ``hello``, gets an ``error`` with ``code``
-    and ``ref`` (the offending msg_id, or null if the gateway cannot read one)."""
+    """A check that a frame, sent by a robot (after ``hello`` unless ``hello`` is false),
+    gets an ``error`` with ``code`` and ``ref`` (the offending msg_id, or null if the gateway
+    cannot read one); with ``usable_after``, a ``hello`` on the same connection is then still
+    welcomed."""
 
     name: str
     rule: str
@@ -273,12 +276,16 @@ class BadFrame:
     code: ErrorCode
     ref: str | None = None
     timeout: float = 5.0
+    hello: bool = True
+    usable_after: bool = False
 
     async def __call__(self, t: Target) -> None:
-        robot = await t.robot()
+        robot = await t.robot(hello=self.hello)
         try:
             await robot.conn.send_raw(self.frame(t))
             await robot.conn.error_for(self.ref, self.code, self.timeout)
+            if self.usable_after:
+                await robot.hello()
         finally:
             await robot.conn.close()
 
@@ -320,35 +327,18 @@ BAD_FRAMES = [
                             pad=json.loads("[" * 20 + "]" * 20)), ErrorCode.TOO_LARGE),
     BadFrame("long-number-refused", "LIMIT-6", "A number of more than 32 digits gets "
              "`too_large` before it is parsed.", _long_number, ErrorCode.TOO_LARGE),
+    BadFrame("too-large", "LIMIT-1", "A message over 64 KiB gets ``too_large`` and the "
+             "connection stays open.",
+             lambda t: _raw("big", type="state", robot_id=t.options.robot_id,
+                            pad="x" * MAX_MESSAGE_BYTES), ErrorCode.TOO_LARGE,
+             usable_after=True),
+    BadFrame("error-keeps-connection", "ERR-2", "After an ``error`` reply the connection "
+             "stays usable.", lambda t: "{not json", ErrorCode.MALFORMED, hello=False,
+             usable_after=True),
 ]
 """Frames a gateway must refuse, each with its error code."""
 for _f in BAD_FRAMES:
     GATEWAY_CHECKS.add(_f.name, _f.rule, _f, _f.doc)
-
-
-@check("too-large", "LIMIT-1")
-async def _too_large(t: Target) -> None:
-    """A message over 64 KiB gets ``too_large`` and the connection stays open."""
-    robot = await t.robot()
-    try:
-        await robot.conn.send_raw(_raw("big", type="state", robot_id=robot.id,
-                                       pad="x" * MAX_MESSAGE_BYTES))
-        await robot.conn.error_for(None, ErrorCode.TOO_LARGE)
-        await robot.hello()
-    finally:
-        await robot.conn.close()
-
-
-@check("error-keeps-connection", "ERR-2")
-async def _error_not_fatal(t: Target) -> None:
-    """After an ``error`` reply the connection stays usable."""
-    robot = await t.robot(hello=False)
-    try:
-        await robot.conn.send_raw("{not json")
-        await robot.conn.error_for(None, ErrorCode.MALFORMED)
-        await robot.hello()
-    finally:
-        await robot.conn.close()
 
 
 @check("oversize-frame-closes-1009", "LIMIT-2")
@@ -828,6 +818,38 @@ async def _new_plan(t: Target) -> None:
         await run.__aexit__(None, None, None)
 
 
+@check("refused-action-taken-back", "REFUSE-2")
+async def _refused_back(t: Target) -> None:
+    """A ``refused`` action (not started) is taken back without an ``error``: the robot gets
+    nothing more of the plan, the operators an event ``refused`` with the robot's reason, and
+    a replan gives the robot a new plan from where it stands."""
+    op, _ = t.need_operator()
+    run, robot, first = await _started_run(t)
+    try:
+        await asyncio.sleep(QUIET_S)  # what lookahead dispatched with it has arrived
+        held = robot.collect()
+        await robot.conn.send(ActionRefused, action_id=first.action_id, pose=first.src,
+                              code="pose_mismatch", detail="conformance")
+        robot.done.update(a.action_id for a in held)
+        event = await op.refusal()
+        if (event.robot, event.action) != (robot.id, first.sequence) or \
+                "conformance" not in (event.reason or ""):
+            raise CheckFailed(f"event refused names robot {event.robot} action "
+                              f"{event.action} because {event.reason!r}")
+        await robot.conn.quiet("error or action", lambda m: isinstance(m, Error | Action),
+                               QUIET_S)
+        await op.command(ReplanNow)
+        nxt = await robot.conn.expect_type(
+            Action, 15.0, lambda a: parse_action_id(a.action_id)[0] == 1,
+            what="an action of plan 1")
+        robot.actions[nxt.action_id] = nxt
+        if tuple(nxt.src.cell) != tuple(first.src.cell):
+            raise CheckFailed(f"plan 1 starts on {nxt.src.cell}, the robot is on "
+                              f"{first.src.cell}")
+    finally:
+        await run.__aexit__(None, None, None)
+
+
 # ---------------------------------------------------------------------- operator channel
 @check("operator-gets-snapshot", "OP-1")
 async def _op_snapshot(t: Target) -> None:
@@ -858,28 +880,7 @@ async def _op_bad_state(t: Target) -> None:
 
 
 # ---------------------------------------------------------------------- envelope (passive)
-@check("gateway-messages-valid", "MSG-1")
-async def _valid(t: Target) -> None:
-    """Every message the gateway sent decoded under the strict schema."""
-    t.breaches.verdict("MSG-1")
-
-
-@check("gateway-seq-increments", "MSG-2")
-async def _seq(t: Target) -> None:
-    """The gateway's ``seq`` starts at 0 and grows by 1 on every connection."""
-    t.breaches.verdict("MSG-2")
-
-
-@check("gateway-msg-ids-unique", "MSG-3")
-async def _ids(t: Target) -> None:
-    """The gateway never reused a ``msg_id`` on a connection."""
-    t.breaches.verdict("MSG-3")
-
-
-@check("gateway-text-frames", "WS-1")
-async def _text(t: Target) -> None:
-    """The gateway sent text frames only."""
-    t.breaches.verdict("WS-1")
+add_envelope_checks(GATEWAY_CHECKS, "gateway")
 
 
 async def run_gateway_checks(options: Options, only: set[str] | None = None

@@ -19,13 +19,14 @@ from urllib.parse import parse_qs, urlsplit
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
-from gateway.conformance.checklist import Checklist
+from gateway.conformance.checklist import Checklist, add_envelope_checks
 from gateway.conformance.report import CheckFailed, CheckResult, UsageProblem
 from gateway.conformance.wire import Breaches, Conn
 from protocol import (
     PROTOCOL_VERSION,
     Ack,
     Action,
+    ActionRefused,
     AnyMessage,
     Blocked,
     CancelAction,
@@ -57,7 +58,7 @@ LONG_MS = 1500.0
 """A wait that outlasts the robot's reconnection."""
 """How long the checker waits to be sure a robot does not do something."""
 
-_REPORTS = (Started, Finished, Blocked, Unblocked, Cancelled)
+_REPORTS = (Started, Finished, Blocked, Unblocked, Cancelled, ActionRefused)
 
 
 @dataclass
@@ -489,6 +490,31 @@ async def _stale_cancel(g: FakeGateway) -> None:
     await g.executes(aid)
 
 
+@check("refuses-a-mismatched-start", "REFUSE-1")
+async def _refuse(g: FakeGateway) -> None:
+    """An action that does not start where the robot stands is refused (``refused``, code
+    ``pose_mismatch``), neither acknowledged nor run, and so is the next one of its plan
+    (``queued_behind``); a new plan from where the robot stands runs."""
+    await g.idle()
+    x, y = g.cell
+    elsewhere = Pose(cell=(x + 1 if x < 4 else x - 1, y))
+    first, behind = (f"{g.plan}.{g.robot_id}.{i}" for i in (g.index, g.index + 1))
+    for i, aid in enumerate((first, behind)):
+        g.dispatched[aid] = {"action_id": aid, "sequence": g.index + i, "src": elsewhere,
+                             "dst": elsewhere, "duration_ms": DURATION_MS}
+        await g.send(aid)
+    for aid, code in ((first, "pose_mismatch"), (behind, "queued_behind")):
+        msg = await g.report(ActionRefused, aid)
+        assert isinstance(msg, ActionRefused)
+        if msg.code != code:
+            raise CheckFailed(f"{aid} was refused with code {msg.code}, expected {code}")
+    await g.no_start(first)
+    if {first, behind} & g.acks:
+        raise CheckFailed(f"refused actions were acknowledged: {sorted({first, behind})}")
+    g.plan, g.index = g.plan + 1, 0
+    await g.executes(await g.dispatch())
+
+
 @check("error-is-not-fatal", "ERR-4")
 async def _error(g: FakeGateway) -> None:
     """After an ``error`` from the gateway the robot stays connected and works."""
@@ -652,10 +678,11 @@ async def _welcome_paused(g: FakeGateway) -> None:
 @check("acks-every-action", "ACK-1")
 async def _all_acked(g: FakeGateway) -> None:
     """Every action the robot received was acknowledged (or, if the link lost the ack, listed
-    in its next `hello`)."""
+    in its next `hello`), unless it refused it."""
     await asyncio.sleep(0.1)
     held = {a for h in g.hellos for a in [*h.acked, *h.finished]}  # an ack the link lost
-    missing = sorted(g.sent - g.acks - held)
+    refused = {a for a, kinds in g.reports.items() if "refused" in kinds}
+    missing = sorted(g.sent - g.acks - held - refused)
     if missing:
         raise CheckFailed(f"never acknowledged: {missing[:5]}")
 
@@ -671,7 +698,7 @@ async def _own(g: FakeGateway) -> None:
 async def _order(g: FakeGateway) -> None:
     """Per action: blocked/unblocked before started (and, in version 2, stops on the way of a
     move), started once, then finished (repeats allowed), or cancelled before started or
-    after a stop."""
+    after a stop, or refused before started."""
     bad = [f"{aid}: {' '.join(kinds)}" for aid, kinds in g.reports.items()
            if not _valid_reports(kinds, moving_stops=g.moves_may_stop(aid))]
     if bad:
@@ -682,7 +709,7 @@ def _valid_reports(kinds: list[str], moving_stops: bool) -> bool:
     """Whether one action's reports follow REPORT-5 (``moving_stops``: v2 and a move)."""
     allowed = {  # phase -> the reports allowed in it, and the phase each leads to
         "waiting": {"blocked": "waiting", "unblocked": "waiting", "started": "moving",
-                    "cancelled": "over"},
+                    "cancelled": "over", "refused": "over"},
         "moving": {"finished": "done"},
         "stopped": {"unblocked": "moving", "cancelled": "over"},
         "done": {"finished": "done"},
@@ -698,28 +725,7 @@ def _valid_reports(kinds: list[str], moving_stops: bool) -> bool:
     return True
 
 
-@check("robot-messages-valid", "MSG-1")
-async def _valid(g: FakeGateway) -> None:
-    """Every message the robot sent decoded under the strict schema."""
-    g.breaches.verdict("MSG-1")
-
-
-@check("robot-seq-increments", "MSG-2")
-async def _seq(g: FakeGateway) -> None:
-    """The robot's ``seq`` starts at 0 and grows by 1 on every connection."""
-    g.breaches.verdict("MSG-2")
-
-
-@check("robot-msg-ids-unique", "MSG-3")
-async def _ids(g: FakeGateway) -> None:
-    """The robot never reused a ``msg_id`` on a connection."""
-    g.breaches.verdict("MSG-3")
-
-
-@check("robot-text-frames", "WS-1")
-async def _text(g: FakeGateway) -> None:
-    """The robot sent text frames only."""
-    g.breaches.verdict("WS-1")
+add_envelope_checks(ROBOT_CHECKS, "robot")
 
 
 async def run_robot_checks(options: RobotOptions, only: set[str] | None = None

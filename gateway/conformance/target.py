@@ -111,6 +111,8 @@ class Operator:
         self.conn = conn
         self.status = ""
         self.snapshot: Snapshot | None = None
+        self.refusals: list[Event] = []
+        """The ``refused`` events received (REFUSE-2)."""
         conn.on_message = self._watch
 
     def _watch(self, msg: AnyMessage) -> None:
@@ -118,6 +120,18 @@ class Operator:
             self.status, self.snapshot = msg.status, msg
         elif isinstance(msg, Event) and msg.event == "status" and msg.status is not None:
             self.status = msg.status
+        elif isinstance(msg, Event) and msg.event == "refused":
+            self.refusals.append(msg)
+
+    async def refusal(self, timeout: float = 5.0) -> Event:
+        """The first ``refused`` event not taken yet (CheckFailed if none comes in time)."""
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout
+        while not self.refusals:
+            if loop.time() >= end or self.conn.is_closed:
+                raise CheckFailed(f"no operator event refused within {timeout:g} s")
+            await self.conn.wait_change(end - loop.time())
+        return self.refusals.pop(0)
 
     async def command(self, kind: type[OperatorCommand], timeout: float = 10.0,
                       **fields: Any) -> Ok:

@@ -10,6 +10,11 @@ back to its source cell) -> SOLVING (``SolveRequest`` emitted once every robot i
 RUNNING (after ``adopt_plan`` with plan id + 1, or ``abandon_replan`` which resumes the old
 plan).
 
+A robot may refuse a dispatched action it has not started (:meth:`Executor.refused`, e.g. it
+does not start where the robot stands): the action and the robot's later dispatched ones are
+taken back, not executed, and the robot gets nothing more of the plan until a replan (adopted
+or abandoned) -- its slack grows, which a slack policy answers with a replan.
+
 Replan budget: every decided replan counts against ``max_replans``, whoever decided it (policy or
 operator) and whether or not a plan was then adopted.
 
@@ -146,6 +151,7 @@ class Executor:
         self._cancelling = bytearray(adg.n_vertices)
         # per robot: its dispatched, not finished (nor cancelled) vertices, in index order
         self._queue: list[deque[int]] = [deque() for _ in range(adg.n_robots)]
+        self._refusing = bytearray(adg.n_robots)  # refused an action: dispatch it nothing
         self._busy = 0  # vertices in all queues
         self._left = adg.n_vertices
         if self.paused:  # a plan adopted during a pause: its slack counts from now
@@ -240,7 +246,7 @@ class Executor:
             raise ExecutionError(
                 f"{kind} of robot {robot} action {action} (plan {plan}): that action is {state}"
             )
-        if kind != "cancelled" and v != queue[0]:
+        if kind not in ("cancelled", "refused") and v != queue[0]:
             raise ExecutionError(
                 f"{kind} of robot {robot} action {action} (plan {plan}): it is queued behind "
                 f"action {self.adg.step_of[queue[0]]}, which has not finished"
@@ -379,6 +385,27 @@ class Executor:
         self._trace("cancel", robot, action)
         self._maybe_solve()
 
+    def refused(self, robot: int, plan: int, action: int, now_ms: float,
+                reason: str = "") -> None:
+        """The robot will not execute the action (``reason``), which has not started: it and
+        the robot's later dispatched actions go back to not dispatched (a ``refused`` trace
+        record each, the first with the reason), and the robot gets no dispatch until a
+        replan is adopted or abandoned."""
+        v = self._event_vertex("refused", robot, plan, action, now_ms)
+        self._expect(self._status[v] == _DISPATCHED, "refused", robot, action,
+                     "it has already started")
+        self._advance(now_ms)
+        queue, back = self._queue[robot], []
+        while queue and queue[-1] >= v:
+            back.append(queue.pop())
+        for u in reversed(back):
+            self._status[u] = _PENDING
+            self._blocked[u] = self._cancelling[u] = 0
+            self._busy -= 1
+            self._trace("refused", robot, self.adg.step_of[u], reason if u == v else None)
+        self._refusing[robot] = 1
+        self._maybe_solve()
+
     # ------------------------------------------------------------------ time and replanning
     def tick(self, now_ms: float) -> None:
         """The present moved on: update the monitor's clamping and ask the policy (unless
@@ -473,6 +500,7 @@ class Executor:
             raise ExecutionError(f"no plan was requested: the executor is {self.mode.value}")
         self._advance(now_ms)
         self.mode = Mode.RUNNING
+        self._refusing = bytearray(self.adg.n_robots)  # try the robots that refused again
         self._dispatch_ready()
 
     # ------------------------------------------------------------------ internals
@@ -480,9 +508,9 @@ class Executor:
         """Accept ``now_ms`` as the present (the monitor's clamping moves only at ticks)."""
         self._now = now_ms  # kept as given (trace t_ms)
 
-    def _trace(self, kind: str, robot: int, action: int) -> None:
+    def _trace(self, kind: str, robot: int, action: int, reason: str | None = None) -> None:
         if self._record is not None:
-            self._record(event_record(self._now, kind, self.plan_id, robot, action))
+            self._record(event_record(self._now, kind, self.plan_id, robot, action, reason))
 
     def _adopted(self) -> None:
         """Announce the current plan and dispatch what is ready."""
@@ -515,7 +543,7 @@ class Executor:
     def _fill(self, robot: int) -> None:
         """Dispatch the robot's next actions while releasable, up to 1 + lookahead held."""
         adg, queue = self.adg, self._queue[robot]
-        while len(queue) <= self.lookahead:
+        while len(queue) <= self.lookahead and not self._refusing[robot]:
             v = queue[-1] + 1 if queue else self.monitor.next_vertex(robot)
             if v < 0 or v >= adg.first[robot + 1] or not self._releasable(v):
                 return

@@ -96,7 +96,8 @@ class TaskPool:
 
 
 DistanceFrom = Callable[[Sequence[int], Sequence[int]], npt.NDArray[np.int64]]
-"""``f(cells, targets)[i, j]``: moves from ``cells[i]`` to ``targets[j]`` (-1: unreachable)."""
+"""``f(cells, targets)[i, j]``: moves from ``cells[i]`` to ``targets[j]`` (-1: unreachable), plus
+any charge the caller puts on a robot (e.g. one in a delay)."""
 
 
 class Scheduler(Protocol):

@@ -1,10 +1,11 @@
 """The trace record format (DESIGN section 3): one builder per record type.
 
 The executor produces the ``plan``, ``dispatch``, ``start``, ``finish``, ``blocked``,
-``unblocked``, ``cancel`` and ``trigger`` records through its ``record`` callback; the drivers
-add ``intruder`` records and the closing ``summary``. A sink is any callable taking one record
-(:class:`gateway.runtime.trace.JsonlWriter` writes them to a file, ``list.append`` keeps them in
-memory). The independent checker (``tracecheck``) reads the format on its own, on purpose.
+``unblocked``, ``cancel``, ``refused`` and ``trigger`` records through its ``record`` callback;
+the drivers add ``intruder`` records and the closing ``summary``. A sink is any callable taking
+one record (:class:`gateway.runtime.trace.JsonlWriter` writes them to a file, ``list.append``
+keeps them in memory). The independent checker (``tracecheck``) reads the format on its own, on
+purpose.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from gateway.planning.grid import Cell
 Record = dict[str, Any]
 TraceSink = Callable[[Record], None]
 
-EVENT_TYPES = ("dispatch", "start", "finish", "blocked", "unblocked", "cancel")
+EVENT_TYPES = ("dispatch", "start", "finish", "blocked", "unblocked", "cancel", "refused")
 """Record types about one action of one robot."""
 
 
@@ -40,11 +41,16 @@ def plan_record(t_ms: float, plan: int, paths: Sequence[Sequence[Cell]],
     return record
 
 
-def event_record(t_ms: float, kind: str, plan: int, robot: int, action: int) -> Record:
-    """``{"t_ms", "type": kind, "plan", "robot", "action"}`` for a kind of :data:`EVENT_TYPES`."""
+def event_record(t_ms: float, kind: str, plan: int, robot: int, action: int,
+                 reason: str | None = None) -> Record:
+    """``{"t_ms", "type": kind, "plan", "robot", "action"}`` for a kind of :data:`EVENT_TYPES`
+    (and ``"reason"`` if given: why a robot refused the action)."""
     if kind not in EVENT_TYPES:
         raise ValueError(f"unknown event type {kind!r}; expected one of {EVENT_TYPES}")
-    return {"t_ms": t_ms, "type": kind, "plan": plan, "robot": robot, "action": action}
+    record: Record = {"t_ms": t_ms, "type": kind, "plan": plan, "robot": robot, "action": action}
+    if reason is not None:
+        record["reason"] = reason
+    return record
 
 
 def trigger_record(t_ms: float, policy: str, fleet_slack_ms: float) -> Record:

@@ -42,6 +42,13 @@ class DelayConfig:
     gauss_mean_ratio: float = 0.5
     gauss_std_ratio: float = 0.22
 
+    @property
+    def mean_duration(self) -> float:
+        """Mean ticks of one delay (the Gaussian's mean before rounding and clamping)."""
+        if self.duration_model == "uniform":
+            return (self.min_delay + self.max_delay) / 2
+        return self.min_delay + (self.max_delay - self.min_delay) * self.gauss_mean_ratio
+
 
 @dataclass(frozen=True)
 class LorrProblem:

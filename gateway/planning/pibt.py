@@ -155,11 +155,13 @@ class WindowedPIBT:
         self._call = 0
 
     def plan(self, states: Sequence[int], goals: Sequence[Sequence[int]], steps: int,
-             frozen: Sequence[bool] | None = None, avoid: Sequence[int] = ()) -> Window:
+             hold: Sequence[int] | None = None, avoid: Sequence[int] = ()) -> Window:
         """Plan ``steps`` timesteps from ``states``; ``goals[r]`` are robot r's next goal cells
-        in order (empty: no goal; it waits unless asked to move away). ``frozen`` robots wait
-        throughout (they have enough committed work); the others plan around them and enter
-        no cell of ``avoid`` (e.g. cells a delayed robot will still drive through)."""
+        in order (empty: no goal; it waits unless asked to move away). Robot r waits through
+        the first ``hold[r]`` steps (e.g. the committed actions it still has to do before it
+        stands on its start state, so its new moves come when it can make them); the others
+        plan around it, and enter no cell of ``avoid`` (e.g. cells a delayed robot will
+        still drive through)."""
         space, n = self.space, self.n
         cell_of = space.cell_of
         cur = list(states)
@@ -181,7 +183,7 @@ class WindowedPIBT:
             space.prefetch([g[progress[r]] for r, g in enumerate(goals) if progress[r] < len(g)])
             tables = [space.distances(g[progress[r]]) if progress[r] < len(g) else None
                       for r, g in enumerate(goals)]
-            nxt = self._step(cur, tables, frozen)
+            nxt = self._step(cur, tables, hold, step)
             for s in cur:
                 occupant[cell_of[s]] = -1
             for r, s in enumerate(nxt):
@@ -209,7 +211,7 @@ class WindowedPIBT:
             self.elapsed[r] += 1
 
     def _step(self, cur: list[int], tables: list[array[int] | None],
-              frozen: Sequence[bool] | None) -> list[int]:
+              hold: Sequence[int] | None, step: int) -> list[int]:
         self._stamp += 1
         stamp = self._stamp
         n = self.n
@@ -217,9 +219,9 @@ class WindowedPIBT:
         elapsed, tie = self.elapsed, self.tie
         order = sorted(range(n), key=lambda r: (tables[r] is None, -elapsed[r], -tie[r]))
         planned = self._planned
-        if frozen is not None:
+        if hold is not None:
             for r in range(n):
-                if frozen[r]:
+                if hold[r] >= step:
                     planned[r] = stamp
         for r in order:
             if planned[r] != stamp:

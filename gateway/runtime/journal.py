@@ -61,7 +61,8 @@ class RunRecord(_Record):
     """Per robot: t_x of a move, a turn and a wait (ms)."""
 
 
-ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked", "cancelled"]
+ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked", "cancelled",
+                        "refused"]
 
 
 class ReportRecord(_Record):
@@ -73,6 +74,8 @@ class ReportRecord(_Record):
     plan: int
     index: int
     t_ms: float
+    reason: str = ""
+    """A refusal's reason (the robot's words)."""
 
 
 class TimeRecord(_Record):

@@ -33,6 +33,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any, cast
 
 from gateway.execution.commands import (
@@ -71,6 +72,7 @@ from gateway.server.solver_tasks import SolverTasks
 from gateway.server.views import FleetView, snapshot_fields
 from protocol import (
     Ack,
+    ActionRefused,
     Blocked,
     Cancelled,
     ErrorCode,
@@ -295,7 +297,8 @@ class Engine:
                 gs = self._sender(session)
                 gs.ack(msg.action_id, msg.msg_id, session)
                 self.flush(gs, session)
-            case Started() | Finished() | Blocked() | Unblocked() | Cancelled():
+            case Started() | Finished() | Blocked() | Unblocked() | Cancelled() \
+                    | ActionRefused():
                 self._report(session, msg, item.received, item.at_ms)
             case State():
                 self._sender(session).state(msg.pose, session)
@@ -346,16 +349,18 @@ class Engine:
             self.problem.plan if self.problem is not None else None)
         if plan is None or r >= len(plan.paths):
             return None
-        return Pose(cell=plan.paths[r][0])
+        heading = None if plan.headings is None else HEADINGS[plan.headings[r][0]]
+        return Pose(cell=plan.paths[r][0], heading=heading)
 
     def _report(self, session: Session,
-                msg: Started | Finished | Blocked | Unblocked | Cancelled,
+                msg: Started | Finished | Blocked | Unblocked | Cancelled | ActionRefused,
                 received: float, at_ms: float | None = None) -> None:
         gs = self._sender(session)
         now = self._arrival_ms(at_ms)
+        reason = f"{msg.code}: {msg.detail}" if isinstance(msg, ActionRefused) else ""
         try:
             self._unlocked_at = received if msg.type == "finished" else None
-            gs.report(msg.type, msg.action_id, msg.msg_id, session, now, msg.pose)
+            gs.report(msg.type, msg.action_id, msg.msg_id, session, now, msg.pose, reason)
             self.flush(gs, session)
         finally:
             self._unlocked_at = None
@@ -386,9 +391,11 @@ class Engine:
         if ex is None:
             gs.rejected(r, "no execution is running")
             return
-        apply = {"started": ex.started, "finished": ex.finished, "blocked": ex.blocked,
-                 "stopped": ex.stopped, "unblocked": ex.unblocked,
-                 "cancelled": ex.cancelled}[r.kind]
+        handlers: dict[str, Callable[[int, int, int, float], None]] = {
+            "started": ex.started, "finished": ex.finished, "blocked": ex.blocked,
+            "stopped": ex.stopped, "unblocked": ex.unblocked, "cancelled": ex.cancelled,
+            "refused": partial(ex.refused, reason=r.reason)}
+        apply = handlers[r.kind]
         try:
             apply(r.robot, r.plan, r.index, r.t_ms)
         except ExecutionError as exc:
@@ -399,6 +406,9 @@ class Engine:
         gs.accepted(r)
         if r.kind == "finished":
             self.metrics.finished.inc()
+        elif r.kind == "refused":
+            log.warning("robot refused an action", extra={
+                "robot": r.robot, "action": r.action_id, "reason": r.reason})
         self.route(ex.drain())
 
     def _intruder(self, session: Session, msg: IntruderReport, now: float) -> None:
@@ -539,7 +549,7 @@ class Engine:
         """A report the replayed executor took: the robot's session takes it too."""
         aid = action_id(rec.plan, rec.robot, rec.index, self.run_id)
         self.robot(rec.robot).accepted(Report(rec.event, rec.robot, rec.plan, rec.index, aid,
-                                              rec.t_ms, None))
+                                              rec.t_ms, None, rec.reason))
 
     def _resumed(self, done: Replayed, trace: list[str]) -> None:
         run, ex = done.run, done.executor

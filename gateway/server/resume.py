@@ -62,10 +62,10 @@ class JournaledExecutor(Executor):
             self.sink(record)
 
     def _report(self, event: ExecutorEvent, robot: int, plan: int, action: int,
-                now_ms: float) -> None:
+                now_ms: float, reason: str = "") -> None:
         if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
             self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
-                                                   index=action, t_ms=now_ms))
+                                                   index=action, t_ms=now_ms, reason=reason))
 
     def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         self._report("started", robot, plan, action, now_ms)
@@ -90,6 +90,11 @@ class JournaledExecutor(Executor):
     def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         self._report("cancelled", robot, plan, action, now_ms)
         super().cancelled(robot, plan, action, now_ms)
+
+    def refused(self, robot: int, plan: int, action: int, now_ms: float,
+                reason: str = "") -> None:
+        self._report("refused", robot, plan, action, now_ms, reason)
+        super().refused(robot, plan, action, now_ms, reason)
 
     def tick(self, now_ms: float) -> None:
         if self.sink is not None:
@@ -204,6 +209,9 @@ def _apply(ex: JournaledExecutor, out: Replayed, rec: JournalRecord,
            on_report: Callable[[ReportRecord], None],
            trace: Callable[[Record], None] | None) -> None:
     match rec:
+        case ReportRecord(event="refused"):
+            ex.refused(rec.robot, rec.plan, rec.index, rec.t_ms, rec.reason)
+            on_report(rec)
         case ReportRecord():
             getattr(ex, rec.event)(rec.robot, rec.plan, rec.index, rec.t_ms)
             on_report(rec)

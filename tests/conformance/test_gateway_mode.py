@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import re
 import socket
 import subprocess
@@ -39,10 +40,15 @@ def free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def served() -> Iterator[str]:
-    """``fleetgate serve --port 0`` with its embedded defaults; its websocket URL."""
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """``fleetgate serve --port 0`` with its embedded defaults; its websocket URL. Its state
+    directory (the default journal's) is its own: the per-test one of tests/conftest.py is set
+    only after module fixtures, and a shared one would resume another run's journal."""
+    env = {**os.environ, "XDG_STATE_HOME": str(tmp_path_factory.mktemp("served-state"))}
+    env.pop("STATE_DIRECTORY", None)
     proc = subprocess.Popen([sys.executable, "-m", "gateway", "serve", "--port", "0",
-                             "--log-level", "WARNING"], stderr=subprocess.PIPE, text=True)
+                             "--log-level", "WARNING"], stderr=subprocess.PIPE, text=True,
+                            env=env)
     try:
         assert proc.stderr is not None
         line = proc.stderr.readline()

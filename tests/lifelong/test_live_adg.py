@@ -105,3 +105,69 @@ def test_estimates_are_exact_without_unknown_delays(seed: int, turning: bool, k:
     for r in range(8):
         for i, tc in enumerate(est[r]):
             assert done[(r, i)] == tc
+
+
+def test_held_robot_moves_after_its_hold() -> None:
+    """A robot held for two steps waits through them, then drives on; the other one, free
+    from the start, plans around it (1-robust, so the ADG accepts the window)."""
+    grid = Grid(np.ones((2, 5), dtype=bool))  # cells 0..4 over 5..9
+    space = StateSpace(grid, turning=False)
+    planner = WindowedPIBT(space, 2, seed=1)
+    win = planner.plan([0, 9], [[4], [5]], 6, hold=[2, 0])
+    path0 = [row[0] for row in win.states]
+    assert path0 == [0, 0, 0, 1, 2, 3, 4]
+    assert [row[1] for row in win.states][1] != 9  # robot 1 is not held: it moves at once
+    LiveADG(grid, [0, 9]).append([list(row) for row in win.states])
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), turning=st.booleans(), k=st.integers(1, 3),
+       p_delay=st.sampled_from([0.0, 0.1, 0.4]))
+def test_appending_while_executing_stays_acyclic_and_collision_free(
+        seed: int, turning: bool, k: int, p_delay: float) -> None:
+    """Windows planned from the committed end states (held for the backlog) and appended while
+    the fleet executes under random delays: every dependency points to an earlier action (the
+    graph is acyclic), and no two robots ever hold a cell at the same tick (a moving robot
+    holds both cells of its move)."""
+    n = 8
+    problem = small_problem(seed, robots=n, size=10)
+    rng = np.random.default_rng(seed)
+    space = StateSpace(problem.grid, turning)
+    planner = WindowedPIBT(space, n, seed=seed)
+    adg = LiveADG(problem.grid, problem.starts, [0] * n if turning else None)
+    goals = [list(problem.tasks[r]) for r in range(n)]
+    cell = list(problem.starts)
+    progress = [0] * n
+    for t in range(120):
+        if t % 4 == 0:
+            states = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
+            hold = [adg.pending(r) - 1 for r in range(n)]
+            win = planner.plan(states, goals, 3, hold)
+            adg.append([[space.cell_of[s] for s in row] for row in win.states],
+                       [[space.heading_of(s) for s in row] for row in win.states]
+                       if turning else None)
+            for r in range(n):
+                del goals[r][:len(win.reached[r])]
+                goals[r] = goals[r] or [int(c) for c in rng.choice(problem.tasks[r], 1)]
+            for r in range(n):
+                for a in adg.queue[r]:
+                    if a.dep_robot >= 0 and adg.done[a.dep_robot] <= a.dep_seq:
+                        dep = adg.queue[a.dep_robot][a.dep_seq - adg.done[a.dep_robot]]
+                        assert dep.order < a.order
+        delayed = rng.random(n) < p_delay
+        starting = [progress[r] == 0 and not delayed[r] and adg.is_ready(r) for r in range(n)]
+        held: dict[int, int] = {}
+        for r in range(n):
+            cells = {cell[r]}
+            if progress[r] or starting[r]:
+                head = adg.head(r)
+                assert head is not None
+                cells.add(head.cell)
+            for c in cells:
+                assert held.setdefault(c, r) == r, f"robots {held[c]} and {r} hold {c} at {t}"
+        for r in range(n):
+            if progress[r] or starting[r]:
+                progress[r] += 1
+                if progress[r] == k:
+                    cell[r] = adg.finish(r).cell
+                    progress[r] = 0

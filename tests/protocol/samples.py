@@ -6,6 +6,7 @@ from protocol import (
     Ack,
     Action,
     ActionCounts,
+    ActionRefused,
     Activity,
     AnyMessage,
     Blocked,
@@ -91,4 +92,7 @@ def samples() -> list[AnyMessage]:
         Event(msg_id="g-14", seq=14, event="plan", t_ms=0.0, plan=0, robot=1, action=2,
               paths=[[(0, 0)]], policy="slack", fleet_slack_ms=3.0, cell=(1, 1), state="on",
               soc_ms=1.0, makespan_ms=1.0, status="running"),
+        ActionRefused(msg_id="r2-8", seq=8, action_id="1.2.6", pose=P, code="pose_mismatch",
+                      detail="it starts at [3, 4] facing N, but the robot will stand at "
+                             "[3, 4] facing E"),
     ]

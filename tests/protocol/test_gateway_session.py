@@ -199,7 +199,10 @@ class Wire:
 
     def op(self, op: str) -> None:
         if op == "dispatch" and self.next < self.n:
-            self.gw.dispatch(fields(self.next))
+            # waits on one cell: this model's gateway goes on with the plan after a cancel,
+            # which only actions that start where the robot stands allow (else: refused)
+            self.gw.dispatch(fields(self.next) | {"src": Pose(cell=(0, 0)),
+                                                  "dst": Pose(cell=(0, 0))})
             self.next += 1
         elif op == "to_robot" and self.to_robot:
             self.robot.receive(self.to_robot.popleft())

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from protocol import (
     Action,
+    ActionRefused,
     AnyMessage,
     CancelAction,
     Cancelled,
@@ -155,6 +156,83 @@ def test_cancel_of_the_current_action_only_while_it_waits_for_its_cell() -> None
     assert s.drain() == [] and s.current == "0.0.0"
 
 
+def test_cancel_of_a_move_stopped_on_the_way_is_confirmed_once_the_body_is_back() -> None:
+    s = RobotSession(0)
+    welcomed(s)
+    s.receive(action(0))
+    s.receive(action(1))
+    assert s.take() is not None
+    s.report("started", "0.0.0")
+    s.report("blocked", "0.0.0")  # a bumper: a stop on the way
+    s.drain()
+    s.receive(msg(CancelAction, action_id="0.0.0"))
+    effects = s.drain()
+    assert effects[0] == Abort("0.0.0", moved=True)
+    assert sent(effects) == [("cancelled", "0.0.1")]  # the queue at once, not the move yet
+    assert s.current == "0.0.0" and s.take() is None
+    s.receive(msg(CancelAction, action_id="0.0.0"))  # repeated: already going back
+    assert s.drain() == []
+    s.aborted("0.0.1")  # not the current action: ignored
+    assert s.drain() == []
+    s.aborted("0.0.0", Pose(cell=(0, 0)))
+    (confirm,) = [e.message for e in s.drain() if isinstance(e, Send)]
+    assert isinstance(confirm, Cancelled) and confirm.pose == Pose(cell=(0, 0))
+    assert s.current is None and s.activity() is None
+
+
+def turn_or_move(i: int, src: tuple[int, int], h0: str, dst: tuple[int, int], h1: str,
+                 plan: int = 0) -> Action:
+    return msg(Action, action_id=f"{plan}.0.{i}", sequence=i, src=Pose(cell=src, heading=h0),
+               dst=Pose(cell=dst, heading=h1), duration_ms=1000.0)
+
+
+def refusals(effects: list[RobotEffect]) -> list[tuple[str, str]]:
+    return [(e.message.action_id, e.message.code) for e in effects
+            if isinstance(e, Send) and isinstance(e.message, ActionRefused)]
+
+
+def test_an_action_that_does_not_start_where_the_robot_will_stand_is_refused() -> None:
+    s = RobotSession(0)
+    s.connected(Pose(cell=(0, 0), heading="E"))
+    s.receive(msg(Welcome, robot_id=0))
+    s.drain()
+    s.receive(turn_or_move(0, (0, 0), "E", (0, 0), "N"))  # a turn: starts as the robot stands
+    s.receive(turn_or_move(1, (0, 0), "E", (1, 0), "E"))  # but the turn ends facing N
+    s.receive(turn_or_move(2, (1, 0), "E", (2, 0), "E"))  # behind a refused one
+    effects = s.drain()
+    assert sent(effects)[0] == ("ack", "0.0.0")
+    assert refusals(effects) == [("0.0.1", "pose_mismatch"), ("0.0.2", "queued_behind")]
+    (why,) = [e.message.detail for e in effects
+              if isinstance(e, Send) and isinstance(e.message, ActionRefused)][:1]
+    assert why == "it starts at [0, 0] facing E, but the robot will stand at [0, 0] facing N"
+    assert [a.action_id for a in s.queue] == ["0.0.0"]
+    # a replan's plan from where the robot will stand is taken; the cell counts too
+    s.receive(turn_or_move(0, (0, 0), "N", (0, 1), "N", plan=1))
+    s.receive(turn_or_move(1, (0, 2), "N", (0, 3), "N", plan=1))
+    effects = s.drain()
+    assert sent(effects)[0] == ("ack", "1.0.0")
+    assert refusals(effects) == [("1.0.1", "pose_mismatch")]
+    # an omni action (no heading) is checked on its cell only
+    s.receive(msg(Action, action_id="1.0.1", sequence=1, src=Pose(cell=(0, 1)),
+                  dst=Pose(cell=(0, 2)), duration_ms=1000.0))
+    assert sent(s.drain()) == [("ack", "1.0.1")]
+
+
+def test_an_action_the_body_cannot_start_when_due_is_refused_with_its_queue() -> None:
+    s = RobotSession(0)
+    s.connected(Pose(cell=(0, 0), heading="E"))
+    s.receive(msg(Welcome, robot_id=0))
+    s.receive(turn_or_move(0, (0, 0), "E", (1, 0), "E"))
+    s.receive(turn_or_move(1, (1, 0), "E", (2, 0), "E"))
+    s.drain()
+    assert s.take() is not None
+    s.refuse_current("pose_mismatch", "the robot faces N", Pose(cell=(0, 0), heading="N"))
+    assert refusals(s.drain()) == [("0.0.0", "pose_mismatch")]
+    assert s.current is None and not s.queue and s.take() is None
+    s.receive(turn_or_move(2, (2, 0), "E", (3, 0), "E"))  # was in flight: refused too
+    assert refusals(s.drain()) == [("0.0.2", "queued_behind")]
+
+
 def test_pause_resume_and_a_link_loss_stop_new_starts() -> None:
     s = RobotSession(0)
     welcomed(s)
@@ -220,7 +298,11 @@ def test_state_snapshot_errors_and_refused_actions() -> None:
     bad = msg(Action, action_id="0.0.0", sequence=0, src=Pose(cell=(0, 0)),
               dst=Pose(cell=(1, 0)), duration_ms=9000.0)
     s.receive(bad)
-    assert s.drain() == [Refused(bad, "too long")]  # not acknowledged, not held
+    effects = s.drain()
+    assert effects[0] == Refused(bad, "too long")  # not acknowledged, not held
+    (refusal,) = [e.message for e in effects if isinstance(e, Send)]  # told (protocol v2)
+    assert isinstance(refusal, ActionRefused) and refusal.action_id == "0.0.0"
+    assert (refusal.code, refusal.detail) == ("cannot_execute", "too long")
     s.receive(action(0))
     assert s.take() is not None
     s.report("started", "0.0.0")

@@ -24,6 +24,7 @@ from gateway.server.clock import LoopClock, run_virtual
 from protocol import (
     Ack,
     Action,
+    ActionRefused,
     Blocked,
     CancelAction,
     Cancelled,
@@ -44,8 +45,9 @@ from robot_client.frames import CapturedFrame, monotonic_ms
 from robot_client.kobuki import KobukiSerial
 from robot_client.odometry import wrap_angle
 from tests.robot_client.floor_render import FloorRenderer
-from tests.robot_client.kobuki_side import SimulatedBase, run_realtime
+from tests.robot_client.kobuki_side import SimulatedBase
 from tests.robot_client.mini_gateway import Conn, MiniGateway
+from tests.robot_client.on_pty import client_on_pty
 
 FLOOR = FloorGrid(5, 4, 0.4, 0.12)
 RENDERER = FloorRenderer(5, 4, 0.4, 0.12)
@@ -99,9 +101,7 @@ async def scripted_robot(token: str = TOKEN, *, virtual: bool) -> AsyncIterator[
     (run it under :func:`run_virtual`)."""
     gateway = MiniGateway(TOKEN)
     url = "ws://in-memory/" if virtual else f"ws://127.0.0.1:{await gateway.start()}/"
-    master, slave = os.openpty()
     sim = SimulatedBase(x=0.4, y=-0.4, theta=0.0)  # centre of cell (1, 1), facing E
-    base = KobukiSerial(os.ttyname(slave))
     frames = None if virtual else RenderedFrames(sim)
     settings = load_settings(
         None, robot_id=3, token=token, gateway_url=url,
@@ -109,22 +109,16 @@ async def scripted_robot(token: str = TOKEN, *, virtual: bool) -> AsyncIterator[
         max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0, camera_period_ms=50,
         reconnect_min_s=0.1, reconnect_max_s=0.3, ping_interval_s=1.0, ping_timeout_s=1.0,
         bumper_pause_ms=400.0)
-    client = build_client(settings, base, frames, clock=LoopClock() if virtual else None,
-                          connect=gateway.connect if virtual else websocket_connect)
-    stop = asyncio.Event()
-    sim_task = asyncio.create_task(run_realtime(sim, master, stop))
-    client_task = asyncio.create_task(client.run())
+
+    def build(base: KobukiSerial) -> RobotClient:
+        return build_client(settings, base, frames, clock=LoopClock() if virtual else None,
+                            connect=gateway.connect if virtual else websocket_connect)
+
     try:
-        yield Robot(gateway, client, sim, frames)
+        async with client_on_pty(sim, build) as client:
+            yield Robot(gateway, client, sim, frames)
     finally:
-        client.stop()
-        await client_task
-        stop.set()
-        await sim_task
         await gateway.close()
-        base.close()
-        os.close(slave)
-        os.close(master)
 
 
 @pytest.fixture
@@ -244,7 +238,7 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
 @in_virtual_time()
 async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     conn, _ = await handshake(robot, paused=True, state_period_ms=60000.0)  # one snapshot only
-    await conn.send(Action, **action(0, (1, 1), (1, 0), "N", "N"))
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
     await conn.expect(Ack, "0.3.0")
     await asyncio.sleep(0.3)
     # paused: the action is held, not started
@@ -276,6 +270,57 @@ async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     assert [m.action_id for m in conn.of_type(Started)] == ["0.3.1"]
     assert [m.action_id for m in conn.of_type(Blocked)] == ["0.3.1"]
     assert [m.action_id for m in conn.of_type(Unblocked)] == ["0.3.1"]
+
+
+@in_virtual_time()
+async def test_a_cancel_of_a_bumper_stopped_move_drives_back_then_confirms(robot: Robot) -> None:
+    # a replan cancels a move the bumper stopped on the way: the robot goes back to the move's
+    # source cell and heading, and only then confirms (the executor plans from that cell)
+    conn, _ = await handshake(robot, state_period_ms=60000.0)
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
+    await conn.send(Action, **action(1, (2, 1), (3, 1), "E", "E"))  # lookahead: queued
+    await conn.expect(Started, "0.3.0")
+    async with asyncio.timeout(10):
+        while robot.sim.x < 0.4 + 0.12:  # well on the way to (2, 1)
+            await asyncio.sleep(0.01)
+    robot.sim.bumper = 0x02
+    await conn.expect(Blocked, "0.3.0")
+    await conn.send(CancelAction, action_id="0.3.0")
+    # the queued action behind it is dropped at once; the stopped move once back
+    await conn.expect(Cancelled, "0.3.1")
+    await asyncio.sleep(0.2)
+    robot.sim.bumper = 0  # the obstacle stays in front for a while: the way back is free
+    done = await conn.expect(Cancelled, "0.3.0")
+    assert done.pose == Pose(cell=(1, 1), heading="E")
+    assert robot.at((1, 1)) < ARRIVED_M
+    assert abs(wrap_angle(robot.sim.theta)) < math.radians(4)
+    await asyncio.sleep(0.3)
+    assert not conn.of_type(Finished) and not conn.of_type(Unblocked)
+    assert robot.sim.command == (0, 0) and not robot.client.body.runner.busy
+    # the replan's first action from there runs as usual
+    await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E") | {"action_id": "1.3.0"})
+    await conn.expect(Finished, "1.3.0")
+    assert robot.at((2, 1)) < ARRIVED_M
+
+
+@in_virtual_time()
+async def test_a_move_that_does_not_start_from_the_robots_heading_is_refused(
+        robot: Robot) -> None:
+    conn, _ = await handshake(robot, state_period_ms=60000.0)
+    await conn.send(Action, **action(0, (1, 1), (1, 0), "N", "N"))  # the robot faces E
+    await conn.send(Action, **action(1, (1, 0), (1, 0), "N", "W"))
+    refused = await conn.expect(ActionRefused, "0.3.0")
+    assert refused.code == "pose_mismatch" and refused.pose == Pose(cell=(1, 1), heading="E")
+    assert refused.detail == ("it starts at [1, 1] facing N, but the robot will stand at "
+                              "[1, 1] facing E")
+    behind = await conn.expect(ActionRefused, "0.3.1")
+    assert behind.code == "queued_behind"
+    await asyncio.sleep(0.3)
+    assert not conn.of_type(Ack) and not conn.of_type(Started)
+    assert robot.at((1, 1)) < 0.005 and robot.sim.command == (0, 0)
+    # the plan that turns first is taken
+    await conn.send(Action, **action(0, (1, 1), (1, 1), "E", "N") | {"action_id": "1.3.0"})
+    await conn.expect(Finished, "1.3.0")
 
 
 @in_virtual_time()

@@ -9,7 +9,6 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
-import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
@@ -21,8 +20,8 @@ from protocol import LoadPlan, Start
 from robot_client.client import Connection, RobotClient, build_client
 from robot_client.config import RobotSettings, load_settings
 from robot_client.floor import FloorGrid
-from robot_client.kobuki import KobukiSerial
-from tests.robot_client.kobuki_side import SimulatedBase, run_realtime
+from tests.robot_client.kobuki_side import SimulatedBase
+from tests.robot_client.on_pty import client_on_pty
 
 LAB = FloorGrid(14, 10, 0.4, 0.12)  # the lab map is 14 x 10 cells
 TOKEN = "robot-0-token"
@@ -49,11 +48,8 @@ async def lab_robot(path: list[tuple[int, int]], token: str = TOKEN) -> AsyncIte
     on a pty base connected to it in memory."""
     config = GatewayConfig(port=0, map=None, policy="none", state_period_ms=300.0,
                            tokens=TokensConfig(robots={TOKEN: 0}, demo_robot_prefix=None))
-    master, slave = os.openpty()
     x, y = LAB.centre(path[0])
     sim = SimulatedBase(x=x, y=y, theta=0.0)
-    base = KobukiSerial(os.ttyname(slave))
-    stop = asyncio.Event()
     async with Gateway(config, clock=VirtualClock()) as gw:
         code, detail = await gw.command(LoadPlan(msg_id="op-1", seq=0, map="lab",
                                                  paths=[list(path)]))
@@ -71,20 +67,10 @@ async def lab_robot(path: list[tuple[int, int]], token: str = TOKEN) -> AsyncIte
             grid_height=10, cell_m=0.4, tag_size_m=0.12, start_x=path[0][0],
             start_y=path[0][1], max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0,
             reconnect_min_s=0.1, reconnect_max_s=0.3, bumper_pause_ms=400.0)
-        client = build_client(settings, base, None, clock=LoopClock(), connect=connect)
-        setup = Setup(gw, client, sim)
-        sim_task = asyncio.create_task(run_realtime(sim, master, stop))
-        client_task = asyncio.create_task(client.run())
-        try:
+        async with client_on_pty(sim, lambda base: build_client(
+                settings, base, None, clock=LoopClock(), connect=connect)) as client:
+            setup = Setup(gw, client, sim)
             yield setup
-        finally:
-            client.stop()
-            await client_task
-            stop.set()
-            await sim_task
-            base.close()
-            os.close(slave)
-            os.close(master)
 
 
 async def until(predicate: object, timeout_s: float = 30.0) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
@@ -21,10 +20,10 @@ from robot_client.client import RobotClient, build_client
 from robot_client.config import load_settings
 from robot_client.floor import FloorGrid
 from robot_client.frames import CapturedFrame, monotonic_ms
-from robot_client.kobuki import KobukiSerial
 from robot_client.odometry import wrap_angle
 from tests.robot_client.floor_render import FloorRenderer
-from tests.robot_client.kobuki_side import SimulatedBase, run_realtime
+from tests.robot_client.kobuki_side import SimulatedBase
+from tests.robot_client.on_pty import client_on_pty
 from tests.robot_client.tcp_proxy import CuttableProxy
 
 LAB = FloorGrid(14, 10, 0.4, 0.12)  # the lab map is 14 x 10 cells
@@ -75,11 +74,8 @@ async def lab_robot(path: list[tuple[int, int]]) -> AsyncIterator[Setup]:
     config = GatewayConfig(host="127.0.0.1", port=0, state_period_ms=300.0,
                            ping_interval_s=1.0, ping_timeout_s=2.0,
                            tokens=TokensConfig(robots={TOKEN: 0}, demo_robot_prefix=None))
-    master, slave = os.openpty()
     x, y = LAB.centre(path[0])
     sim = SimulatedBase(x=x, y=y, theta=0.0)
-    base = KobukiSerial(os.ttyname(slave))
-    stop = asyncio.Event()
     async with Gateway(config) as gw:
         proxy = CuttableProxy(await gw.listen(port=0))
         port = await proxy.start()
@@ -92,23 +88,15 @@ async def lab_robot(path: list[tuple[int, int]]) -> AsyncIterator[Setup]:
             start_y=path[0][1], max_speed_m_s=0.4, linear_gain=4.0, max_turn_rad_s=2.0,
             camera_period_ms=50, reconnect_min_s=0.1, reconnect_max_s=0.3,
             bumper_pause_ms=400.0)
-        client = build_client(settings, base, LabFrames(sim))
-        sim_task = asyncio.create_task(run_realtime(sim, master, stop))
-        client_task = asyncio.create_task(client.run())
         try:
-            async with asyncio.timeout(10):
-                while client.sessions == 0:
-                    await asyncio.sleep(0.05)
-            yield Setup(gw, proxy, client, sim)
+            async with client_on_pty(sim, lambda base: build_client(
+                    settings, base, LabFrames(sim))) as client:
+                async with asyncio.timeout(10):
+                    while client.sessions == 0:
+                        await asyncio.sleep(0.05)
+                yield Setup(gw, proxy, client, sim)
         finally:
-            client.stop()
-            await client_task
-            stop.set()
-            await sim_task
             await proxy.close()
-            base.close()
-            os.close(slave)
-            os.close(master)
 
 
 async def test_real_gateway_drives_a_robot_through_its_plan() -> None:

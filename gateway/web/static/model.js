@@ -123,6 +123,14 @@ export class FleetModel {
         if (r && samePlan) r.activity = e.event === "blocked" ? "blocked" : "received";
         if (e.event === "blocked") this.note(e.t_ms, `robot ${e.robot} blocked`, "warn");
         return true;
+      case "refused":
+        if (r && samePlan) {
+          r.activity = "idle";
+          r.action_id = null;
+        }
+        this.note(e.t_ms, `robot ${e.robot} refused action ${e.action}` +
+          (e.reason ? `: ${e.reason}` : ""), "warn");
+        return true;
       case "cancel":
         if (r) {
           r.activity = "idle";
