@@ -336,6 +336,14 @@ class Executor:
             self.blocks.opened(cell, now_ms)
         self._trace("blocked", robot, action)
 
+    def _watch_blocks(self) -> None:
+        """Every robot still waiting for a blocked cell sees it blocked now."""
+        if not self.blocks.open:
+            return
+        for queue in self._queue:
+            if queue and self._blocked[queue[0]]:
+                self.blocks.still_blocked(self.adg.dst[queue[0]], self._now)
+
     def _planned_occupant(self, cell: Cell, robot: int) -> bool:
         """True if a robot other than ``robot`` stands on ``cell`` or is moving into it."""
         adg = self.adg
@@ -366,6 +374,8 @@ class Executor:
         self._expect(self._status[v] in (_DISPATCHED, _STARTED) and bool(self._cancelling[v]),
                      "cancelled", robot, action, "no Cancel is outstanding for it")
         self._advance(now_ms)
+        if self._blocked[v]:
+            self.blocks.still_blocked(self.adg.dst[v], now_ms)
         if self._status[v] == _STARTED:
             self.monitor.action_cancelled(v)
         self._status[v] = _PENDING
@@ -403,6 +413,7 @@ class Executor:
         self._check_time(now_ms)
         self._advance(now_ms)
         self.monitor.advance(self._now)
+        self._watch_blocks()
         if (self.mode is Mode.RUNNING and not self.paused and self.replans < self.max_replans
                 and self.policy.should_replan(self._now, self.monitor)):
             self._trigger(self.policy.name)

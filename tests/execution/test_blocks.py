@@ -15,24 +15,31 @@ def test_estimates_by_hand() -> None:
     b = BlockTracker(min_ms=1000.0)
     b.opened((1, 1), 5000.0)
     # Nothing earlier: a block seen for e lasts 2e in all, never under one action.
-    assert b.expected_end_ms((1, 1), 5000.0) == 6000.0
-    assert b.expected_end_ms((1, 1), 5400.0) == 6000.0
-    assert b.expected_end_ms((1, 1), 7000.0) == 9000.0
-    b.opened((1, 1), 6000.0)  # a second report keeps the first start
+    assert b.expected_end_ms((1, 1)) == 6000.0
+    b.still_blocked((1, 1), 5400.0)
+    assert b.expected_end_ms((1, 1)) == 6000.0
+    b.still_blocked((1, 1), 7000.0)
+    assert b.expected_end_ms((1, 1)) == 9000.0
+    # Nobody looks any more: the estimate stays; past its end it is no obstacle.
+    assert b.obstacles(8999.0) == (((1, 1), 9000.0),) and b.obstacles(9000.0) == ()
+    b.opened((1, 1), 7500.0)  # a second report keeps the first start
+    assert b.expected_end_ms((1, 1)) == 10_000.0
     b.cleared((1, 1), 8000.0)
-    assert b.history == [3000.0] and not b.open
+    assert b.history == [3000.0] and not b.open and not b.seen
     b.cleared((1, 1), 9000.0)  # nothing open there: nothing to remember
-    assert b.history == [3000.0]
-    b.cleared((2, 2), 9000.0)
+    b.still_blocked((1, 1), 9000.0)
+    assert b.history == [3000.0] and not b.seen
     b.opened((2, 2), 10_000.0)
     b.history.append(7000.0)
-    # Lasted 1000: the earlier blocks that lasted longer (3000, 7000) average 5000.
-    assert b.expected_end_ms((2, 2), 11_000.0) == 15_000.0
-    # Lasted 4000: only the 7000 one lasted longer.
-    assert b.expected_end_ms((2, 2), 14_000.0) == 17_000.0
-    # Lasted 8000, longer than any earlier: 2e.
-    assert b.expected_end_ms((2, 2), 18_000.0) == 26_000.0
-    assert b.obstacles(18_000.0) == (((2, 2), 26_000.0),)
+    # Seen for 1000: the earlier blocks that lasted longer (3000, 7000) average 5000.
+    b.still_blocked((2, 2), 11_000.0)
+    assert b.expected_end_ms((2, 2)) == 15_000.0
+    # Seen for 4000: only the 7000 one lasted longer.
+    b.still_blocked((2, 2), 14_000.0)
+    assert b.expected_end_ms((2, 2)) == 17_000.0
+    # Seen for 8000, longer than any earlier: 2e.
+    b.still_blocked((2, 2), 18_000.0)
+    assert b.expected_end_ms((2, 2)) == 26_000.0
 
 
 def _two_robots() -> Plan:
@@ -57,6 +64,9 @@ def test_a_block_with_no_planned_occupant_goes_to_an_informed_replan(informed: b
     assert len(req) == 1
     # Lasted 2000 ms, nothing earlier: expected to clear at 4000 ms.
     assert req[0].obstacles == ((((1, 0), 4000.0),) if informed else ())
+    # Nobody waits for (1,0) any more: the estimate no longer grows with time.
+    ex.tick(3000.0)
+    assert ex.blocks.open == {(1, 0): 0.0} and ex.blocks.expected_end_ms((1, 0)) == 4000.0
 
 
 def test_a_robot_moving_in_clears_the_block_and_a_held_cell_is_no_block() -> None:

@@ -55,9 +55,12 @@ def test_the_replan_gets_the_reported_block_and_its_estimated_end() -> None:
             assert on and first  # slack grew because the intruder blocked a robot
             cell = tuple(on[0]["cell"])
             since = first[0]["t_ms"]
-            # The block reported, expected to last twice as long as seen so far (nothing
-            # earlier to go by), at least one action: not the intruder's real 10 s.
-            assert req.obstacles == ((cell, since + max(2 * (now - since), 1000.0)),)
+            trigger, = (r["t_ms"] for r in records if r["type"] == "trigger")
+            assert trigger <= now  # the solve waits for the running moves to end
+            # The block reported, expected to last twice as long as it was seen (until the
+            # replan cancelled the waiting robot; nothing earlier to go by), at least one
+            # action: not the intruder's real 10 s.
+            assert req.obstacles == ((cell, since + max(2 * (trigger - since), 1000.0)),)
             assert req.obstacles[0][1] != 10_000
             checked += 1
     assert checked >= 2
