@@ -105,6 +105,16 @@ GatewayEffect = ToRobot | Refuse | Report
 """What :meth:`GatewaySession.drain` hands to the driver."""
 
 
+def hello_refusal(msg: Hello, turning_plan: bool) -> str | None:
+    """Why a robot's hello is refused before it gets a session (then the driver answers
+    ``unsupported_version`` and closes the connection with 1008), or None: a protocol v1 robot
+    moves omni-directionally, so it cannot execute a plan for turning robots."""
+    if msg.v < 2 and turning_plan:
+        return ("the plan is for turning robots: protocol v2 needed (a v1 robot moves "
+                "omni-directionally)")
+    return None
+
+
 @dataclass
 class Held:
     """An action the robot holds: dispatched, not finished or cancelled."""

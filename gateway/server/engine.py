@@ -75,6 +75,7 @@ from protocol import (
     ActionRefused,
     Blocked,
     Cancelled,
+    CloseCode,
     ErrorCode,
     Finished,
     Hello,
@@ -87,7 +88,7 @@ from protocol import (
     Unblocked,
     action_id,
 )
-from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot
+from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot, hello_refusal
 from protocol.messages import HEADINGS, GatewayStatus, PolicyName
 
 log = logging.getLogger("fleetgate.engine")
@@ -318,11 +319,10 @@ class Engine:
         session.version = msg.v  # answer in the robot's protocol version
         plan = self.executor.plan if self.executor is not None else (
             self.problem.plan if self.problem is not None else None)
-        if msg.v < 2 and plan is not None and plan.headings is not None:
-            session.error(ErrorCode.UNSUPPORTED_VERSION, msg.msg_id,
-                          "the plan is for turning robots: protocol v2 needed (a v1 robot "
-                          "moves omni-directionally)")
-            session.close(1008, "protocol v1 robot on a turning plan")
+        refusal = hello_refusal(msg, plan is not None and plan.headings is not None)
+        if refusal is not None:
+            session.error(ErrorCode.UNSUPPORTED_VERSION, msg.msg_id, refusal)
+            session.close(CloseCode.POLICY, "protocol v1 robot on a turning plan")
             return
         gs = self.robot(r)
         old = gs.link

@@ -26,7 +26,7 @@ from protocol import (
     Pose,
     Welcome,
 )
-from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot
+from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot, hello_refusal
 from protocol.robot_session import Abort, RobotSession, Send
 
 _n = iter(range(10**9))
@@ -298,3 +298,12 @@ def test_a_v2_blocked_of_a_move_under_way_is_a_stop_on_the_way() -> None:
         gs.report("unblocked", "0.0.0", "u", link, 3.0)
         accept_all(gs)
         assert gs.held["0.0.0"].phase == "running"  # it drives on
+
+
+def test_a_v1_robot_is_refused_only_on_a_turning_plan() -> None:
+    v1 = Hello(v=1, msg_id="h", seq=0, robot_id=0)
+    v2 = Hello(v=2, msg_id="h", seq=0, robot_id=0)
+    assert hello_refusal(v1, turning_plan=False) is None
+    assert hello_refusal(v2, turning_plan=True) is None
+    refusal = hello_refusal(v1, turning_plan=True)
+    assert refusal is not None and "v2" in refusal
