@@ -799,6 +799,17 @@ async def _cancel(t: Target) -> None:
         await run.__aexit__(None, None, None)
 
 
+async def _expect_plan_1_from(robot: Robot, cell: Cell) -> None:
+    """Wait for the robot's first action of plan 1 and check that it starts on ``cell``
+    (where the robot stands)."""
+    nxt = await robot.conn.expect_type(
+        Action, 15.0, lambda a: parse_action_id(a.action_id)[0] == 1,
+        what="an action of plan 1")
+    robot.actions[nxt.action_id] = nxt
+    if tuple(nxt.src.cell) != cell:
+        raise CheckFailed(f"plan 1 starts on {nxt.src.cell}, the robot is on {cell}")
+
+
 @check("new-plan-after-replan", "CANCEL-6")
 async def _new_plan(t: Target) -> None:
     """After the cancels are confirmed, actions of the next plan number arrive, starting
@@ -807,13 +818,7 @@ async def _new_plan(t: Target) -> None:
     try:
         for c in cancels:
             await robot.report(Cancelled, c.action_id)
-        nxt = await robot.conn.expect_type(
-            Action, 15.0, lambda a: parse_action_id(a.action_id)[0] == 1,
-            what="an action of plan 1")
-        robot.actions[nxt.action_id] = nxt
-        if tuple(nxt.src.cell) != _lane(t)[1]:
-            raise CheckFailed(f"plan 1 starts on {nxt.src.cell}, the robot is on "
-                              f"{_lane(t)[1]}")
+        await _expect_plan_1_from(robot, _lane(t)[1])
     finally:
         await run.__aexit__(None, None, None)
 
@@ -839,13 +844,7 @@ async def _refused_back(t: Target) -> None:
         await robot.conn.quiet("error or action", lambda m: isinstance(m, Error | Action),
                                QUIET_S)
         await op.command(ReplanNow)
-        nxt = await robot.conn.expect_type(
-            Action, 15.0, lambda a: parse_action_id(a.action_id)[0] == 1,
-            what="an action of plan 1")
-        robot.actions[nxt.action_id] = nxt
-        if tuple(nxt.src.cell) != tuple(first.src.cell):
-            raise CheckFailed(f"plan 1 starts on {nxt.src.cell}, the robot is on "
-                              f"{first.src.cell}")
+        await _expect_plan_1_from(robot, (first.src.cell[0], first.src.cell[1]))
     finally:
         await run.__aexit__(None, None, None)
 

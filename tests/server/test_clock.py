@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
@@ -19,7 +20,10 @@ from tests.server.robots import TestRobot
 from tracecheck import check_trace, read_trace
 
 
-async def _run_lab(trace: Path) -> tuple[float, float, float]:
+async def _run_lab(trace: Path, meanwhile: Callable[[Gateway], Awaitable[None]] | None = None,
+                   ) -> tuple[float, float, float]:
+    """Three robots run the lab plan in virtual time (``meanwhile`` is awaited after the
+    start); the SOC, the makespan and the time at the end."""
     async with Gateway(make_config(trace=trace), clock=VirtualClock()) as gw:
         await gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS))
         robots = [TestRobot(await gw.connect(f"demo-robot-{i}"), i, move_s=1.0)
@@ -28,6 +32,8 @@ async def _run_lab(trace: Path) -> tuple[float, float, float]:
             await r.hello()
         tasks = [asyncio.create_task(r.run()) for r in robots]
         await gw.command(Start(msg_id="s", seq=1))
+        if meanwhile is not None:
+            await meanwhile(gw)
         soc, makespan = await gw.wait_done()
         for t in tasks:
             t.cancel()
@@ -93,32 +99,20 @@ async def test_real_clock_runs_the_solver_in_a_thread() -> None:
     assert worker != main
 
 
-
-async def _intruder_handled_late(trace: Path) -> None:
-    async with Gateway(make_config(trace=trace), clock=VirtualClock()) as gw:
-        await gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS))
-        robots = [TestRobot(await gw.connect(f"demo-robot-{i}"), i, move_s=1.0)
-                  for i in range(3)]
-        for r in robots:
-            await r.hello()
-        await gw.connect("demo-world")
-        tasks = [asyncio.create_task(r.run()) for r in robots]
-        await gw.command(Start(msg_id="s", seq=1))
-        await gw.clock.sleep_until_ms(1250.0)  # the monitor ticked at 1200 ms
-        [world] = [s for s in gw._sessions if s.peer.role == "world"]
-        # what a busy owner task sees: a report that arrived at 1210 ms, handled at 1250 ms
-        report = IntruderReport(msg_id="i", seq=0, cell=(8, 1), state="on")
-        gw.engine.queue.put_nowait(Inbound(world, report, time.perf_counter(), 1210.0))
-        await gw.wait_done()
-        for t in tasks:
-            t.cancel()
+async def _intruder_handled_late(gw: Gateway) -> None:
+    await gw.connect("demo-world")
+    await gw.clock.sleep_until_ms(1250.0)  # the monitor ticked at 1200 ms
+    [world] = [s for s in gw._sessions if s.peer.role == "world"]
+    # what a busy owner task sees: a report that arrived at 1210 ms, handled at 1250 ms
+    report = IntruderReport(msg_id="i", seq=0, cell=(8, 1), state="on")
+    gw.engine.queue.put_nowait(Inbound(world, report, time.perf_counter(), 1210.0))
 
 
 def test_an_intruder_report_takes_effect_when_it_arrived(tmp_path: Path) -> None:
     # Stamped when the owner task handled it, an intruder report came after robot reports that
     # arrived later but carry their arrival time: the trace's time went backwards (CI, stop 8).
     trace = tmp_path / "t.jsonl"
-    run_virtual(_intruder_handled_late(trace))
+    run_virtual(_run_lab(trace, _intruder_handled_late))
     records = read_trace(trace)
     [on] = [r for r in records if r["type"] == "intruder"]
     assert on["t_ms"] == 1210.0
