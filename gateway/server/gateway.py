@@ -50,6 +50,7 @@ from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
 from gateway.server.http import HttpRoutes, json_response, response
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
+from gateway.server.lifelong_run import LifelongRun, shift_from
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
@@ -142,6 +143,12 @@ class Gateway:
             return
         self.clock.reset()
         cfg = self.config
+        if cfg.lifelong is not None:  # a shift: not journaled yet (lifelong_run.py)
+            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
+            self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
+                                                                 name="owner")
+            self.engine.operator.maybe_autostart()
+            return
         if cfg.journal is not None:
             try:
                 journal = self.engine.journal = Journal(cfg.journal)
