@@ -251,6 +251,18 @@ def write_problem(directory: str | Path, name: str, grid: Grid, starts: list[int
     return path
 
 
+def warehouse_blocks(robots: int) -> tuple[int, int]:
+    """Shelf blocks (x, y) of a :func:`warehouse_problem` with at least 12 free cells per
+    robot (at least 3 x 4)."""
+    bx = 3
+    while True:
+        by = bx + 1
+        width, height = 12 * bx + 2, 4 * by + 2  # shelves 10 x 2, aisles 2, border 2
+        if width * height - 20 * bx * by >= 12 * robots or bx >= 40:
+            return bx, by
+        bx += 1
+
+
 def warehouse_problem(robots: int, seed: int, blocks: tuple[int, int] = (13, 25),
                       p_delay: float = 0.01) -> LorrProblem:
     """A generated warehouse (``blocks`` shelf blocks of 10 x 2 cells in x and y, aisles of 2;
