@@ -172,6 +172,7 @@ class LifelongExecutor:
         self._next_check = 0.0
         self.fleet_slack_ms = 0.0
         """Δ̄F at the last slack check."""
+        self._slack_based = True  # Δ0 is known for every pending action
         self.triggers = 0
         self.errands_done = 0
 
@@ -272,6 +273,9 @@ class LifelongExecutor:
         if self.threshold_ms is not None and now_ms >= self._next_check:
             self._next_check = now_ms + self.monitor_period_ms
             slacks = self._slacks(self.estimate(now_ms))
+            if not self._slack_based:  # the threshold was off: Δ0 starts from now
+                self._slack0 = [deque(row) for row in slacks]
+                self._slack_based = True
             self.fleet_slack_ms = self._fleet_slack(slacks)
             if self.fleet_slack_ms > self.threshold_ms and self.outstanding is None \
                     and now_ms < self._next_call:
@@ -284,6 +288,20 @@ class LifelongExecutor:
                 self._next_call = now_ms
         if self.outstanding is None and now_ms >= self._next_call and not self.paused:
             self._call()
+
+    def plan_now(self, now_ms: float) -> None:
+        """The operator's "replan now": the next planning call is made at once (a
+        ``trigger`` record says so); nothing committed changes."""
+        self._check_time(now_ms)
+        if self.mode is not LifelongMode.RUNNING or self.outstanding is not None:
+            raise ExecutionError("cannot plan now: "
+                                 + ("a planner call is running" if self.outstanding
+                                    is not None else f"the run is {self.mode.value}"))
+        self._now = now_ms
+        self._out.append(Trigger("operator", self.fleet_slack_ms))
+        if self._record is not None:
+            self._record(trigger_record(now_ms, "operator", self.fleet_slack_ms))
+        self._call()
 
     # ------------------------------------------------------------------ planning
     def late(self, now_ms: float) -> list[bool]:
@@ -398,6 +416,7 @@ class LifelongExecutor:
     def _initial_slack(self, before: Sequence[int]) -> None:
         """Δ0 of the actions just appended (robot r's from number ``before[r]`` on)."""
         if self.threshold_ms is None:
+            self._slack_based = False
             return
         slacks = self._slacks(self.estimate(self._now))
         adg = self.adg

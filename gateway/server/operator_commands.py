@@ -131,6 +131,13 @@ class OperatorCommands:
                 self._set_paused(False)
                 return "resumed"
             case ReplanNow():
+                if e.lifelong is not None and not e.paused:
+                    try:
+                        e.lifelong.executor.plan_now(e.now_ms())
+                    except ExecutionError as exc:
+                        raise CommandError(ErrorCode.BAD_STATE, str(exc)) from None
+                    e.lifelong.route()
+                    return "planning a window now"
                 if e.executor is None or e.paused:
                     raise CommandError(ErrorCode.BAD_STATE, f"cannot replan while {e.status}")
                 try:
@@ -146,6 +153,8 @@ class OperatorCommands:
                 return f"policy {e.policy_name}"
             case SetThreshold():
                 e.threshold_ms = msg.threshold_ms
+                if e.lifelong is not None:
+                    e.lifelong.executor.threshold_ms = msg.threshold_ms
                 self._policy_changed(replace=False)
                 e.status_changed()
                 return f"threshold {e.threshold_ms} ms"

@@ -212,3 +212,28 @@ def test_long_stops_trigger_an_early_planning_call() -> None:
     assert check_trace(run.records).ok
     quiet = drive(3, stop_p=0.05, stop_ms=(6000.0, 12000.0), threshold_ms=None)
     assert not any(r["type"] == "trigger" for r in quiet.records)
+
+
+def test_operator_plan_now_and_a_threshold_switched_on_later() -> None:
+    prob = small_problem(2, robots=6, size=10, p_delay=0.0)
+    records: list[dict[str, Any]] = []
+    ex = LifelongExecutor(prob.grid, prob.starts, [0] * 6, TaskPool(prob.tasks, 9),
+                          distances=TaskDistances(prob.grid), record=records.append)
+    planner = WindowPlanner(prob.grid, 6, True)
+    ex.start(0.0)
+    req = next(c for c in ex.drain() if isinstance(c, PlanRequest))
+    with pytest.raises(ExecutionError, match="a planner call is running"):
+        ex.plan_now(5.0)
+    ex.adopt(planner(req), 10.0)
+    ex.drain()
+    ex.plan_now(20.0)  # long before the period is over
+    out = ex.drain()
+    assert any(isinstance(c, Trigger) and c.policy == "operator" for c in out)
+    req2 = next(c for c in out if isinstance(c, PlanRequest))
+    assert req2.call == 1 and records[-1]["type"] == "trigger"
+    ex.adopt(planner(req2), 30.0)
+    ex.threshold_ms = 2000.0  # off at the start: Δ0 is taken at the next check
+    ex.tick(600.0)
+    assert ex.fleet_slack_ms == 0.0
+    ex.tick(1200.0)
+    assert ex.fleet_slack_ms >= 0.0
