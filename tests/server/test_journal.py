@@ -4,6 +4,7 @@ a restarted gateway resumes the run, and action ids never repeat across runs or 
 from __future__ import annotations
 
 import asyncio
+import json
 import random
 import time
 from array import array
@@ -13,8 +14,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from pydantic import TypeAdapter
 
 from gateway.execution.executor import Mode
+from gateway.execution.policies import POLICY_NAMES, make_policy
 from gateway.planning.instance import Instance
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
@@ -206,6 +209,17 @@ def test_a_journal_compacted_at_every_replan_stays_bounded_and_resumes_exactly(
     assert report.errors == [] and report.collisions == []
     plans = [r["plan"] for r in records if r["type"] == "plan"]
     assert plans == list(range(len(plans))) and len(plans) > len(counts)
+
+
+def test_every_policy_state_fits_a_snapshot() -> None:
+    """A snapshot journals a policy by its attributes: every policy's are plain values that
+    come back equal (a policy with richer state would need its own field)."""
+    field = SnapshotRecord.model_fields["policy_state"]
+    for name in POLICY_NAMES:
+        state = dict(vars(make_policy(name, seed=3, makespan_lb_ms=90_000.0)))
+        again = TypeAdapter(field.annotation).validate_json(json.dumps(state))
+        assert again == state and [type(v) for v in again.values()] == [
+            type(v) for v in state.values()], name
 
 
 def test_action_ids_carry_the_run_and_never_repeat_across_runs_or_restarts(
