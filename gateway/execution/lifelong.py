@@ -319,11 +319,11 @@ class LifelongExecutor:
         """Assign tasks and ask the driver for the next window."""
         adg, book, n = self.adg, self.book, self.n
         if self.reassign and self.calls % self.reassign == 0:
-            book.release_unstarted()
+            book.release_unstarted(self._now)
         book.forget_gone()
         late = self.late(self._now)
         self.distances.charged = {adg.end_cell[r] for r in range(n) if late[r]}
-        book.schedule(adg.end_cell, self.scheduler, self.distances)
+        book.schedule(adg.end_cell, self.scheduler, self.distances, self._now)
         if self.turning:
             starts = tuple(4 * c + h for c, h in zip(adg.end_cell, adg.end_heading, strict=True))
         else:
@@ -574,8 +574,8 @@ class LifelongExecutor:
     def _errands(self, robot: int) -> None:
         """Tell the pool about the errands the robot's finished actions completed."""
         for task_id in self.book.reach(robot, self.adg.done[robot]):
-            if task_id in self.pool.tasks:  # not cancelled meanwhile
-                self.pool.errand_done(task_id, int(self._now))
+            if self.pool.errand_done(task_id, self._now, robot) or \
+                    task_id in self.pool.tasks:  # False and gone: cancelled meanwhile
                 self.errands_done += 1
 
     def _fill(self, robot: int) -> None:
