@@ -1,23 +1,27 @@
-"""When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request.
+"""When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request;
+and when to reschedule first (switch Type 2 edges without stopping the fleet).
 
 Every policy answers ``should_replan(now_ms, monitor)`` at the executor's ticks; a time-based
 policy also says when it next wants a tick (``next_wakeup_ms``) so event-driven drivers need not
-poll. The executor enforces the replan budget (``max_replans``); an operator's "replan now" is
-``Executor.request_replan`` and works whatever the policy.
+poll. A policy that also reschedules (:class:`Rescheduling`) is asked
+``should_reschedule(now_ms, monitor)`` first at every tick. The executor enforces the replan
+budget (``max_replans``); an operator's "replan now" is ``Executor.request_replan`` and works
+whatever the policy.
 """
 
 from __future__ import annotations
 
+import math
 import random
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Literal, Protocol, get_args
+from typing import TYPE_CHECKING, Literal, Protocol, get_args, runtime_checkable
 
 from gateway.execution.params import PAPER
 
 if TYPE_CHECKING:
     from gateway.execution.monitor import Monitor
 
-PolicyName = Literal["none", "random", "slack", "operator"]
+PolicyName = Literal["none", "random", "slack", "operator", "reschedule", "reschedule+slack"]
 """Every replanning policy's name (the wire protocol's ``PolicyName`` must equal it)."""
 
 
@@ -101,6 +105,49 @@ class SlackReplan:
         return None
 
 
+@runtime_checkable
+class Rescheduling(Protocol):
+    """A policy that also asks for reschedule-first (``Executor.reschedule``)."""
+
+    def should_reschedule(self, now_ms: float, monitor: Monitor) -> bool:
+        """True if the executor should try switching Type 2 edges now."""
+        ...
+
+
+class RescheduleFirst:
+    """Reschedule-first: while the fleet slack exceeds ``reschedule_ms``, try (at most every
+    ``retry_ms``) to let others pass the delayed robots by switching Type 2 edges, adopted
+    only when the estimate says the fleet finishes earlier (no stop, no replan budget). Then,
+    given ``then`` (``reschedule+slack``), replan as that policy does: a successful
+    reschedule usually brings the slack back under its threshold, so the full replan comes
+    only when reordering could not help."""
+
+    def __init__(self, *, then: ReplanPolicy | None = None,
+                 reschedule_ms: float = PAPER.action_ms,
+                 retry_ms: float = PAPER.action_ms) -> None:
+        self.name = "reschedule" if then is None else f"reschedule+{then.name}"
+        self.then = then
+        self.reschedule_ms = float(reschedule_ms)
+        self.retry_ms = float(retry_ms)
+        self._next_try = -math.inf
+
+    def should_reschedule(self, now_ms: float, monitor: Monitor) -> bool:
+        """True when the fleet slack exceeds ``reschedule_ms`` and the last try is
+        ``retry_ms`` ago."""
+        if now_ms < self._next_try or monitor.fleet_slack() <= self.reschedule_ms:
+            return False
+        self._next_try = now_ms + self.retry_ms
+        return True
+
+    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
+        """What ``then`` says (never without one)."""
+        return self.then is not None and self.then.should_replan(now_ms, monitor)
+
+    def next_wakeup_ms(self) -> float | None:
+        """``then``'s wake-ups."""
+        return None if self.then is None else self.then.next_wakeup_ms()
+
+
 PolicyFactory = Callable[[int, float, float, float], ReplanPolicy]
 """``(seed, threshold_ms, makespan_lb_ms, intruder_appear_ms) -> policy``."""
 
@@ -110,6 +157,9 @@ POLICIES: dict[str, PolicyFactory] = {
         seed, intruder_appear_ms=appear, makespan_lb_ms=lb),
     "slack": lambda seed, threshold, lb, appear: SlackReplan(threshold),
     "operator": lambda seed, threshold, lb, appear: OperatorOnly(),
+    "reschedule": lambda seed, threshold, lb, appear: RescheduleFirst(),
+    "reschedule+slack": lambda seed, threshold, lb, appear: RescheduleFirst(
+        then=SlackReplan(threshold)),
 }
 """The policy registry: every policy by name."""
 
