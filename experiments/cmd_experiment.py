@@ -248,10 +248,10 @@ def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) 
                   *_mean_row(mit["slack_replanned"]["slack"], 100, ".2f"), paper.get("mp", ""))
     table.add_row("M^R %, replanned",
                   *_mean_row(mit["slack_replanned"]["random"], 100, ".2f"), paper.get("mr", ""))
-    for variant in EXTRA_VARIANTS:
-        if variant in mit["slack_replanned"]:
-            table.add_row(f"M % ({variant}), slack replanned",
-                          *_mean_row(mit["slack_replanned"][variant], 100, ".2f"), "")
+    for extra in EXTRA_VARIANTS:
+        if extra in mit["slack_replanned"]:
+            table.add_row(f"M % ({extra}), slack replanned",
+                          *_mean_row(mit["slack_replanned"][extra], 100, ".2f"), "")
     if mean_of_maps is not None:
         means = mean_of_maps["slack_replanned"]
         table.add_row("M^P/M^R %, map mean",

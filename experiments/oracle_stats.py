@@ -27,7 +27,7 @@ import numpy as np
 
 from experiments.campaign import EXTRA_VARIANTS
 from experiments.oracle import CAVEATS, OracleRow
-from experiments.stats import Experiment, describe_mean, mitigation
+from experiments.stats import Experiment, describe_mean, extras_run, mitigation
 
 JsonDict = dict[str, Any]
 
@@ -63,20 +63,19 @@ def policy_soc(exp: Experiment, policy: str) -> float:
 
 
 def policy_replanned(exp: Experiment, policy: str) -> tuple[bool, float | None]:
-    """Whether ``policy`` decided to replan (a reschedule variant: or switched Type 2 edges),
-    and when it first did."""
+    """Whether ``policy`` decided to replan, and when."""
     if policy == "random":
         return exp.random_replanned, exp.random_at_ms
-    if policy == "slack":
-        return exp.slack_replanned, exp.slack_at_ms
-    at = exp.extra[policy][1]
-    return at is not None, at
+    if policy in exp.extra:
+        at = exp.extra[policy][1]
+        return at is not None, at
+    return exp.slack_replanned, exp.slack_at_ms
 
 
 def policies_run(judged: Sequence[Judged]) -> tuple[str, ...]:
     """The policies every experiment of ``judged`` ran."""
-    return tuple(p for p in POLICIES if p in ("random", "slack")
-                 or (judged and all(p in j.exp.extra for j in judged)))
+    extras = extras_run([j.exp for j in judged])
+    return tuple(p for p in POLICIES if p in ("random", "slack") or p in extras)
 
 
 def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float] | None:
