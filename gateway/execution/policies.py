@@ -11,7 +11,6 @@ whatever the policy.
 
 from __future__ import annotations
 
-import math
 import random
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Literal, Protocol, get_args, runtime_checkable
@@ -114,38 +113,45 @@ class Rescheduling(Protocol):
         ...
 
 
-class RescheduleFirst:
+class RescheduleFirst(NoReplan):
     """Reschedule-first: while the fleet slack exceeds ``reschedule_ms``, try (at most every
     ``retry_ms``) to let others pass the delayed robots by switching Type 2 edges, adopted
-    only when the estimate says the fleet finishes earlier (no stop, no replan budget). Then,
-    given ``then`` (``reschedule+slack``), replan as that policy does: a successful
-    reschedule usually brings the slack back under its threshold, so the full replan comes
-    only when reordering could not help."""
+    only when the estimate says the fleet finishes earlier (no stop, no replan budget); never
+    replan."""
 
-    def __init__(self, *, then: ReplanPolicy | None = None,
-                 reschedule_ms: float = PAPER.action_ms,
+    name = "reschedule"
+
+    def __init__(self, *, reschedule_ms: float = PAPER.action_ms,
                  retry_ms: float = PAPER.action_ms) -> None:
-        self.name = "reschedule" if then is None else f"reschedule+{then.name}"
-        self.then = then
         self.reschedule_ms = float(reschedule_ms)
         self.retry_ms = float(retry_ms)
-        self._next_try = -math.inf
+        self.next_try_ms: float | None = None
+        """No try before this (None: none yet)."""
 
     def should_reschedule(self, now_ms: float, monitor: Monitor) -> bool:
         """True when the fleet slack exceeds ``reschedule_ms`` and the last try is
         ``retry_ms`` ago."""
-        if now_ms < self._next_try or monitor.fleet_slack() <= self.reschedule_ms:
+        if (self.next_try_ms is not None and now_ms < self.next_try_ms) \
+                or monitor.fleet_slack() <= self.reschedule_ms:
             return False
-        self._next_try = now_ms + self.retry_ms
+        self.next_try_ms = now_ms + self.retry_ms
         return True
 
-    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
-        """What ``then`` says (never without one)."""
-        return self.then is not None and self.then.should_replan(now_ms, monitor)
 
-    def next_wakeup_ms(self) -> float | None:
-        """``then``'s wake-ups."""
-        return None if self.then is None else self.then.next_wakeup_ms()
+class RescheduleThenSlack(RescheduleFirst):
+    """Reschedule first, and replan as the slack policy does (``Δ̄F > Δ̄T``): a reschedule
+    that lets others pass brings the slack back down, so the full replan comes only when
+    reordering could not help."""
+
+    name = "reschedule+slack"
+
+    def __init__(self, threshold_ms: float = PAPER.threshold_ms, **kwargs: float) -> None:
+        super().__init__(**kwargs)
+        self.threshold_ms = float(threshold_ms)
+
+    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
+        """True while Δ̄F is above the threshold."""
+        return monitor.fleet_slack() > self.threshold_ms
 
 
 PolicyFactory = Callable[[int, float, float, float], ReplanPolicy]
@@ -158,8 +164,7 @@ POLICIES: dict[str, PolicyFactory] = {
     "slack": lambda seed, threshold, lb, appear: SlackReplan(threshold),
     "operator": lambda seed, threshold, lb, appear: OperatorOnly(),
     "reschedule": lambda seed, threshold, lb, appear: RescheduleFirst(),
-    "reschedule+slack": lambda seed, threshold, lb, appear: RescheduleFirst(
-        then=SlackReplan(threshold)),
+    "reschedule+slack": lambda seed, threshold, lb, appear: RescheduleThenSlack(threshold),
 }
 """The policy registry: every policy by name."""
 
