@@ -459,6 +459,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     for table in summary_tables(summary):
         out.print(table)
+    if len(summary["maps"]) > 1:
+        out.print(f"paper totals: {summary['paper_totals']['finding']}", highlight=False)
     if oracle is not None:
         out.print(oracle_table(summary["oracle"]))
         out.print(oracle_line(summary["oracle"]), highlight=False)
