@@ -78,6 +78,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="also run the 'informed' variant: replan when the slack policy does, "
                    "keeping robots off the cells the fleet reported blocked until each block's "
                    "estimated end (not the paper's)")
+    p.add_argument("--shadow", action="store_true",
+                   help="also run the 'shadow' variant: solve in the background while the fleet "
+                   "moves (informed) and adopt a plan only when the estimate, the stop included, "
+                   "says it pays (not the paper's)")
+    p.add_argument("--block-history", type=_durations, default=(), metavar="MS[,MS..]",
+                   help="informed and shadow: how long the blocks the fleet saw before each run "
+                   "lasted (a warm start of the block estimates; default none: cold)")
     p.add_argument("--oracle", action="store_true",
                    help="also sweep the oracle (one forced replan every --oracle-step-ms of each "
                    "run, the best kept) and report how much of its saving each policy captures "
@@ -102,6 +109,17 @@ def _solver_time(text: str) -> str:
     except ValueError as exc:
         raise UsageError(f"--solver-time: {exc}") from None
     return text
+
+
+def _durations(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(c) for c in text.split(",") if c)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of ms") \
+            from None
+    if not all(0 < v < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: durations must be positive ms")
+    return values
 
 
 def _counts(text: str) -> list[int]:
@@ -215,6 +233,8 @@ def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) 
     from rich.table import Table
     from rich.text import Text
 
+    from experiments.campaign import EXTRA_VARIANTS
+
     class _PlainTable(Table):
         """A table whose cells are plain text (``[..]`` intervals are not rich markup)."""
 
@@ -241,9 +261,10 @@ def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) 
                   *_mean_row(mit["slack_replanned"]["slack"], 100, ".2f"), paper.get("mp", ""))
     table.add_row("M^R %, replanned",
                   *_mean_row(mit["slack_replanned"]["random"], 100, ".2f"), paper.get("mr", ""))
-    if "informed" in mit["slack_replanned"]:
-        table.add_row("M^I % (informed), replanned",
-                      *_mean_row(mit["slack_replanned"]["informed"], 100, ".2f"), "")
+    for extra in EXTRA_VARIANTS:
+        if extra in mit["slack_replanned"]:
+            table.add_row(f"M % ({extra}), slack replanned",
+                          *_mean_row(mit["slack_replanned"][extra], 100, ".2f"), "")
     if mean_of_maps is not None:
         means = mean_of_maps["slack_replanned"]
         table.add_row("M^P/M^R %, map mean",
@@ -352,6 +373,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     from experiments.campaign import (
+        EXTRA_VARIANTS,
         PAPER_GROUPS,
         PAPER_INSTANCES,
         PAPER_SEEDS,
@@ -379,7 +401,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--oracle-sample needs --oracle")
     sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
                       replan_time_limit_s=args.replan_time_limit,
-                      intruder_reading=args.intruder_reading)
+                      intruder_reading=args.intruder_reading,
+                      block_history_ms=args.block_history)
     files = _map_files(groups, args.maps_dir)
     named = [(_short(m), n) for m, n in groups]
     stems = {_short(m) for m in files}
@@ -391,7 +414,8 @@ def run(args: argparse.Namespace) -> int:
             instances=args.instances or (PAPER_INSTANCES if args.paper else 0),
             seeds=args.seeds or (PAPER_SEEDS if args.paper else 0),
             seed=args.seed, plan_time_limit_s=args.plan_time_limit, sim=sim,
-            motion=args.motion, extra_variants=("informed",) if args.informed else ())
+            motion=args.motion,
+            extra_variants=tuple(v for v in EXTRA_VARIANTS if getattr(args, v)))
         rules = OutlierRules(args.outlier_margin_ms, args.outlier_similar_ms,
                              args.outlier_diff_frac)
     except (CampaignError, TypeError) as exc:

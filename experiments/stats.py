@@ -9,13 +9,13 @@ replanning and ``t_p`` with slack-based (predictive) replanning, all in ms.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from experiments.campaign import Row
+from experiments.campaign import EXTRA_VARIANTS, Row
 
 JsonDict = dict[str, Any]
 
@@ -70,10 +70,9 @@ class Experiment:
     random_solver_ms: float
     slack_solved: bool = True
     random_solved: bool = True
-    t_i: float | None = None
-    """The ``informed`` variant's SOC (None: the campaign did not run it)."""
-    informed_at_ms: float | None = None
-    """When the ``informed`` variant decided to replan (None: it did not, or was not run)."""
+    extra: Mapping[str, tuple[float, float | None]] = field(default_factory=dict)
+    """The extra variants run (of ``EXTRA_VARIANTS``, not the paper's): each one's SOC and
+    when it decided to replan (None: it did not)."""
 
     @property
     def difference_ms(self) -> float:
@@ -125,9 +124,14 @@ def join_experiments(rows: Iterable[Row]) -> tuple[list[Experiment], int]:
             random_at_ms=rnd.replan_at_ms, slack_solver_ms=slack.solver_ms,
             random_solver_ms=rnd.solver_ms, slack_solved=slack.replanned,
             random_solved=rnd.replanned,
-            t_i=None if (inf := got.get("informed")) is None else inf.soc_ms,
-            informed_at_ms=None if inf is None else inf.replan_at_ms))
+            extra={v: (got[v].soc_ms, got[v].replan_at_ms) for v in EXTRA_VARIANTS
+                   if v in got}))
     return experiments, incomplete
+
+
+def extras_run(exps: Sequence[Experiment]) -> tuple[str, ...]:
+    """The extra variants every experiment of ``exps`` ran (none if there is none)."""
+    return tuple(v for v in EXTRA_VARIANTS if exps and all(v in e.extra for e in exps))
 
 
 def outlier_reasons(exp: Experiment, rules: OutlierRules) -> tuple[str, ...]:
@@ -194,10 +198,10 @@ def _mitigations(exps: Sequence[Experiment], *, seed: int, resamples: int) -> Js
     for name, pick in (("slack", lambda e: e.t_p), ("random", lambda e: e.t_r)):
         values = [m for e in exps if (m := mitigation(e.t_n, pick(e), e.t_lb)) is not None]
         out[name] = describe_mean(values, seed=seed, resamples=resamples)
-    if exps and all(e.t_i is not None for e in exps):
-        values = [m for e in exps if e.t_i is not None
-                  and (m := mitigation(e.t_n, e.t_i, e.t_lb)) is not None]
-        out["informed"] = describe_mean(values, seed=seed, resamples=resamples)
+    for name in extras_run(exps):
+        values = [m for e in exps if (m := mitigation(e.t_n, e.extra[name][0], e.t_lb))
+                  is not None]
+        out[name] = describe_mean(values, seed=seed, resamples=resamples)
     out["no_influence"] = sum(1 for e in exps if e.influence_ms <= 0)
     return out
 

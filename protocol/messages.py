@@ -395,7 +395,7 @@ class ReplanNow(Envelope):
     type: Literal["replan_now"] = "replan_now"
 
 
-PolicyName = Literal["none", "random", "slack", "operator"]
+PolicyName = Literal["none", "random", "slack", "operator", "informed", "shadow"]
 
 
 class SetPolicy(Envelope):

@@ -80,6 +80,12 @@ class SolveRequest:
     """Informed replanning only: cells the fleet reported blocked, each with the time (ms)
     until which it is expected to stay blocked; the planner keeps every robot off them until
     then."""
+    shadow: bool = False
+    """Shadow planning: the fleet keeps moving; answer with ``Executor.shadow_solved`` (the
+    plan, or None if there is none), not ``adopt_plan``."""
+    start_ms: float | None = None
+    """When the plan is expected to start (None: as soon as it is solved); the obstacles'
+    times count from then."""
 
 
 @dataclass(frozen=True, slots=True)

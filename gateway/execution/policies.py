@@ -1,4 +1,7 @@
-"""When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request.
+"""When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request;
+and two policies that are not the paper's: ``informed`` (slack's trigger, a replan that keeps
+robots off the cells the fleet reported blocked) and ``shadow`` (solves in the background and
+adopts a plan only when the estimate says it pays: :mod:`gateway.execution.shadow`).
 
 Every policy answers ``should_replan(now_ms, monitor)`` at the executor's ticks; a time-based
 policy also says when it next wants a tick (``next_wakeup_ms``) so event-driven drivers need not
@@ -17,7 +20,7 @@ from gateway.execution.params import PAPER
 if TYPE_CHECKING:
     from gateway.execution.monitor import Monitor
 
-PolicyName = Literal["none", "random", "slack", "operator"]
+PolicyName = Literal["none", "random", "slack", "operator", "informed", "shadow"]
 """Every replanning policy's name (the wire protocol's ``PolicyName`` must equal it)."""
 
 
@@ -25,6 +28,10 @@ class ReplanPolicy(Protocol):
     """The interface the executor uses to decide a replan."""
 
     name: str
+    informed: bool
+    """A replan keeps robots off the cells the fleet reported blocked (SolveRequest.obstacles)."""
+    shadow: bool
+    """The executor solves in the background and adopts when it pays (ShadowPolicy)."""
 
     def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
         """True if a replan should start now."""
@@ -39,6 +46,8 @@ class NoReplan:
     """Never replan: pure retiming."""
 
     name = "none"
+    informed = False
+    shadow = False
 
     def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
         """Always False."""
@@ -64,6 +73,8 @@ class RandomReplan:
     """
 
     name = "random"
+    informed = False
+    shadow = False
 
     def __init__(self, seed: int, *, intruder_appear_ms: float = PAPER.intruder_appear_ms,
                  makespan_lb_ms: float, margin_ms: float = PAPER.random_margin_ms) -> None:
@@ -88,6 +99,8 @@ class SlackReplan:
     """Replan when the fleet slack exceeds a threshold: ``Δ̄F > Δ̄T``."""
 
     name = "slack"
+    informed = False
+    shadow = False
 
     def __init__(self, threshold_ms: float = PAPER.threshold_ms) -> None:
         self.threshold_ms = float(threshold_ms)
@@ -101,6 +114,32 @@ class SlackReplan:
         return None
 
 
+class InformedReplan(SlackReplan):
+    """Slack's trigger, but the replan keeps every robot off the cells the fleet reported
+    blocked until each block's estimated end (:mod:`gateway.execution.blocks`)."""
+
+    name = "informed"
+    informed = True
+
+
+class ShadowPolicy(NoReplan):
+    """Shadow planning (:mod:`gateway.execution.shadow`): while the fleet is delayed, solve in
+    the background, informed, from where the robots would stop; adopt the plan only if the
+    estimate (the stop it costs and the blocks' expected ends included) says the fleet
+    finishes at least ``margin_ms`` (sum of completion times) earlier with it."""
+
+    name = "shadow"
+    informed = True
+    shadow = True
+
+    def __init__(self, margin_ms: float = PAPER.shadow_margin_ms,
+                 period_ms: float = PAPER.shadow_period_ms,
+                 min_slack_ms: float = PAPER.shadow_min_slack_ms) -> None:
+        self.margin_ms = float(margin_ms)
+        self.period_ms = float(period_ms)
+        self.min_slack_ms = float(min_slack_ms)
+
+
 PolicyFactory = Callable[[int, float, float, float], ReplanPolicy]
 """``(seed, threshold_ms, makespan_lb_ms, intruder_appear_ms) -> policy``."""
 
@@ -110,6 +149,8 @@ POLICIES: dict[str, PolicyFactory] = {
         seed, intruder_appear_ms=appear, makespan_lb_ms=lb),
     "slack": lambda seed, threshold, lb, appear: SlackReplan(threshold),
     "operator": lambda seed, threshold, lb, appear: OperatorOnly(),
+    "informed": lambda seed, threshold, lb, appear: InformedReplan(threshold),
+    "shadow": lambda seed, threshold, lb, appear: ShadowPolicy(),
 }
 """The policy registry: every policy by name."""
 
