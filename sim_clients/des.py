@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import copy
 import heapq
-import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -378,10 +377,7 @@ class Simulation:
         first one that starts at or after its expected end (counted from the request's
         ``start_ms`` if given)."""
         hs = request.headings
-        action_ms = self.cfg.action_ms
-        t0 = now if request.start_ms is None else request.start_ms
-        forbidden = [(cell, 0, math.ceil((until - t0) / action_ms))
-                     for cell, until in request.obstacles if until > t0]
+        forbidden = request.forbidden(now, self.cfg.action_ms)
         starts: tuple[Place, ...] = request.starts if hs is None else tuple(
             (x, y, h) for (x, y), h in zip(request.starts, hs, strict=True))
 

@@ -7,6 +7,7 @@ Times are milliseconds since the start of execution.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from gateway.execution.actions import ActionKind
@@ -86,6 +87,14 @@ class SolveRequest:
     start_ms: float | None = None
     """When the plan is expected to start (None: as soon as it is solved); the obstacles'
     times count from then."""
+
+    def forbidden(self, now_ms: float, action_ms: float) -> list[tuple[Cell, int, int]]:
+        """The obstacles as the planner's forbidden ``(cell, first, last timestep)``: from
+        the plan's first timestep until the first one that starts at or after the block's
+        expected end, a timestep being ``action_ms`` from ``start_ms`` (else ``now_ms``)."""
+        t0 = now_ms if self.start_ms is None else self.start_ms
+        return [(cell, 0, math.ceil((until - t0) / action_ms))
+                for cell, until in self.obstacles if until > t0]
 
 
 @dataclass(frozen=True, slots=True)

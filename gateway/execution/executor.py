@@ -178,6 +178,11 @@ class Executor:
         return self._informed or self.policy.informed
 
     @property
+    def shadow_pending(self) -> bool:
+        """True while a shadow solve is outstanding (``shadow_solved`` expected)."""
+        return self._shadow is not None
+
+    @property
     def done(self) -> bool:
         """True once every robot has finished its last action."""
         return self.mode is Mode.DONE

@@ -448,8 +448,9 @@ class Engine:
                 hs = c.headings
                 starts: Sequence[Place] = c.starts if hs is None else [
                     (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
-                self.solvers.spawn("replan", self.problem, starts, c.goals, None, None,
-                                   "omni" if hs is None else "turning")
+                self.solvers.spawn("shadow" if c.shadow else "replan", self.problem, starts,
+                                   c.goals, None, None, "omni" if hs is None else "turning",
+                                   c.forbidden(self.now_ms(), self.config.action_ms))
             elif isinstance(c, PlanAdopted):
                 for gs in self.robots.values():
                     gs.plan_adopted()
@@ -496,6 +497,12 @@ class Engine:
             self.operator.load_solved(item)
             return
         ex = self.executor
+        if item.purpose == "shadow":
+            if ex is not None and ex.shadow_pending:  # (else a new run was started meanwhile)
+                ex.shadow_solved(item.result if isinstance(item.result, Plan) else None,
+                                 self.now_ms())
+                self.route(ex.drain())
+            return
         if ex is None or ex.mode is not Mode.SOLVING:
             return  # a new run was started meanwhile
         now = self.now_ms()
@@ -570,6 +577,8 @@ class Engine:
             "t_ms": round(self.clock.now_ms()), "status": self.status})
         if ex.mode is Mode.SOLVING and done.solve is not None:
             self.route([done.solve])
+        if ex.shadow_pending and done.shadow is not None:
+            self.route([done.shadow])
         self.status_changed()
 
     # -------------------------------------------------------------------------- outputs

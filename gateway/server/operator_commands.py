@@ -282,7 +282,9 @@ class OperatorCommands:
             drop_waits=cfg.drop_waits, max_replans=cfg.max_replans,
             lookahead=cfg.dispatch_lookahead,
             durations=[(d.move_ms, d.turn_ms, d.wait_ms)
-                       for d in self._durations(len(plan.paths))])
+                       for d in self._durations(len(plan.paths))],
+            # what the blocks of the earlier runs lasted (the gateway learns across runs)
+            block_history=[] if e.executor is None else e.executor.blocks.history[-100:])
         e.executor = executor_for(run, journal.append if journal is not None else None,
                                   e.feed.record)
         for hook in e.before_start:
