@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from gateway.execution.executor import Mode
+from gateway.execution.policies import PolicyName
 from gateway.planning.instance import Instance
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.runtime.journal import Journal, RunRecord
+from gateway.runtime.journal import Journal, RunRecord, ShadowRecord
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
@@ -24,6 +25,7 @@ from gateway.server.planner import Problem
 from protocol import action_run
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet, fleet_for, run_in_process
+from sim_clients.intruder import IntruderConfig
 from tracecheck import check_trace, read_trace
 
 SKIP = {"_record", "sink", "_out", "link", "_np_state", "_np_remaining", "_np_ts", "_np_tc",
@@ -84,18 +86,21 @@ def workload(robots: int = 8, steps: int = 12, seed: int = 3) -> Problem:
     return Problem(Instance(grid, starts, goals, "open"), "open", plan)
 
 
+@pytest.mark.parametrize("policy", ["random", "shadow"])
 def test_replay_rebuilds_the_executor_monitor_and_sessions_field_by_field(
-        tmp_path: Path) -> None:
-    """At several moments of a run with an intruder and a replan, a second engine that
-    replays the journal equals the running one in every field."""
+        policy: PolicyName, tmp_path: Path) -> None:
+    """At several moments of a run with an intruder and a replan (shadow: background solves
+    too), a second engine that replays the journal equals the running one in every field."""
     journal = tmp_path / "journal.sqlite"
     checked: list[tuple[float, int, int]] = []
 
     async def main() -> None:
-        config = GatewayConfig(port=0, map=None, policy="random", policy_seed=2,
+        config = GatewayConfig(port=0, map=None, policy=policy, policy_seed=2,
                                journal=journal, dispatch_lookahead=1)
         async with Gateway(config, clock=VirtualClock()) as gw:
-            fleet = fleet_for(gw, 8, gw.connect, intruder=True, seed=1)
+            # (an intruder early and long enough for shadow's background solves)
+            fleet = fleet_for(gw, 8, gw.connect, intruder=True, seed=1,
+                              intruder_config=IntruderConfig(appear_ms=1000, leave_ms=8000))
             run = asyncio.ensure_future(run_in_process(gw, workload(), fleet))
             while gw.status != "running":
                 await asyncio.sleep(0.01)
@@ -128,7 +133,11 @@ def test_replay_rebuilds_the_executor_monitor_and_sessions_field_by_field(
 
     run_virtual(main())
     assert len(checked) >= 5
-    assert any(plan >= 1 for _, plan, _ in checked), "the run never replanned"
+    if policy == "shadow":  # background solves came back (and were replayed), with plans
+        assert [r for r in Journal(journal).records()
+                if isinstance(r, ShadowRecord) and r.paths is not None]
+    else:
+        assert any(plan >= 1 for _, plan, _ in checked), "the run never replanned"
 
 
 def test_action_ids_carry_the_run_and_never_repeat_across_runs_or_restarts(
