@@ -527,7 +527,13 @@ class Executor:
     def _shadow_gain(self, adg: ADG, start_ms: float) -> float:
         """How much earlier (sum of completion times) the fleet is expected to finish if it
         stops and executes ``adg``'s plan from ``start_ms`` than if it keeps its plan, both
-        with every move into a reported-blocked cell held until the block's expected end."""
+        with every move into a reported-blocked cell held until the block's expected end.
+
+        If a block's estimate has no support (no earlier block lasted longer:
+        :meth:`BlockTracker.unsupported`), the gain counted is at most the margin plus what
+        the plan gains if every block ended now: a plan that pays only under a guessed long
+        block must not lose anything if the block ends at once (the kept plan waits for the
+        cell only as long as it is taken, the new plan keeps its planned detour or wait)."""
         now, blocks, cur = self._now, self.blocks, self.adg
         ends = {c: blocks.expected_end_ms(c) for c in blocks.open}
         holds = {}
@@ -544,7 +550,11 @@ class Executor:
                         and self._status[u] in (_PENDING, _DISPATCHED)):
                     holds[u] = end
         keep = sum(forecast_completions(self.monitor, holds))
-        return keep - candidate_soc(adg, self.durations, start_ms, completions)
+        new = candidate_soc(adg, self.durations, start_ms, completions)
+        if any(blocks.unsupported(c) for c in ends):
+            margin = self.policy.margin_ms if isinstance(self.policy, ShadowPolicy) else 0.0
+            return min(keep, sum(forecast_completions(self.monitor, {})) + margin) - new
+        return keep - new
 
     def adopt_plan(self, plan: Plan, now_ms: float) -> None:
         """Answer to ``SolveRequest``: execute ``plan`` (from the robots' cells and, turning,

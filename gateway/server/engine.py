@@ -123,6 +123,8 @@ class Engine:
         self.policy_name: PolicyName = config.policy
         self.policy_seed = config.policy_seed
         self.threshold_ms = config.threshold_ms
+        self.block_history: list[float] = list(config.block_history_ms)
+        """How long the blocks of the earlier runs lasted: the next run starts from it."""
         self.latencies_ms: list[float] = []
         self.summary: tuple[float, float] | None = None
         self.finished_event = asyncio.Event()
@@ -561,6 +563,7 @@ class Engine:
     def _resumed(self, done: Replayed, trace: list[str]) -> None:
         run, ex = done.run, done.executor
         self.executor = ex
+        self.block_history = ex.blocks.history
         self.policy_name = cast(PolicyName, done.policy)
         self.policy_seed, self.threshold_ms = done.policy_seed, done.threshold_ms
         self.solvers.solver_ms = done.solver_ms
