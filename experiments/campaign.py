@@ -52,8 +52,10 @@ from sim_clients.intruder import IntruderConfig
 
 VARIANTS: tuple[str, ...] = ("lower_bound", "intruder", "random", "slack")
 """The four simulations of one experiment (the paper's)."""
-EXTRA_VARIANTS: tuple[str, ...] = ("informed", "shadow")
-"""Variants a campaign runs on request (``--informed``): not the paper's."""
+EXTRA_VARIANTS: tuple[str, ...] = ("informed", "shadow", "reschedule", "reschedule+slack",
+                                   "reschedule+informed")
+"""Variants a campaign runs on request (``--informed``, ``--shadow``, ``--reschedule``): not
+the paper's."""
 ALL_VARIANTS = VARIANTS + EXTRA_VARIANTS
 """Every variant, in the order rows are sorted."""
 
@@ -97,6 +99,8 @@ class Row:
     makespan_ms: float
     replanned: bool
     replan_at_ms: float | None
+    """When the policy first acted: decided a replan or (reschedule variants) switched Type 2
+    edges; empty if it never did."""
     solver_ms: float
 
     @property
@@ -319,20 +323,26 @@ class ExperimentTask:
     sim: SimSettings
 
 
-VARIANT_CONFIG: dict[str, tuple[bool, PolicyName]] = {
-    "lower_bound": (False, "none"), "intruder": (True, "none"), "random": (True, "random"),
-    "slack": (True, "slack"), "informed": (True, "informed"), "shadow": (True, "shadow")}
-"""Each variant as (intruder on, replanning policy). ``informed`` replans when the slack
-policy does, with the blocks the fleet reported as obstacles; ``shadow`` solves in the
-background and adopts a plan when the estimate says it pays."""
+VARIANT_CONFIG: dict[str, tuple[bool, PolicyName, bool]] = {
+    "lower_bound": (False, "none", False), "intruder": (True, "none", False),
+    "random": (True, "random", False), "slack": (True, "slack", False),
+    "informed": (True, "informed", False), "shadow": (True, "shadow", False),
+    "reschedule": (True, "reschedule", False),
+    "reschedule+slack": (True, "reschedule+slack", False),
+    "reschedule+informed": (True, "reschedule+slack", True)}
+"""Each variant as (intruder on, replanning policy, informed replanning besides the policy's
+own). ``informed`` replans when the slack policy does, with the blocks the fleet reported as
+obstacles; ``shadow`` solves in the background and adopts a plan when the estimate says it
+pays; ``reschedule`` only switches Type 2 edges, ``reschedule+slack`` does that first and
+replans when the slack policy does, ``reschedule+informed`` too, informed."""
 
 
 def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
                    sim: SimSettings) -> SimConfig:
     """The simulation of ``variant`` from the instance's initial plan."""
-    intruder, policy = VARIANT_CONFIG[variant]
+    intruder, policy, informed = VARIANT_CONFIG[variant]
     return SimConfig(
-        grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy,
+        grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy, informed=informed,
         threshold_ms=sim.threshold_ms, solver_time=parse_solver_time(sim.solver_time),
         solver_time_limit_s=sim.replan_time_limit_s, block_history=sim.block_history_ms,
         intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
@@ -377,8 +387,10 @@ def run_experiment(task: ExperimentTask) -> Outcome:
             failures.append(Failure(rec.map, rec.agents, rec.index, task.seed, variant,
                                     f"{type(exc).__name__}: {exc}"))
             continue
+        acted = [t for t in (res.replan_at_ms, res.reschedule_at_ms) if t is not None]
         rows.append(Row(rec.map, rec.agents, rec.index, task.seed, variant, res.soc_ms,
-                        res.makespan_ms, res.replans > 0, res.replan_at_ms, res.solver_ms))
+                        res.makespan_ms, res.replans > 0, min(acted, default=None),
+                        res.solver_ms))
     return rows, failures
 
 

@@ -85,6 +85,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--block-history", type=_durations, default=(), metavar="MS[,MS..]",
                    help="informed and shadow: how long the blocks the fleet saw before each run "
                    "lasted (a warm start of the block estimates; default none: cold)")
+    p.add_argument("--reschedule", action="store_true",
+                   help="also run the 'reschedule' variant (switch Type 2 edges so others pass "
+                   "a delayed robot, never replan) and 'reschedule+slack' (reschedule first, "
+                   "replan when the slack policy does; with --informed also "
+                   "'reschedule+informed'); not the paper's")
     p.add_argument("--oracle", action="store_true",
                    help="also sweep the oracle (one forced replan every --oracle-step-ms of each "
                    "run, the best kept) and report how much of its saving each policy captures "
@@ -373,7 +378,6 @@ def run(args: argparse.Namespace) -> int:
     )
 
     from experiments.campaign import (
-        EXTRA_VARIANTS,
         PAPER_GROUPS,
         PAPER_INSTANCES,
         PAPER_SEEDS,
@@ -415,7 +419,9 @@ def run(args: argparse.Namespace) -> int:
             seeds=args.seeds or (PAPER_SEEDS if args.paper else 0),
             seed=args.seed, plan_time_limit_s=args.plan_time_limit, sim=sim,
             motion=args.motion,
-            extra_variants=tuple(v for v in EXTRA_VARIANTS if getattr(args, v)))
+            extra_variants=tuple(v for v in ("informed", "shadow") if getattr(args, v))
+            + (("reschedule", "reschedule+slack") if args.reschedule else ())
+            + (("reschedule+informed",) if args.reschedule and args.informed else ()))
         rules = OutlierRules(args.outlier_margin_ms, args.outlier_similar_ms,
                              args.outlier_diff_frac)
     except (CampaignError, TypeError) as exc:
@@ -472,6 +478,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     for table in summary_tables(summary):
         out.print(table)
+    if len(summary["maps"]) > 1:
+        out.print(f"paper totals: {summary['paper_totals']['finding']}", highlight=False)
     if oracle is not None:
         out.print(oracle_table(summary["oracle"]))
         out.print(oracle_line(summary["oracle"]), highlight=False)

@@ -42,6 +42,7 @@ from gateway.execution.commands import (
     Completed,
     Dispatch,
     PlanAdopted,
+    Rescheduled,
     SolveRequest,
     Trigger,
 )
@@ -468,6 +469,9 @@ class Engine:
                 self.solvers.spawn("shadow" if c.shadow else "replan", self.problem, starts,
                                    c.goals, None, None, "omni" if hs is None else "turning",
                                    c.forbidden(self.now_ms(), self.config.action_ms))
+            elif isinstance(c, Rescheduled):
+                log.info("rescheduled", extra={"switches": len(c.switches),
+                                               "gain_ms": round(c.gain_ms, 1)})
             elif isinstance(c, PlanAdopted):
                 for gs in self.robots.values():
                     gs.plan_adopted()

@@ -179,7 +179,7 @@ function syncControls() {
     $("speed").value = String(s.speed);
     $("speed-out").textContent = `${s.speed}×`;
   }
-  const thresholded = s.policy === "slack" || s.policy === "informed";
+  const thresholded = ["slack", "informed", "reschedule+slack"].includes(s.policy);
   $("threshold").disabled = !thresholded;
   $("policy-now").textContent = thresholded
     ? `${s.policy}: slack > ${fmtS(s.threshold_ms)}` : s.policy;
