@@ -52,9 +52,10 @@ from sim_clients.intruder import IntruderConfig
 
 VARIANTS: tuple[str, ...] = ("lower_bound", "intruder", "random", "slack")
 """The four simulations of one experiment (the paper's)."""
-EXTRA_VARIANTS: tuple[str, ...] = ("informed", "reschedule", "reschedule+slack",
+EXTRA_VARIANTS: tuple[str, ...] = ("informed", "shadow", "reschedule", "reschedule+slack",
                                    "reschedule+informed")
-"""Variants a campaign runs on request (``--informed``, ``--reschedule``): not the paper's."""
+"""Variants a campaign runs on request (``--informed``, ``--shadow``, ``--reschedule``): not
+the paper's."""
 ALL_VARIANTS = VARIANTS + EXTRA_VARIANTS
 """Every variant, in the order rows are sorted."""
 
@@ -155,6 +156,9 @@ class SimSettings:
     replan_time_limit_s: float = 10.0
     intruder_reading: IntruderReading = "start"
     """:attr:`~sim_clients.intruder.IntruderConfig.reading`."""
+    block_history_ms: tuple[float, ...] = ()
+    """How long the blocks the fleets saw before each run lasted (a warm start of the block
+    estimates of ``informed`` and ``shadow``; empty: every run starts cold)."""
 
 
 @dataclass(frozen=True)
@@ -194,7 +198,8 @@ class CampaignSpec:
     def settings(self) -> dict[str, Any]:
         """The settings that change results; an output folder is only reused with equal ones."""
         return {"seed": self.seed, "plan_time_limit_s": self.plan_time_limit_s,
-                "motion": self.motion, **asdict(self.sim)}
+                "motion": self.motion, **asdict(self.sim),
+                "block_history_ms": list(self.sim.block_history_ms)}  # as JSON reads it
 
     def slots(self) -> list[tuple[str, int, int]]:
         """Every instance slot ``(map, agents, index)`` in campaign order."""
@@ -321,13 +326,15 @@ class ExperimentTask:
 VARIANT_CONFIG: dict[str, tuple[bool, PolicyName, bool]] = {
     "lower_bound": (False, "none", False), "intruder": (True, "none", False),
     "random": (True, "random", False), "slack": (True, "slack", False),
-    "informed": (True, "slack", True), "reschedule": (True, "reschedule", False),
+    "informed": (True, "informed", False), "shadow": (True, "shadow", False),
+    "reschedule": (True, "reschedule", False),
     "reschedule+slack": (True, "reschedule+slack", False),
     "reschedule+informed": (True, "reschedule+slack", True)}
-"""Each variant as (intruder on, replanning policy, informed replanning). ``informed``
-replans when the slack policy does, with the blocks the fleet reported as obstacles;
-``reschedule`` only switches Type 2 edges, ``reschedule+slack`` does that first and replans
-when the slack policy does, ``reschedule+informed`` too, informed."""
+"""Each variant as (intruder on, replanning policy, informed replanning besides the policy's
+own). ``informed`` replans when the slack policy does, with the blocks the fleet reported as
+obstacles; ``shadow`` solves in the background and adopts a plan when the estimate says it
+pays; ``reschedule`` only switches Type 2 edges, ``reschedule+slack`` does that first and
+replans when the slack policy does, ``reschedule+informed`` too, informed."""
 
 
 def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
@@ -337,7 +344,7 @@ def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
     return SimConfig(
         grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy, informed=informed,
         threshold_ms=sim.threshold_ms, solver_time=parse_solver_time(sim.solver_time),
-        solver_time_limit_s=sim.replan_time_limit_s,
+        solver_time_limit_s=sim.replan_time_limit_s, block_history=sim.block_history_ms,
         intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
                                        leave_ms=sim.intruder_leave_ms,
                                        reading=sim.intruder_reading))

@@ -78,6 +78,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="also run the 'informed' variant: replan when the slack policy does, "
                    "keeping robots off the cells the fleet reported blocked until each block's "
                    "estimated end (not the paper's)")
+    p.add_argument("--shadow", action="store_true",
+                   help="also run the 'shadow' variant: solve in the background while the fleet "
+                   "moves (informed) and adopt a plan only when the estimate, the stop included, "
+                   "says it pays (not the paper's)")
+    p.add_argument("--block-history", type=_durations, default=(), metavar="MS[,MS..]",
+                   help="informed and shadow: how long the blocks the fleet saw before each run "
+                   "lasted (a warm start of the block estimates; default none: cold)")
     p.add_argument("--reschedule", action="store_true",
                    help="also run the 'reschedule' variant (switch Type 2 edges so others pass "
                    "a delayed robot, never replan) and 'reschedule+slack' (reschedule first, "
@@ -107,6 +114,17 @@ def _solver_time(text: str) -> str:
     except ValueError as exc:
         raise UsageError(f"--solver-time: {exc}") from None
     return text
+
+
+def _durations(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(c) for c in text.split(",") if c)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of ms") \
+            from None
+    if not all(0 < v < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: durations must be positive ms")
+    return values
 
 
 def _counts(text: str) -> list[int]:
@@ -387,7 +405,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--oracle-sample needs --oracle")
     sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
                       replan_time_limit_s=args.replan_time_limit,
-                      intruder_reading=args.intruder_reading)
+                      intruder_reading=args.intruder_reading,
+                      block_history_ms=args.block_history)
     files = _map_files(groups, args.maps_dir)
     named = [(_short(m), n) for m, n in groups]
     stems = {_short(m) for m in files}
@@ -400,7 +419,7 @@ def run(args: argparse.Namespace) -> int:
             seeds=args.seeds or (PAPER_SEEDS if args.paper else 0),
             seed=args.seed, plan_time_limit_s=args.plan_time_limit, sim=sim,
             motion=args.motion,
-            extra_variants=(("informed",) if args.informed else ())
+            extra_variants=tuple(v for v in ("informed", "shadow") if getattr(args, v))
             + (("reschedule", "reschedule+slack") if args.reschedule else ())
             + (("reschedule+informed",) if args.reschedule and args.informed else ()))
         rules = OutlierRules(args.outlier_margin_ms, args.outlier_similar_ms,

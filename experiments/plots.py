@@ -141,7 +141,7 @@ def oracle_figure(judged: Sequence[Judged]) -> Figure:
     left.axhline(0, color="grey", linewidth=0.8)
     times = [j.oracle.best_at_ms for j in judged if j.oracle.best_at_ms is not None]
     colours = {"random": "tab:orange", "slack": "tab:blue", "informed": "tab:green",
-               "reschedule": "tab:purple", "reschedule+slack": "tab:red",
+               "shadow": "tab:pink", "reschedule": "tab:purple", "reschedule+slack": "tab:red",
                "reschedule+informed": "tab:brown"}
     for policy in policies_run(judged):
         colour = colours[policy]

@@ -395,7 +395,8 @@ class ReplanNow(Envelope):
     type: Literal["replan_now"] = "replan_now"
 
 
-PolicyName = Literal["none", "random", "slack", "operator", "reschedule", "reschedule+slack"]
+PolicyName = Literal["none", "random", "slack", "operator", "informed", "shadow", "reschedule",
+                     "reschedule+slack"]
 
 
 class SetPolicy(Envelope):

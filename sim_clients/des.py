@@ -5,7 +5,8 @@ Executor`, simulated robots (:mod:`sim_clients.robot`) on a :class:`~sim_clients
 and optionally the intruder (:mod:`sim_clients.intruder`). Time jumps from event to event on a
 heap; the executor is ticked at every multiple of ``MONITOR_PERIOD_MS``. Events at one instant
 run in a fixed order (arrivals, then blocked robots looking again, the intruder, a finished
-solver, a policy wake-up, the monitor tick), so a run is a function of its configuration and
+solver -- a shadow solve's too: the fleet runs on while it solves --, a policy wake-up, the
+monitor tick), so a run is a function of its configuration and
 seed, except for the solver's CPU time when ``solver_time="measured"``.
 """
 
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import copy
 import heapq
-import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -49,6 +49,8 @@ ExtraDelay = Callable[[int, int, int], float]
 
 # Order of events at one instant (lower first).
 _ARRIVE, _RECHECK, _INTRUDER, _SOLVED, _POLICY = range(5)
+_SHADOW = -2
+"""The ``who`` of a shadow solve's ``_SOLVED`` event."""
 
 
 class SimulationError(RuntimeError):
@@ -95,6 +97,9 @@ class SimConfig:
     informed: bool = False
     """Informed replanning: a replan keeps the robots off the cells the fleet reported blocked
     until each block's estimated end (:mod:`gateway.execution.blocks`)."""
+    block_history: tuple[float, ...] = ()
+    """How long the blocks the fleet saw before this run lasted (ms): what the block
+    estimates start from (:mod:`gateway.execution.blocks`)."""
     stall_ms: float = 600_000.0
     """Give up (SimulationError) this long after the last robot finished or started an action."""
 
@@ -167,7 +172,8 @@ class Simulation:
         self.executor = Executor(plan, policy=policy_for(config),
                                  action_ms=config.action_ms, max_replans=config.max_replans,
                                  record=config.trace, lookahead=config.lookahead,
-                                 durations=config.durations, informed=config.informed)
+                                 durations=config.durations, informed=config.informed,
+                                 block_history=config.block_history)
         self.intruder = Intruder(self.world, config.intruder_config) if config.intruder else None
         self.rng = random.Random(run_seed(config.seed, "intruder"))
         self.heap: list[tuple[float, int, int, int]] = []
@@ -176,6 +182,10 @@ class Simulation:
         self.policy_wake: float | None = None
         self.next_action = [0] * len(starts)
         self.pending_plan: Plan | None = None
+        self.shadow_plan: Plan | None = None
+        self.shadow_memo: dict[tuple[object, ...], tuple[Plan | None, float]] = {}
+        """Shadow solves by request: the same request gives the same plan (and charge)."""
+        self.shadow_solves = 0
         self.replans = 0
         self.replan_at: float | None = None
         self.reschedules = 0
@@ -225,7 +235,10 @@ class Simulation:
                 elif kind == _INTRUDER:
                     self.wake_intruder(now)
                 elif kind == _SOLVED:
-                    self.solved(now)
+                    if who == _SHADOW:
+                        self.shadow_solved(now)
+                    else:
+                        self.solved(now)
                 elif now == self.policy_wake:
                     self.policy_wake = None
                     ex.tick(now)
@@ -332,7 +345,10 @@ class Simulation:
                     if self.reschedule_at is None:
                         self.reschedule_at = now
                 elif isinstance(c, SolveRequest):
-                    self.solve(c, now)
+                    if c.shadow:
+                        self.shadow_solve(c, now)
+                    else:
+                        self.solve(c, now)
                 elif isinstance(c, PlanAdopted):
                     if c.plan > 0:
                         self.replans += 1
@@ -351,14 +367,29 @@ class Simulation:
         self.last_progress = now + charged
         self.push(now + charged, _SOLVED, -1)
 
+    def shadow_solve(self, request: SolveRequest, now: float) -> None:
+        """Solve in the background: the plan comes back to the executor after the solver's
+        charged time, while the fleet runs on."""
+        key = (request.starts, request.headings, request.obstacles, request.start_ms)
+        got = self.shadow_memo.get(key)
+        if got is None:
+            got = self.shadow_memo[key] = self.plan_for(request, now)
+            self.shadow_solves += 1
+        self.shadow_plan = got[0]
+        self.push(now + got[1], _SOLVED, _SHADOW)
+
+    def shadow_solved(self, now: float) -> None:
+        plan, self.shadow_plan = self.shadow_plan, None
+        self.executor.shadow_solved(plan, now)
+        self.handle(now)
+
     def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
         """Solve ``request`` at ``now`` (None: no plan in time) and the virtual ms it is
         charged. A reported block is forbidden from the plan's first timestep until the
-        first one that starts at or after its expected end."""
+        first one that starts at or after its expected end (counted from the request's
+        ``start_ms`` if given)."""
         hs = request.headings
-        action_ms = self.cfg.action_ms
-        forbidden = [(cell, 0, math.ceil((until - now) / action_ms))
-                     for cell, until in request.obstacles if until > now]
+        forbidden = request.forbidden(now, self.cfg.action_ms)
         starts: tuple[Place, ...] = request.starts if hs is None else tuple(
             (x, y, h) for (x, y), h in zip(request.starts, hs, strict=True))
 

@@ -63,6 +63,12 @@ class BlockTracker:
         total = sum(longer) / len(longer) if longer else 2.0 * lasted
         return since + max(total, self.min_ms, lasted)
 
+    def unsupported(self, cell: Cell) -> bool:
+        """True if no earlier block lasted longer than the open one on ``cell`` has been seen:
+        its expected end is the ``2 e`` guess, not what earlier blocks did."""
+        lasted = self.seen[cell] - self.open[cell]
+        return not any(d > lasted for d in self.history)
+
     def obstacles(self, now_ms: float) -> tuple[tuple[Cell, float], ...]:
         """Every open block expected to last beyond ``now_ms``, as ``(cell, expected end)``,
         in cell order."""

@@ -7,6 +7,7 @@ Times are milliseconds since the start of execution.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from gateway.execution.actions import ActionKind
@@ -80,6 +81,20 @@ class SolveRequest:
     """Informed replanning only: cells the fleet reported blocked, each with the time (ms)
     until which it is expected to stay blocked; the planner keeps every robot off them until
     then."""
+    shadow: bool = False
+    """Shadow planning: the fleet keeps moving; answer with ``Executor.shadow_solved`` (the
+    plan, or None if there is none), not ``adopt_plan``."""
+    start_ms: float | None = None
+    """When the plan is expected to start (None: as soon as it is solved); the obstacles'
+    times count from then."""
+
+    def forbidden(self, now_ms: float, action_ms: float) -> list[tuple[Cell, int, int]]:
+        """The obstacles as the planner's forbidden ``(cell, first, last timestep)``: from
+        the plan's first timestep until the first one that starts at or after the block's
+        expected end, a timestep being ``action_ms`` from ``start_ms`` (else ``now_ms``)."""
+        t0 = now_ms if self.start_ms is None else self.start_ms
+        return [(cell, 0, math.ceil((until - t0) / action_ms))
+                for cell, until in self.obstacles if until > t0]
 
 
 @dataclass(frozen=True, slots=True)

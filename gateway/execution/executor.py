@@ -10,6 +10,13 @@ back to its source cell) -> SOLVING (``SolveRequest`` emitted once every robot i
 RUNNING (after ``adopt_plan`` with plan id + 1, or ``abandon_replan`` which resumes the old
 plan).
 
+Shadow planning (a policy with ``shadow``, :mod:`gateway.execution.shadow`): while RUNNING, a
+``SolveRequest(shadow=True)`` asks for a plan from where the robots would stop; the fleet runs
+on, and the driver answers with :meth:`Executor.shadow_solved`. If the robots would still stop
+there and the estimate says the plan pays, the replan is decided then (a ``Trigger``) and the
+plan is adopted as soon as the robots are idle, with no ``SolveRequest``; otherwise nothing
+happens. Only a decided replan counts against the budget.
+
 A robot may refuse a dispatched action it has not started (:meth:`Executor.refused`, e.g. it
 does not start where the robot stands): the action and the robot's later dispatched ones are
 taken back, not executed, and the robot gets nothing more of the plan until a replan (adopted
@@ -61,8 +68,9 @@ from gateway.execution.commands import (
 from gateway.execution.errors import ExecutionError
 from gateway.execution.monitor import Monitor
 from gateway.execution.params import PAPER
-from gateway.execution.policies import NoReplan, ReplanPolicy, Rescheduling
+from gateway.execution.policies import NoReplan, ReplanPolicy, Rescheduling, ShadowPolicy
 from gateway.execution.reschedule import Schedule, Search, improve
+from gateway.execution.shadow import candidate_soc, forecast_completions
 from gateway.execution.trace_records import (
     TraceSink,
     event_record,
@@ -109,7 +117,7 @@ class Executor:
                  max_replans: int = PAPER.max_replans, record: TraceSink | None = None,
                  lookahead: int = 0,
                  durations: ActionDurations | Sequence[ActionDurations] | None = None,
-                 informed: bool = False) -> None:
+                 informed: bool = False, block_history: Sequence[float] = ()) -> None:
         if not (math.isfinite(action_ms) and action_ms > 0):
             raise ExecutionError(f"action_ms must be a positive number, got {action_ms}")
         if max_replans < 0:
@@ -117,10 +125,10 @@ class Executor:
         if lookahead < 0:
             raise ExecutionError(f"lookahead must be >= 0, got {lookahead}")
         self.lookahead = lookahead
-        self.informed = informed
-        """Informed replanning: a ``SolveRequest`` carries the reported blocks as obstacles."""
-        self.blocks = BlockTracker(min_ms=action_ms)
-        """Cells robots wait for that no robot is planned to hold (kept across plans)."""
+        self._informed = informed
+        self.blocks = BlockTracker(min_ms=action_ms, history=list(block_history))
+        """Cells robots wait for that no robot is planned to hold (kept across plans), and
+        how long earlier blocks lasted (``block_history``: seen before this run)."""
         self.policy: ReplanPolicy = policy if policy is not None else NoReplan()
         self.drop_waits = drop_waits
         self.max_replans = max_replans
@@ -141,6 +149,11 @@ class Executor:
         self._headings: list[int] | None = None if adg.headings is None else \
             [h[0] for h in adg.headings]
         self._completion = [0.0] * adg.n_robots
+        self._shadow: tuple[tuple[Cell, ...], tuple[int, ...] | None] | None = None
+        """The stop configuration an outstanding shadow solve plans from."""
+        self._next_shadow_ms = 0.0
+        self._ready: tuple[Plan, ADG] | None = None
+        """A shadow plan to adopt once the decided stop is complete."""
         self._install(plan, adg, 0, 0.0)
 
     def _install(self, plan: Plan, adg: ADG, plan_id: int, now_ms: float) -> None:
@@ -162,6 +175,17 @@ class Executor:
             self._growth_at_pause = self.monitor.growth()
 
     # ------------------------------------------------------------------ queries
+    @property
+    def informed(self) -> bool:
+        """Informed replanning: a ``SolveRequest`` carries the reported blocks as obstacles
+        (asked for at construction, or by the policy)."""
+        return self._informed or self.policy.informed
+
+    @property
+    def shadow_pending(self) -> bool:
+        """True while a shadow solve is outstanding (``shadow_solved`` expected)."""
+        return self._shadow is not None
+
     @property
     def done(self) -> bool:
         """True once every robot has finished its last action."""
@@ -441,8 +465,11 @@ class Executor:
         if isinstance(self.policy, Rescheduling) and \
                 self.policy.should_reschedule(self._now, self.monitor):
             self._reschedule()
-        if self.replans < self.max_replans and self.policy.should_replan(self._now, self.monitor):
-            self._trigger(self.policy.name)
+        if self.replans < self.max_replans:
+            if self.policy.should_replan(self._now, self.monitor):
+                self._trigger(self.policy.name)
+            elif isinstance(self.policy, ShadowPolicy):
+                self._maybe_shadow(self.policy)
 
     def reschedule(self, now_ms: float, search: Search = improve) -> bool:
         """Reschedule-first (:mod:`gateway.execution.reschedule`): switch Type 2 edges of the
@@ -531,38 +558,134 @@ class Executor:
         self.monitor.advance(self._now)
         self._trigger("operator")
 
+    def shadow_solved(self, plan: Plan | None, now_ms: float) -> bool:
+        """Answer to a ``SolveRequest(shadow=True)``: ``plan`` (None: no plan was found).
+        Returns True if the replan is decided: the robots would still stop where the plan
+        starts, the policy may replan and the plan is estimated to save at least the policy's
+        margin; the plan is then adopted once the robots are idle. Otherwise nothing changes."""
+        self._check_time(now_ms)
+        if self._shadow is None:
+            raise ExecutionError("no shadow solve is outstanding")
+        self._advance(now_ms)
+        planned, self._shadow = self._shadow, None
+        policy = self.policy
+        if (plan is None or not isinstance(policy, ShadowPolicy) or self.mode is not Mode.RUNNING
+                or self.paused or self.replans >= self.max_replans):
+            return False
+        cells, headings, start = self._stop_config()
+        if (cells, headings) != planned:
+            self._next_shadow_ms = now_ms  # the fleet moved on: solve again at the next tick
+            return False
+        self._check_plan(plan, cells, headings)
+        adg = ADG(plan, drop_waits=self.drop_waits)
+        if self._shadow_gain(adg, start) < policy.margin_ms:
+            return False
+        self._ready = (plan, adg)
+        self._trigger(policy.name)
+        return True
+
+    def _stop_config(self) -> tuple[tuple[Cell, ...], tuple[int, ...] | None, float]:
+        """Where each robot would stand (and face) if the fleet stopped now -- on the target of
+        the move it is making, else where it is -- and when the last of them gets there."""
+        adg, cells = self.adg, list(self._cells)
+        headings = None if self._headings is None else list(self._headings)
+        end = self._now
+        for r, queue in enumerate(self._queue):
+            if queue and self._status[queue[0]] == _STARTED and not self._blocked[queue[0]]:
+                v = queue[0]
+                cells[r] = adg.dst[v]
+                if headings is not None and adg.headings is not None:
+                    headings[r] = adg.headings[r][adg.step_of[v] + 1]
+                end = max(end, self.monitor.completion_ms(r, adg.step_of[v]))
+        return tuple(cells), None if headings is None else tuple(headings), end
+
+    def _shadow_gain(self, adg: ADG, start_ms: float) -> float:
+        """How much earlier (sum of completion times) the fleet is expected to finish if it
+        stops and executes ``adg``'s plan from ``start_ms`` than if it keeps its plan, both
+        with every move into a reported-blocked cell held until the block's expected end.
+
+        If a block's estimate has no support (no earlier block lasted longer:
+        :meth:`BlockTracker.unsupported`), the gain counted is at most the margin plus what
+        the plan gains if every block ended now: a plan that pays only under a guessed long
+        block must not lose anything if the block ends at once (the kept plan waits for the
+        cell only as long as it is taken, the new plan keeps its planned detour or wait)."""
+        now, blocks, cur = self._now, self.blocks, self.adg
+        ends = {c: blocks.expected_end_ms(c) for c in blocks.open}
+        holds = {}
+        completions = list(self._completion)
+        for r, queue in enumerate(self._queue):
+            v = self.monitor.next_vertex(r)
+            if queue and self._status[queue[0]] == _STARTED:
+                completions[r] = self.monitor.completion_ms(r, cur.step_of[queue[0]])
+            if v < 0 or not ends:
+                continue
+            for u in range(v, cur.first[r + 1]):
+                end = ends.get(cur.dst[u])
+                if (end is not None and end > now and cur.src[u] != cur.dst[u]
+                        and self._status[u] in (_PENDING, _DISPATCHED)):
+                    holds[u] = end
+        keep = sum(forecast_completions(self.monitor, holds))
+        new = candidate_soc(adg, self.durations, start_ms, completions)
+        if any(blocks.unsupported(c) for c in ends):
+            margin = self.policy.margin_ms if isinstance(self.policy, ShadowPolicy) else 0.0
+            return min(keep, sum(forecast_completions(self.monitor, {})) + margin) - new
+        return keep - new
+
     def adopt_plan(self, plan: Plan, now_ms: float) -> None:
         """Answer to ``SolveRequest``: execute ``plan`` (from the robots' cells and, turning,
         their headings to the goals; a goal heading is free)."""
         self._check_time(now_ms)
         if self.mode is not Mode.SOLVING:
             raise ExecutionError(f"no plan was requested: the executor is {self.mode.value}")
+        self._check_plan(plan)
+        adg = ADG(plan, drop_waits=self.drop_waits)
+        self._advance(now_ms)
+        self._adopt(plan, adg)
+
+    def _check_plan(self, plan: Plan, cells: Sequence[Cell] | None = None,
+                    headings: Sequence[int] | None = None) -> None:
+        """A new plan must go from the robots' ``cells`` and ``headings`` (default: where they
+        are) to their goals, for every robot, under the same motion model."""
+        cells = self._cells if cells is None else cells
+        held = self._headings if headings is None else headings
         n = self.adg.n_robots
         if len(plan.paths) != n:
             raise ExecutionError(f"the new plan has {len(plan.paths)} paths for {n} robots")
-        headings = plan.headings
-        if (headings is None) != (self._headings is None):
+        if (plan.headings is None) != (held is None):
             raise ExecutionError("the new plan must have headings exactly when the current "
                                  "one has (the motion model cannot change)")
-        if headings is not None and self._headings is not None:
-            for r, hs in enumerate(headings[:n]):
-                if not hs or hs[0] != self._headings[r]:
+        if plan.headings is not None and held is not None:
+            for r, hs in enumerate(plan.headings[:n]):
+                if not hs or hs[0] != held[r]:
                     raise ExecutionError(f"robot {r}: the new path starts with heading "
                                          f"{hs[0] if hs else None}, but the robot holds "
-                                         f"{self._headings[r]}")
+                                         f"{held[r]}")
         for r, path in enumerate(plan.paths):
-            if not path or path[0] != self._cells[r]:
+            if not path or path[0] != cells[r]:
                 first = path[0] if path else None
                 raise ExecutionError(
                     f"robot {r}: the new path starts at {first}, "
-                    f"but the robot is at {self._cells[r]}"
+                    f"but the robot is at {cells[r]}"
                 )
             if path[-1] != self._goals[r]:
                 raise ExecutionError(
                     f"robot {r}: the new path ends at {path[-1]} but its goal is {self._goals[r]}"
                 )
-        adg = ADG(plan, drop_waits=self.drop_waits)
-        self._advance(now_ms)
+
+    def _fits(self, plan: Plan) -> bool:
+        """True if ``plan`` starts where the robots are (a robot may have moved on after all:
+        its cancel came too late)."""
+        try:
+            self._check_plan(plan)
+        except ExecutionError:
+            return False
+        return True
+
+    def _adopt(self, plan: Plan, adg: ADG) -> None:
+        """Install ``plan`` (checked) as the next plan and dispatch it. A shadow solve still
+        out is for the old plan: its answer is not expected any more (a journal's snapshot
+        of the new plan starts without it)."""
+        self._shadow, self._next_shadow_ms = None, 0.0
         self._install(plan, adg, self.plan_id + 1, self._now)
         self.mode = Mode.RUNNING
         self._adopted()
@@ -649,12 +772,34 @@ class Executor:
                     self._out.append(Cancel(self.plan_id, r, adg.step_of[v]))
         self._maybe_solve()
 
+    def _maybe_shadow(self, policy: ShadowPolicy) -> None:
+        """Ask for a shadow solve if none is outstanding, the last was asked at least the
+        policy's period ago, and the fleet is delayed (its slack, or a block lasting, at
+        least the policy's minimum)."""
+        if self._shadow is not None or self._now < self._next_shadow_ms:
+            return
+        lasted = max((self._now - since for since in self.blocks.open.values()), default=0.0)
+        if max(lasted, self.monitor.fleet_slack()) < policy.min_slack_ms:
+            return
+        cells, headings, start = self._stop_config()
+        self._shadow = (cells, headings)
+        self._next_shadow_ms = self._now + policy.period_ms
+        self._out.append(SolveRequest(cells, self._goals, headings,
+                                      self.blocks.obstacles(start), shadow=True,
+                                      start_ms=start))
+
     def _maybe_solve(self) -> None:
-        """In STOPPING, once every robot is idle: request a plan (or finish if nothing is left)."""
+        """In STOPPING, once every robot is idle: adopt the shadow plan the replan was decided
+        for if the robots stand where it starts, else request a plan (or finish if nothing
+        is left)."""
         if self.mode is not Mode.STOPPING or self._busy:
             return
+        ready, self._ready = self._ready, None
         if self._left == 0:
             self._complete()
+            return
+        if ready is not None and self._fits(ready[0]):
+            self._adopt(*ready)
             return
         self.mode = Mode.SOLVING
         self._out.append(SolveRequest(

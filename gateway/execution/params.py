@@ -38,6 +38,13 @@ class ExecutionParams:
     """A random replan happens before ``makespan_lb`` minus this margin."""
     recheck_ms: float = 100.0
     """How often a simulated robot (or the intruder) re-checks that its next cell is free."""
+    shadow_margin_ms: float = 1000.0
+    """Shadow planning adopts a plan only if it is estimated to save at least this much (sum
+    of completion times)."""
+    shadow_period_ms: float = 500.0
+    """Shadow planning starts a background solve at most this often."""
+    shadow_min_slack_ms: float = 1000.0
+    """Shadow planning solves while the fleet slack or a reported block is at least this."""
     oracle_step_ms: float = 250.0
     """The step of the oracle's sweep of forced replans (``fleetgate experiment --oracle``)."""
 

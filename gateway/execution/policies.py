@@ -1,5 +1,8 @@
 """When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request;
-and when to reschedule first (switch Type 2 edges without stopping the fleet).
+and two policies that are not the paper's: ``informed`` (slack's trigger, a replan that keeps
+robots off the cells the fleet reported blocked) and ``shadow`` (solves in the background and
+adopts a plan only when the estimate says it pays: :mod:`gateway.execution.shadow`); and when
+to reschedule first (switch Type 2 edges without stopping the fleet).
 
 Every policy answers ``should_replan(now_ms, monitor)`` at the executor's ticks; a time-based
 policy also says when it next wants a tick (``next_wakeup_ms``) so event-driven drivers need not
@@ -20,7 +23,8 @@ from gateway.execution.params import PAPER
 if TYPE_CHECKING:
     from gateway.execution.monitor import Monitor
 
-PolicyName = Literal["none", "random", "slack", "operator", "reschedule", "reschedule+slack"]
+PolicyName = Literal["none", "random", "slack", "operator", "informed", "shadow", "reschedule",
+                     "reschedule+slack"]
 """Every replanning policy's name (the wire protocol's ``PolicyName`` must equal it)."""
 
 
@@ -28,6 +32,10 @@ class ReplanPolicy(Protocol):
     """The interface the executor uses to decide a replan."""
 
     name: str
+    informed: bool
+    """A replan keeps robots off the cells the fleet reported blocked (SolveRequest.obstacles)."""
+    shadow: bool
+    """The executor solves in the background and adopts when it pays (ShadowPolicy)."""
 
     def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
         """True if a replan should start now."""
@@ -42,6 +50,8 @@ class NoReplan:
     """Never replan: pure retiming."""
 
     name = "none"
+    informed = False
+    shadow = False
 
     def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
         """Always False."""
@@ -67,6 +77,8 @@ class RandomReplan:
     """
 
     name = "random"
+    informed = False
+    shadow = False
 
     def __init__(self, seed: int, *, intruder_appear_ms: float = PAPER.intruder_appear_ms,
                  makespan_lb_ms: float, margin_ms: float = PAPER.random_margin_ms) -> None:
@@ -91,6 +103,8 @@ class SlackReplan:
     """Replan when the fleet slack exceeds a threshold: ``Δ̄F > Δ̄T``."""
 
     name = "slack"
+    informed = False
+    shadow = False
 
     def __init__(self, threshold_ms: float = PAPER.threshold_ms) -> None:
         self.threshold_ms = float(threshold_ms)
@@ -104,6 +118,30 @@ class SlackReplan:
         return None
 
 
+class InformedReplan(SlackReplan):
+    """Slack's trigger, but the replan keeps every robot off the cells the fleet reported
+    blocked until each block's estimated end (:mod:`gateway.execution.blocks`)."""
+
+    name = "informed"
+    informed = True
+
+
+class ShadowPolicy(NoReplan):
+    """Shadow planning (:mod:`gateway.execution.shadow`): while the fleet is delayed, solve in
+    the background, informed, from where the robots would stop; adopt the plan only if the
+    estimate (the stop it costs and the blocks' expected ends included) says the fleet
+    finishes at least ``margin_ms`` (sum of completion times) earlier with it."""
+
+    name = "shadow"
+    informed = True
+    shadow = True
+
+    def __init__(self, margin_ms: float = PAPER.shadow_margin_ms,
+                 period_ms: float = PAPER.shadow_period_ms,
+                 min_slack_ms: float = PAPER.shadow_min_slack_ms) -> None:
+        self.margin_ms = float(margin_ms)
+        self.period_ms = float(period_ms)
+        self.min_slack_ms = float(min_slack_ms)
 @runtime_checkable
 class Rescheduling(Protocol):
     """A policy that also asks for reschedule-first (``Executor.reschedule``)."""
@@ -163,6 +201,8 @@ POLICIES: dict[str, PolicyFactory] = {
         seed, intruder_appear_ms=appear, makespan_lb_ms=lb),
     "slack": lambda seed, threshold, lb, appear: SlackReplan(threshold),
     "operator": lambda seed, threshold, lb, appear: OperatorOnly(),
+    "informed": lambda seed, threshold, lb, appear: InformedReplan(threshold),
+    "shadow": lambda seed, threshold, lb, appear: ShadowPolicy(),
     "reschedule": lambda seed, threshold, lb, appear: RescheduleFirst(),
     "reschedule+slack": lambda seed, threshold, lb, appear: RescheduleThenSlack(threshold),
 }

@@ -74,6 +74,9 @@ class RunRecord(_Record):
     lookahead: int
     durations: list[tuple[float, float, float]]
     """Per robot: t_x of a move, a turn and a wait (ms)."""
+    block_history: list[float] = []
+    """How long the blocks of the gateway's earlier runs lasted (ms): where the block
+    estimates of informed and shadow replanning start from."""
 
 
 ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked", "cancelled",
@@ -108,6 +111,15 @@ class AdoptRecord(_Record):
     paths: list[list[Cell]]
     headings: list[list[int]] | None = None
     solver_ms: float
+
+
+class ShadowRecord(_Record):
+    """A shadow solve came back at ``t_ms`` with this plan (None: it found none)."""
+
+    kind: Literal["shadow"] = "shadow"
+    t_ms: float
+    paths: list[list[Cell]] | None
+    headings: list[list[int]] | None = None
 
 
 class PolicyRecord(_Record):
@@ -175,7 +187,7 @@ class SnapshotRecord(_Record):
 
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
-    | SpeedRecord | SnapshotRecord,
+    | SpeedRecord | SnapshotRecord | ShadowRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import ipaddress
 import os
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import (
@@ -135,6 +135,9 @@ class GatewayConfig(BaseSettings):
     policy_seed: int = 0
     threshold_ms: float = Field(default=PAPER.threshold_ms, ge=0)
     max_replans: int = Field(default=PAPER.max_replans, ge=0)
+    block_history_ms: list[Annotated[float, Field(gt=0)]] = Field(default_factory=list)
+    """How long blocks the fleet saw before lasted (ms): where the block estimates of the
+    informed and shadow policies start; each run adds the blocks it saw for the next."""
     action_ms: float = Field(default=PAPER.action_ms, gt=0)
     """t_x of every action of a robot that has no model in ``robot_model``."""
     robot_models: dict[str, RobotModel] = Field(default_factory=dict)

@@ -145,6 +145,8 @@ class Engine:
         self.policy_name: PolicyName = config.policy
         self.policy_seed = config.policy_seed
         self.threshold_ms = config.threshold_ms
+        self.block_history: list[float] = list(config.block_history_ms)
+        """How long the blocks of the earlier runs lasted: the next run starts from it."""
         self.latencies_ms: list[float] = []
         self.summary: tuple[float, float] | None = None
         self.finished_event = asyncio.Event()
@@ -495,8 +497,9 @@ class Engine:
                 hs = c.headings
                 starts: Sequence[Place] = c.starts if hs is None else [
                     (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
-                self.solvers.spawn("replan", self.problem, starts, c.goals, None, None,
-                                   "omni" if hs is None else "turning")
+                self.solvers.spawn("shadow" if c.shadow else "replan", self.problem, starts,
+                                   c.goals, None, None, "omni" if hs is None else "turning",
+                                   c.forbidden(self.now_ms(), self.config.action_ms))
             elif isinstance(c, Rescheduled):
                 log.info("rescheduled", extra={"switches": len(c.switches),
                                                "gain_ms": round(c.gain_ms, 1)})
@@ -546,6 +549,12 @@ class Engine:
             self.operator.load_solved(item)
             return
         ex = self.executor
+        if item.purpose == "shadow":
+            if ex is not None and ex.shadow_pending:  # (else a new run was started meanwhile)
+                ex.shadow_solved(item.result if isinstance(item.result, Plan) else None,
+                                 self.now_ms())
+                self.route(ex.drain())
+            return
         if ex is None or ex.mode is not Mode.SOLVING:
             return  # a new run was started meanwhile
         now = self.now_ms()
@@ -625,6 +634,7 @@ class Engine:
     def _resumed(self, done: Replayed, trace: list[str]) -> None:
         run, ex = done.run, done.executor
         self.executor = ex
+        self.block_history = ex.blocks.history
         self.policy_name = cast(PolicyName, done.policy)
         self.policy_seed, self.threshold_ms = done.policy_seed, done.threshold_ms
         self.solvers.solver_ms = done.solver_ms
@@ -641,6 +651,8 @@ class Engine:
             "t_ms": round(self.clock.now_ms()), "status": self.status})
         if ex.mode is Mode.SOLVING and done.solve is not None:
             self.route([done.solve])
+        if ex.shadow_pending and done.shadow is not None:
+            self.route([done.shadow])
         self.status_changed()
 
     # -------------------------------------------------------------------------- outputs

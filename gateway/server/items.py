@@ -55,7 +55,7 @@ class InternalCommand:
 class SolverDone:
     """The planner finished: ``result`` is a plan or the exception it raised."""
 
-    purpose: Literal["load", "replan"]
+    purpose: Literal["load", "replan", "shadow"]
     result: Plan | Exception
     problem: Problem | None
     reply: Session | asyncio.Future[tuple[ErrorCode | None, str]] | None

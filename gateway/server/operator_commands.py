@@ -304,9 +304,12 @@ class OperatorCommands:
             drop_waits=cfg.drop_waits, max_replans=cfg.max_replans,
             lookahead=cfg.dispatch_lookahead,
             durations=[(d.move_ms, d.turn_ms, d.wait_ms)
-                       for d in self._durations(len(plan.paths))])
+                       for d in self._durations(len(plan.paths))],
+            # what the blocks of the earlier runs lasted (the gateway learns across runs)
+            block_history=e.block_history[-100:])
         e.executor = executor_for(run, journal.append if journal is not None else None,
                                   e.feed.record)
+        e.block_history = e.executor.blocks.history  # grows as this run's blocks clear
         for hook in e.before_start:
             hook()
         e.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged

@@ -17,6 +17,7 @@ from gateway.planning.instance import Instance, load_instance, load_mapf_ir
 from gateway.planning.motion import Motion
 from gateway.planning.movingai import MapFormatError, read_map
 from gateway.planning.plan import Plan
+from gateway.planning.problem import Forbidden
 from gateway.planning.solver import Place, solve
 from gateway.planning.validate import plan_violations
 from gateway.runtime import mapstore
@@ -103,13 +104,14 @@ def problem_from_paths(map: str, paths: list[list[Cell]],
 
 def plan_for(grid: Grid, starts: Sequence[Place], goals: tuple[Cell, ...],
              time_limit_s: float, fallback_s: float | None = None,
-             motion: Motion = "omni") -> Plan:
+             motion: Motion = "omni", forbidden: Sequence[Forbidden] = ()) -> Plan:
     """A 1-robust plan from ``starts`` (``(x, y, heading)`` under ``turning``) to ``goals``
-    (raises planning's NoSolution): CBS's within ``time_limit_s``, else (given
-    ``fallback_s``) the prioritised planner's, with a warning."""
+    (raises planning's NoSolution), keeping off the ``forbidden`` cells: CBS's within
+    ``time_limit_s``, else (given ``fallback_s``) the prioritised planner's, with a
+    warning."""
     fallback = WallDeadline(time_limit_s + fallback_s) if fallback_s else None
     solution = solve(grid, starts, goals, deadline=WallDeadline(time_limit_s), fallback=fallback,
-                     motion=motion)
+                     motion=motion, forbidden=forbidden)
     if not solution.optimal:
         log.warning("no optimal plan within %g s: using the prioritised planner's plan "
                     "(SOC %d, not proven optimal)", time_limit_s, solution.plan.soc)

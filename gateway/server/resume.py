@@ -38,6 +38,7 @@ from gateway.runtime.journal import (
     PolicyRecord,
     ReportRecord,
     RunRecord,
+    ShadowRecord,
     SnapshotRecord,
     SpeedRecord,
     TimeRecord,
@@ -131,6 +132,13 @@ class JournaledExecutor(Executor):
             headings=None if plan.headings is None else [list(h) for h in plan.headings]))
         super().adopt_plan(plan, now_ms)
 
+    def shadow_solved(self, plan: Plan | None, now_ms: float) -> bool:
+        self._log(ShadowRecord(
+            t_ms=now_ms, paths=None if plan is None else [list(p) for p in plan.paths],
+            headings=None if plan is None or plan.headings is None
+            else [list(h) for h in plan.headings]))
+        return super().shadow_solved(plan, now_ms)
+
     def set_policy(self, rec: PolicyRecord) -> None:
         """The operator's policy (``rec.replace``) or slack threshold, journaled."""
         self._log(rec)
@@ -151,7 +159,8 @@ def executor_for(run: RunRecord, sink: Sink | None = None,
                            makespan_lb_ms=run.makespan_lb_ms),
         action_ms=run.action_ms, drop_waits=run.drop_waits, max_replans=run.max_replans,
         record=record, lookahead=run.lookahead,
-        durations=[ActionDurations(m, t, w) for m, t, w in run.durations])
+        durations=[ActionDurations(m, t, w) for m, t, w in run.durations],
+        block_history=run.block_history)
 
 
 @dataclass
@@ -201,6 +210,8 @@ class Replayed:
     last_t_ms: float = 0.0
     solve: SolveRequest | None = None
     """The solver request still unanswered (the replan must be solved again)."""
+    shadow: SolveRequest | None = None
+    """The latest shadow solve request (solved again if still unanswered)."""
     records: int = 0
     replan_marks: list[dict[str, Any]] = field(default_factory=list)
     """The replans before the snapshot the journal starts with (none without one)."""
@@ -272,7 +283,9 @@ def _commands(ex: Executor, out: Replayed, on_commands: Callable[[list[Command]]
               ) -> None:
     commands = ex.drain()
     for c in commands:
-        if isinstance(c, SolveRequest):
+        if isinstance(c, SolveRequest) and c.shadow:
+            out.shadow = c
+        elif isinstance(c, SolveRequest):
             out.solve = c
     if commands:
         on_commands(commands)
@@ -303,6 +316,9 @@ def _apply(ex: JournaledExecutor, out: Replayed, rec: JournalRecord,
             out.solve = None
             out.solver_ms = rec.solver_ms
             ex.adopt_plan(plan_of(rec.paths, rec.headings), rec.t_ms)
+        case ShadowRecord():
+            ex.shadow_solved(None if rec.paths is None else plan_of(rec.paths, rec.headings),
+                             rec.t_ms)
         case PolicyRecord():
             if rec.replace:
                 out.policy, out.policy_seed = rec.policy, rec.policy_seed

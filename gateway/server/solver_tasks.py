@@ -17,6 +17,7 @@ from typing import Literal
 from gateway.planning.grid import Cell
 from gateway.planning.motion import Motion
 from gateway.planning.plan import NoSolution, Plan
+from gateway.planning.problem import Forbidden
 from gateway.planning.solver import Place
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
@@ -35,16 +36,18 @@ class SolverTasks:
         self.solver_ms = 0.0
         """Planner time charged for replans of the current run (reset by the run's start)."""
 
-    def spawn(self, purpose: Literal["load", "replan"], problem: Problem,
+    def spawn(self, purpose: Literal["load", "replan", "shadow"], problem: Problem,
               starts: Sequence[Place], goals: tuple[Cell, ...], reply: Reply,
-              ref: str | None, motion: Motion) -> None:
-        """Solve ``starts`` -> ``goals`` on ``problem``'s grid in a task; the plan (or the
-        exception) comes back as a ``SolverDone`` item with ``reply`` and ``ref``."""
+              ref: str | None, motion: Motion, forbidden: Sequence[Forbidden] = ()) -> None:
+        """Solve ``starts`` -> ``goals`` on ``problem``'s grid, off the ``forbidden`` cells,
+        in a task; the plan (or the exception) comes back as a ``SolverDone`` item with
+        ``reply`` and ``ref``. A shadow solve is not charged to the run (the fleet keeps
+        moving meanwhile)."""
         grid, limit = problem.instance.grid, self._config.solver_time_limit_s
         fallback_s = self._config.fallback_s
 
         def work() -> Plan:
-            return plan_for(grid, starts, goals, limit, fallback_s, motion)
+            return plan_for(grid, starts, goals, limit, fallback_s, motion, forbidden)
 
         async def run() -> None:
             t0 = time.perf_counter()

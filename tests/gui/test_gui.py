@@ -140,6 +140,22 @@ def test_intruder_click_blocks_a_robot_and_slack_rises(page: Page) -> None:
     assert page.evaluate("window.fleetgate.plan()") == 0  # policy none: nobody replanned
 
 
+def test_the_operator_chooses_informed_or_shadow_replanning(page: Page) -> None:
+    """Both policies that are not the paper's are in the choice; the gateway takes them;
+    informed uses the slack threshold (editable), shadow does not."""
+    for policy, thresholded in (("informed", True), ("shadow", False)):
+        page.get_by_label("Policy").select_option(policy)
+        page.wait_for_function(f"window.fleetgate.model.snap.policy === '{policy}'")
+        if thresholded:
+            expect(page.get_by_label("Threshold")).to_be_enabled()
+            expect(page.locator("#policy-now")).to_contain_text(f"{policy}: slack >")
+        else:
+            expect(page.get_by_label("Threshold")).to_be_disabled()
+            expect(page.locator("#policy-now")).to_have_text(policy)
+    page.get_by_label("Policy").select_option("none")
+    page.wait_for_function("window.fleetgate.model.snap.policy === 'none'")
+
+
 def test_replan_now_adopts_a_new_plan(page: Page) -> None:
     """"Replan now" stops the fleet, solves from where the robots are, and plan 1 runs."""
     fresh_run(page)

@@ -49,13 +49,15 @@ def driver2(inst: Instance, plan: Plan, seed: int, intruder: bool, policy: Polic
     return run_virtual(main())
 
 
-# (scenario, agents, seed, intruder, policy); the slack cases replan (asserted below), the
-# others do not: the intruder only delays, or there is none.
+# (scenario, agents, seed, intruder, policy); the slack and informed cases replan (asserted
+# below; informed around the reported block), the others do not: the intruder only delays,
+# or there is none.
 CASES = [
     ("lab-random-1", 10, 0, True, "slack"),
     ("lab-random-2", 8, 2, True, "slack"),
     ("lab-random-2", 10, 3, True, "none"),
     ("lab-random-1", 10, 1, False, "slack"),
+    ("lab-random-2", 8, 2, True, "informed"),
 ]
 
 
@@ -73,7 +75,7 @@ def test_driver2_equals_driver3(scen: str, agents: int, seed: int, intruder: boo
     gw = driver2(inst, plan, seed, intruder, policy, trace, lookahead)
     assert gw.summary() == des.summary()
     assert gw.makespan_ms == des.makespan_ms
-    if policy == "slack" and intruder:
+    if policy in ("slack", "informed") and intruder:
         assert des.replans == 1  # the case exercises a slack-triggered replan
     if not intruder:
         assert gw.soc_ms == 1000.0 * plan.soc  # undelayed: exactly the plan's cost

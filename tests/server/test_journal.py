@@ -17,11 +17,11 @@ import pytest
 from pydantic import TypeAdapter
 
 from gateway.execution.executor import Mode
-from gateway.execution.policies import POLICY_NAMES, make_policy
+from gateway.execution.policies import POLICY_NAMES, PolicyName, make_policy
 from gateway.planning.instance import Instance
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.runtime.journal import Journal, RunRecord, SnapshotRecord, TimeRecord
+from gateway.runtime.journal import Journal, RunRecord, ShadowRecord, SnapshotRecord, TimeRecord
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
@@ -30,6 +30,7 @@ from gateway.server.planner import Problem
 from protocol import Pause, ReplanNow, Resume, action_run
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet, fleet_for, run_in_process
+from sim_clients.intruder import IntruderConfig
 from tracecheck import check_trace, read_trace
 
 SKIP = {"_record", "sink", "_out", "link", "_np_state", "_np_remaining", "_np_ts", "_np_tc",
@@ -123,18 +124,21 @@ def lanes(robots: int, width: int) -> Problem:
                             tuple(p[-1] for p in plan.paths), "lanes"), "lanes", plan)
 
 
+@pytest.mark.parametrize("policy", ["random", "shadow"])
 def test_replay_rebuilds_the_executor_monitor_and_sessions_field_by_field(
-        tmp_path: Path) -> None:
-    """At several moments of a run with an intruder and a replan, a second engine that
-    replays the journal equals the running one in every field."""
+        policy: PolicyName, tmp_path: Path) -> None:
+    """At several moments of a run with an intruder and a replan (shadow: background solves
+    too), a second engine that replays the journal equals the running one in every field."""
     journal = tmp_path / "journal.sqlite"
     checked: list[tuple[float, int, int]] = []
 
     async def main() -> None:
-        config = GatewayConfig(port=0, map=None, policy="random", policy_seed=2,
+        config = GatewayConfig(port=0, map=None, policy=policy, policy_seed=2,
                                journal=journal, dispatch_lookahead=1)
         async with Gateway(config, clock=VirtualClock()) as gw:
-            fleet = fleet_for(gw, 8, gw.connect, intruder=True, seed=1)
+            # (an intruder early and long enough for shadow's background solves)
+            fleet = fleet_for(gw, 8, gw.connect, intruder=True, seed=1,
+                              intruder_config=IntruderConfig(appear_ms=1000, leave_ms=8000))
             run = asyncio.ensure_future(run_in_process(gw, workload(), fleet))
             while gw.status != "running":
                 await asyncio.sleep(0.01)
@@ -152,7 +156,11 @@ def test_replay_rebuilds_the_executor_monitor_and_sessions_field_by_field(
 
     run_virtual(main())
     assert len(checked) >= 5
-    assert any(plan >= 1 for _, plan, _ in checked), "the run never replanned"
+    if policy == "shadow":  # background solves came back (and were replayed), with plans
+        assert [r for r in Journal(journal).records()
+                if isinstance(r, ShadowRecord) and r.paths is not None]
+    else:
+        assert any(plan >= 1 for _, plan, _ in checked), "the run never replanned"
 
 
 def test_a_journal_compacted_at_every_replan_stays_bounded_and_resumes_exactly(

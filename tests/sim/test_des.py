@@ -43,7 +43,7 @@ def scenarios(draw: st.DrawFn) -> tuple[SimConfig, dict[tuple[int, int], int]]:
     config = SimConfig(
         grid, plan, seed=draw(st.integers(0, 1000)),
         intruder=draw(st.sampled_from([True, True, False])),
-        policy=draw(st.sampled_from(["none", "random", "slack"])),
+        policy=draw(st.sampled_from(["none", "random", "slack", "informed", "shadow"])),
         threshold_ms=draw(st.sampled_from([0, 500, 2000])), solver_time="zero",
         # a vanishing planner time limit makes replans fail: execution resumes the old plan
         solver_time_limit_s=draw(st.sampled_from([5.0, 5.0, 1e-9])), intruder_config=intruder,

@@ -31,6 +31,7 @@ from protocol import (
     decode,
     encode,
 )
+from sim_clients.des import PolicyName
 from sim_clients.fleet import SimFleet, fleet_for, run_in_process
 from tracecheck import check_trace, read_trace
 
@@ -200,3 +201,44 @@ def test_fleetgate_sim_drives_a_gateway_over_websockets() -> None:
     # time plus loopback round trips (each ms of those is 20 ms of plan time on a loaded
     # machine); at the wrong speed (1) it would be 20x the plan's cost
     assert 1000 * CORRIDOR.soc <= soc <= 3 * 1000 * CORRIDOR.soc
+
+
+def test_the_shadow_policy_goes_around_a_reported_block_through_the_gateway(
+        tmp_path: Path) -> None:
+    """Without replanning robot 0 waits for the intruder; with the shadow policy (and a
+    gateway that has seen a block that long before) it goes around."""
+    trace = tmp_path / "trace.jsonl"
+
+    async def main(policy: PolicyName) -> float:
+        config = GatewayConfig(port=0, map=None, policy=policy, trace=trace, motion="omni",
+                               block_history_ms=[7100.0])
+        async with Gateway(config, clock=VirtualClock()) as gw:
+            fleet = fleet_for(gw, 2, gw.connect, intruder=False)
+            run = asyncio.ensure_future(run_in_process(gw, problem(), fleet))
+            async with asyncio.timeout(5):
+                while gw.status != "running":
+                    await asyncio.sleep(0)
+            # robot 0 wants (2, 0) at 1000 ms; the intruder holds it for 8 s
+            err, detail = await gw.command(PlaceIntruder(msg_id="p", seq=0, cell=(2, 0),
+                                                         duration_ms=8000.0))
+            assert err is None, detail
+            result = await run
+            await fleet.stop()
+            return result.soc_ms
+
+    waited = run_virtual(main("none"))
+    assert waited == 1000 * CORRIDOR.soc + 7100.0  # robot 0 goes at 8100 ms
+    soc = run_virtual(main("shadow"))
+    records = read_trace(trace)
+    report = check_trace(records)
+    assert report.errors == [] and report.collisions == []
+    assert report.soc_ms == soc
+    # the block was reported, the background solve came back with a way around it, and the
+    # replan needed no stop-and-solve: robot 0 went around while the intruder stayed
+    (trigger,) = [r for r in records if r["type"] == "trigger"]
+    assert trigger["policy"] == "shadow" and trigger["t_ms"] < 8000.0
+    assert report.plans == 2
+    (new,) = [r for r in records if r["type"] == "plan" and r["plan"] == 1]
+    assert [2, 0] not in new["agents"][0]["path"]  # around, not through
+    assert not [r for r in records if r["type"] == "blocked" and r["plan"] == 1]
+    assert soc < waited

@@ -179,9 +179,10 @@ function syncControls() {
     $("speed").value = String(s.speed);
     $("speed-out").textContent = `${s.speed}×`;
   }
-  $("threshold").disabled = !["slack", "reschedule+slack"].includes(s.policy);
-  $("policy-now").textContent = s.policy === "slack"
-    ? `slack > ${fmtS(s.threshold_ms)}` : s.policy;
+  const thresholded = ["slack", "informed", "reschedule+slack"].includes(s.policy);
+  $("threshold").disabled = !thresholded;
+  $("policy-now").textContent = thresholded
+    ? `${s.policy}: slack > ${fmtS(s.threshold_ms)}` : s.policy;
 }
 
 function renderPanels() {
@@ -260,7 +261,8 @@ function frame() {
     mapView.draw(model, model.robots(wall), wall);
     chart.draw({
       series: s.fleet_slack, threshold: s.threshold_ms, marks: model.marks, now,
-      horizon: s.est_makespan_ms, showThreshold: s.policy === "slack",
+      horizon: s.est_makespan_ms,
+      showThreshold: s.policy === "slack" || s.policy === "informed",
     });
     const last = s.fleet_slack.length ? s.fleet_slack[s.fleet_slack.length - 1][1] : 0;
     $("slack-now").textContent = s.plan === null ? "" : `now ${fmtS(last)}`;
