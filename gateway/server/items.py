@@ -5,6 +5,7 @@ commands and planner results (produced by connection handlers and helper tasks, 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -62,5 +63,13 @@ class SolverDone:
     wall_ms: float
 
 
-Item = Inbound | Connected | Disconnected | InternalCommand | SolverDone
+@dataclass
+class OwnerCall:
+    """Run ``fn`` in the owner task (a helper task hands back a result, e.g. a lifelong plan
+    window, or an API request changes state only the owner task may touch)."""
+
+    fn: Callable[[], None]
+
+
+Item = Inbound | Connected | Disconnected | InternalCommand | SolverDone | OwnerCall
 Reply = Session | asyncio.Future[tuple[ErrorCode | None, str]] | None
