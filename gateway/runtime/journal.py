@@ -15,6 +15,9 @@ in the journal. With ``synchronous=NORMAL`` a commit survives the process being 
 (``kill -9``, an OOM kill); a power cut may lose the last commits, which robots' ``hello``
 re-synchronises (a finish the journal missed is caught up exactly once).
 
+In lifelong mode the journal holds the task book's changes instead (:class:`TaskRecord`), from
+which a restarted gateway rebuilds it (:mod:`gateway.server.task_journal`).
+
 Size: a new run deletes the records of the previous ones (the journal holds one run), and the
 file's free pages are returned at that plan boundary (``auto_vacuum=INCREMENTAL``).
 """
@@ -123,9 +126,29 @@ class SpeedRecord(_Record):
     speed: float
 
 
+class TaskRecord(_Record):
+    """A change of a task of a lifelong shift (an event of the task book, in order; its
+    ``seq`` is the event's). A ``queued`` record also carries what the task is (``errands``
+    as flat cell ids, priority, deadline, idempotency key, whether the task list made it), so
+    a restart can rebuild the book from the records alone."""
+
+    kind: Literal["task"] = "task"
+    seq: int
+    task: int
+    state: Literal["queued", "paused", "assigned", "started", "finished", "cancelled"]
+    robot: int
+    done: int
+    t_ms: float
+    errands: list[int] | None = None
+    priority: int = 0
+    deadline_ms: float | None = None
+    key: str | None = None
+    listed: bool = False
+
+
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
-    | SpeedRecord,
+    | SpeedRecord | TaskRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 

@@ -180,7 +180,7 @@ class RoutingConnection(ServerConnection):
             request = ApiRequest(method, path, query, headers, body, self.tls)
             self._task = self.loop.create_task(self._serve(request))
 
-    def eof_received(self) -> bool | None:
+    def eof_received(self) -> bool | None:  # type: ignore[override]
         if self._mode == "ws":
             return super().eof_received()
         return True  # a half-closed client still gets its answer

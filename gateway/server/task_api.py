@@ -27,7 +27,7 @@ import asyncio
 import json
 import re
 from collections.abc import AsyncIterator, Callable
-from typing import TYPE_CHECKING, TypeVar, cast
+from typing import TYPE_CHECKING, Literal, TypeVar, cast
 from urllib.parse import parse_qs
 
 from pydantic import TypeAdapter, ValidationError
@@ -117,7 +117,7 @@ class TaskApi:
         if action is not None:
             if req.method != "POST":
                 raise HttpError(405, f"{action[1:]} a task with POST", [("Allow", "POST")])
-            act = "pause" if action == "/pause" else "resume"
+            act: Literal["pause", "resume"] = "pause" if action == "/pause" else "resume"
             task = await self._change(lambda p, now: (p.pause if act == "pause"
                                                       else p.resume)(task_id, now))
             return json_answer(200, TaskAction(action=act, task=task_view(task, grid))
