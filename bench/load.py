@@ -98,6 +98,11 @@ class GcPauses:
         """Forget the pauses so far."""
         self.max_ms = self.total_ms = 0.0
 
+    def stop(self) -> None:
+        """Stop counting (the collections after the execution are not its pauses)."""
+        if self._on_gc in gc.callbacks:
+            gc.callbacks.remove(self._on_gc)
+
     def _on_gc(self, phase: str, _info: dict[str, int]) -> None:
         if phase == "start":
             self._t0 = time.perf_counter()
@@ -120,18 +125,33 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[
                            dispatch_lookahead=lookahead, journal=journal)
     pauses = GcPauses()
     async with Gateway(config) as gw:
-        gw.engine.status_listeners.append(lambda status: pauses.reset()
-                                          if status == "running" else None)
+        def measure(status: str) -> None:  # the execution's pauses, from start to done
+            if status == "running":
+                pauses.reset()
+            elif status == "done":
+                pauses.stop()
+
+        gw.engine.status_listeners.append(measure)
         gw.engine.load(Problem(inst, "load", plan))
         port = await gw.listen()
         print(port, flush=True)
         cpu0 = time.process_time()  # from here: connections and the execution, not imports
         soc, _ = await gw.wait_done()
         lat = sorted(gw.latencies_ms)
-        return {"soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time() - cpu0,
-                "gc_max_ms": round(pauses.max_ms, 1),
-                "gateway_p50_ms": statistics.median(lat) if lat else None,
-                "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
+        out: dict[str, Any] = {
+            "soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time() - cpu0,
+            "gc_max_ms": round(pauses.max_ms, 1),
+            "gateway_p50_ms": statistics.median(lat) if lat else None,
+            "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
+        j = gw.engine.journal
+        if j is not None:
+            cp = j.checkpointer
+            out["journal"] = {
+                "records": j.appended, "commits": j.commits,
+                "commit_max_ms": round(j.commit_max_ms, 2), "wal_restarts": j.restarts,
+                "checkpoints": cp.passes if cp else 0,
+                "wal_max_pages": cp.max_wal_pages if cp else 0}
+        return out
 
 
 def serve_main(plan_file: Path, profile: Path | None, lookahead: int,
@@ -277,6 +297,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             "lost": total - len(stats.received), "duplicated": stats.duplicates,
             "errors": len(stats.errors),
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
+            **({"journal_stats": gateway["journal"]} if "journal" in gateway else {}),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
             "gateway_cpu_ms_per_action": round(1000.0 * gateway.get("cpu_s", 0.0) / total, 3),
             "gateway_gc_max_ms": gateway.get("gc_max_ms"),
@@ -285,6 +306,37 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
             "rate_ratio": round(achieved / offered, 4) if offered else None}
+
+
+def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
+                 profile: Path | None, pairs: int) -> dict[str, Any]:
+    """``pairs`` runs without and with the journal, interleaved (ABBA: a trend in the
+    machine's load charges neither side); the median journaled run's measurements, plus
+    ``p99_journal_ratio`` (median p99 with / without) and the same for the gateway's own
+    p99 and its CPU per action."""
+    plain: list[dict[str, Any]] = []
+    journaled: list[dict[str, Any]] = []
+    for i in range(pairs):
+        for journal in ((False, True) if i % 2 == 0 else (True, False)):
+            res = run_once(robots, seconds, seed, jitter, lookahead,
+                           profile if journal else None, journal)
+            print(json.dumps(res), file=sys.stderr, flush=True)
+            (journaled if journal else plain).append(res)
+
+    def ratio(key: str) -> float | None:
+        with_ = [r[key] for r in journaled if r[key] is not None]
+        without = [r[key] for r in plain if r[key] is not None]
+        if not with_ or not without or not statistics.median(without):
+            return None
+        return round(statistics.median(with_) / statistics.median(without), 3)
+
+    result = sorted(journaled, key=lambda r: r["p99_ms"] or math.inf)[(pairs - 1) // 2]
+    return {**result, "pairs": pairs,
+            "p99_plain_ms": [r["p99_ms"] for r in plain],
+            "p99_journal_ms": [r["p99_ms"] for r in journaled],
+            "p99_journal_ratio": ratio("p99_ms"),
+            "gateway_p99_journal_ratio": ratio("gateway_p99_ms"),
+            "cpu_per_action_journal_ratio": ratio("gateway_cpu_ms_per_action")}
 
 
 def holds(result: dict[str, Any]) -> bool:
@@ -337,8 +389,12 @@ def main() -> int:
                    "every dispatch after the first is unlocked by a finish and measured)")
     p.add_argument("--profile", type=Path, help="cProfile the gateway process into this file")
     p.add_argument("--journal", action="store_true",
-                   help="the gateway journals the run (SQLite WAL in a temporary directory, "
-                        "as fleetgate serve does by default); the baseline run too")
+                   help="the journal's cost: runs without and with the journal (SQLite WAL in "
+                        "a temporary directory, as fleetgate serve does by default), "
+                        "interleaved, and prints p99_journal_ratio; the baseline run is "
+                        "journaled")
+    p.add_argument("--pairs", type=int, default=1,
+                   help="with --journal: how many runs of each (default 1)")
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--serve-journal", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
@@ -348,6 +404,8 @@ def main() -> int:
     _raise_fd_limit()
     if args.lookahead < 0:
         p.error("--lookahead must be >= 0")
+    if args.pairs < 1:
+        p.error("--pairs must be >= 1")
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
                         args.lookahead, journal=args.journal)
     if args.find_max:
@@ -355,9 +413,12 @@ def main() -> int:
                               args.max_robots)
         result = next((r for r in runs if r["robots"] == best), baseline)
         result = {"max_robots": best, **result}
+    elif args.journal:
+        result = journal_cost(args.robots, args.seconds, args.seed, args.jitter,
+                              args.lookahead, args.profile, args.pairs)
     else:
         result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                          args.profile, args.journal)
+                          args.profile)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99

@@ -28,7 +28,8 @@ The rules, written once here:
 * each ``ack`` is recorded; an ``ack`` of an action never dispatched is refused
   (``unknown_action``);
 * a report about an applied action is a ``duplicate`` (a completion reported twice is applied
-  once), a report about an action never dispatched is ``unknown_action``, a repeated
+  once), a report about an action never dispatched (or of an earlier plan: REPORT-3) is
+  ``unknown_action``, a repeated
   ``started`` / ``blocked`` is a ``duplicate``; everything else goes to the executor, which may
   still reject it (``rejected``);
 * protocol v2 (the version of the robot's ``hello``): a ``blocked`` of a move under way is a
@@ -139,7 +140,7 @@ class GatewaySession:
     """The protocol version of the robot's latest ``hello``."""
     held: dict[str, Held] = field(default_factory=dict)
     applied: dict[str, str] = field(default_factory=dict)
-    """Action id -> "finished" / "cancelled" / "refused", for the current run."""
+    """Action id -> "finished" / "cancelled" / "refused", for the current plan."""
     next_index: int = 0
     """Actions of the current plan finished."""
     disowned: set[str] = field(default_factory=set)
@@ -333,8 +334,11 @@ class GatewaySession:
                 self._send(Resume)
 
     def plan_adopted(self) -> None:
-        """A new plan starts from index 0."""
+        """A new plan starts from index 0. The earlier plans' actions are forgotten (before
+        a replan every one of them finished or was cancelled, so a late report about one is
+        an unknown action): a session remembers one plan, as a compacted journal does."""
         self.next_index = 0
+        self.applied.clear()
 
     # ------------------------------------------------------------------ helpers
     def _linked(self, link: object, ref: str) -> bool:

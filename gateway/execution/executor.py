@@ -270,6 +270,24 @@ class Executor:
             self._install(self.plan, self.adg, 0, self._now)
         self._adopted()
 
+    def start_adopted(self, plan_id: int, now_ms: float, *, completions_ms: Sequence[float],
+                      replans: int, paused: bool) -> None:
+        """Begin execution where a run stood when it adopted this executor's plan as plan
+        ``plan_id`` at ``now_ms``: each robot's latest completion time, the replans decided
+        and the pause of that moment (a journal's snapshot; the caller restores ``blocks``
+        and ``policy``). What follows is what :meth:`adopt_plan` does then."""
+        if self.mode is not Mode.NEW:
+            raise ExecutionError("start() was already called")
+        if len(completions_ms) != self.adg.n_robots:
+            raise ExecutionError(f"{len(completions_ms)} completion times for "
+                                 f"{self.adg.n_robots} robots")
+        self.mode = Mode.RUNNING
+        self._now = now_ms  # kept as given (trace t_ms)
+        self._completion = [float(c) for c in completions_ms]
+        self.replans, self.paused = replans, paused
+        self._install(self.plan, self.adg, plan_id, now_ms)
+        self._adopted()
+
     def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """The robot began to move (after any wait for its target cell)."""
         v = self._event_vertex("start", robot, plan, action, now_ms)

@@ -15,17 +15,32 @@ in the journal. With ``synchronous=NORMAL`` a commit survives the process being 
 (``kill -9``, an OOM kill); a power cut may lose the last commits, which robots' ``hello``
 re-synchronises (a finish the journal missed is caught up exactly once).
 
+Checkpoints stay off the commit path: the writer's connection never checkpoints by itself
+(``wal_autocheckpoint=0``: SQLite's automatic checkpoint would copy and ``fsync`` in the middle of
+a commit, stalling the engine). A :class:`Checkpointer` thread with its own connection copies the
+WAL into the database every ``CHECKPOINT_PERIOD_S`` (``PASSIVE``: it never blocks the writer).
+Under continuous writes a passive checkpoint never catches up with the last frames, so the WAL
+would never start over and would grow without end: once it holds more than ``wal_bound_pages``
+the checkpointer asks the writer to catch up the few frames written since its pass, at its next
+commit (``wal_checkpoint(RESTART)`` on the writer's own connection, so no lock is waited for);
+the next transaction then writes the WAL from its start, and ``journal_size_limit`` trims the
+file.
+
+Size: a new run deletes the records of the previous ones (the journal holds one run), and a new
+plan compacts it: :meth:`Journal.compact` replaces every record by one snapshot of what the
+executor carries into the plan (:class:`SnapshotRecord`). The file's free pages are returned at
+those plan boundaries (``auto_vacuum=INCREMENTAL``).
+
 In lifelong mode the journal holds the task book's changes instead (:class:`TaskRecord`), from
 which a restarted gateway rebuilds it (:mod:`gateway.server.task_journal`).
-
-Size: a new run deletes the records of the previous ones (the journal holds one run), and the
-file's free pages are returned at that plan boundary (``auto_vacuum=INCREMENTAL``).
 """
 
 from __future__ import annotations
 
 import secrets
 import sqlite3
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Literal
@@ -146,9 +161,44 @@ class TaskRecord(_Record):
     listed: bool = False
 
 
+class SnapshotRecord(_Record):
+    """A plan boundary: the run's records up to plan ``plan_id`` adopted at ``t_ms``, compacted.
+    It holds what the executor carries into a new plan (the rest of its state starts afresh
+    with the plan) and what the engine keeps besides; replaying it gives what replaying those
+    records gave."""
+
+    kind: Literal["snapshot"] = "snapshot"
+    run: RunRecord
+    """The run (its parameters, map and first plan)."""
+    plan_id: int
+    t_ms: float
+    paths: list[list[Cell]]
+    headings: list[list[int]] | None = None
+    solver_ms: float
+    completions_ms: list[float]
+    """Per robot: when its latest action finished."""
+    replans: int
+    paused: bool
+    blocks_open: list[tuple[Cell, float, float]]
+    """Open blocks: cell, since, last seen."""
+    blocks_history: list[float]
+    """Durations of the blocks that cleared."""
+    policy: str
+    policy_seed: int
+    threshold_ms: float
+    policy_state: dict[str, float | bool | None]
+    """The policy object's attributes (e.g. a random replan's time and whether it fired)."""
+    speed: float
+    intruders: list[Cell]
+    replan_marks: list[dict[str, float | int | str]]
+    """The run's replans so far, as operators see them."""
+    trace_lines: int
+    """Trace records the run wrote before this plan (its trace file starts with them)."""
+
+
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
-    | SpeedRecord | TaskRecord,
+    | SpeedRecord | SnapshotRecord | TaskRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 
@@ -162,17 +212,79 @@ def new_run_id() -> str:
     return secrets.token_hex(4)
 
 
-class Journal:
-    """The SQLite journal at ``path`` (created with its directory if missing)."""
+CHECKPOINT_PERIOD_S = 1.0
+"""How often the checkpointer copies the WAL into the database."""
+WAL_BOUND_PAGES = 8192
+"""WAL pages (32 MiB at SQLite's default 4 KiB page) beyond which the WAL is made to start
+over (see the module doc)."""
 
-    def __init__(self, path: Path) -> None:
+
+class Checkpointer:
+    """A thread that checkpoints the journal at ``path`` every ``period_s`` (PASSIVE, on its own
+    connection), and raises :attr:`restart_due` when the WAL outgrew ``bound_pages`` frames."""
+
+    def __init__(self, path: Path, period_s: float, bound_pages: int) -> None:
         self.path = path
+        self.period_s = period_s
+        self.bound_pages = bound_pages
+        self.restart_due = False
+        """Set here, cleared by the writer once it caught up the WAL's last frames."""
+        self.passes = 0
+        self.max_wal_pages = 0
+        """The largest WAL seen at a pass (frames)."""
+        self.error: str | None = None
+        """Why the checkpointer stopped, if it failed (the writer's commits still work)."""
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="journal-checkpoint",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            db = sqlite3.connect(self.path, isolation_level=None)
+        except sqlite3.Error as exc:
+            self.error = str(exc)
+            return
+        try:
+            while not self._stop.wait(self.period_s):
+                self.checkpoint(db)
+        except sqlite3.Error as exc:
+            self.error = str(exc)
+        finally:
+            db.close()
+
+    def checkpoint(self, db: sqlite3.Connection) -> None:
+        """One passive pass: copy what the WAL holds into the database (never waits)."""
+        _busy, frames, _copied = db.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
+        self.passes += 1
+        self.max_wal_pages = max(self.max_wal_pages, frames)
+        if frames > self.bound_pages:
+            self.restart_due = True
+
+    def stop(self) -> None:
+        """End the thread (after its current pass)."""
+        self._stop.set()
+        self._thread.join()
+
+
+class Journal:
+    """The SQLite journal at ``path`` (created with its directory if missing). Its first
+    write starts a :class:`Checkpointer` (a journal only read never does)."""
+
+    def __init__(self, path: Path, *, checkpoint_period_s: float = CHECKPOINT_PERIOD_S,
+                 wal_bound_pages: int = WAL_BOUND_PAGES) -> None:
+        self.path = path
+        self._period_s = checkpoint_period_s
+        self._bound_pages = wal_bound_pages
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._db = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
             self._db.execute("PRAGMA auto_vacuum=INCREMENTAL")
             mode = self._db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
             self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.execute("PRAGMA wal_autocheckpoint=0")  # the checkpointer's job
+            page = int(self._db.execute("PRAGMA page_size").fetchone()[0])
+            self._db.execute(f"PRAGMA journal_size_limit={wal_bound_pages * page}")
             self._db.execute("CREATE TABLE IF NOT EXISTS records ("
                              "seq INTEGER PRIMARY KEY, kind TEXT NOT NULL, body TEXT NOT NULL)")
         except (OSError, sqlite3.Error) as exc:
@@ -180,8 +292,14 @@ class Journal:
         if mode != "wal":
             raise JournalError(f"the journal {path} cannot use WAL mode (got {mode})")
         self._buffer: list[tuple[str, str]] = []
+        self.checkpointer: Checkpointer | None = None
         self.appended = 0
         """Records written since the journal was opened."""
+        self.commits = 0
+        self.commit_max_ms = 0.0
+        """The longest commit (wall time), a checkpoint catch-up included."""
+        self.restarts = 0
+        """Times the writer caught up the WAL so that it starts over."""
 
     def append(self, record: _Record) -> None:
         """Buffer one record (written by the next :meth:`commit`)."""
@@ -191,24 +309,51 @@ class Journal:
         """Write the buffered records in one transaction."""
         if not self._buffer:
             return
+        t0 = time.perf_counter()
         rows, self._buffer = self._buffer, []
         db = self._db
         db.execute("BEGIN")
         db.executemany("INSERT INTO records (kind, body) VALUES (?, ?)", rows)
         db.execute("COMMIT")
         self.appended += len(rows)
+        self._after_write(t0)
 
-    def begin_run(self, run: RunRecord) -> None:
-        """A new run: forget every earlier record (the plan boundary) and write ``run``."""
+    def _after_write(self, t0: float) -> None:
+        """Start the checkpointer on the first write; catch up the WAL if it asked."""
+        cp = self.checkpointer
+        if cp is None:
+            self.checkpointer = Checkpointer(self.path, self._period_s, self._bound_pages)
+        elif cp.restart_due:
+            # the frames since the checkpointer's last pass: few, and nobody waits for a lock
+            busy = self._db.execute("PRAGMA wal_checkpoint(RESTART)").fetchone()[0]
+            if not busy:  # else the checkpointer was in a pass: ask again after the next
+                cp.restart_due = False
+                self.restarts += 1
+        self.commits += 1
+        self.commit_max_ms = max(self.commit_max_ms, (time.perf_counter() - t0) * 1000.0)
+
+    def _replace(self, record: _Record) -> None:
+        """Forget every record and write ``record`` instead (one transaction), then return
+        the free pages (a plan boundary: nobody waits for the fleet meanwhile)."""
+        t0 = time.perf_counter()
         self._buffer.clear()
         db = self._db
         db.execute("BEGIN")
         db.execute("DELETE FROM records")
         db.execute("INSERT INTO records (kind, body) VALUES (?, ?)",
-                   (run.kind, run.model_dump_json()))
+                   (record.kind, record.model_dump_json()))  # type: ignore[attr-defined]
         db.execute("COMMIT")
         db.execute("PRAGMA incremental_vacuum")
-        db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        self.appended += 1
+        self._after_write(t0)
+
+    def begin_run(self, run: RunRecord) -> None:
+        """A new run: forget every earlier record (the plan boundary) and write ``run``."""
+        self._replace(run)
+
+    def compact(self, snapshot: SnapshotRecord) -> None:
+        """A new plan: ``snapshot`` replaces every record (those it sums up)."""
+        self._replace(snapshot)
 
     def discard(self) -> None:
         """Forget the journaled run (starting fresh on purpose)."""
@@ -233,7 +378,15 @@ class Journal:
         """How many records are committed."""
         return int(self._db.execute("SELECT COUNT(*) FROM records").fetchone()[0])
 
+    def wal_bytes(self) -> int:
+        """The WAL file's size (0 if there is none)."""
+        wal = self.path.with_name(self.path.name + "-wal")
+        return wal.stat().st_size if wal.exists() else 0
+
     def close(self) -> None:
-        """Commit what is buffered and close the database."""
+        """Commit what is buffered, stop the checkpointer and close the database."""
         self.commit()
+        if self.checkpointer is not None:
+            self.checkpointer.stop()
+            self.checkpointer = None
         self._db.close()

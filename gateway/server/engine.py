@@ -51,7 +51,13 @@ from gateway.planning.instance import Instance
 from gateway.planning.movingai import parse_map
 from gateway.planning.plan import Plan
 from gateway.planning.solver import Place
-from gateway.runtime.journal import IntruderRecord, Journal, ReportRecord, RunRecord
+from gateway.runtime.journal import (
+    IntruderRecord,
+    Journal,
+    ReportRecord,
+    RunRecord,
+    SnapshotRecord,
+)
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
@@ -66,7 +72,14 @@ from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import OperatorCommands
 from gateway.server.operator_feed import OperatorFeed
 from gateway.server.planner import Problem
-from gateway.server.resume import JournaledExecutor, Replayed, plan_of, replay
+from gateway.server.resume import (
+    Carried,
+    JournaledExecutor,
+    Replayed,
+    plan_of,
+    replay,
+    snapshot_of,
+)
 from gateway.server.session import Session
 from gateway.server.solver_tasks import SolverTasks
 from gateway.server.views import FleetView, snapshot_fields
@@ -108,6 +121,8 @@ class Engine:
         self.executor: JournaledExecutor | None = None
         self.journal: Journal | None = None
         """Where the runs are journaled (None: they are not, and do not survive a restart)."""
+        self.run_record: RunRecord | None = None
+        """The journaled run's record (its snapshots carry it)."""
         self.run_id = ""
         """The current run's id, the first part of its action ids."""
         self.runs = 0
@@ -504,11 +519,26 @@ class Engine:
             return  # a new run was started meanwhile
         now = self.now_ms()
         if isinstance(item.result, Plan):
+            lines = self.feed.trace_lines
             ex.adopt_plan(item.result, now, self.solvers.solver_ms)
+            self._compact(ex, lines)
         else:
             log.warning("replan found no plan, keeping the old one: %s", item.result)
             ex.abandon_replan(now)
         self.route(ex.drain())
+
+    def _compact(self, ex: JournaledExecutor, trace_lines: int) -> None:
+        """A plan was just adopted (the fleet is idle): replace the journal's records by a
+        snapshot. Its records so far are committed and the trace flushed first, so a crash
+        at any point leaves a journal that rebuilds the run and a trace no shorter than the
+        snapshot says (``trace_lines``: those before the adoption)."""
+        if self.journal is None or self.run_record is None:
+            return
+        self.commit()
+        self.journal.compact(snapshot_of(self.run_record, ex, Carried(
+            self.policy_name, self.policy_seed, self.threshold_ms, self.clock.speed,
+            self.solvers.solver_ms, self.feed.intruders, self.feed.replan_marks,
+            trace_lines)))
 
     def load(self, problem: Problem) -> None:
         """Plan ``problem`` (unless it has a plan) and make it the loaded one."""
@@ -522,9 +552,10 @@ class Engine:
         if journal is None:
             return False
         records = list(journal.records())
-        if not records or not isinstance(records[0], RunRecord):
+        if not records or not isinstance(records[0], RunRecord | SnapshotRecord):
             return False
-        run = records[0]
+        run = records[0] if isinstance(records[0], RunRecord) else records[0].run
+        self.run_record = run
         grid = parse_map(run.map_text, name=run.map_name)
         first = plan_of(run.paths, run.headings)
         self.problem = Problem(Instance(grid, tuple(p[0] for p in first.paths),
@@ -542,12 +573,17 @@ class Engine:
         self._replaying = True
         try:
             done = replay(records, on_commands=self.route,
-                          on_report=self._replayed_report, trace=record)
+                          on_report=self._replayed_report, trace=record,
+                          on_snapshot=self._snapshot_replayed)
         finally:
             self._replaying = False
         assert done is not None
         self._resumed(done, trace)
         return True
+
+    def _snapshot_replayed(self, done: Replayed) -> None:
+        """The journal starts with a snapshot: the replans before it, as operators saw them."""
+        self.feed.replan_marks = done.replan_marks
 
     def _replayed_report(self, rec: ReportRecord) -> None:
         """A report the replayed executor took: the robot's session takes it too."""
@@ -563,7 +599,7 @@ class Engine:
         self.solvers.solver_ms = done.solver_ms
         self.paused = ex.paused
         self.feed.intruders = set(done.intruders)
-        self.feed.resume_trace(trace)
+        self.feed.resume_trace(trace, done.trace_lines)
         ex.set_record(self.feed.record)
         ex.sink = self.journal.append if self.journal is not None else None
         self.clock.set_speed(done.speed)

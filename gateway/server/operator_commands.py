@@ -289,7 +289,8 @@ class OperatorCommands:
             hook()
         e.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
         if journal is not None:  # the plan boundary: the previous run's records go
-            journal.begin_run(run.model_copy(update={"wall_start_s": time.time()}))
+            e.run_record = run.model_copy(update={"wall_start_s": time.time()})
+            journal.begin_run(e.run_record)
         e.executor.start(0.0)
         e.status_changed()
         e.route(e.executor.drain())

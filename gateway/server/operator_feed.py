@@ -39,6 +39,8 @@ class OperatorFeed:
         self._trace_path = trace
         self._trace: IO[str] | None = None
         self._pending: list[str] = []
+        self.trace_lines = 0
+        """Records the current run's trace file holds (or will, once flushed)."""
 
     def event(self, kind: str, t_ms: float, **fields: Any) -> None:
         """Send every operator an ``event``."""
@@ -60,12 +62,13 @@ class OperatorFeed:
                         path.rename(aside)
                         break
             self._trace = path.open("a", encoding="utf-8")
+        self.trace_lines = 0
 
-    def resume_trace(self, records: list[str]) -> None:
+    def resume_trace(self, records: list[str], skip: int = 0) -> None:
         """A resumed run: reopen its trace for appending, after adding the tail of
-        ``records`` (the run's whole trace, rebuilt by replay) that the file lacks (it is
-        written after the journal, so a crash can leave it behind, never ahead). A torn last
-        line is completed the same way."""
+        ``records`` (the run's trace after its first ``skip`` records, rebuilt by replay) that
+        the file lacks (it is written after the journal, so a crash can leave it behind, never
+        ahead). A torn last line is completed the same way."""
         self.close_trace()
         self._pending.clear()
         path = self._trace_path
@@ -79,7 +82,9 @@ class OperatorFeed:
             f.seek(sum(len(line.encode()) for line in have))
             f.truncate()
         self._trace = path.open("a", encoding="utf-8")
-        self._pending.extend(records[len(have):])
+        missing = records[max(0, len(have) - skip):]
+        self.trace_lines = len(have) + len(missing)
+        self._pending.extend(missing)
         self.flush_trace()
 
     def record(self, rec: dict[str, object]) -> None:
@@ -122,6 +127,7 @@ class OperatorFeed:
         """One record for the trace file (if one is open), written by :meth:`flush_trace`."""
         if self._trace is not None:
             self._pending.append(json.dumps(rec) + "\n")
+            self.trace_lines += 1
 
     def flush_trace(self) -> None:
         """Write and flush the buffered records (after the journal committed their cause)."""

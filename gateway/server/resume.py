@@ -6,6 +6,11 @@ executor is deterministic, so :func:`replay` of those records through a fresh on
 its monitor and policy included, field by field; it hands the commands the executor gives on
 the way (dispatches, cancels, a solve request, completion) and the reports it took to the
 caller, which rebuilds its robot sessions from them. No I/O here, no clock.
+
+A journal compacted at a plan boundary starts with a snapshot instead of the run
+(:func:`snapshot_of` writes it when a plan is adopted): the replay then starts the executor
+with the adopted plan from the state the snapshot carries (:meth:`Executor.start_adopted`),
+which is the state the records it replaced would have rebuilt.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gateway.execution.actions import ActionDurations
+from gateway.execution.blocks import BlockTracker
 from gateway.execution.commands import Command, SolveRequest
 from gateway.execution.errors import ExecutionError
 from gateway.execution.executor import Executor
@@ -32,6 +38,7 @@ from gateway.runtime.journal import (
     PolicyRecord,
     ReportRecord,
     RunRecord,
+    SnapshotRecord,
     SpeedRecord,
     TimeRecord,
 )
@@ -148,6 +155,38 @@ def executor_for(run: RunRecord, sink: Sink | None = None,
 
 
 @dataclass
+class Carried:
+    """What the engine keeps besides the executor, journaled in a snapshot."""
+
+    policy: str
+    policy_seed: int
+    threshold_ms: float
+    speed: float
+    solver_ms: float
+    intruders: set[Cell]
+    replan_marks: list[dict[str, Any]]
+    trace_lines: int
+
+
+def snapshot_of(run: RunRecord, ex: JournaledExecutor, carried: Carried) -> SnapshotRecord:
+    """The snapshot of a run that has just adopted its current plan (nothing else happened
+    since): it replaces the run's records in the journal."""
+    plan = ex.plan
+    blocks = ex.blocks
+    return SnapshotRecord(
+        run=run, plan_id=ex.plan_id, t_ms=ex.now_ms, paths=[list(p) for p in plan.paths],
+        headings=None if plan.headings is None else [list(h) for h in plan.headings],
+        solver_ms=carried.solver_ms, completions_ms=list(ex.completions_ms),
+        replans=ex.replans, paused=ex.paused,
+        blocks_open=[(c, since, blocks.seen[c]) for c, since in blocks.open.items()],
+        blocks_history=list(blocks.history), policy=carried.policy,
+        policy_seed=carried.policy_seed, threshold_ms=carried.threshold_ms,
+        policy_state=dict(vars(ex.policy)), speed=carried.speed,
+        intruders=sorted(carried.intruders), replan_marks=carried.replan_marks,
+        trace_lines=carried.trace_lines)
+
+
+@dataclass
 class Replayed:
     """What a replay rebuilt besides the robot sessions."""
 
@@ -163,26 +202,60 @@ class Replayed:
     solve: SolveRequest | None = None
     """The solver request still unanswered (the replan must be solved again)."""
     records: int = 0
+    replan_marks: list[dict[str, Any]] = field(default_factory=list)
+    """The replans before the snapshot the journal starts with (none without one)."""
+    trace_lines: int = 0
+    """Trace records the run wrote before the replayed ones (the snapshot's)."""
+
+
+def _from_snapshot(snap: SnapshotRecord, trace: Callable[[Record], None] | None
+                   ) -> Replayed:
+    """The executor a snapshot describes, started with its plan."""
+    run = snap.run.model_copy(update={
+        "paths": snap.paths, "headings": snap.headings, "policy": snap.policy,
+        "policy_seed": snap.policy_seed, "threshold_ms": snap.threshold_ms})
+    ex = executor_for(run, record=trace)
+    vars(ex.policy).update(snap.policy_state)
+    ex.blocks = BlockTracker(
+        min_ms=ex.blocks.min_ms, open={(c[0], c[1]): since for c, since, _ in snap.blocks_open},
+        seen={(c[0], c[1]): seen for c, _, seen in snap.blocks_open},
+        history=list(snap.blocks_history))
+    ex.start_adopted(snap.plan_id, snap.t_ms, completions_ms=snap.completions_ms,
+                     replans=snap.replans, paused=snap.paused)
+    return Replayed(snap.run, ex, snap.policy, snap.policy_seed, snap.threshold_ms, snap.speed,
+                    solver_ms=snap.solver_ms, intruders={(c[0], c[1]) for c in snap.intruders},
+                    last_t_ms=snap.t_ms, records=1,
+                    replan_marks=[dict(m) for m in snap.replan_marks],
+                    trace_lines=snap.trace_lines)
 
 
 def replay(records: Iterable[JournalRecord], *,
            on_commands: Callable[[list[Command]], None],
            on_report: Callable[[ReportRecord], None],
-           trace: Callable[[Record], None] | None = None) -> Replayed | None:
-    """Rebuild the journaled run (None if there is none): its executor, started and fed every
-    record in order. ``on_commands`` gets what the executor commands after each record,
-    ``on_report`` every report it accepted (a report it refused live is refused again),
-    ``trace`` the run's trace records. JournalError if the journal is not a run's."""
+           trace: Callable[[Record], None] | None = None,
+           on_snapshot: Callable[[Replayed], None] | None = None) -> Replayed | None:
+    """Rebuild the journaled run (None if there is none): its executor, started (from the run
+    or from the snapshot the journal starts with) and fed every record in order.
+    ``on_snapshot`` gets what a snapshot restored before anything is replayed,
+    ``on_commands`` what the executor commands after each record, ``on_report`` every report
+    it accepted (a report it refused live is refused again), ``trace`` the run's trace
+    records. JournalError if the journal is not a run's."""
     it = iter(records)
     first = next(it, None)
     if first is None:
         return None
-    if not isinstance(first, RunRecord):
+    if isinstance(first, SnapshotRecord):
+        out = _from_snapshot(first, trace)
+        if on_snapshot is not None:
+            on_snapshot(out)
+    elif isinstance(first, RunRecord):
+        ex = executor_for(first, record=trace)
+        out = Replayed(first, ex, first.policy, first.policy_seed, first.threshold_ms,
+                       first.speed, records=1)
+        ex.start(0.0)
+    else:
         raise JournalError(f"the journal starts with a {first.kind} record, not a run")
-    ex = executor_for(first, record=trace)
-    out = Replayed(first, ex, first.policy, first.policy_seed, first.threshold_ms, first.speed,
-                   records=1)
-    ex.start(0.0)
+    ex = out.executor
     _commands(ex, out, on_commands)
     for rec in it:
         out.records += 1
@@ -245,5 +318,5 @@ def _apply(ex: JournaledExecutor, out: Replayed, rec: JournalRecord,
                 trace(intruder_record(rec.t_ms, cell, rec.state))
         case SpeedRecord():
             out.speed = rec.speed
-        case RunRecord():
-            raise JournalError("a second run record in the journal")
+        case RunRecord() | SnapshotRecord():
+            raise JournalError(f"a {rec.kind} record after the journal's first")

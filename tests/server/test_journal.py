@@ -4,7 +4,9 @@ a restarted gateway resumes the run, and action ids never repeat across runs or 
 from __future__ import annotations
 
 import asyncio
+import json
 import random
+import time
 from array import array
 from collections import deque
 from pathlib import Path
@@ -12,16 +14,20 @@ from typing import Any
 
 import numpy as np
 import pytest
+from pydantic import TypeAdapter
 
 from gateway.execution.executor import Mode
+from gateway.execution.policies import POLICY_NAMES, make_policy
 from gateway.planning.instance import Instance
+from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.runtime.journal import Journal, RunRecord
+from gateway.runtime.journal import Journal, RunRecord, SnapshotRecord, TimeRecord
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
+from gateway.server.engine import Engine
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
-from protocol import action_run
+from protocol import Pause, ReplanNow, Resume, action_run
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet, fleet_for, run_in_process
 from tracecheck import check_trace, read_trace
@@ -84,6 +90,39 @@ def workload(robots: int = 8, steps: int = 12, seed: int = 3) -> Problem:
     return Problem(Instance(grid, starts, goals, "open"), "open", plan)
 
 
+async def assert_rebuilt(live: Engine, config: GatewayConfig) -> None:
+    """A second gateway on ``live``'s journal (and no trace file) rebuilds its executor,
+    monitor, robot sessions, policy, intruders and replan marks, field by field."""
+    assert live.executor is not None
+    async with Gateway(config.model_copy(update={"port": 0, "trace": None}),
+                       clock=VirtualClock()) as other:
+        again = other.engine
+        assert other.resumed or live.executor.mode is Mode.DONE
+        assert again.executor is not None
+        assert again.run_id == live.run_id
+        diff = differences(live.executor, again.executor, "executor")
+        assert diff == [], diff
+        for r, gs in live.robots.items():
+            diff = differences(gs, again.robot(r), f"robot{r}", [])
+            # what only a connection tells: acknowledgements, poses, versions
+            diff = [d for d in diff if ".acked" not in d and ".pose" not in d]
+            assert diff == [], diff
+        assert again.feed.intruders == live.feed.intruders
+        assert again.feed.replan_marks == live.feed.replan_marks
+        assert (again.policy_name, again.threshold_ms) == (live.policy_name, live.threshold_ms)
+        assert again.solvers.solver_ms == live.solvers.solver_ms
+        assert again.paused == live.paused
+        other.engine.journal = None  # the live gateway keeps writing it
+
+
+def lanes(robots: int, width: int) -> Problem:
+    """Robot i crosses an open grid along row 2i (a long run that a replan cannot shorten)."""
+    grid = open_grid(width, 2 * robots)
+    plan = Plan.of([[(x, 2 * r) for x in range(width)] for r in range(robots)])
+    return Problem(Instance(grid, tuple(p[0] for p in plan.paths),
+                            tuple(p[-1] for p in plan.paths), "lanes"), "lanes", plan)
+
+
 def test_replay_rebuilds_the_executor_monitor_and_sessions_field_by_field(
         tmp_path: Path) -> None:
     """At several moments of a run with an intruder and a replan, a second engine that
@@ -105,30 +144,82 @@ def test_replay_rebuilds_the_executor_monitor_and_sessions_field_by_field(
                     break
                 live = gw.engine
                 assert live.executor is not None
-                async with Gateway(config.model_copy(update={"port": 0}),
-                                   clock=VirtualClock()) as other:
-                    again = other.engine
-                    assert other.resumed or live.executor.mode is Mode.DONE
-                    assert again.executor is not None
-                    assert again.run_id == live.run_id
-                    diff = differences(live.executor, again.executor, "executor")
-                    assert diff == [], diff
-                    for r, gs in live.robots.items():
-                        diff = differences(gs, again.robot(r), f"robot{r}", [])
-                        # what only a connection tells: acknowledgements, poses, versions
-                        diff = [d for d in diff if ".acked" not in d and ".pose" not in d]
-                        assert diff == [], diff
-                    assert again.feed.intruders == live.feed.intruders
-                    assert again.policy_name == live.policy_name
-                    checked.append((live.executor.now_ms, live.executor.plan_id,
-                                    live.executor.replans))
-                    other.engine.journal = None  # the live gateway keeps writing it
+                await assert_rebuilt(live, config)
+                checked.append((live.executor.now_ms, live.executor.plan_id,
+                                live.executor.replans))
             await run
             await fleet.stop()
 
     run_virtual(main())
     assert len(checked) >= 5
     assert any(plan >= 1 for _, plan, _ in checked), "the run never replanned"
+
+
+def test_a_journal_compacted_at_every_replan_stays_bounded_and_resumes_exactly(
+        tmp_path: Path) -> None:
+    """Twenty operator replans (one adopted during a pause) in a run with an intruder: each
+    adoption replaces the journal's records by one snapshot, so the journal holds only the
+    current plan's records, and a gateway resuming from a snapshot (and the records after
+    it) equals the live one field by field; the live trace is one valid run."""
+    journal, trace = tmp_path / "journal.sqlite", tmp_path / "trace.jsonl"
+    counts: list[tuple[int, int]] = []  # (records in the journal, records appended so far)
+
+    async def main() -> None:
+        config = GatewayConfig(port=0, map=None, policy="operator", max_replans=20,
+                               journal=journal, trace=trace)
+        async with Gateway(config, clock=VirtualClock()) as gw:
+            fleet = fleet_for(gw, 8, gw.connect, intruder=True, seed=4)
+            run = asyncio.ensure_future(run_in_process(gw, lanes(8, 40), fleet))
+            while gw.status != "running":
+                await asyncio.sleep(0.01)
+            live = gw.engine
+            assert live.executor is not None and live.journal is not None
+            ex, replans = live.executor, 0
+            while not run.done() and ex.replans < 20:
+                await asyncio.sleep(0.7)
+                if gw.status != "running":
+                    continue
+                paused = ex.replans == 5
+                plan = ex.plan_id
+                assert (await gw.command(ReplanNow(msg_id="r", seq=0)))[0] is None
+                if paused:
+                    assert (await gw.command(Pause(msg_id="p", seq=0)))[0] is None
+                while ex.plan_id == plan and not run.done():
+                    await asyncio.sleep(0.05)
+                if paused:
+                    await assert_rebuilt(live, config)  # a plan adopted during the pause
+                    assert (await gw.command(Resume(msg_id="q", seq=0)))[0] is None
+                replans += 1
+                await asyncio.sleep(0.3)  # records after the snapshot
+                records = list(live.journal.records())
+                assert isinstance(records[0], SnapshotRecord)
+                assert records[0].plan_id == ex.plan_id
+                counts.append((len(records), live.journal.appended))
+                if replans % 4 == 0:
+                    await assert_rebuilt(live, config)
+            await run
+            await fleet.stop()
+
+    run_virtual(main())
+    assert len(counts) >= 12, counts
+    appended = counts[-1][1]
+    assert max(n for n, _ in counts) < appended / 5, (counts, appended)
+    records = read_trace(trace)
+    report = check_trace(records)
+    assert report.errors == [] and report.collisions == []
+    plans = [r["plan"] for r in records if r["type"] == "plan"]
+    assert plans == list(range(len(plans))) and len(plans) > len(counts)
+
+
+def test_every_policy_state_fits_a_snapshot() -> None:
+    """A snapshot journals a policy by its attributes: every policy's are plain values that
+    come back equal (a policy with richer state would need its own field)."""
+    field = SnapshotRecord.model_fields["policy_state"]
+    for name in POLICY_NAMES:
+        state = dict(vars(make_policy(name, seed=3, makespan_lb_ms=90_000.0)))
+        again = TypeAdapter(field.annotation).validate_json(json.dumps(state))
+        assert again == state and [type(v) for v in again.values()] == [
+            type(v) for v in state.values()], name
 
 
 def test_action_ids_carry_the_run_and_never_repeat_across_runs_or_restarts(
@@ -201,6 +292,33 @@ def test_a_restarted_gateway_resumes_the_run_and_the_trace_is_appended(
 
 if __name__ == "__main__":
     pytest.main([__file__, "-q"])
+
+
+def test_under_continuous_commits_the_wal_starts_over_and_stays_bounded(tmp_path: Path) -> None:
+    """Commits never pause long enough for a passive checkpoint to catch up; the checkpointer
+    has the writer catch up the last frames, so the WAL starts over and is trimmed to its
+    bound, and every record is kept."""
+    path = tmp_path / "j.sqlite"
+    journal = Journal(path, checkpoint_period_s=0.005, wal_bound_pages=40)
+    page = 4096  # SQLite's default page size
+    n, deadline = 0, time.monotonic() + 60.0
+    while journal.restarts < 3 and time.monotonic() < deadline:
+        journal.append(TimeRecord(kind="tick", t_ms=float(n)))
+        journal.commit()  # one frame or more per commit
+        n += 1
+    assert journal.restarts >= 3, journal.restarts
+    cp = journal.checkpointer
+    assert cp is not None and cp.max_wal_pages > 40
+    cp.stop()  # no pass in the way of the next commit
+    grown = journal.wal_bytes()
+    journal.append(TimeRecord(kind="tick", t_ms=float(n)))
+    journal.commit()  # the WAL starts over: the file is trimmed to the bound
+    assert journal.wal_bytes() <= 40 * page < grown
+    journal.close()
+    again = Journal(path)
+    assert [r.t_ms for r in again.records() if isinstance(r, TimeRecord)] == [
+        float(i) for i in range(n + 1)]
+    again.close()
 
 
 def test_a_resumed_trace_gets_the_missing_tail_and_loses_a_torn_line(tmp_path: Path) -> None:
