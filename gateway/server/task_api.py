@@ -275,7 +275,8 @@ class TaskApi:
             page.append(task)
         answer = TaskList(now_ms=self._engine.now_ms(),
                           tasks=[task_view(t, grid) for t in page],
-                          next_after=page[-1].id if more else None, counts=pool.counts())
+                          next_after=page[-1].id if more else None, counts=pool.counts(),
+                          last_event=pool.event_seq)
         return json_answer(200, answer.model_dump(mode="json"))
 
     @staticmethod

@@ -100,6 +100,9 @@ class TaskList(_Model):
     next_after: int | None
     counts: dict[TaskState, int]
     """Kept tasks per state (all of them, not only this page)."""
+    last_event: int
+    """The sequence number of the latest event: ``GET /tasks/events?after=`` it continues
+    from this page without a gap."""
 
 
 class TaskEventView(_Model):

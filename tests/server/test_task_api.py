@@ -275,3 +275,12 @@ def test_tasks_finish_once_and_the_stream_tells_every_change(tmp_path: Path) -> 
     stats = out["stats"]
     assert stats.finished_tasks == len(ids)
     assert stats.lost == 0 and stats.duplicated == 0 and stats.collisions == 0
+
+
+def test_docs_tasks_md_is_up_to_date() -> None:
+    """docs/tasks.md is what ``python -m gateway.server.openapi`` renders now."""
+    from gateway.server.openapi import markdown
+
+    doc = Path(__file__).resolve().parents[2] / "docs" / "tasks.md"
+    assert doc.read_text() == markdown(), \
+        "docs/tasks.md is stale: python -m gateway.server.openapi > docs/tasks.md"
