@@ -22,10 +22,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-import numpy as np
-
-from gateway.planning.generators import warehouse_map
-from gateway.planning.lorr import DelayConfig, LorrProblem, read_problem
+from gateway.planning.lorr import read_problem, warehouse_problem
 from gateway.planning.movingai import format_map
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
 from tracecheck.lorr import check_output, read_free
@@ -62,24 +59,6 @@ def shared_runs(ticks: int, seeds: int) -> list[str]:
             entry += f" (min {min(finished) / scaled:.2f})"
         out.append(entry)
     return out
-
-
-def warehouse_problem(robots: int, seed: int) -> LorrProblem:
-    """~10,000 free cells of shelf rows; random starts; two-errand tasks next to shelves."""
-    grid = warehouse_map(13, 25, 10, shelf_depth=2, aisle=2, border=2, name="warehouse")
-    rng = np.random.default_rng(seed)
-    free = grid.free
-    # errand cells: free cells beside a shelf (pick and drop stations)
-    blocked = ~free
-    near = np.zeros_like(free)
-    near[1:, :] |= blocked[:-1, :]
-    near[:-1, :] |= blocked[1:, :]
-    stations = np.flatnonzero((near & free).ravel())
-    starts = rng.choice(np.flatnonzero(free.ravel()), size=robots, replace=False)
-    tasks = tuple((int(a), int(b)) for a, b in rng.choice(stations, size=(4 * robots, 2)))
-    delay = DelayConfig(seed=seed, min_delay=1, max_delay=4, p_delay=0.01)
-    return LorrProblem(grid=grid, starts=tuple(int(s) for s in starts), tasks=tasks,
-                       num_tasks_reveal=1.5, agent_counter=1, delay=delay, name="warehouse")
 
 
 def speed_run(robots: int, seconds: int, seed: int) -> tuple[float, int, int]:

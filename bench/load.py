@@ -31,6 +31,20 @@ measured at all for it. The result line says which lookahead was used.
     .venv/bin/python bench/load.py --robots 500 --seconds 30 --json
     .venv/bin/python bench/load.py --find-max --seconds 20 --json
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --profile /tmp/gw.prof
+
+``--lifelong``: a warehouse shift instead of one plan. The gateway (child process) runs in
+lifelong mode on a generated warehouse (about 12 free cells per robot, ``--robots`` turning
+robots, a task stream from the problem's task list revealed as the LoRR Start-Kit does) for
+``--seconds`` of plan time in real time (actions last 1000 ms x U(1-J, 1+J)), then stops the
+shift (robots finish what they hold). Reported: ``throughput_ratio`` = tasks finished per
+minute over the network against the same problem in virtual time (``run_lifelong``, one
+action per 1000 ms tick, the planner's measured CPU time charged as the LoRR rules do),
+measured in the same invocation; ``p99_ms``: robot side, from a robot's ``finished`` handed to
+its websocket to the arrival of each action the gateway dispatched on that finish (found in
+the gateway's trace: the dispatch records that follow the finish record); ``lost`` (dispatched,
+never received) and ``duplicated`` (received again, or one action number under two ids).
+
+    .venv/bin/python bench/load.py --lifelong --robots 500 --seconds 60 --json
 """
 
 from __future__ import annotations
@@ -58,15 +72,19 @@ import numpy as np
 from gateway.execution.adg import ADG
 from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
+from gateway.planning.lorr import LorrProblem, warehouse_blocks, warehouse_problem
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.server.config import GatewayConfig
+from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.server.gc_tuning import GC_THRESHOLDS
+from gateway.server.items import OwnerCall
 from gateway.server.planner import Problem
 from protocol import parse_action_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
+from sim_clients.lifelong import LifelongConfig, run_lifelong
+from tracecheck import check_trace, read_trace
 
 P99_LIMIT_MS = 50.0
 BASELINE_ROBOTS = 10
@@ -308,6 +326,152 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             "rate_ratio": round(achieved / offered, 4) if offered else None}
 
 
+# ------------------------------------------------------------------ lifelong (--lifelong)
+def shift_problem(robots: int, seed: int) -> LorrProblem:
+    """The warehouse of a lifelong load run: about 12 free cells per robot, no delays."""
+    return warehouse_problem(robots, seed, warehouse_blocks(robots), p_delay=0.0)
+
+
+async def _serve_shift(robots: int, seed: int, seconds: float, trace: Path, lookahead: int,
+                       window: int) -> dict[str, Any]:
+    config = GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
+                           ping_timeout_s=20.0, log_level="WARNING", trace=trace,
+                           dispatch_lookahead=lookahead,
+                           lifelong=LifelongSettings(robots=robots, seed=seed, window=window,
+                                                     warehouse=warehouse_blocks(robots)))
+    async with Gateway(config) as gw:
+        run = gw.engine.lifelong
+        assert run is not None
+        port = await gw.listen()
+        print(port, flush=True)
+        while run.status == "loaded":
+            await asyncio.sleep(0.01)
+        cpu0 = time.process_time()
+        while gw.engine.now_ms() < seconds * 1000.0:
+            await asyncio.sleep(0.05)
+        stopped: asyncio.Future[tuple[int, float]] = asyncio.get_running_loop().create_future()
+
+        def stop() -> None:  # in the owner task: the count and the time of the stop
+            stopped.set_result((run.executor.finished_tasks, run.executor.now_ms))
+            run.stop()
+
+        gw.engine.queue.put_nowait(OwnerCall(stop))
+        finished, at_ms = await stopped
+        cpu = time.process_time() - cpu0
+        await asyncio.wait_for(gw.wait_done(), 120.0)
+        lat = sorted(gw.latencies_ms)
+        planner = sorted(run.planner_ms)
+        return {"finished": finished, "elapsed_ms": at_ms, "cpu_s": cpu,
+                "segments": run.executor.segments, "triggers": run.executor.triggers,
+                "planner_p50_ms": planner[len(planner) // 2] if planner else None,
+                "planner_max_ms": planner[-1] if planner else None,
+                "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
+
+
+def serve_shift_main(args: argparse.Namespace) -> None:
+    """``--serve-lifelong TRACE``: run the shift; print the port, then a JSON line."""
+    _raise_fd_limit()
+    result = asyncio.run(_serve_shift(args.robots, args.seed, args.seconds,
+                                      args.serve_lifelong, args.lookahead, args.window))
+    print(json.dumps(result), flush=True)
+
+
+def unlocked_by_finish(records: list[dict[str, Any]]
+                       ) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """``((robot, action) finished, (robot, action) dispatched)`` for every dispatch the
+    gateway made while handling a finish (the trace has it right after that finish)."""
+    out = []
+    last: tuple[int, int] | None = None
+    for rec in records:
+        kind = rec.get("type")
+        if kind == "finish":
+            last = (int(rec["robot"]), int(rec["action"]))
+        elif kind == "dispatch":
+            if last is not None:
+                out.append((last, (int(rec["robot"]), int(rec["action"]))))
+        else:
+            last = None
+    return out
+
+
+async def _drive_shift(port: int, robots: int, jitter: float,
+                       result: subprocess.Popen[str]) -> FleetStats:
+    """Run the fleet until the gateway process prints its result (the shift is over)."""
+    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(robots),
+                     send_state=True, reconnect_delay_s=1.0, duration_jitter=jitter)
+    await fleet.start()
+    try:
+        await fleet.wait_connected(timeout=120.0)
+        gc.freeze()
+        gc.set_threshold(*GC_THRESHOLDS)
+        assert result.stdout is not None
+        line = await asyncio.get_running_loop().run_in_executor(None, result.stdout.readline)
+        fleet.stats.errors.extend([] if line else ["the gateway process printed no result"])
+        _SHIFT_RESULT.append(line)
+        return fleet.stats
+    finally:
+        await fleet.stop()
+
+
+_SHIFT_RESULT: list[str] = []
+
+
+def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
+              window: int) -> dict[str, Any]:
+    """One lifelong network run and its virtual-time baseline; the measurements as a dict."""
+    with tempfile.TemporaryDirectory() as tmp:
+        trace = Path(tmp) / "trace.jsonl"
+        cmd = [sys.executable, __file__, "--serve-lifelong", str(trace), "--robots",
+               str(robots), "--seed", str(seed), "--seconds", str(seconds), "--lookahead",
+               str(lookahead), "--window", str(window)]
+        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        try:
+            assert gw.stdout is not None
+            port = int(gw.stdout.readline())
+            _SHIFT_RESULT.clear()
+            stats = asyncio.run(_drive_shift(port, robots, jitter, gw))
+            gw.wait(timeout=60)
+        finally:
+            if gw.poll() is None:
+                gw.kill()
+                gw.wait()
+        gateway = json.loads(_SHIFT_RESULT[0]) if _SHIFT_RESULT and _SHIFT_RESULT[0] else {}
+        records = read_trace(trace)
+    report = check_trace(records)
+    received = {parse_action_id(a)[1:]: t for a, t in stats.received.items()}
+    finish_sent = {parse_action_id(a)[1:]: t for a, t in stats.finish_sent.items()}
+    lat = [(received[d] - finish_sent[f]) * 1000.0 for f, d in unlocked_by_finish(records)
+           if d in received and f in finish_sent]
+    dispatched = {(int(r["robot"]), int(r["action"])) for r in records
+                  if r["type"] == "dispatch"}
+    t0 = time.process_time()
+    virtual = run_lifelong(LifelongConfig(shift_problem(robots, seed), ticks=seconds, period=1,
+                                          tick_ms=1000.0, seed=seed, window=window))
+    virtual_cpu = time.process_time() - t0
+    minutes = gateway.get("elapsed_ms", 0.0) / 60_000.0
+    network_rate = gateway.get("finished", 0) / minutes if minutes else 0.0
+    virtual_rate = virtual.finished / (seconds / 60.0)
+    return {"robots": robots, "seconds": seconds, "lookahead": lookahead,
+            "window": window or 1, "jitter": jitter,
+            "tasks_network": gateway.get("finished"),
+            "tasks_per_min_network": round(network_rate, 1),
+            "tasks_virtual": virtual.finished, "tasks_per_min_virtual": round(virtual_rate, 1),
+            "throughput_ratio": round(network_rate / virtual_rate, 3) if virtual_rate else None,
+            "actions": len(stats.received),
+            "p50_ms": round(statistics.median(lat), 3) if lat else None,
+            "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
+            "lost": len(dispatched - set(received)),
+            "duplicated": stats.duplicates + len(stats.received) - len(received),
+            "errors": len(stats.errors), "collisions": len(report.collisions),
+            "trace_errors": len(report.errors),
+            "gateway_p99_ms": gateway.get("gateway_p99_ms"),
+            "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
+            "segments": gateway.get("segments"), "slack_triggers": gateway.get("triggers"),
+            "planner_p50_ms": gateway.get("planner_p50_ms"),
+            "planner_max_ms": gateway.get("planner_max_ms"),
+            "virtual_cpu_s": round(virtual_cpu, 1), "cpu_pressure_pct": cpu_pressure()}
+
+
 def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
                  profile: Path | None, pairs: int) -> dict[str, Any]:
     """``pairs`` runs without and with the journal, interleaved (ABBA: a trend in the
@@ -395,17 +559,36 @@ def main() -> int:
                         "journaled")
     p.add_argument("--pairs", type=int, default=1,
                    help="with --journal: how many runs of each (default 1)")
+    p.add_argument("--lifelong", action="store_true",
+                   help="a warehouse shift (lifelong mode) for --seconds of plan time: "
+                        "throughput against virtual time, p99, lost, duplicated")
+    p.add_argument("--window", type=int, default=0,
+                   help="--lifelong: timesteps planned per call (default 0: one period)")
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--serve-lifelong", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--serve-journal", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.serve is not None:
         serve_main(args.serve, args.profile, args.lookahead, args.serve_journal)
+        return 0
+    if args.serve_lifelong is not None:
+        serve_shift_main(args)
         return 0
     _raise_fd_limit()
     if args.lookahead < 0:
         p.error("--lookahead must be >= 0")
     if args.pairs < 1:
         p.error("--pairs must be >= 1")
+    if args.lifelong:
+        shift = run_shift(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
+                          args.window)
+        print(json.dumps(shift) if args.json else
+              f"lifelong: {shift['robots']} robots, {args.seconds} s: "
+              f"{shift['tasks_per_min_network']} tasks/min over the network vs "
+              f"{shift['tasks_per_min_virtual']} in virtual time = throughput_ratio "
+              f"{shift['throughput_ratio']}; p99 {shift['p99_ms']} ms; lost {shift['lost']}, "
+              f"duplicated {shift['duplicated']}, collisions {shift['collisions']}")
+        return 0
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
                         args.lookahead, journal=args.journal)
     if args.find_max:

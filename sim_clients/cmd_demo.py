@@ -32,6 +32,7 @@ from gateway.commands.solving import (
 from gateway.execution.params import PAPER
 from gateway.execution.policies import POLICY_NAMES
 from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from sim_clients.cmd_demo_lifelong import add_lifelong_arguments, run_lifelong_demo
 
 if TYPE_CHECKING:
     import asyncio
@@ -180,6 +181,8 @@ def _run(args: argparse.Namespace) -> int:
     from gateway.server.logs import configure_logging
     from gateway.server.planner import Problem
 
+    if args.lifelong:
+        return run_lifelong_demo(args)
     if not 0 < args.speed <= 100:
         raise UsageError(f"--speed must be in (0, 100], got {args.speed:g}")
     if args.threshold_ms < 0:
@@ -243,6 +246,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         '"makespan_ms", "plan_soc", "replans", "replan_at_ms", "solver_ms", '
                         '"collisions"}')
     p.add_argument("--trace", metavar="FILE.jsonl", help="write the JSON-lines trace here")
+    add_lifelong_arguments(p)
     add_instance_arguments(p)
     add_motion_arguments(p, default="omni")
     p.set_defaults(map=DEFAULT_MAP, scen=DEFAULT_SCEN, agents=DEFAULT_AGENTS)

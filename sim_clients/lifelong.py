@@ -22,17 +22,17 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
+from gateway.execution.errands import ErrandBook, TaskDistances
 from gateway.execution.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.tasks import SCHEDULERS, TaskPool
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
-from gateway.planning.pibt import UNREACHABLE, StateSpace, WindowedPIBT
+from gateway.planning.pibt import StateSpace, WindowedPIBT
 
 TICK_MS = 100.0
 """LoRR's default execution tick (``actionMoveTimeLimit``)."""
@@ -161,13 +161,14 @@ def run_lifelong(cfg: LifelongConfig,
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
-    # the scheduler's distances: exact moves (cells), one cached table per first errand; the
-    # graph is undirected, so a table gives the moves from every cell to its errand and back
-    cells_space = StateSpace(grid, turning=False, budget_bytes=256 << 20)
-    pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)),
-                    leg=lambda a, b: int(cells_space.distances(a)[b]))
     delays = DelayModel(prob.delay, n)
     window = cfg.window or math.ceil(cfg.period / counter)
+    # the scheduler's distances: exact moves; a robot in a delay competes for tasks with a
+    # charge, so tasks go to robots that can go
+    distances = TaskDistances(grid, charge=round(DELAY_CHARGE * prob.delay.mean_duration
+                                                 / counter))
+    pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg)
+    book = ErrandBook(pool, n)
 
     cell = list(prob.starts)
     heading = list(headings)
@@ -177,11 +178,6 @@ def run_lifelong(cfg: LifelongConfig,
     events: list[tuple[int, int, int, int]] = []
     released: list[tuple[int, int, tuple[int, ...]]] = []
     recorded: set[int] = set()
-    # planning view: each robot's task and how many of its errands the committed plan reaches
-    plan_task = [-1] * n
-    plan_idx = [0] * n
-    # execution view: (seq threshold, task id) errand markers per robot, in order
-    markers: list[deque[tuple[int, int]]] = [deque() for _ in range(n)]
     planner_times: list[float] = []
     pending: _Pending | None = None
     next_call = 0
@@ -190,52 +186,21 @@ def run_lifelong(cfg: LifelongConfig,
     idle = [0, 0, 0]  # robot-ticks delayed, waiting for a dependency, without committed work
     width = grid.width
 
-    delay_charge = round(DELAY_CHARGE * prob.delay.mean_duration / counter)
-    charged: set[int] = set()  # end cells of the robots in a delay at this planning call
-
-    def distance_from(cells: Sequence[int], targets: Sequence[int]) -> npt.NDArray[np.int64]:
-        """Scheduling costs: moves to each target, plus the delay charge."""
-        cells_space.prefetch(targets)
-        src = np.asarray(cells, dtype=np.int64)
-        out = np.empty((len(cells), len(targets)), dtype=np.int64)
-        for j, g in enumerate(targets):
-            out[:, j] = np.frombuffer(cells_space.distances(g), dtype=np.int16)[src]
-        out[out >= UNREACHABLE] = -1
-        # a robot in a delay competes for tasks with a charge: tasks go to robots that can go
-        for i, c in enumerate(cells):
-            if c in charged:
-                out[i, out[i] >= 0] += delay_charge
-        return out
-
-    def errand_reached(r: int, task_id: int, t: int) -> None:
-        task = pool.tasks[task_id]
-        events.append((t, r, task_id, task.done + 1))
-        pool.errand_done(task_id, t)
+    def errands_reached(r: int, t: int) -> None:
+        for task_id in book.reach(r, adg.done[r]):
+            task = pool.tasks[task_id]
+            events.append((t, r, task_id, task.done + 1))
+            pool.errand_done(task_id, t)
 
     def apply(t: int, states: list[list[int]], reached: list[list[int]],
               tasks_of: list[int]) -> None:
         """Append a planned window to the ADG and register its errand markers."""
         cells = [[space.cell_of[s] for s in row] for row in states]
         heads = [[space.heading_of(s) for s in row] for row in states] if cfg.turning else None
-        before = list(adg.appended)
-        # the action count after each step, per robot, to place errand markers
-        for r in range(n):
-            if not reached[r]:
-                continue
-            count, j_prev, seq_at = 0, 0, []
-            for j in reached[r]:
-                for k in range(j_prev + 1, j + 1):
-                    if states[k][r] != states[k - 1][r]:
-                        count += 1
-                j_prev = j
-                seq_at.append(before[r] + count)
-            for threshold in seq_at:
-                markers[r].append((threshold, tasks_of[r]))
+        book.register(adg.appended, states, reached, tasks_of)
         adg.append(cells, heads)
         for r in range(n):
-            q = markers[r]
-            while q and adg.done[r] >= q[0][0]:
-                errand_reached(r, q.popleft()[1], t)
+            errands_reached(r, t)
 
     delayed = [False] * n
     for t in range(cfg.ticks):
@@ -245,22 +210,14 @@ def run_lifelong(cfg: LifelongConfig,
         if pending is None and t >= next_call:
             cpu0 = time.thread_time()
             if cfg.reassign and len(planner_times) % cfg.reassign == 0:
-                # unstarted tasks (first errand not planned yet) go back to the scheduler
-                for r in range(n):
-                    if plan_task[r] >= 0 and plan_idx[r] == 0:
-                        pool.release(plan_task[r])
-                        plan_task[r] = -1
-            free = [(r, adg.end_cell[r]) for r in range(n) if plan_task[r] < 0]
-            charged = {adg.end_cell[r] for r in range(n) if delayed[r]}
-            for r, task_id in schedule(free, pool, distance_from).items():
-                pool.assign(task_id, r)
+                book.release_unstarted()  # unstarted tasks go back to the scheduler
+            distances.charged = {adg.end_cell[r] for r in range(n) if delayed[r]}
+            for _, task_id in book.schedule(adg.end_cell, schedule, distances):
                 if task_id not in recorded:
                     recorded.add(task_id)
                     task = pool.tasks[task_id]
                     released.append((task_id, task.release_tick, task.errands))
-                plan_task[r], plan_idx[r] = task_id, 0
-            goals = [pool.tasks[plan_task[r]].errands[plan_idx[r]:] if plan_task[r] >= 0
-                     else () for r in range(n)]
+            goals = book.goals()
             starts = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
             # a robot's new moves start when it can make them: it waits in the window for its
             # committed actions but one (the one it finishes while the next window arrives), so
@@ -270,12 +227,7 @@ def run_lifelong(cfg: LifelongConfig,
             # cells that robots in a delay will still drive through: plan others around them
             avoid = [a.cell for r in range(n) if delayed[r] for a in adg.queue[r]]
             win = planner.plan(starts, goals, window, hold, avoid)
-            tasks_of = list(plan_task)
-            for r in range(n):
-                if win.reached[r]:
-                    plan_idx[r] += len(win.reached[r])
-                    if plan_idx[r] >= len(pool.tasks[plan_task[r]].errands):
-                        plan_task[r] = -1
+            tasks_of = book.planned(win.reached)
             cpu = time.thread_time() - cpu0
             planner_times.append(cpu)
             delay_ticks = math.ceil(_planner_ms(cfg.planner_time, cpu) / cfg.tick_ms)
@@ -319,9 +271,7 @@ def run_lifelong(cfg: LifelongConfig,
                 adg.finish(r)
                 cell[r], heading[r] = a.cell, a.heading
                 progress[r] = 0
-                q = markers[r]
-                while q and adg.done[r] >= q[0][0]:
-                    errand_reached(r, q.popleft()[1], t)
+                errands_reached(r, t)
             else:
                 progress[r] = p
     starts_out = [divmod(c, width) for c in prob.starts]

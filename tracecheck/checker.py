@@ -17,6 +17,12 @@ section 2 defines them), replays the events in order and reports
 * an action of the final plan that did not run exactly once, or any started action that never
   finished, and a new plan that does not start where the robots stand,
 * a summary whose SOC or makespan differs from the finish times in the trace,
+* lifelong runs (a ``plan`` record with ``"lifelong": true`` whose paths are the start poses,
+  then ``segment`` records that extend every robot's path step by step, each from where the
+  previous one ended): waits are no actions there, so an event's ``action`` is the robot's
+  n-th change of pose over the run; the ADG is re-derived over the concatenated paths with the
+  same Type 2 rule (timesteps counted across segments), actions committed but not run when
+  the trace ends are no error, and the slack at a ``trigger`` is not recomputed,
 
 and it recomputes the fleet slack (Algorithm 1 plus DESIGN's slack definitions) at any moment,
 in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move", "turn",
@@ -27,6 +33,7 @@ in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from bisect import bisect_right
 from collections.abc import Iterable, Mapping, Sequence
@@ -90,6 +97,7 @@ class PlanGraph:
     headings: list[list[int]] | None = None
     kinds: dict[Act, str] = field(default_factory=dict)
     tx: dict[Act, float] = field(default_factory=dict)
+    lifelong: LifelongSteps | None = None
 
     def actions(self) -> Iterable[Act]:
         """Every action, ordered by index then robot (a topological order of the ADG)."""
@@ -139,6 +147,73 @@ def build_graph(plan: int, release_ms: float, paths: Sequence[Sequence[Pos]],
                     preds[head].append((k, i))
                     type2_in[head].append((k, i))
     return PlanGraph(plan, release_ms, plist, preds, type2_in, hlist, kinds, tx)
+
+
+@dataclass
+class LifelongSteps:
+    """A lifelong plan's timestep bookkeeping: the global timestep so far, and per cell the
+    moves that left it ``(timestep, robot, action)`` and each robot's last entry into it."""
+
+    step: int = 0
+    leaves: dict[Pos, list[tuple[int, int, int]]] = field(default_factory=dict)
+    last_entry: dict[tuple[Pos, int], int] = field(default_factory=dict)
+
+
+def extend_graph(graph: PlanGraph, paths: Sequence[Sequence[Pos]],
+                 headings: Sequence[Sequence[int]] | None,
+                 durations: Sequence[Mapping[str, float]]) -> list[str]:
+    """Append a lifelong segment (every robot's poses step by step, from where its path ends)
+    to ``graph``: each change of pose is an action; an action entering cell u depends on its
+    robot's previous action and on every other robot's move out of u made at an earlier
+    timestep and after this robot's previous entry into u (DESIGN's Type 2 rule). Returns
+    what is wrong with the segment."""
+    steps = graph.lifelong
+    assert steps is not None
+    errors: list[str] = []
+    length = len(paths[0]) if paths else 0
+    for k, path in enumerate(paths):
+        if len(path) != length:
+            errors.append(f"robot {k}'s segment has {len(path)} steps, robot 0's {length}")
+            return errors
+        hs = None if headings is None or graph.headings is None else headings[k]
+        end_h = None if graph.headings is None else graph.headings[k][-1]
+        if path[0] != graph.paths[k][-1] or (hs is not None and hs[0] != end_h):
+            errors.append(f"robot {k}'s segment starts at {path[0]}, its plan ends at "
+                          f"{graph.paths[k][-1]}")
+            return errors
+    for j in range(1, length):
+        t = steps.step + j
+        for k, path in enumerate(paths):
+            hs = None if headings is None else headings[k]
+            h0, h1 = (None, None) if hs is None else (hs[j - 1], hs[j])
+            src, dst = path[j - 1], path[j]
+            kind = step_kind(src, dst, h0, h1)
+            if kind == "wait":
+                continue
+            if kind.startswith("illegal"):
+                errors.append(f"robot {k} step {t}: {kind[len('illegal: '):]}")
+                continue
+            i = len(graph.paths[k]) - 1
+            a = (k, i)
+            graph.paths[k].append(dst)
+            if graph.headings is not None and h1 is not None:
+                graph.headings[k].append(h1)
+            graph.kinds[a] = kind
+            graph.tx[a] = float(durations[k].get(kind, ACTION_MS)) if k < len(durations) \
+                else ACTION_MS
+            graph.preds[a] = [(k, i - 1)] if i > 0 else []
+            graph.type2_in[a] = []
+            if src == dst:
+                continue
+            since = steps.last_entry.get((dst, k), -1)
+            for t_leave, k2, i2 in steps.leaves.get(dst, []):
+                if k2 != k and since < t_leave < t:
+                    graph.preds[a].append((k2, i2))
+                    graph.type2_in[a].append((k2, i2))
+            steps.last_entry[(dst, k)] = t
+            steps.leaves.setdefault(src, []).append((t, k, i))
+    steps.step += max(0, length - 1)
+    return errors
 
 
 @dataclass
@@ -231,6 +306,7 @@ class _Replay:
         self.intruder: Pos | None = None
         self.now = 0.0
         self.summary: Mapping[str, Any] | None = None
+        self.durations: list[Mapping[str, float]] = []
 
     def error(self, where: str, msg: str) -> None:
         self.report.errors.append(f"{where}: {msg}")
@@ -263,6 +339,8 @@ class _Replay:
         self.now = max(self.now, t)
         if kind == "plan":
             self.plan(where, t, rec)
+        elif kind == "segment":
+            self.segment(where, rec)
         elif kind in ("dispatch", "start", "finish", "blocked", "unblocked", "cancel",
                       "refused"):
             self.event(where, t, str(kind), rec)
@@ -279,7 +357,10 @@ class _Replay:
                 self.intruder = None
                 self.leave(cell, "intruder")
         elif kind == "trigger":
-            recomputed = fleet_slack(self.states[-1], t) if self.states else 0.0
+            if self.states and self.states[-1].graph.lifelong is not None:
+                recomputed = math.nan  # lifelong: not recomputed (see the module doc)
+            else:
+                recomputed = fleet_slack(self.states[-1], t) if self.states else 0.0
             self.report.triggers.append((t, float(rec["fleet_slack_ms"]), recomputed))
         else:
             self.error(where, f"unknown record type {kind!r}")
@@ -321,10 +402,28 @@ class _Replay:
         self.heading = None if headings is None else [h[0] for h in headings]
         durations = [a.get("durations_ms", {}) for a in rec["agents"]]
         graph = build_graph(number, t, paths, headings, durations)
+        if rec.get("lifelong"):
+            graph.lifelong = LifelongSteps()
+            self.durations = durations
         for (k, i), kind in graph.kinds.items():
             if kind.startswith("illegal"):
                 self.error(where, f"robot {k} action {i}: {kind[len('illegal: '):]}")
         self.states.append(ExecState(graph))
+
+    def segment(self, where: str, rec: Mapping[str, Any]) -> None:
+        """A lifelong plan grows by a segment."""
+        if not self.states or self.states[-1].graph.lifelong is None:
+            self.error(where, "a segment without a lifelong plan")
+            return
+        graph = self.states[-1].graph
+        turning = graph.headings is not None
+        paths = [[(int(c[0]), int(c[1])) for c in a["path"]] for a in rec["agents"]]
+        headings = [[int(c[2]) for c in a["path"]] for a in rec["agents"]] if turning else None
+        if len(paths) != len(graph.paths):
+            self.error(where, f"segment has {len(paths)} robots, the plan {len(graph.paths)}")
+            return
+        for err in extend_graph(graph, paths, headings, self.durations):
+            self.error(where, err)
 
     def event(self, where: str, t: float, kind: str, rec: Mapping[str, Any]) -> None:
         k, i, number = int(rec["robot"]), int(rec["action"]), int(rec["plan"])
@@ -416,7 +515,7 @@ class _Replay:
                             f"{sorted(self.running.values())}")
         final = self.states[-1]
         never = [a for a in final.graph.preds if a not in final.finished]
-        if never:
+        if never and final.graph.lifelong is None:
             r.errors.append(f"plan {final.graph.plan}: actions {never[:10]} never ran "
                             f"({len(never)} in all)")
         finishes = [self.last_finish.get(k, 0.0) for k in range(len(self.pos))]
@@ -478,7 +577,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for c in report.collisions:
         print(f"collision: t={c.t_ms} ms {c.who} entered {c.cell} held by {', '.join(c.holders)}")
     for t, rec, mine in report.triggers:
-        print(f"trigger at {t} ms: fleet slack recorded {rec} ms, recomputed {mine} ms")
+        again = "not recomputed (lifelong)" if math.isnan(mine) else f"recomputed {mine} ms"
+        print(f"trigger at {t} ms: fleet slack recorded {rec} ms, {again}")
     print(f"{report.plans} plan(s), {report.actions_run} actions, SOC {report.soc_ms} ms, "
           f"makespan {report.makespan_ms} ms: {'OK' if report.ok else 'FAILED'}")
     return 0 if report.ok else 1

@@ -572,18 +572,37 @@ def _matching(free: Sequence[tuple[int, int]], pool: TaskPool, distance_from: Di
     if rank is not None:
         cost += rank[None, :] * _CLASS
     cost[unreachable] = big
+    return _greedy_pairs(cost, free, ids)
+
+
+def _greedy_pairs(cost: npt.NDArray[np.int64], free: Sequence[tuple[int, int]],
+                  ids: npt.NDArray[np.int64]) -> dict[int, int]:
+    """The greedy matching of ``cost[robot row, task column]``: pairs in increasing cost
+    (ties in row-major order), each robot and task once. Lazily, as a heap of each row's
+    cheapest task not taken yet: the same pairs as sorting all of them, without visiting
+    every pair in Python (hundreds of robots x tasks at each planning call)."""
+    n_rows, n_cols = cost.shape
+    order = np.argsort(cost, axis=1, kind="stable")
+    taken = np.zeros(n_cols, dtype=bool)
+    ptr = [0] * n_rows
+    heap = [(int(cost[r, order[r, 0]]), r * n_cols + int(order[r, 0])) for r in range(n_rows)]
+    heapq.heapify(heap)
     out: dict[int, int] = {}
-    flat = np.argsort(cost, axis=None, kind="stable")
-    used_r = np.zeros(len(free), dtype=bool)
-    used_t = np.zeros(ids.size, dtype=bool)
-    for f in flat.tolist():
-        r, t = divmod(f, ids.size)
-        if used_r[r] or used_t[t]:
+    want = min(n_rows, n_cols)
+    while heap and len(out) < want:
+        _, f = heapq.heappop(heap)
+        r, t = divmod(f, n_cols)
+        if taken[t]:  # the row's next task not taken yet goes back on the heap
+            row, p = order[r], ptr[r] + 1
+            while p < n_cols and taken[row[p]]:
+                p += 1
+            ptr[r] = p
+            if p < n_cols:
+                t = int(row[p])
+                heapq.heappush(heap, (int(cost[r, t]), r * n_cols + t))
             continue
-        used_r[r] = used_t[t] = True
+        taken[t] = True
         out[free[r][0]] = int(ids[t])
-        if len(out) == min(len(free), ids.size):
-            break
     return out
 
 

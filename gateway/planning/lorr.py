@@ -18,6 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from gateway.planning.generators import warehouse_map
 from gateway.planning.grid import Grid
 from gateway.planning.movingai import MapFormatError, format_map, parse_map
 
@@ -246,3 +249,40 @@ def write_problem(directory: str | Path, name: str, grid: Grid, starts: list[int
     path = base / f"{name}.json"
     path.write_text(json.dumps(problem, indent=1), encoding="utf-8")
     return path
+
+
+def warehouse_blocks(robots: int) -> tuple[int, int]:
+    """Shelf blocks (x, y) of a :func:`warehouse_problem` with at least 12 free cells per
+    robot (at least 3 x 4)."""
+    bx = 3
+    while True:
+        by = bx + 1
+        width, height = 12 * bx + 2, 4 * by + 2  # shelves 10 x 2, aisles 2, border 2
+        if width * height - 20 * bx * by >= 12 * robots or bx >= 40:
+            return bx, by
+        bx += 1
+
+
+def warehouse_problem(robots: int, seed: int, blocks: tuple[int, int] = (13, 25),
+                      p_delay: float = 0.01) -> LorrProblem:
+    """A generated warehouse (``blocks`` shelf blocks of 10 x 2 cells in x and y, aisles of 2;
+    (13, 25): about 10,000 free cells, like MovingAI's warehouse-10-20-10-2-1) with random
+    starts and ``4 * robots`` two-errand tasks between cells beside shelves (pick and drop
+    stations)."""
+    grid = warehouse_map(blocks[0], blocks[1], 10, shelf_depth=2, aisle=2, border=2,
+                         name="warehouse")
+    rng = np.random.default_rng(seed)
+    free = grid.free
+    blocked = ~free
+    near = np.zeros_like(free)
+    near[1:, :] |= blocked[:-1, :]
+    near[:-1, :] |= blocked[1:, :]
+    stations = np.flatnonzero((near & free).ravel())
+    cells = np.flatnonzero(free.ravel())
+    if robots > cells.size:
+        raise ValueError(f"{robots} robots do not fit on {cells.size} free cells")
+    starts = rng.choice(cells, size=robots, replace=False)
+    tasks = tuple((int(a), int(b)) for a, b in rng.choice(stations, size=(4 * robots, 2)))
+    delay = DelayConfig(seed=seed, min_delay=1, max_delay=4, p_delay=p_delay)
+    return LorrProblem(grid=grid, starts=tuple(int(s) for s in starts), tasks=tasks,
+                       num_tasks_reveal=1.5, agent_counter=1, delay=delay, name="warehouse")

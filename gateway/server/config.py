@@ -66,6 +66,37 @@ class RobotModel(BaseModel):
     wait_ms: float = Field(default=PAPER.action_ms, gt=0)
 
 
+class LifelongSettings(BaseModel):
+    """Lifelong mode: ``fleetgate serve`` runs a warehouse shift (tasks, a plan window every
+    period appended to a live ADG while the robots move) instead of one plan. The motion
+    model is the gateway's ``motion``; t_x of every action is ``action_ms``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    problem: Path | None = None
+    """A LoRR problem (JSON: map, robots' starts, task list); None: a generated warehouse."""
+    robots: int = Field(default=20, ge=1)
+    """Robots of the generated warehouse (a problem brings its own)."""
+    warehouse: tuple[int, int] = (4, 6)
+    """Shelf blocks (x, y) of the generated warehouse; (13, 25) is about 10,000 free cells."""
+    seed: int = 0
+    """Seed of the generated warehouse and of the planner's tie-breaks."""
+    scheduler: Literal["greedy", "mincost", "shortest"] = "shortest"
+    planner: Literal["pibt"] = "pibt"
+    """The windowed planner: 1-robust PIBT (gateway/planning/pibt.py)."""
+    period_ms: float = Field(default=1000.0, gt=0)
+    """Time between planning calls (LoRR's planning period)."""
+    window: int = Field(default=0, ge=0)
+    """Timesteps planned per call (0: enough for a period, ceil(period_ms / action_ms))."""
+    reveal: float | None = Field(default=None, gt=0)
+    """Tasks kept revealed per robot (None: the problem's numTasksReveal)."""
+    task_list: bool = True
+    """Reveal the problem's task list as the LoRR Start-Kit does (tasks submitted through
+    the API are added to the same pool)."""
+    threshold_ms: float | None = Field(default=PAPER.threshold_ms, ge=0)
+    """Fleet-slack threshold of the early planning call (None: no slack trigger)."""
+
+
 class ConfigError(ValueError):
     """The configuration (file, environment or arguments) is invalid; the message says why."""
 
@@ -140,6 +171,9 @@ class GatewayConfig(BaseSettings):
     rate_burst: float = Field(default=1000.0, ge=1)
     slack_series_len: int = Field(default=3000, ge=10)
 
+    lifelong: LifelongSettings | None = None
+    """Lifelong mode (None: execute one plan, the default)."""
+
     static_dir: Path | None = None
     trace: Path | None = None
     journal: Path | None = None
@@ -176,6 +210,8 @@ class GatewayConfig(BaseSettings):
 
     @model_validator(mode="after")
     def _map_needs_agents(self) -> GatewayConfig:
+        if self.lifelong is not None:
+            return self  # the shift brings its own map
         if "map" in self.model_fields_set and self.map is not None and self.instance is None \
                 and self.scen is None and self.agents is None:
             raise ValueError(f"map = {self.map!r} needs scen or agents to load an instance at "

@@ -46,6 +46,8 @@ from gateway.execution.commands import (
     Trigger,
 )
 from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
+from gateway.execution.lifelong import LifelongExecutor
+from gateway.execution.tasks import TaskPool
 from gateway.execution.trace_records import summary_record
 from gateway.planning.instance import Instance
 from gateway.planning.movingai import parse_map
@@ -66,8 +68,10 @@ from gateway.server.items import (
     Inbound,
     InternalCommand,
     Item,
+    OwnerCall,
     SolverDone,
 )
+from gateway.server.lifelong_run import LifelongRun
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import OperatorCommands
 from gateway.server.operator_feed import OperatorFeed
@@ -119,6 +123,8 @@ class Engine:
         self.queue: asyncio.Queue[Item] = asyncio.Queue()
         self.problem: Problem | None = None
         self.executor: JournaledExecutor | None = None
+        self.lifelong: LifelongRun | None = None
+        """The shift in lifelong mode (then :attr:`executor` stays None)."""
         self.journal: Journal | None = None
         """Where the runs are journaled (None: they are not, and do not survive a restart)."""
         self.run_record: RunRecord | None = None
@@ -157,8 +163,19 @@ class Engine:
 
     # -------------------------------------------------------------------------- status
     @property
+    def tasks(self) -> TaskPool | None:
+        """The live task pool of a lifelong shift (None: not in lifelong mode)."""
+        return self.lifelong.tasks if self.lifelong is not None else None
+
+    def _core(self) -> JournaledExecutor | LifelongExecutor | None:
+        """What robot reports go to: the shift's executor, or the run's."""
+        return self.lifelong.executor if self.lifelong is not None else self.executor
+
+    @property
     def status(self) -> GatewayStatus:
         """What the gateway is doing."""
+        if self.lifelong is not None:
+            return self.lifelong.status
         if self.planning:
             return "planning"
         ex = self.executor
@@ -175,7 +192,8 @@ class Engine:
     def now_ms(self) -> float:
         """The present for the executor (never before its last input)."""
         now = self.clock.now_ms()
-        return max(now, self.executor.now_ms) if self.executor is not None else now
+        core = self._core()
+        return max(now, core.now_ms) if core is not None else now
 
     def connected_robots(self) -> int:
         """How many robots are connected (said hello on a live connection)."""
@@ -198,7 +216,8 @@ class Engine:
         """Process queue items forever; tick while running."""
         next_tick: float | None = None
         while True:
-            ticking = self.executor is not None and self.executor.mode is not Mode.DONE
+            ticking = self.lifelong.ticking if self.lifelong is not None else (
+                self.executor is not None and self.executor.mode is not Mode.DONE)
             if not ticking:
                 next_tick = None
                 self.commit()
@@ -270,10 +289,15 @@ class Engine:
             self._disconnected(item.session)
         elif isinstance(item, InternalCommand):
             self.operator.handle(item.message, item.reply)
+        elif isinstance(item, OwnerCall):
+            item.fn()
         else:
             self._solver_done(item)
 
     def _tick(self) -> None:
+        if self.lifelong is not None:
+            self.lifelong.tick(self.now_ms())
+            return
         ex = self.executor
         if ex is None or ex.mode is Mode.DONE:
             return  # while paused the monitor is kept true (the executor asks no policy)
@@ -338,7 +362,9 @@ class Engine:
         session.version = msg.v  # answer in the robot's protocol version
         plan = self.executor.plan if self.executor is not None else (
             self.problem.plan if self.problem is not None else None)
-        refusal = hello_refusal(msg, plan is not None and plan.headings is not None)
+        turning = self.lifelong.turning if self.lifelong is not None else (
+            plan is not None and plan.headings is not None)
+        refusal = hello_refusal(msg, turning)
         if refusal is not None:
             session.error(ErrorCode.UNSUPPORTED_VERSION, msg.msg_id, refusal)
             session.close(CloseCode.POLICY, "protocol v1 robot on a turning plan")
@@ -364,6 +390,8 @@ class Engine:
         self.operator.maybe_autostart()
 
     def _start_pose(self, r: int) -> Pose | None:
+        if self.lifelong is not None:
+            return self.lifelong.pose(r)
         plan = self.executor.plan if self.executor is not None else (
             self.problem.plan if self.problem is not None else None)
         if plan is None or r >= len(plan.paths):
@@ -387,7 +415,7 @@ class Engine:
     def _arrival_ms(self, at_ms: float | None) -> float:
         """The plan time at which a message that arrived at ``at_ms`` takes effect: its arrival,
         but never before the executor's last input (trace records stay in time order)."""
-        ex = self.executor
+        ex = self._core()
         return self.now_ms() if at_ms is None or ex is None else max(at_ms, ex.now_ms)
 
     def flush(self, gs: GatewaySession, sender: Session | None = None) -> None:
@@ -406,7 +434,7 @@ class Engine:
 
     def _apply(self, gs: GatewaySession, r: Report) -> None:
         """Feed one robot report to the executor; tell the session whether it was taken."""
-        ex = self.executor
+        ex = self._core()
         if ex is None:
             gs.rejected(r, "no execution is running")
             return
@@ -428,7 +456,10 @@ class Engine:
         elif r.kind == "refused":
             log.warning("robot refused an action", extra={
                 "robot": r.robot, "action": r.action_id, "reason": r.reason})
-        self.route(ex.drain())
+        if self.lifelong is not None:
+            self.lifelong.route()
+        else:
+            self.route(self.executor.drain() if self.executor is not None else [])
 
     def _intruder(self, session: Session, msg: IntruderReport, now: float) -> None:
         """Record a world's intruder report (trace and operators) at plan time ``now`` if it is
@@ -637,5 +668,7 @@ class Engine:
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""
         self.solvers.cancel_all()
+        if self.lifelong is not None:
+            self.lifelong.cancel()
         self.commit()
         self.feed.close_trace()

@@ -51,11 +51,13 @@ from gateway.server.engine import Engine
 from gateway.server.http import HttpRoutes, json_response, response
 from gateway.server.http_api import RoutingConnection, close_all, routing_connection
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
+from gateway.server.lifelong_run import LifelongRun, shift_from
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.session import Session
 from gateway.server.task_api import TaskApi
+from gateway.server.task_journal import journal_tasks
 from gateway.server.tls import server_context
 from gateway.server.transport import (
     HARD_MAX_BYTES,
@@ -154,9 +156,21 @@ class Gateway:
                     journal.discard()
                     log.warning("journaled run abandoned: starting fresh",
                                 extra={"journal": str(cfg.journal)})
-                self.resumed = self.engine.resume() and self.engine.status != "done"
+                if cfg.lifelong is None:
+                    self.resumed = self.engine.resume() and self.engine.status != "done"
             except JournalError as exc:
                 raise ValueError(str(exc)) from None
+        if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
+            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
+            if self.engine.journal is not None:
+                try:
+                    self.resumed = journal_tasks(self.engine)
+                except JournalError as exc:
+                    raise ValueError(str(exc)) from None
+            self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
+                                                                 name="owner")
+            self.engine.operator.maybe_autostart()
+            return
         configured = cfg.instance is not None or (
             cfg.map is not None and (cfg.scen or cfg.agents))
         if configured and not self.resumed:  # a resumed run goes on instead

@@ -87,6 +87,8 @@ class OperatorCommands:
 
     def _idle(self, what: str) -> None:
         e = self._engine
+        if e.lifelong is not None:
+            raise CommandError(ErrorCode.BAD_STATE, f"cannot {what} in lifelong mode")
         if e.planning or e.status in ("running", "paused", "replanning"):
             raise CommandError(ErrorCode.BAD_STATE, f"cannot {what} while {e.status}")
 
@@ -129,6 +131,13 @@ class OperatorCommands:
                 self._set_paused(False)
                 return "resumed"
             case ReplanNow():
+                if e.lifelong is not None and not e.paused:
+                    try:
+                        e.lifelong.executor.plan_now(e.now_ms())
+                    except ExecutionError as exc:
+                        raise CommandError(ErrorCode.BAD_STATE, str(exc)) from None
+                    e.lifelong.route()
+                    return "planning a window now"
                 if e.executor is None or e.paused:
                     raise CommandError(ErrorCode.BAD_STATE, f"cannot replan while {e.status}")
                 try:
@@ -144,6 +153,8 @@ class OperatorCommands:
                 return f"policy {e.policy_name}"
             case SetThreshold():
                 e.threshold_ms = msg.threshold_ms
+                if e.lifelong is not None:
+                    e.lifelong.executor.threshold_ms = msg.threshold_ms
                 self._policy_changed(replace=False)
                 e.status_changed()
                 return f"threshold {e.threshold_ms} ms"
@@ -182,6 +193,8 @@ class OperatorCommands:
     def _set_paused(self, paused: bool) -> None:
         e = self._engine
         e.paused = paused
+        if e.lifelong is not None:
+            e.lifelong.set_paused(paused)
         ex = e.executor
         if ex is not None and ex.paused != paused:
             (ex.pause if paused else ex.resume)(e.now_ms())
@@ -247,14 +260,23 @@ class OperatorCommands:
     def maybe_autostart(self) -> None:
         """Start the loaded run if ``autostart`` is on and all its robots are connected."""
         e = self._engine
-        if not e.config.autostart or e.status != "loaded" or e.problem is None:
+        if not e.config.autostart or e.status != "loaded":
             return
-        if e.all_online(e.problem.instance.num_agents):
+        if e.lifelong is not None:
+            if e.all_online(e.lifelong.robots):
+                e.lifelong.start()
+            return
+        if e.problem is not None and e.all_online(e.problem.instance.num_agents):
             self.start()
 
     def start(self) -> None:
-        """Start executing the loaded plan from time 0."""
+        """Start executing the loaded plan (or the lifelong shift) from time 0."""
         e = self._engine
+        if e.lifelong is not None:
+            if e.status != "loaded":
+                raise CommandError(ErrorCode.BAD_STATE, f"cannot start while {e.status}")
+            e.lifelong.start()
+            return
         if e.problem is None or e.problem.plan is None or e.status not in ("loaded", "done"):
             raise CommandError(ErrorCode.BAD_STATE, f"cannot start while {e.status}")
         plan = e.problem.plan

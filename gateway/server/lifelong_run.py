@@ -1,0 +1,232 @@
+"""Lifelong mode inside the gateway: a warehouse shift run by the engine's owner task.
+
+:class:`LifelongRun` owns the shift's sans-I/O
+:class:`~gateway.execution.lifelong.LifelongExecutor` (tasks, live ADG, dispatch, monitor) and
+routes what it emits: dispatches, the slack trigger and the end of the shift go through the
+engine's routing (the same wire protocol as a one-shot run: action ids are
+``run.segment.robot.n``, ``n`` counting the robot's actions over the shift, so they never
+repeat); a :class:`~gateway.execution.lifelong.PlanRequest` runs the windowed planner off the
+event loop (as the engine's planner tasks do: a thread in real time, charged time under a
+virtual clock) while robots keep reporting, and its segment comes back through the owner's
+queue as an :class:`~gateway.server.items.OwnerCall` to be appended to the live ADG. Nobody
+stops for it. The engine ticks the run every monitor period; robot reports reach the executor
+through the engine's robot sessions as in a one-shot run.
+
+The live task pool is :attr:`LifelongRun.tasks` (``Engine.tasks``): a task API reads it and
+submits to it from the owner task.
+
+Not journaled yet: a restart starts a new shift (the executor's state is a deterministic
+function of its inputs, so a journal can replay it later).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from dataclasses import dataclass
+from functools import partial
+from typing import TYPE_CHECKING
+
+from gateway.execution.actions import ActionDurations
+from gateway.execution.commands import Command
+from gateway.execution.errands import TaskDistances
+from gateway.execution.errors import ExecutionError
+from gateway.execution.lifelong import (
+    LifelongExecutor,
+    LifelongMode,
+    PlanRequest,
+    Segment,
+    WindowPlanner,
+)
+from gateway.execution.tasks import TaskPool
+from gateway.planning.grid import Grid
+from gateway.planning.lorr import read_problem, warehouse_problem
+from gateway.runtime.journal import new_run_id
+from gateway.server.config import GatewayConfig
+from gateway.server.items import OwnerCall
+from protocol import Pose
+from protocol.messages import HEADINGS, GatewayStatus
+
+if TYPE_CHECKING:
+    from gateway.server.engine import Engine
+
+log = logging.getLogger("fleetgate.lifelong")
+
+
+@dataclass(frozen=True)
+class Shift:
+    """What a shift runs on: the map, the robots' start cells (flat ids) and headings (None:
+    ``omni``), the task list and how many tasks are kept revealed."""
+
+    name: str
+    grid: Grid
+    starts: tuple[int, ...]
+    headings: tuple[int, ...] | None
+    tasks: tuple[tuple[int, ...], ...]
+    reveal: int
+
+
+def shift_from(config: GatewayConfig) -> Shift:
+    """The shift ``config.lifelong`` describes (ValueError, one line, if it cannot be read)."""
+    s = config.lifelong
+    assert s is not None
+    prob = read_problem(s.problem) if s.problem is not None else warehouse_problem(
+        s.robots, s.seed, s.warehouse, p_delay=0.0)
+    n = prob.team_size
+    headings = (config.start_heading,) * n if config.motion == "turning" else None
+    reveal = max(1, int((s.reveal or prob.num_tasks_reveal) * n))
+    return Shift(prob.name or "warehouse", prob.grid, prob.starts, headings,
+                 prob.tasks if s.task_list else (), reveal)
+
+
+class LifelongRun:
+    """A shift inside the gateway: its executor, its planner off the loop, its routing."""
+
+    def __init__(self, engine: Engine, shift: Shift) -> None:
+        cfg = engine.config
+        s = cfg.lifelong
+        assert s is not None
+        self._engine = engine
+        self.shift = shift
+        grid = shift.grid
+        distances = TaskDistances(grid)
+        try:
+            pool = TaskPool(shift.tasks, shift.reveal, leg=distances.leg)
+        except ValueError as exc:
+            raise ValueError(f"lifelong mode: {exc}") from None
+        self.executor = LifelongExecutor(
+            grid, shift.starts, shift.headings, pool, scheduler=s.scheduler,
+            distances=distances, period_ms=s.period_ms, window=s.window,
+            durations=ActionDurations.uniform(cfg.action_ms), lookahead=cfg.dispatch_lookahead,
+            threshold_ms=s.threshold_ms, record=engine.feed.record)
+        self.turning = shift.headings is not None
+        self.planner = WindowPlanner(grid, len(shift.starts), self.turning, s.seed)
+        self.planner_ms: list[float] = []
+        """Wall (real clock) or charged (virtual clock) ms of each planner call."""
+        self._solving: asyncio.Task[None] | None = None
+
+    # ------------------------------------------------------------------ state
+    @property
+    def tasks(self) -> TaskPool:
+        """The live task pool."""
+        return self.executor.pool
+
+    @property
+    def robots(self) -> int:
+        """The fleet's size."""
+        return self.executor.n
+
+    @property
+    def ticking(self) -> bool:
+        """Whether the engine must tick the run (started and not done)."""
+        return self.executor.mode in (LifelongMode.RUNNING, LifelongMode.STOPPING)
+
+    @property
+    def status(self) -> GatewayStatus:
+        """The gateway's status while in lifelong mode."""
+        mode = self.executor.mode
+        if mode is LifelongMode.NEW:
+            return "loaded"
+        if mode is LifelongMode.DONE:
+            return "done"
+        return "paused" if self.executor.paused else "running"
+
+    def pose(self, robot: int) -> Pose | None:
+        """Where a robot stands now (its welcome's start), None for an unknown robot."""
+        if not 0 <= robot < self.executor.n:
+            return None
+        cell, heading = self.executor.pose(robot)
+        return Pose(cell=self.shift.grid.cell(cell),
+                    heading=None if heading is None else HEADINGS[heading])
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Start the shift at plan time 0 (action ids get a fresh run id)."""
+        e = self._engine
+        for gs in e.robots.values():
+            gs.new_run()
+        e.summary = None
+        e.finished_event.clear()
+        e.paused = False
+        e.feed.new_run()
+        e.runs += 1
+        e.run_id = new_run_id()
+        e.clock.reset()
+        self.executor.start(0.0)
+        e.status_changed()
+        self.route()
+        log.info("lifelong shift started", extra={
+            "run": e.run_id, "robots": self.robots, "map": self.shift.name})
+
+    def stop(self) -> None:
+        """End the shift: nothing new is dispatched; done when every robot is idle."""
+        self.executor.stop(self._engine.now_ms())
+        self.route()
+
+    def set_paused(self, paused: bool) -> None:
+        """Dispatch nothing new while paused (robots are paused by their sessions)."""
+        now = self._engine.now_ms()
+        (self.executor.pause if paused else self.executor.resume)(now)
+        self.route()
+
+    def tick(self, now_ms: float) -> None:
+        """A monitor tick: planning calls and the slack check."""
+        self.executor.tick(now_ms)
+        self.route()
+
+    def cancel(self) -> None:
+        """Cancel a running planner call (the gateway is closing)."""
+        if self._solving is not None:
+            self._solving.cancel()
+
+    # ------------------------------------------------------------------ routing
+    def route(self) -> None:
+        """Carry out what the executor emitted: planner calls here, the rest by the engine."""
+        rest: list[Command] = []
+        for c in self.executor.drain():
+            if isinstance(c, PlanRequest):
+                self._plan(c)
+            else:
+                rest.append(c)
+        if rest:
+            self._engine.route(rest)
+
+    def _plan(self, req: PlanRequest) -> None:
+        e = self._engine
+
+        async def run() -> None:
+            segment: Segment | None = None
+            try:
+                segment, charged = await e.clock.run_solver(partial(self.planner, req))
+                self.planner_ms.append(charged)
+            except Exception as exc:  # a planner bug: one line, the next period plans again
+                log.error("lifelong planner failed", extra={"call": req.call,
+                                                            "error": repr(exc)[:300]})
+            e.queue.put_nowait(OwnerCall(partial(self._answered, req, segment)))
+
+        self._solving = asyncio.get_running_loop().create_task(run(), name="lifelong-plan")
+
+    def _answered(self, req: PlanRequest, segment: Segment | None) -> None:
+        """The planner answered ``req`` (None: it failed); runs in the owner task."""
+        self._solving = None
+        ex = self.executor
+        if ex.outstanding is not req:
+            return
+        now = self._engine.now_ms()
+        if segment is not None:
+            try:
+                ex.adopt(segment, now)
+            except ExecutionError as exc:
+                log.error("lifelong segment refused", extra={"call": req.call,
+                                                             "error": str(exc)})
+                segment = None
+        if segment is None:
+            ex.plan_failed(req.call, now)
+        self.route()
+
+
+def throughput_per_min(finished: int, elapsed_ms: float) -> float:
+    """Tasks per minute of plan time (0 before any time passed)."""
+    return finished * 60_000.0 / elapsed_ms if elapsed_ms > 0 and math.isfinite(elapsed_ms) \
+        else 0.0

@@ -1,0 +1,61 @@
+"""A lifelong shift of simulated robots against a gateway in lifelong mode (over websockets
+or in-memory links), for the demo, the load benchmark and the tests."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+
+from gateway.server.gateway import Gateway
+from gateway.server.items import OwnerCall
+from protocol import parse_action_id
+from sim_clients.fleet import SimFleet
+
+
+@dataclass(frozen=True)
+class ShiftStats:
+    """What the network run did, from both ends: tasks, actions, lost and duplicated ids."""
+
+    finished_tasks: int
+    elapsed_ms: float
+    dispatched: int
+    lost: int
+    """Actions the gateway dispatched that no robot received."""
+    duplicated: int
+    """Actions a robot was sent again (resends it dropped) or executed twice."""
+    collisions: int
+    """Robots that met on a cell in the simulated world."""
+
+
+async def start_shift(gateway: Gateway, fleet: SimFleet, timeout_s: float = 60.0) -> None:
+    """Connect every robot of ``fleet``; the gateway starts the shift once all are online
+    (``autostart``), or now if autostart is off."""
+    lifelong = gateway.engine.lifelong
+    if lifelong is None:
+        raise ValueError("the gateway is not in lifelong mode")
+    await fleet.start()
+    await fleet.wait_connected(timeout_s)
+    if not gateway.config.autostart:
+        gateway.engine.queue.put_nowait(OwnerCall(lifelong.start))
+    while lifelong.status == "loaded":
+        await asyncio.sleep(0.01)
+
+
+async def stop_shift(gateway: Gateway, fleet: SimFleet, timeout_s: float = 60.0
+                     ) -> ShiftStats:
+    """End the shift (robots finish what they were dispatched), then count, from both ends,
+    what was dispatched, received, executed twice or lost."""
+    lifelong = gateway.engine.lifelong
+    assert lifelong is not None
+    gateway.engine.queue.put_nowait(OwnerCall(lifelong.stop))
+    await asyncio.wait_for(gateway.wait_done(), timeout_s)
+    ex = lifelong.executor
+    sent = {(robot, index) for gs in gateway.engine.robots.values()
+            for aid in (*gs.held, *gs.applied)
+            for _, robot, index in [parse_action_id(aid)]}
+    got = {(robot, index) for aid in fleet.stats.received
+           for _, robot, index in [parse_action_id(aid)]}
+    return ShiftStats(finished_tasks=ex.finished_tasks, elapsed_ms=ex.now_ms,
+                      dispatched=len(sent), lost=len(sent - got),
+                      duplicated=fleet.stats.duplicates + len(fleet.stats.received) - len(got),
+                      collisions=len(fleet.world.collisions))
