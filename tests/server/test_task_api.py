@@ -13,7 +13,6 @@ from typing import Any
 import jsonschema
 import pytest
 from openapi_spec_validator import validate as validate_spec
-from sim_clients.shift import start_shift, stop_shift
 
 from gateway.planning.grid import Cell, Grid
 from gateway.server.config import GatewayConfig, LifelongSettings
@@ -22,6 +21,7 @@ from gateway.server.openapi import openapi_document
 from gateway.server.task_models import MAX_BATCH, MAX_BODY_BYTES
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
+from sim_clients.shift import start_shift, stop_shift
 from tests.server.task_client import Reply, call, sse
 
 ROBOTS = 6
