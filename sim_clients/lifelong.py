@@ -210,9 +210,9 @@ def run_lifelong(cfg: LifelongConfig,
         if pending is None and t >= next_call:
             cpu0 = time.thread_time()
             if cfg.reassign and len(planner_times) % cfg.reassign == 0:
-                book.release_unstarted()  # unstarted tasks go back to the scheduler
+                book.release_unstarted(t)  # unstarted tasks go back to the scheduler
             distances.charged = {adg.end_cell[r] for r in range(n) if delayed[r]}
-            for _, task_id in book.schedule(adg.end_cell, schedule, distances):
+            for _, task_id in book.schedule(adg.end_cell, schedule, distances, t):
                 if task_id not in recorded:
                     recorded.add(task_id)
                     task = pool.tasks[task_id]

@@ -75,11 +75,11 @@ class ErrandBook:
             if 0 <= task.robot < len(self.plan_task):
                 self.plan_task[task.robot], self.plan_idx[task.robot] = task.id, task.done
 
-    def release_unstarted(self) -> None:
+    def release_unstarted(self, now: float) -> None:
         """Tasks whose first errand is not planned yet go back to the pool's open tasks."""
         for r, task_id in enumerate(self.plan_task):
             if task_id >= 0 and self.plan_idx[r] == 0:
-                self.pool.release(task_id)
+                self.pool.release(task_id, now)
                 self.plan_task[r] = -1
 
     def forget_gone(self) -> None:
@@ -90,14 +90,15 @@ class ErrandBook:
                 self.plan_task[r] = -1
 
     def schedule(self, end_cells: Sequence[int], scheduler: Scheduler,
-                 distances: TaskDistances) -> list[tuple[int, int]]:
+                 distances: TaskDistances, now: float) -> list[tuple[int, int]]:
         """Give open tasks to the robots without one (standing at ``end_cells``, where their
-        committed plan ends); returns the new ``(robot, task id)`` pairs."""
+        committed plan ends) at ``now``; returns the new ``(robot, task id)`` pairs."""
         free = [(r, end_cells[r]) for r, t in enumerate(self.plan_task) if t < 0]
         pairs = list(scheduler(free, self.pool, distances).items())
         for r, task_id in pairs:
-            self.pool.assign(task_id, r)
+            self.pool.assign(task_id, r, now)
             self.plan_task[r], self.plan_idx[r] = task_id, 0
+        self.pool.settle(now)  # released tasks nobody took back become events
         return pairs
 
     def goals(self) -> list[tuple[int, ...]]:

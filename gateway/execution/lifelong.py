@@ -320,10 +320,10 @@ class LifelongExecutor:
         adg, book, n = self.adg, self.book, self.n
         book.forget_gone()  # first: a task cancelled or paused is no robot's to release
         if self.reassign and self.calls % self.reassign == 0:
-            book.release_unstarted()
+            book.release_unstarted(self._now)
         late = self.late(self._now)
         self.distances.charged = {adg.end_cell[r] for r in range(n) if late[r]}
-        book.schedule(adg.end_cell, self.scheduler, self.distances)
+        book.schedule(adg.end_cell, self.scheduler, self.distances, self._now)
         if self.turning:
             starts = tuple(4 * c + h for c, h in zip(adg.end_cell, adg.end_heading, strict=True))
         else:
@@ -576,7 +576,7 @@ class LifelongExecutor:
         for task_id in self.book.reach(robot, self.adg.done[robot]):
             task = self.pool.tasks.get(task_id)
             if task is not None and task.robot == robot:  # not cancelled or paused meanwhile
-                self.pool.errand_done(task_id, int(self._now), robot)
+                self.pool.errand_done(task_id, self._now, robot)
                 self.errands_done += 1
 
     def _fill(self, robot: int) -> None:
