@@ -84,8 +84,9 @@ def test_robots_tasks_finished_list_and_throughput(tasks_page: Page) -> None:
     # the two must agree at some moment)
     agreed = []
     for _ in range(40):
-        shown_work = {(int(r), int(t)) for r, t, *_ in (
-            tr.locator("td").all_text_contents() for tr in work.all())}
+        shown_work = {(r, t) for r, t in page.evaluate(  # at once: rows are redrawn often
+            "() => [...document.querySelectorAll('#work-rows tr')]"
+            ".map(tr => [...tr.cells].slice(0, 2).map(td => Number(td.textContent)))")}
         busy = api(page, "/tasks?state=assigned,started")["tasks"]
         if shown_work and shown_work == {(t["robot"], t["id"]) for t in busy}:
             agreed.append(shown_work)
