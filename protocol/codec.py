@@ -118,6 +118,14 @@ def _check_unicode(text: str) -> None:
         raise ProtocolError(ErrorCode.MALFORMED, "a string holds a lone UTF-16 surrogate")
 
 
+def check_text(text: str) -> None:
+    """The limits :func:`decode` puts on any JSON text, for other JSON bodies (the task API):
+    nesting, number length and lone surrogates; ProtocolError if one is broken."""
+    _check_shape(text)
+    if _SURROGATE_ESCAPE.search(text) or (not text.isascii() and _has_surrogate(text)):
+        _check_unicode(text)
+
+
 def decode(raw: str | bytes) -> AnyMessage:
     """Parse one message; raise :class:`ProtocolError` with the matching code if it is bad.
 
@@ -132,9 +140,7 @@ def decode(raw: str | bytes) -> AnyMessage:
             raw = raw.decode("utf-8")
         except UnicodeDecodeError as exc:
             raise ProtocolError(ErrorCode.MALFORMED, f"not UTF-8: {exc}") from None
-    _check_shape(raw)
-    if _SURROGATE_ESCAPE.search(raw) or (not raw.isascii() and _has_surrogate(raw)):
-        _check_unicode(raw)
+    check_text(raw)
     first: ValidationError | None = None
     try:  # fast path: parse and validate in one pass (pydantic-core), ~2x faster
         message = MESSAGE_ADAPTER.validate_json(raw, strict=True)

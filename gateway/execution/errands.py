@@ -66,6 +66,14 @@ class ErrandBook:
         """How many of that task's errands the committed plan reaches."""
         self.markers: list[deque[tuple[int, int]]] = [deque() for _ in range(n_robots)]
         """Per robot, in order: (finished-action count at which it stands on an errand, task)."""
+        self.adopt()
+
+    def adopt(self) -> None:
+        """Robots go on with the tasks the pool says they do (a pool rebuilt from the
+        journal after a restart: the errands done count, the rest is planned anew)."""
+        for task in self.pool.tasks.values():
+            if 0 <= task.robot < len(self.plan_task):
+                self.plan_task[task.robot], self.plan_idx[task.robot] = task.id, task.done
 
     def release_unstarted(self, now: float) -> None:
         """Tasks whose first errand is not planned yet go back to the pool's open tasks."""

@@ -318,9 +318,9 @@ class LifelongExecutor:
     def _call(self) -> None:
         """Assign tasks and ask the driver for the next window."""
         adg, book, n = self.adg, self.book, self.n
+        book.forget_gone()  # first: a task cancelled or paused is no robot's to release
         if self.reassign and self.calls % self.reassign == 0:
             book.release_unstarted(self._now)
-        book.forget_gone()
         late = self.late(self._now)
         self.distances.charged = {adg.end_cell[r] for r in range(n) if late[r]}
         book.schedule(adg.end_cell, self.scheduler, self.distances, self._now)
@@ -574,8 +574,9 @@ class LifelongExecutor:
     def _errands(self, robot: int) -> None:
         """Tell the pool about the errands the robot's finished actions completed."""
         for task_id in self.book.reach(robot, self.adg.done[robot]):
-            if self.pool.errand_done(task_id, self._now, robot) or \
-                    task_id in self.pool.tasks:  # False and gone: cancelled meanwhile
+            task = self.pool.tasks.get(task_id)
+            if task is not None and task.robot == robot:  # not cancelled or paused meanwhile
+                self.pool.errand_done(task_id, self._now, robot)
                 self.errands_done += 1
 
     def _fill(self, robot: int) -> None:

@@ -85,6 +85,8 @@ class Task:
     errand_at: list[float] = field(default_factory=list)
     """When each errand was done."""
     cancelled_at: float = -1
+    listed: bool = False
+    """Made from the task list (else submitted)."""
     announced: int = -1  # the robot the last event named
 
     @property
@@ -169,7 +171,7 @@ class TaskPool:
             elif self.task_list:
                 errands = tuple(self.task_list[self._listed % len(self.task_list)])
                 self._listed += 1
-                task = Task(self.next_id, errands, int(tick), submitted=tick)
+                task = Task(self.next_id, errands, int(tick), submitted=tick, listed=True)
                 self.next_id += 1
                 self.book[task.id] = task
                 self._event(task, tick)
@@ -388,6 +390,68 @@ class TaskPool:
         while len(self._ended) > self.keep:
             old, _ = self._ended.popitem(last=False)
             del self.book[old]
+
+    # ------------------------------------------------------------------ rebuilding
+    def restore(self, event: TaskEvent, new: NewTask | None = None, key: str | None = None,
+                listed: bool = False) -> None:
+        """Apply one journaled event (a restart rebuilds the book from them, in order);
+        ``new`` says what the task is if the book does not know it yet. Events the pool made
+        itself already (the task list's first reveal) only set the state again."""
+        task = self.book.get(event.task)
+        if task is None:
+            if new is None:
+                raise ValueError(f"event {event.seq} is about task {event.task}, which no "
+                                 f"event made")
+            task = Task(event.task, new.errands, int(event.t), priority=new.priority,
+                        deadline=new.deadline, key=key, submitted=event.t, listed=listed)
+            self.book[task.id] = task
+            self.next_id = max(self.next_id, task.id + 1)
+            self._listed += listed
+        if task.state == "finished":
+            return
+        self._withdraw(task)
+        task.state, task.robot, task.done = event.state, event.robot, event.done
+        task.announced = event.robot
+        del task.errand_at[event.done:]
+        task.errand_at.extend([event.t] * (event.done - len(task.errand_at)))
+        match event.state:
+            case "queued":
+                self._wait(task)
+            case "paused":
+                self._paused[task.id] = task
+            case "assigned" | "started":
+                task.assigned_at = event.t if event.state == "assigned" else task.assigned_at
+                self.tasks[task.id] = task
+            case "finished":
+                task.finish_tick = event.t
+                self.finished += 1
+                self._end(task)
+            case "cancelled":
+                task.cancelled_at = event.t
+                self._end(task)
+        if event.seq > self.event_seq:
+            self.events.append(event)
+            self.event_seq = event.seq
+        self.now = max(self.now, event.t)
+
+    def restored(self, now: float) -> None:
+        """The journal is applied: rebuild the idempotency keys; tasks assigned but not
+        started go back to the queue (the new executor's robots start afresh); started ones
+        stay with their robots; reveal what fits."""
+        requests: dict[str, tuple[list[NewTask], list[int]]] = {}
+        for task in self.book.values():
+            if task.key is not None:
+                new, ids = requests.setdefault(task.key, ([], []))
+                new.append(NewTask(task.errands, task.priority, task.deadline))
+                ids.append(task.id)
+        for key, (new, ids) in requests.items():
+            self._keys[key] = (tuple(new), ids)
+        for task in [t for t in self.tasks.values() if t.state == "assigned"]:
+            self._withdraw(task)
+            task.state = "queued"
+            self._event(task, now)
+            self._wait(task)
+        self._rebalance(now)
 
     def events_after(self, seq: int) -> tuple[list[TaskEvent], bool]:
         """The kept events after number ``seq``, and whether none between were dropped."""

@@ -30,6 +30,9 @@ Size: a new run deletes the records of the previous ones (the journal holds one 
 plan compacts it: :meth:`Journal.compact` replaces every record by one snapshot of what the
 executor carries into the plan (:class:`SnapshotRecord`). The file's free pages are returned at
 those plan boundaries (``auto_vacuum=INCREMENTAL``).
+
+In lifelong mode the journal holds the task book's changes instead (:class:`TaskRecord`), from
+which a restarted gateway rebuilds it (:mod:`gateway.server.task_journal`).
 """
 
 from __future__ import annotations
@@ -150,6 +153,26 @@ class SpeedRecord(_Record):
     speed: float
 
 
+class TaskRecord(_Record):
+    """A change of a task of a lifelong shift (an event of the task book, in order; its
+    ``seq`` is the event's). A ``queued`` record also carries what the task is (``errands``
+    as flat cell ids, priority, deadline, idempotency key, whether the task list made it), so
+    a restart can rebuild the book from the records alone."""
+
+    kind: Literal["task"] = "task"
+    seq: int
+    task: int
+    state: Literal["queued", "paused", "assigned", "started", "finished", "cancelled"]
+    robot: int
+    done: int
+    t_ms: float
+    errands: list[int] | None = None
+    priority: int = 0
+    deadline_ms: float | None = None
+    key: str | None = None
+    listed: bool = False
+
+
 class SnapshotRecord(_Record):
     """A plan boundary: the run's records up to plan ``plan_id`` adopted at ``t_ms``, compacted.
     It holds what the executor carries into a new plan (the rest of its state starts afresh
@@ -187,7 +210,7 @@ class SnapshotRecord(_Record):
 
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
-    | SpeedRecord | SnapshotRecord | ShadowRecord,
+    | SpeedRecord | SnapshotRecord | ShadowRecord | TaskRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 

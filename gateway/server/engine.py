@@ -161,6 +161,8 @@ class Engine:
         self.before_start: list[Callable[[], None]] = []
         """Called when a run's objects exist, just before its time 0 (the process driver
         tunes the garbage collector here; what they take is not charged to the run)."""
+        self.before_commit: list[Callable[[], None]] = []
+        """Called before each commit (the task journal appends the task events here)."""
 
     # -------------------------------------------------------------------------- status
     @property
@@ -261,6 +263,8 @@ class Engine:
     def commit(self) -> None:
         """Make what was journaled durable, then write the trace records it caused (called
         before the owner task yields: nothing queued for a peer leaves before this)."""
+        for hook in self.before_commit:
+            hook()
         if self.journal is not None:
             self.journal.commit()
         self.feed.flush_trace()

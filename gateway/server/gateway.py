@@ -49,12 +49,15 @@ from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
 from gateway.server.http import HttpRoutes, json_response, response
+from gateway.server.http_api import RoutingConnection, close_all, routing_connection
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.lifelong_run import LifelongRun, shift_from
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.session import Session
+from gateway.server.task_api import TaskApi
+from gateway.server.task_journal import journal_tasks
 from gateway.server.tls import server_context
 from gateway.server.transport import (
     HARD_MAX_BYTES,
@@ -130,6 +133,9 @@ class Gateway:
         self._max_connections = self.config.max_connections
         self.http = HttpRoutes(self.metrics.render, self._health, self._ready, self.auth,
                                tls=tls is not None, static_dir=self.config.static_dir)
+        self.task_api = TaskApi(self.engine, self.auth, tls=tls is not None,
+                                allowed_origins=self.config.allowed_origins)
+        self._api_conns: set[RoutingConnection] = set()
         self.port: int | None = None
         """The bound port once :meth:`listen` returned."""
         self._fresh = fresh
@@ -143,12 +149,6 @@ class Gateway:
             return
         self.clock.reset()
         cfg = self.config
-        if cfg.lifelong is not None:  # a shift: not journaled yet (lifelong_run.py)
-            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
-            self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
-                                                                 name="owner")
-            self.engine.operator.maybe_autostart()
-            return
         if cfg.journal is not None:
             try:
                 journal = self.engine.journal = Journal(cfg.journal)
@@ -156,9 +156,21 @@ class Gateway:
                     journal.discard()
                     log.warning("journaled run abandoned: starting fresh",
                                 extra={"journal": str(cfg.journal)})
-                self.resumed = self.engine.resume() and self.engine.status != "done"
+                if cfg.lifelong is None:
+                    self.resumed = self.engine.resume() and self.engine.status != "done"
             except JournalError as exc:
                 raise ValueError(str(exc)) from None
+        if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
+            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
+            if self.engine.journal is not None:
+                try:
+                    self.resumed = journal_tasks(self.engine)
+                except JournalError as exc:
+                    raise ValueError(str(exc)) from None
+            self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
+                                                                 name="owner")
+            self.engine.operator.maybe_autostart()
+            return
         configured = cfg.instance is not None or (
             cfg.map is not None and (cfg.scen or cfg.agents))
         if configured and not self.resumed:  # a resumed run goes on instead
@@ -176,6 +188,7 @@ class Gateway:
             self._server.close()
             await self._server.wait_closed()
             self._server = None
+        await close_all(self._api_conns)
         for session in list(self._sessions):
             session.close(1001, "gateway shutting down")
         for task in list(self._links):
@@ -245,6 +258,9 @@ class Gateway:
             ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s,
             close_timeout=cfg.close_timeout_s, open_timeout=cfg.handshake_timeout_s,
             max_queue=64, ssl=ssl,
+            create_connection=routing_connection(
+                self.task_api, timeout_s=cfg.handshake_timeout_s, tls=ssl is not None,
+                live=self._api_conns),
             ssl_handshake_timeout=cfg.handshake_timeout_s if ssl is not None else None)
         self.port = int(self._server.sockets[0].getsockname()[1])
         log.info("listening", extra={"host": host or cfg.host, "port": self.port,

@@ -8,6 +8,9 @@ Routes (GET only; everything else is a websocket upgrade to ``/ws``):
   SameSite=Strict, Secure under TLS); without it, ``200 {"role": "operator"}`` if the cookie
   is a live login, else ``401``; errors are ``{"error": "..."}`` with 400/401/403;
   ``/logout`` ends the login;
+* ``/openapi.json``: the task API's OpenAPI document (:mod:`gateway.server.task_api`
+  serves the API itself: :mod:`gateway.server.http_api` takes its requests off the websocket
+  server);
 * ``/healthz`` (liveness: 200 while the engine runs, else 503), ``/readyz`` (readiness: 200
   once the gateway listens, else 503), ``/metrics`` (Prometheus).
 """
@@ -26,13 +29,17 @@ from websockets.http11 import Request, Response
 
 import gateway.web
 from gateway.server.auth import COOKIE, Authenticator, AuthError, cookie_value, single_header
+from gateway.server.openapi import openapi_document
 
 DEFAULT_STATIC = Path(gateway.web.__file__).resolve().parent / "static"
 """Where the GUI helper puts index.html and friends."""
 
-REASONS = {200: "OK", 204: "No Content", 303: "See Other", 400: "Bad Request",
+REASONS = {200: "OK", 201: "Created", 204: "No Content", 303: "See Other", 400: "Bad Request",
            401: "Unauthorized", 403: "Forbidden", 404: "Not Found", 405: "Method Not Allowed",
-           426: "Upgrade Required", 500: "Internal Server Error", 503: "Service Unavailable"}
+           408: "Request Timeout", 409: "Conflict", 413: "Content Too Large",
+           414: "URI Too Long", 415: "Unsupported Media Type", 422: "Unprocessable Content",
+           426: "Upgrade Required", 500: "Internal Server Error", 501: "Not Implemented",
+           503: "Service Unavailable"}
 
 SECURITY_HEADERS = [("X-Content-Type-Options", "nosniff"), ("X-Frame-Options", "DENY"),
                     ("Referrer-Policy", "no-referrer")]
@@ -76,6 +83,8 @@ class HttpRoutes:
         if route == "/readyz":
             ready = self._ready()
             return json_response(200 if ready else 503, {"ready": ready})
+        if route == "/openapi.json":
+            return json_response(200, openapi_document())
         if route == "/session":
             return self._session(request.headers)
         if route == "/logout":

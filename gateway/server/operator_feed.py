@@ -19,12 +19,17 @@ import itertools
 import json
 from collections import deque
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, get_args
 
 from gateway.execution.trace_records import intruder_record
 from gateway.planning.grid import Cell
 from gateway.server.session import Session
 from protocol import Event
+from protocol.messages import EventKind
+
+EVENT_KINDS = frozenset(get_args(EventKind))
+"""Trace records operators are sent as events (others, e.g. a lifelong segment, are trace
+only)."""
 
 
 class OperatorFeed:
@@ -96,7 +101,7 @@ class OperatorFeed:
             self.replan_marks.append({"trigger_ms": float(t_ms), "policy": str(rec["policy"])})
         elif kind == "plan" and rec.get("plan") and self.replan_marks:
             self.replan_marks[-1].update(plan=rec["plan"], adopted_ms=float(t_ms))
-        if not self.operators:
+        if not self.operators or kind not in EVENT_KINDS:
             return  # several records per action: build no event nobody would receive
         fields: dict[str, Any] = {k: v for k, v in rec.items()
                                   if k not in ("type", "t_ms", "agents", "motion")}

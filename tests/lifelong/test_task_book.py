@@ -284,6 +284,34 @@ class TaskBookMachine(RuleBasedStateMachine):
             assert (task.id in pool.open) == (task.state == "queued")
 
 
-TaskBookMachine.TestCase.settings = settings(max_examples=60, stateful_step_count=40,
+    def teardown(self) -> None:
+        """At the end of each run: :meth:`a_restart_rebuilds_the_book`."""
+        self.a_restart_rebuilds_the_book()
+
+    def a_restart_rebuilds_the_book(self) -> None:
+        """A fresh pool fed the events (the journal's records) knows every task, finishes
+        none again, and a retried submission still gets its ids."""
+        live = self.pool
+        again = TaskPool((), reveal=3, keep=10_000)
+        for e in live.events:
+            task = live.book[e.task]
+            new = NewTask(task.errands, task.priority, task.deadline)
+            again.restore(e, new if e.state == "queued" else None, task.key)
+        again.restored(self.t)
+        assert again.finished == live.finished and again.next_id == live.next_id
+        for task_id, task in live.book.items():
+            back = again.book[task_id]
+            want = "queued" if task.state == "assigned" else task.state
+            assert (back.state, back.done, back.errands) == (want, task.done, task.errands)
+            if task.state == "started":
+                assert back.robot == task.robot and task_id in again.tasks
+            if task.state in ("finished", "cancelled"):
+                assert not again.errand_done(task_id, self.t + 1)
+        for key, (body, ids) in self.requests.items():
+            assert again.submit(body, self.t + 1, key) == (ids, False)
+        assert again.event_seq >= live.event_seq
+
+
+TaskBookMachine.TestCase.settings = settings(max_examples=40, stateful_step_count=30,
                                              deadline=None)
 test_task_book_properties = TaskBookMachine.TestCase

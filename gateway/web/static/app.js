@@ -4,6 +4,7 @@ import { Connection, loggedIn } from "./connection.js";
 import { FleetModel, fmtS } from "./model.js";
 import { MapView, robotColor } from "./mapview.js";
 import { SlackChart } from "./chart.js";
+import { TaskBoard } from "./tasks.js";
 
 const $ = (id) => document.getElementById(id);
 const model = new FleetModel();
@@ -20,6 +21,8 @@ if (!(await loggedIn())) {
   await new Promise(() => {}); // the page is being replaced
 }
 const conn = new Connection(url, { onMessage, onLink });
+const taskBoard = new TaskBoard($("tasks-card")); // shown only in lifelong mode
+taskBoard.start();
 
 // ------------------------------------------------------------------------- incoming
 function onMessage(msg) {
@@ -281,6 +284,8 @@ setInterval(() => {
 // For tests and the curious: the GUI's view of the fleet.
 window.fleetgate = {
   model,
+  /** The task board of a lifelong shift (its tasks, finish times and chart bars). */
+  tasks: taskBoard,
   status: () => model.status,
   plan: () => (model.snap ? model.snap.plan : null),
   robots: () => model.robots().map((r) => ({
