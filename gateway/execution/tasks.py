@@ -1,38 +1,124 @@
-"""Lifelong tasks: a pool of revealed tasks and pluggable schedulers (pure, no I/O).
+"""Lifelong tasks: the task book, its pool of revealed tasks and pluggable schedulers (pure, no
+I/O, no clock: every time is passed in, in the driver's unit: ticks or ms).
 
 A task is an ordered list of errand cells (flat ids); a robot completes an errand by arriving
-at its cell, and the task when its last errand is done. The pool keeps ``reveal`` tasks
-revealed and unfinished (LoRR's ``numTasksReveal`` x team size): each finished task reveals the
-next one of the task list, which is cycled when it runs out (task ids keep growing).
+at its cell, and the task when its last errand is done. Tasks come from two places:
+
+* a task list (LoRR): the pool keeps ``reveal`` tasks revealed and unfinished (LoRR's
+  ``numTasksReveal`` x team size): each finished task reveals the next one of the list, which
+  is cycled when it runs out (task ids keep growing);
+* submissions (a warehouse system): :meth:`TaskPool.submit` takes one task or a batch, with a
+  priority and a deadline, under an idempotency key (a retried submission returns the same
+  task ids and creates nothing). Submitted tasks wait in a backlog, most urgent first, and are
+  revealed before list tasks when a slot frees; a submission more urgent than a revealed open
+  task takes its slot.
+
+A task's state (:data:`TaskState`) is ``queued`` (waiting, revealed or not), ``paused`` (by an
+operator: never assigned while paused), ``assigned`` (to a robot, no errand done), ``started``
+(``done`` errands done), ``finished`` or ``cancelled``. A task not started yet (no errand done)
+can be cancelled or paused; either takes it from its robot, which finds it gone from
+:attr:`TaskPool.tasks` (its plan view drops it; an errand it still reaches is ignored).
+
+Every change of state is an event (:class:`TaskEvent`: sequence number, task, state, robot,
+errands done, time) in :attr:`TaskPool.events`, the ordered stream an API serves; a task
+released and given back to the same robot in one scheduling round (reassignment) makes no
+event. Events, ended tasks and idempotency keys are kept up to bounds (``keep``), so a shift's
+memory stays bounded.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import heapq
+import math
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import pairwise
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+TaskState = Literal["queued", "paused", "assigned", "started", "finished", "cancelled"]
+"""Where a task is (see the module doc)."""
+TASK_STATES: tuple[TaskState, ...] = ("queued", "paused", "assigned", "started", "finished",
+                                      "cancelled")
+KEEP = 100_000
+"""Default bound on kept events, ended tasks and idempotency keys."""
+
+
+class TaskError(ValueError):
+    """A task request is refused; the message says why."""
+
+
+class TaskNotFound(TaskError):
+    """No such task (never submitted, or ended long ago and no longer kept)."""
+
+
+class TaskConflict(TaskError):
+    """The request conflicts with the task book: an idempotency key reused for a different
+    request, or a task in a state that does not allow it (e.g. cancelling a started task)."""
+
 
 @dataclass
 class Task:
-    """A revealed task: its errands, who does it (-1: nobody yet) and how many are done."""
+    """A task: its errands, who does it (-1: nobody yet), how many errands are done, and the
+    times of its changes (in the pool's time unit; -1: not yet)."""
 
     id: int
     errands: tuple[int, ...]
     release_tick: int
+    """When it was revealed to the schedulers (whole time units, as LoRR's output wants)."""
     robot: int = -1
     done: int = 0
-    finish_tick: int = -1
+    finish_tick: float = -1
     length: int = -1  # estimated moves from its first errand to its last (-1: not yet known)
+    priority: int = 0
+    """Higher first."""
+    deadline: float | None = None
+    """Earlier first among equal priorities (None: none)."""
+    key: str | None = None
+    """The idempotency key it was submitted under."""
+    state: TaskState = "queued"
+    submitted: float = -1
+    assigned_at: float = -1
+    errand_at: list[float] = field(default_factory=list)
+    """When each errand was done."""
+    cancelled_at: float = -1
+    announced: int = -1  # the robot the last event named
+
+    @property
+    def urgency(self) -> tuple[int, float]:
+        """Sort key of the schedulers and the backlog: higher priority, then earlier deadline."""
+        return -self.priority, math.inf if self.deadline is None else self.deadline
+
+
+@dataclass(frozen=True)
+class NewTask:
+    """One task of a submission."""
+
+    errands: tuple[int, ...]
+    priority: int = 0
+    deadline: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class TaskEvent:
+    """A change of a task's state: ``done`` errands done, on ``robot`` (-1: none) at ``t``."""
+
+    seq: int
+    task: int
+    state: TaskState
+    robot: int
+    done: int
+    t: float
 
 
 @dataclass
 class TaskPool:
-    """Revealed tasks of a task list; ``open`` are the revealed, unassigned ones (by id)."""
+    """The task book: revealed tasks of a task list and submitted ones; ``tasks`` are the
+    revealed, unfinished ones (by id), ``open`` those of them nobody does (the schedulers'
+    choice). See the module doc."""
 
     task_list: Sequence[tuple[int, ...]]
     reveal: int
@@ -41,23 +127,78 @@ class TaskPool:
     open: dict[int, Task] = field(default_factory=dict)
     finished: int = 0
     next_id: int = 0
+    keep: int = KEEP
+    """How many events, ended tasks and idempotency keys are kept."""
+    book: dict[int, Task] = field(default_factory=dict)
+    """Every kept task by id (in id order): queued, paused, under way and ended."""
+    events: deque[TaskEvent] = field(init=False)
+    """The latest ``keep`` events, in order (:meth:`events_after` reads them)."""
+    event_seq: int = 0
+    """Sequence number of the next event (events are numbered from 1)."""
+    now: float = 0
+    """The latest time the pool was given."""
+    _listed: int = 0  # list tasks revealed so far
+    _backlog: list[tuple[tuple[int, float], int]] = field(default_factory=list)
+    _waiting: dict[int, Task] = field(default_factory=dict)  # queued, not revealed
+    _paused: dict[int, Task] = field(default_factory=dict)
+    _ended: OrderedDict[int, Task] = field(default_factory=OrderedDict)
+    _keys: OrderedDict[str, tuple[tuple[NewTask, ...], list[int]]] = field(
+        default_factory=OrderedDict)
+    _released: dict[int, None] = field(default_factory=dict)  # released, event not yet made
 
     def __post_init__(self) -> None:
-        if not self.task_list or any(not t for t in self.task_list):
+        if any(not t for t in self.task_list):
             raise ValueError("a task pool needs tasks with at least one errand each")
         if self.reveal <= 0:
             raise ValueError("a task pool must reveal at least one task")
+        self.events = deque(maxlen=self.keep)
         self.top_up(0)
 
-    def top_up(self, tick: int) -> None:
-        """Reveal tasks until ``reveal`` are revealed and unfinished."""
+    # ------------------------------------------------------------------ revealing
+    def top_up(self, tick: float) -> None:
+        """Reveal tasks until ``reveal`` are revealed and unfinished: submitted ones first
+        (most urgent first), then the next ones of the task list."""
+        self.settle(tick)
         while len(self.tasks) < self.reveal:
-            errands = tuple(self.task_list[self.next_id % len(self.task_list)])
-            task = Task(self.next_id, errands, tick)
+            if self._backlog:
+                _, task_id = heapq.heappop(self._backlog)
+                task = self._waiting.pop(task_id, None)
+                if task is None:
+                    continue  # paused or cancelled meanwhile
+                task.release_tick = int(tick)
+            elif self.task_list:
+                errands = tuple(self.task_list[self._listed % len(self.task_list)])
+                self._listed += 1
+                task = Task(self.next_id, errands, int(tick), submitted=tick)
+                self.next_id += 1
+                self.book[task.id] = task
+                self._event(task, tick)
+            else:
+                return
             self.tasks[task.id] = task
             self.open[task.id] = task
-            self.next_id += 1
 
+    def _rebalance(self, now: float) -> None:
+        """Reveal what fits; then a waiting task more urgent than a revealed open one takes
+        its slot (the open one waits again)."""
+        self.top_up(now)
+        while self._backlog and self.open:
+            first = self._waiting.get(self._backlog[0][1])
+            if first is None:
+                heapq.heappop(self._backlog)
+                continue
+            worst = max(self.open.values(), key=lambda t: (t.urgency, t.id))
+            if first.urgency >= worst.urgency:
+                return
+            del self.tasks[worst.id], self.open[worst.id]
+            self._wait(worst)
+            self.top_up(now)
+
+    def _wait(self, task: Task) -> None:
+        self._waiting[task.id] = task
+        heapq.heappush(self._backlog, (task.urgency, task.id))
+
+    # ------------------------------------------------------------------ the schedulers' side
     def length(self, task: Task) -> int:
         """The task's estimated moves from its first errand to its last (by ``leg``, 0
         without one), computed when first asked (schedulers ask for open tasks only)."""
@@ -66,33 +207,218 @@ class TaskPool:
                 if self.leg is not None else 0
         return task.length
 
-    def assign(self, task_id: int, robot: int) -> Task:
-        """Give an open task to ``robot``."""
+    def assign(self, task_id: int, robot: int, now: float | None = None) -> Task:
+        """Give an open task to ``robot`` (at ``now``, default: the pool's latest time)."""
         task = self.open.pop(task_id)
         task.robot = robot
+        task.state = "assigned"
+        self._released.pop(task_id, None)
+        if now is not None:
+            self.now = max(self.now, now)
+        if robot != task.announced:  # given back to the same robot: no change to tell
+            task.assigned_at = self.now if now is None else now
+            self._event(task, task.assigned_at)
         return task
 
-    def release(self, task_id: int) -> None:
+    def release(self, task_id: int, now: float | None = None) -> None:
         """Take an assigned task whose first errand is not done back into ``open`` (so a
-        scheduler may give it to another robot)."""
+        scheduler may give it to another robot). Its ``queued`` event is made by the next
+        :meth:`settle` unless it goes back to the same robot first."""
         task = self.tasks[task_id]
         if task.robot < 0 or task.done:
             raise ValueError(f"task {task_id} is not assigned or already started")
         task.robot = -1
+        task.state = "queued"
         self.open[task_id] = task
+        self._released[task_id] = None
+        if now is not None:
+            self.now = max(self.now, now)
 
-    def errand_done(self, task_id: int, tick: int) -> bool:
+    def settle(self, now: float) -> None:
+        """Make the events of released tasks nobody took back (called by every timed change;
+        a driver calls it after a scheduling round)."""
+        self.now = max(self.now, now)
+        if not self._released:
+            return
+        released, self._released = self._released, {}
+        for task_id in released:
+            task = self.book.get(task_id)
+            if task is not None and task.state == "queued" and task.announced >= 0:
+                self._event(task, self.now)
+
+    def errand_done(self, task_id: int, tick: float, robot: int | None = None) -> bool:
         """Its robot reached the task's next errand; True if that finished the task (which
-        leaves the pool and reveals the next one)."""
-        task = self.tasks[task_id]
+        leaves the pool and reveals the next one). Ignored (False) for a task that left the
+        pool unstarted (cancelled, paused) or, with ``robot``, went to another robot."""
+        self.settle(tick)
+        task = self.tasks.get(task_id)
+        if task is None or (robot is not None and task.robot != robot):
+            if task_id in self.book:
+                return False
+            raise KeyError(task_id)
         task.done += 1
+        task.errand_at.append(tick)
         if task.done < len(task.errands):
+            task.state = "started"
+            self._event(task, tick)
             return False
         task.finish_tick = tick
+        task.state = "finished"
         del self.tasks[task_id]
         self.finished += 1
+        self._event(task, tick)
+        self._end(task)
         self.top_up(tick)
         return True
+
+    # ------------------------------------------------------------------ the API's side
+    def submit(self, new: Sequence[NewTask], now: float, key: str | None = None
+               ) -> tuple[list[int], bool]:
+        """Add tasks (one submission); returns their ids and whether they are new. With a
+        ``key`` seen before: the same ids if the request is the same, else TaskConflict."""
+        request = tuple(new)
+        if key is not None and key in self._keys:
+            before, ids = self._keys[key]
+            if before != request:
+                raise TaskConflict(f"idempotency key {key!r} was used for a different request "
+                                   f"(tasks {_ids(ids)})")
+            return list(ids), False
+        if not request:
+            raise TaskError("a submission needs at least one task")
+        for i, t in enumerate(request):
+            if not t.errands:
+                raise TaskError(f"task {i} of the submission has no errands")
+        self.settle(now)
+        ids = []
+        for t in request:
+            task = Task(self.next_id, tuple(t.errands), int(now), priority=t.priority,
+                        deadline=t.deadline, key=key, submitted=now)
+            self.next_id += 1
+            self.book[task.id] = task
+            ids.append(task.id)
+            self._event(task, now)
+            self._wait(task)
+        if key is not None:
+            self._keys[key] = (request, ids)
+            while len(self._keys) > self.keep:
+                self._keys.popitem(last=False)
+        self._rebalance(now)
+        return ids, True
+
+    def task(self, task_id: int) -> Task:
+        """A kept task; TaskNotFound if there is none."""
+        task = self.book.get(task_id)
+        if task is None:
+            if 0 <= task_id < self.next_id:
+                raise TaskNotFound(f"task {task_id} ended long ago and is no longer kept")
+            raise TaskNotFound(f"no task {task_id}")
+        return task
+
+    def cancel(self, task_id: int, now: float) -> Task:
+        """Cancel a task no errand of which is done (cancelling a cancelled one changes
+        nothing); TaskConflict if it is started or finished."""
+        task = self.task(task_id)
+        if task.state == "cancelled":
+            return task
+        self._check_unstarted(task, "cancelled")
+        self.settle(now)
+        self._withdraw(task)
+        task.state = "cancelled"
+        task.cancelled_at = now
+        self._event(task, now)
+        self._end(task)
+        self.top_up(now)
+        return task
+
+    def pause(self, task_id: int, now: float) -> Task:
+        """Hold a task no errand of which is done: it is not assigned until resumed (taken
+        from its robot if it had one). Pausing a paused task changes nothing."""
+        task = self.task(task_id)
+        if task.state == "paused":
+            return task
+        self._check_unstarted(task, "paused")
+        self.settle(now)
+        self._withdraw(task)
+        task.state = "paused"
+        self._paused[task_id] = task
+        self._event(task, now)
+        self.top_up(now)
+        return task
+
+    def resume(self, task_id: int, now: float) -> Task:
+        """Queue a paused task again (a task that is not paused is left as it is, unless it
+        ended: TaskConflict)."""
+        task = self.task(task_id)
+        if task.state in ("finished", "cancelled"):
+            raise TaskConflict(f"task {task_id} is {task.state}: it cannot be resumed")
+        if task.state != "paused":
+            return task
+        self.settle(now)
+        del self._paused[task_id]
+        task.state = "queued"
+        self._event(task, now)
+        self._wait(task)
+        self._rebalance(now)
+        return task
+
+    def _check_unstarted(self, task: Task, what: str) -> None:
+        if task.state in ("finished", "cancelled"):
+            raise TaskConflict(f"task {task.id} is {task.state}: it cannot be {what}")
+        if task.done:
+            raise TaskConflict(f"task {task.id} is started (robot {task.robot} has done "
+                               f"{task.done} of its {len(task.errands)} errands): it cannot "
+                               f"be {what}")
+
+    def _withdraw(self, task: Task) -> None:
+        """Take an unstarted task out of wherever it waits or from its robot."""
+        self.tasks.pop(task.id, None)
+        self.open.pop(task.id, None)
+        self._waiting.pop(task.id, None)
+        self._paused.pop(task.id, None)
+        task.robot = -1
+
+    def _event(self, task: Task, t: float) -> None:
+        self.event_seq += 1
+        self.events.append(TaskEvent(self.event_seq, task.id, task.state, task.robot, task.done,
+                                     t))
+        task.announced = task.robot
+
+    def _end(self, task: Task) -> None:
+        self._ended[task.id] = task
+        while len(self._ended) > self.keep:
+            old, _ = self._ended.popitem(last=False)
+            del self.book[old]
+
+    def events_after(self, seq: int) -> tuple[list[TaskEvent], bool]:
+        """The kept events after number ``seq``, and whether none between were dropped."""
+        first = self.events[0].seq if self.events else self.event_seq + 1
+        start = max(0, seq + 1 - first)
+        out = [self.events[i] for i in range(start, len(self.events))]
+        return out, seq + 1 >= first or seq >= self.event_seq
+
+    def select(self, states: frozenset[TaskState] | None = None, robot: int | None = None,
+               after: int = -1) -> Iterator[Task]:
+        """Kept tasks in id order after id ``after``, of ``states`` and on ``robot`` if given."""
+        for task_id, task in self.book.items():
+            if task_id <= after or (states is not None and task.state not in states) or (
+                    robot is not None and task.robot != robot):
+                continue
+            yield task
+
+    def counts(self) -> dict[TaskState, int]:
+        """How many kept tasks are in each state."""
+        out: dict[TaskState, int] = dict.fromkeys(TASK_STATES, 0)
+        for task in self.book.values():
+            out[task.state] += 1
+        return out
+
+    def on_robot(self, robot: int) -> Task | None:
+        """The task ``robot`` is doing (assigned or started), if any."""
+        return next((t for t in self.tasks.values() if t.robot == robot), None)
+
+
+def _ids(ids: Sequence[int]) -> str:
+    return ", ".join(map(str, ids[:10])) + (", ..." if len(ids) > 10 else "")
 
 
 DistanceFrom = Callable[[Sequence[int], Sequence[int]], npt.NDArray[np.int64]]
@@ -101,7 +427,8 @@ any charge the caller puts on a robot (e.g. one in a delay)."""
 
 
 class Scheduler(Protocol):
-    """Chooses tasks for free robots: ``{robot: task id}`` among ``pool.open``."""
+    """Chooses tasks for free robots: ``{robot: task id}`` among ``pool.open``, the most urgent
+    first (priority, then deadline: :attr:`Task.urgency`)."""
 
     def __call__(self, free: Sequence[tuple[int, int]], pool: TaskPool,
                  distance_from: DistanceFrom) -> dict[int, int]:
@@ -109,15 +436,36 @@ class Scheduler(Protocol):
         ...
 
 
+_CLASS = 1 << 32
+"""Cost step between urgency classes (above any distance): a more urgent task goes first."""
+
+
+def _urgency_rank(pool: TaskPool, ids: npt.NDArray[np.int64]) -> npt.NDArray[np.int64] | None:
+    """Each open task's urgency class (0: most urgent), or None if all are alike (the
+    schedulers then weigh distance alone, as without priorities)."""
+    keys = [pool.open[int(i)].urgency for i in ids]
+    first = keys[0]
+    if all(k == first for k in keys):
+        return None
+    rank = {k: r for r, k in enumerate(sorted(set(keys)))}
+    return np.fromiter((rank[k] for k in keys), np.int64, len(keys))
+
+
 def greedy_nearest(free: Sequence[tuple[int, int]], pool: TaskPool,
                    distance_from: DistanceFrom) -> dict[int, int]:
-    """Each free robot in turn takes the open task whose first errand is nearest to it."""
+    """Each free robot in turn takes the open task whose first errand is nearest to it (among
+    the most urgent open tasks left)."""
     if not free or not pool.open:
         return {}
     ids = np.fromiter(pool.open, np.int64, len(pool.open))
     first = [pool.open[int(i)].errands[0] for i in ids]
     cost = distance_from([cell for _, cell in free], first).astype(np.int64)
-    cost[cost < 0] = np.iinfo(np.int32).max
+    unreachable = cost < 0
+    cost[unreachable] = np.iinfo(np.int32).max
+    rank = _urgency_rank(pool, ids)
+    if rank is not None:
+        cost += rank[None, :] * _CLASS
+        cost[unreachable] = (int(rank.max()) + 1) * _CLASS
     out: dict[int, int] = {}
     taken = np.zeros(ids.size, dtype=bool)
     for row, (robot, _) in enumerate(free):
@@ -146,6 +494,7 @@ def shortest_first(free: Sequence[tuple[int, int]], pool: TaskPool,
 
 def _matching(free: Sequence[tuple[int, int]], pool: TaskPool, distance_from: DistanceFrom,
               with_length: bool) -> dict[int, int]:
+    """Pairs by increasing cost, the more urgent tasks' pairs before the others'."""
     if not free or not pool.open:
         return {}
     ids = np.fromiter(pool.open, np.int64, len(pool.open))
@@ -155,6 +504,9 @@ def _matching(free: Sequence[tuple[int, int]], pool: TaskPool, distance_from: Di
     unreachable = cost < 0
     if with_length:  # after distance_from: its tables may serve ``leg``
         cost += np.fromiter((pool.length(pool.open[int(i)]) for i in ids), np.int64, ids.size)
+    rank = _urgency_rank(pool, ids)
+    if rank is not None:
+        cost += rank[None, :] * _CLASS
     cost[unreachable] = big
     out: dict[int, int] = {}
     flat = np.argsort(cost, axis=None, kind="stable")
