@@ -52,8 +52,9 @@ from sim_clients.intruder import IntruderConfig
 
 VARIANTS: tuple[str, ...] = ("lower_bound", "intruder", "random", "slack")
 """The four simulations of one experiment (the paper's)."""
-EXTRA_VARIANTS: tuple[str, ...] = ("informed",)
-"""Variants a campaign runs on request (``--informed``): not the paper's."""
+EXTRA_VARIANTS: tuple[str, ...] = ("informed", "reschedule", "reschedule+slack",
+                                   "reschedule+informed")
+"""Variants a campaign runs on request (``--informed``, ``--reschedule``): not the paper's."""
 ALL_VARIANTS = VARIANTS + EXTRA_VARIANTS
 """Every variant, in the order rows are sorted."""
 
@@ -97,6 +98,8 @@ class Row:
     makespan_ms: float
     replanned: bool
     replan_at_ms: float | None
+    """When the policy first acted: decided a replan or (reschedule variants) switched Type 2
+    edges; empty if it never did."""
     solver_ms: float
 
     @property
@@ -318,9 +321,13 @@ class ExperimentTask:
 VARIANT_CONFIG: dict[str, tuple[bool, PolicyName, bool]] = {
     "lower_bound": (False, "none", False), "intruder": (True, "none", False),
     "random": (True, "random", False), "slack": (True, "slack", False),
-    "informed": (True, "slack", True)}
+    "informed": (True, "slack", True), "reschedule": (True, "reschedule", False),
+    "reschedule+slack": (True, "reschedule+slack", False),
+    "reschedule+informed": (True, "reschedule+slack", True)}
 """Each variant as (intruder on, replanning policy, informed replanning). ``informed``
-replans when the slack policy does, with the blocks the fleet reported as obstacles."""
+replans when the slack policy does, with the blocks the fleet reported as obstacles;
+``reschedule`` only switches Type 2 edges, ``reschedule+slack`` does that first and replans
+when the slack policy does, ``reschedule+informed`` too, informed."""
 
 
 def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
@@ -373,8 +380,10 @@ def run_experiment(task: ExperimentTask) -> Outcome:
             failures.append(Failure(rec.map, rec.agents, rec.index, task.seed, variant,
                                     f"{type(exc).__name__}: {exc}"))
             continue
+        acted = [t for t in (res.replan_at_ms, res.reschedule_at_ms) if t is not None]
         rows.append(Row(rec.map, rec.agents, rec.index, task.seed, variant, res.soc_ms,
-                        res.makespan_ms, res.replans > 0, res.replan_at_ms, res.solver_ms))
+                        res.makespan_ms, res.replans > 0, min(acted, default=None),
+                        res.solver_ms))
     return rows, failures
 
 

@@ -78,6 +78,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="also run the 'informed' variant: replan when the slack policy does, "
                    "keeping robots off the cells the fleet reported blocked until each block's "
                    "estimated end (not the paper's)")
+    p.add_argument("--reschedule", action="store_true",
+                   help="also run the 'reschedule' variant (switch Type 2 edges so others pass "
+                   "a delayed robot, never replan) and 'reschedule+slack' (reschedule first, "
+                   "replan when the slack policy does; with --informed also "
+                   "'reschedule+informed'); not the paper's")
     p.add_argument("--oracle", action="store_true",
                    help="also sweep the oracle (one forced replan every --oracle-step-ms of each "
                    "run, the best kept) and report how much of its saving each policy captures "
@@ -215,6 +220,8 @@ def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) 
     from rich.table import Table
     from rich.text import Text
 
+    from experiments.campaign import EXTRA_VARIANTS
+
     class _PlainTable(Table):
         """A table whose cells are plain text (``[..]`` intervals are not rich markup)."""
 
@@ -241,9 +248,10 @@ def summary_table(name: str, g: JsonDict, mean_of_maps: JsonDict | None = None) 
                   *_mean_row(mit["slack_replanned"]["slack"], 100, ".2f"), paper.get("mp", ""))
     table.add_row("M^R %, replanned",
                   *_mean_row(mit["slack_replanned"]["random"], 100, ".2f"), paper.get("mr", ""))
-    if "informed" in mit["slack_replanned"]:
-        table.add_row("M^I % (informed), replanned",
-                      *_mean_row(mit["slack_replanned"]["informed"], 100, ".2f"), "")
+    for extra in EXTRA_VARIANTS:
+        if extra in mit["slack_replanned"]:
+            table.add_row(f"M % ({extra}), slack replanned",
+                          *_mean_row(mit["slack_replanned"][extra], 100, ".2f"), "")
     if mean_of_maps is not None:
         means = mean_of_maps["slack_replanned"]
         table.add_row("M^P/M^R %, map mean",
@@ -391,7 +399,10 @@ def run(args: argparse.Namespace) -> int:
             instances=args.instances or (PAPER_INSTANCES if args.paper else 0),
             seeds=args.seeds or (PAPER_SEEDS if args.paper else 0),
             seed=args.seed, plan_time_limit_s=args.plan_time_limit, sim=sim,
-            motion=args.motion, extra_variants=("informed",) if args.informed else ())
+            motion=args.motion,
+            extra_variants=(("informed",) if args.informed else ())
+            + (("reschedule", "reschedule+slack") if args.reschedule else ())
+            + (("reschedule+informed",) if args.reschedule and args.informed else ()))
         rules = OutlierRules(args.outlier_margin_ms, args.outlier_similar_ms,
                              args.outlier_diff_frac)
     except (CampaignError, TypeError) as exc:
@@ -448,6 +459,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     for table in summary_tables(summary):
         out.print(table)
+    if len(summary["maps"]) > 1:
+        out.print(f"paper totals: {summary['paper_totals']['finding']}", highlight=False)
     if oracle is not None:
         out.print(oracle_table(summary["oracle"]))
         out.print(oracle_line(summary["oracle"]), highlight=False)

@@ -25,13 +25,14 @@ from typing import Any
 
 import numpy as np
 
+from experiments.campaign import EXTRA_VARIANTS
 from experiments.oracle import CAVEATS, OracleRow
-from experiments.stats import Experiment, describe_mean, mitigation
+from experiments.stats import Experiment, describe_mean, extras_run, mitigation
 
 JsonDict = dict[str, Any]
 
-POLICIES: tuple[str, ...] = ("random", "slack", "informed")
-"""The campaign's replanning variants, compared with the oracle (``informed`` when run)."""
+POLICIES: tuple[str, ...] = ("random", "slack", *EXTRA_VARIANTS)
+"""The campaign's replanning variants, compared with the oracle (the extra ones when run)."""
 
 
 @dataclass(frozen=True)
@@ -54,24 +55,27 @@ class Judged:
 
 def policy_soc(exp: Experiment, policy: str) -> float:
     """The SOC of ``policy``'s variant."""
-    got = {"random": exp.t_r, "slack": exp.t_p, "informed": exp.t_i}[policy]
-    assert got is not None, f"{policy} was not run"
-    return got
+    if policy == "random":
+        return exp.t_r
+    if policy == "slack":
+        return exp.t_p
+    return exp.extra[policy][0]
 
 
 def policy_replanned(exp: Experiment, policy: str) -> tuple[bool, float | None]:
     """Whether ``policy`` decided to replan, and when."""
     if policy == "random":
         return exp.random_replanned, exp.random_at_ms
-    if policy == "informed":
-        return exp.informed_at_ms is not None, exp.informed_at_ms
+    if policy in exp.extra:
+        at = exp.extra[policy][1]
+        return at is not None, at
     return exp.slack_replanned, exp.slack_at_ms
 
 
 def policies_run(judged: Sequence[Judged]) -> tuple[str, ...]:
     """The policies every experiment of ``judged`` ran."""
-    return tuple(p for p in POLICIES
-                 if p != "informed" or (judged and all(j.exp.t_i is not None for j in judged)))
+    extras = extras_run([j.exp for j in judged])
+    return tuple(p for p in POLICIES if p in ("random", "slack") or p in extras)
 
 
 def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float] | None:

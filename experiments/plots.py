@@ -140,7 +140,9 @@ def oracle_figure(judged: Sequence[Judged]) -> Figure:
               label="the oracle's saving")
     left.axhline(0, color="grey", linewidth=0.8)
     times = [j.oracle.best_at_ms for j in judged if j.oracle.best_at_ms is not None]
-    colours = {"random": "tab:orange", "slack": "tab:blue", "informed": "tab:green"}
+    colours = {"random": "tab:orange", "slack": "tab:blue", "informed": "tab:green",
+               "reschedule": "tab:purple", "reschedule+slack": "tab:red",
+               "reschedule+informed": "tab:brown"}
     for policy in policies_run(judged):
         colour = colours[policy]
         left.scatter([j.oracle_saving for j in judged],

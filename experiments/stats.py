@@ -9,13 +9,13 @@ replanning and ``t_p`` with slack-based (predictive) replanning, all in ms.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from experiments.campaign import Row
+from experiments.campaign import EXTRA_VARIANTS, Row
 
 JsonDict = dict[str, Any]
 
@@ -70,10 +70,9 @@ class Experiment:
     random_solver_ms: float
     slack_solved: bool = True
     random_solved: bool = True
-    t_i: float | None = None
-    """The ``informed`` variant's SOC (None: the campaign did not run it)."""
-    informed_at_ms: float | None = None
-    """When the ``informed`` variant decided to replan (None: it did not, or was not run)."""
+    extra: Mapping[str, tuple[float, float | None]] = field(default_factory=dict)
+    """The extra variants run (of ``EXTRA_VARIANTS``, not the paper's): each one's SOC and
+    when it decided to replan (None: it did not)."""
 
     @property
     def difference_ms(self) -> float:
@@ -125,9 +124,14 @@ def join_experiments(rows: Iterable[Row]) -> tuple[list[Experiment], int]:
             random_at_ms=rnd.replan_at_ms, slack_solver_ms=slack.solver_ms,
             random_solver_ms=rnd.solver_ms, slack_solved=slack.replanned,
             random_solved=rnd.replanned,
-            t_i=None if (inf := got.get("informed")) is None else inf.soc_ms,
-            informed_at_ms=None if inf is None else inf.replan_at_ms))
+            extra={v: (got[v].soc_ms, got[v].replan_at_ms) for v in EXTRA_VARIANTS
+                   if v in got}))
     return experiments, incomplete
+
+
+def extras_run(exps: Sequence[Experiment]) -> tuple[str, ...]:
+    """The extra variants every experiment of ``exps`` ran (none if there is none)."""
+    return tuple(v for v in EXTRA_VARIANTS if exps and all(v in e.extra for e in exps))
 
 
 def outlier_reasons(exp: Experiment, rules: OutlierRules) -> tuple[str, ...]:
@@ -194,10 +198,10 @@ def _mitigations(exps: Sequence[Experiment], *, seed: int, resamples: int) -> Js
     for name, pick in (("slack", lambda e: e.t_p), ("random", lambda e: e.t_r)):
         values = [m for e in exps if (m := mitigation(e.t_n, pick(e), e.t_lb)) is not None]
         out[name] = describe_mean(values, seed=seed, resamples=resamples)
-    if exps and all(e.t_i is not None for e in exps):
-        values = [m for e in exps if e.t_i is not None
-                  and (m := mitigation(e.t_n, e.t_i, e.t_lb)) is not None]
-        out["informed"] = describe_mean(values, seed=seed, resamples=resamples)
+    for name in extras_run(exps):
+        values = [m for e in exps if (m := mitigation(e.t_n, e.extra[name][0], e.t_lb))
+                  is not None]
+        out[name] = describe_mean(values, seed=seed, resamples=resamples)
     out["no_influence"] = sum(1 for e in exps if e.influence_ms <= 0)
     return out
 
@@ -258,6 +262,49 @@ def _mean_of(values: Iterable[float | None]) -> float | None:
     return float(np.mean(got)) if got else None
 
 
+PAPER_MITIGATION: dict[str, tuple[float, float]] = {
+    "lab": (0.2527, 0.0345), "arena": (0.2755, 0.0707), "room-32-32-4": (0.2770, 0.1092),
+    "random-32-32-20": (0.2895, 0.0981)}
+"""The paper's mitigation where slack replanned, per map, as (slack, random) (section 5.3;
+its room32 is our room-32-32-4)."""
+PAPER_TOTALS: tuple[float, float] = (0.2737, 0.0700)
+"""The paper's printed totals ``M̄^P`` and ``M̄^R``."""
+PAPER_TOTALS_FINDING = (
+    "The paper's slack total (27.37%) is the mean of its four per-map values; its random "
+    "total (7.00%) is not: that mean is 7.81%, and weighting the maps by their experiments "
+    "(300, 400, 300, 300) gives 27.38% / 7.76%. A weighted mean of the per-map values gives "
+    "both printed totals only if room32 (the highest random value, 10.92%) weighs at most 6% "
+    "(it has 23% of the experiments), e.g. as a mean pooled over the experiments where slack "
+    "replanned if room32 had almost none of them; the paper gives no per-map counts, so 7.00% "
+    "is shown as printed, beside ours computed both ways (mean of maps, pooled).")
+"""How the paper's totals relate to its per-map values (checked in tests/experiments)."""
+
+
+def paper_totals(mean_of_maps: JsonDict, pooled: JsonDict) -> JsonDict:
+    """The paper's totals (printed, and recomputed from its per-map values as the mean of the
+    maps and weighted by their experiments) beside ours computed the same ways: the mean of
+    our per-map means, and the mean pooled over the experiments where slack replanned."""
+    maps = list(PAPER_MITIGATION)
+    weights = {"lab": 300, "arena": 400, "room-32-32-4": 300, "random-32-32-20": 300}
+    total = sum(weights.values())
+
+    def both(pick: int) -> float:
+        return sum(PAPER_MITIGATION[m][pick] for m in maps) / len(maps)
+
+    def weighted(pick: int) -> float:
+        return sum(weights[m] * PAPER_MITIGATION[m][pick] for m in maps) / total
+
+    return {
+        "paper_printed": {"slack": PAPER_TOTALS[0], "random": PAPER_TOTALS[1]},
+        "paper_mean_of_maps": {"slack": both(0), "random": both(1)},
+        "paper_weighted_by_experiments": {"slack": weighted(0), "random": weighted(1)},
+        "paper_per_map": {m: {"slack": s, "random": r} for m, (s, r) in PAPER_MITIGATION.items()},
+        "ours_mean_of_maps": mean_of_maps,
+        "ours_pooled": pooled,
+        "finding": PAPER_TOTALS_FINDING,
+    }
+
+
 def map_order(exps: Sequence[Experiment], preferred: Sequence[str] = ()) -> list[str]:
     """The maps of ``exps``: those in ``preferred`` in its order, then the rest sorted."""
     present = {e.map for e in exps}
@@ -270,7 +317,8 @@ def summarize(rows: Iterable[Row], rules: OutlierRules = OutlierRules(), *, seed
     """The campaign's ``summary.json``: one group per map (see :func:`map_order`) + ``all``.
 
     ``all`` pools every experiment; ``mean_of_maps`` averages the per-map mitigation means
-    (the paper's overall 27.37 % for slack is exactly the mean of its four per-map values).
+    (the paper's overall 27.37 % for slack is exactly the mean of its four per-map values);
+    ``paper_totals`` puts the paper's totals beside ours computed the same ways.
     """
     exps, incomplete = join_experiments(rows)
     maps = map_order(exps, maps_first)
@@ -280,12 +328,17 @@ def summarize(rows: Iterable[Row], rules: OutlierRules = OutlierRules(), *, seed
         subset: {method: _mean_of(per_map[m]["mitigation"][subset][method]["mean"] for m in maps)
                  for method in ("slack", "random")}
         for subset in ("slack_replanned", "all")}
+    pooled = summarize_group(exps, rules, seed=seed, resamples=resamples)
+    replanned = pooled["mitigation"]["slack_replanned"]
     return {
         "outlier_rules": {"margin_ms": rules.margin_ms, "similar_time_ms": rules.similar_time_ms,
                           "different_fraction": rules.different_fraction},
         "bootstrap": {"resamples": resamples, "seed": seed, "level": 0.95},
         "incomplete_experiments": incomplete,
         "maps": per_map,
-        "all": summarize_group(exps, rules, seed=seed, resamples=resamples),
+        "all": pooled,
         "mitigation_mean_of_maps": mean_of_maps,
+        "paper_totals": paper_totals(
+            mean_of_maps["slack_replanned"],
+            {m: replanned[m]["mean"] for m in ("slack", "random")}),
     }

@@ -395,7 +395,7 @@ class ReplanNow(Envelope):
     type: Literal["replan_now"] = "replan_now"
 
 
-PolicyName = Literal["none", "random", "slack", "operator"]
+PolicyName = Literal["none", "random", "slack", "operator", "reschedule", "reschedule+slack"]
 
 
 class SetPolicy(Envelope):
@@ -533,7 +533,7 @@ class Snapshot(Envelope):
 
 EventKind = Literal[
     "dispatch", "start", "finish", "blocked", "unblocked", "cancel", "refused", "plan", "trigger",
-    "slack", "intruder", "summary", "status", "connection",
+    "reschedule", "slack", "intruder", "summary", "status", "connection",
 ]
 
 
@@ -542,9 +542,11 @@ class Event(Envelope):
 
     Fields beyond ``event`` and ``t_ms`` are set as the kind needs: dispatch..cancel use
     plan/robot/action, refused too with the robot's ``reason``; plan uses plan/paths; trigger
-    policy/fleet_slack_ms; slack fleet_slack_ms; intruder cell/state; summary
-    soc_ms/makespan_ms; status status; connection robot/state ("on"/"off"). A ``turning``
-    plan's event also has ``headings``.
+    policy/fleet_slack_ms; reschedule plan/edges/switches/gain_ms (the plan's Type 2 edges
+    from then on, ``[robot, action, robot2, action2]`` tail first; each switch as ``[cell,
+    first, second]``: ``first`` now passes ``cell`` before ``second``); slack
+    fleet_slack_ms; intruder cell/state; summary soc_ms/makespan_ms; status status;
+    connection robot/state ("on"/"off"). A ``turning`` plan's event also has ``headings``.
     """
 
     type: Literal["event"] = "event"
@@ -563,6 +565,9 @@ class Event(Envelope):
     makespan_ms: float | None = None
     status: GatewayStatus | None = None
     reason: str | None = None
+    edges: list[tuple[RobotId, int, RobotId, int]] | None = None
+    switches: list[tuple[Cell, RobotId, RobotId]] | None = None
+    gain_ms: float | None = None
 
 
 # --------------------------------------------------------------------------------------------

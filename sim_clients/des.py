@@ -25,6 +25,7 @@ from gateway.execution.commands import (
     Completed,
     Dispatch,
     PlanAdopted,
+    Rescheduled,
     SolveRequest,
     Trigger,
 )
@@ -131,6 +132,10 @@ class SimResult(RunSummary):
     intruder_on_ms: float | None
     """When the intruder entered its cell; None if it never did."""
     end_ms: float
+    reschedules: int = 0
+    """Times the policy switched Type 2 edges (reschedule-first)."""
+    reschedule_at_ms: float | None = None
+    """When it first did; None if it never did."""
 
 
 def policy_for(config: SimConfig) -> ReplanPolicy:
@@ -173,6 +178,8 @@ class Simulation:
         self.pending_plan: Plan | None = None
         self.replans = 0
         self.replan_at: float | None = None
+        self.reschedules = 0
+        self.reschedule_at: float | None = None
         self.solver_ms = 0.0
         self.robot_blocks = 0
         self.last_progress = 0.0
@@ -262,7 +269,8 @@ class Simulation:
             intruder_robot=intr.robot if intr is not None else None,
             intruder_cell=intr.cell if intr is not None and intr.entered_ms is not None
             else None,
-            intruder_on_ms=intr.entered_ms if intr is not None else None, end_ms=self.now)
+            intruder_on_ms=intr.entered_ms if intr is not None else None, end_ms=self.now,
+            reschedules=self.reschedules, reschedule_at_ms=self.reschedule_at)
 
     def wake_robot(self, k: int, now: float) -> None:
         if self.robot_wake[k] != now:
@@ -319,6 +327,10 @@ class Simulation:
                 elif isinstance(c, Trigger):
                     if self.replan_at is None:
                         self.replan_at = now
+                elif isinstance(c, Rescheduled):
+                    self.reschedules += 1
+                    if self.reschedule_at is None:
+                        self.reschedule_at = now
                 elif isinstance(c, SolveRequest):
                     self.solve(c, now)
                 elif isinstance(c, PlanAdopted):

@@ -17,6 +17,9 @@ section 2 defines them), replays the events in order and reports
 * an action of the final plan that did not run exactly once, or any started action that never
   finished, and a new plan that does not start where the robots stand,
 * a summary whose SOC or makespan differs from the finish times in the trace,
+* a ``reschedule`` record (the plan's Type 2 edges replaced by switched ones) that gives an
+  action already dispatched a new predecessor or makes the graph cyclic; from then on the
+  new edges are the plan's (and its Δ0 stays the one of the plan as adopted),
 
 and it recomputes the fleet slack (Algorithm 1 plus DESIGN's slack definitions) at any moment,
 in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move", "turn",
@@ -30,7 +33,7 @@ import argparse
 import sys
 from bisect import bisect_right
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -90,9 +93,15 @@ class PlanGraph:
     headings: list[list[int]] | None = None
     kinds: dict[Act, str] = field(default_factory=dict)
     tx: dict[Act, float] = field(default_factory=dict)
+    topo: list[Act] | None = None
+    """A topological order once rescheduled (switched Type 2 edges need not go forward)."""
 
     def actions(self) -> Iterable[Act]:
-        """Every action, ordered by index then robot (a topological order of the ADG)."""
+        """Every action in a topological order of the ADG: by index then robot, unless
+        rescheduled."""
+        if self.topo is not None:
+            yield from self.topo
+            return
         longest = max((len(p) for p in self.paths), default=1)
         for i in range(longest - 1):
             for k, path in enumerate(self.paths):
@@ -150,6 +159,27 @@ class ExecState:
     cancelled: set[Act] = field(default_factory=set)
     started: dict[Act, float] = field(default_factory=dict)
     finished: dict[Act, float] = field(default_factory=dict)
+    delta0: dict[Act, float] | None = None
+    """Δ0 of the plan as adopted, kept when it is rescheduled (None: not rescheduled)."""
+
+
+def _topological(preds: Mapping[Act, Sequence[Act]]) -> list[Act] | None:
+    """The actions in an order where each comes after its predecessors (None: a cycle)."""
+    left = {a: len(ps) for a, ps in preds.items()}
+    succ: dict[Act, list[Act]] = {a: [] for a in preds}
+    for a, ps in preds.items():
+        for p in ps:
+            succ[p].append(a)
+    ready = [a for a, n in left.items() if n == 0]
+    out: list[Act] = []
+    while ready:
+        a = ready.pop()
+        out.append(a)
+        for b in succ[a]:
+            left[b] -= 1
+            if left[b] == 0:
+                ready.append(b)
+    return out if len(out) == len(preds) else None
 
 
 def estimates(state: ExecState,
@@ -189,7 +219,8 @@ def fleet_slack(state: ExecState, now_ms: float) -> float:
     """Δ̄F at ``now_ms``: the largest growth of Δ over the initial estimate among the actions
     not started yet (0 if every action started)."""
     g = state.graph
-    initial = action_slacks(g, estimates(ExecState(g), None)[1])
+    initial = state.delta0 if state.delta0 is not None else \
+        action_slacks(g, estimates(ExecState(g), None)[1])
     current = action_slacks(g, estimates(state, now_ms)[1])
     return max((current[a] - initial[a] for a in current if a not in state.started), default=0.0)
 
@@ -278,6 +309,8 @@ class _Replay:
                     self.error(where, f"the intruder left {cell} where it was not")
                 self.intruder = None
                 self.leave(cell, "intruder")
+        elif kind == "reschedule":
+            self.reschedule(where, rec)
         elif kind == "trigger":
             recomputed = fleet_slack(self.states[-1], t) if self.states else 0.0
             self.report.triggers.append((t, float(rec["fleet_slack_ms"]), recomputed))
@@ -325,6 +358,37 @@ class _Replay:
             if kind.startswith("illegal"):
                 self.error(where, f"robot {k} action {i}: {kind[len('illegal: '):]}")
         self.states.append(ExecState(graph))
+
+    def reschedule(self, where: str, rec: Mapping[str, Any]) -> None:
+        """The plan's Type 2 edges are replaced: only actions not dispatched (or taken back)
+        may gain a predecessor, and the graph must stay acyclic."""
+        number = int(rec["plan"])
+        if not self.states or number != len(self.states) - 1:
+            self.error(where, f"reschedule of plan {number}, the current plan is "
+                       f"{len(self.states) - 1}")
+            return
+        st = self.states[-1]
+        g = st.graph
+        type2_in: dict[Act, list[Act]] = {a: [] for a in g.preds}
+        for e in rec["edges"]:
+            tail, head = (int(e[0]), int(e[1])), (int(e[2]), int(e[3]))
+            if tail not in type2_in or head not in type2_in or tail[0] == head[0]:
+                self.error(where, f"no Type 2 edge can go from {tail} to {head}")
+                return
+            type2_in[head].append(tail)
+        for a, tails in type2_in.items():
+            gained = set(tails) - set(g.type2_in[a])
+            if gained and a in st.dispatched and a not in st.cancelled:
+                self.error(where, f"action {a} gains predecessors {sorted(gained)} after its "
+                           "dispatch")
+        preds = {(k, i): ([(k, i - 1)] if i > 0 else []) + type2_in[(k, i)] for k, i in g.preds}
+        topo = _topological(preds)
+        if topo is None:
+            self.error(where, "the rescheduled graph has a cycle")
+            return
+        if st.delta0 is None:
+            st.delta0 = action_slacks(g, estimates(ExecState(g), None)[1])
+        st.graph = replace(g, preds=preds, type2_in=type2_in, topo=topo)
 
     def event(self, where: str, t: float, kind: str, rec: Mapping[str, Any]) -> None:
         k, i, number = int(rec["robot"]), int(rec["action"]), int(rec["plan"])

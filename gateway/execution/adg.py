@@ -11,6 +11,7 @@ tails of the Type 2 edges into ``v`` and ``t2_succ[...]`` the heads of those out
 
 from __future__ import annotations
 
+import copy
 from bisect import bisect_right
 from collections.abc import Iterator
 
@@ -80,22 +81,66 @@ class ADG:
             self.first.append(len(self.robot_of))
             self._action_first.append(len(self._vertex_at))
         self.n_vertices = len(self.robot_of)
-        edges = self._type2_edges()
+        firsts = set(self.first)
+        self.is_first = bytearray(v in firsts for v in range(self.n_vertices))
+        self._set_edges(self._type2_edges(), self.step_of)
+
+    def _set_edges(self, edges: list[tuple[int, int]], level: list[int]) -> None:
+        """Install the Type 2 ``edges`` (tail, head) and the Type 1 chain, with ``level``: a
+        number per vertex that grows along every edge (the topological order's key)."""
+        self.level = level
+        """Grows along every edge: the plan step, or (rescheduled) the longest path from a
+        source; :class:`~gateway.execution.monitor.Monitor` evaluates vertices by level."""
         self.t2_pred_ptr, self.t2_pred = _csr(self.n_vertices, [(h, t) for t, h in edges])
         self.t2_succ_ptr, self.t2_succ = _csr(self.n_vertices, [(t, h) for t, h in edges])
         # all edges (Type 1 and 2) in CSR form, for the monitor's inner loop
-        firsts = set(self.first)
-        self.is_first = bytearray(v in firsts for v in range(self.n_vertices))
         type1 = [(v - 1, v) for v in range(self.n_vertices) if not self.is_first[v]]
         self.pred_ptr, self.pred = _csr(self.n_vertices, [(h, t) for t, h in edges + type1])
         self.succ_ptr, self.succ = _csr(self.n_vertices, [(t, h) for t, h in edges + type1])
-        # Every edge goes from path index i to a larger one, so (i, robot) is a topological order.
+        # Every edge goes to a higher level, so (level, robot) is a topological order.
         self.order: list[int] = sorted(
-            range(self.n_vertices), key=lambda v: (self.step_of[v], self.robot_of[v])
+            range(self.n_vertices), key=lambda v: (level[v], self.robot_of[v])
         )
         self.topo: list[int] = [0] * self.n_vertices
         for rank, v in enumerate(self.order):
             self.topo[v] = rank
+
+    def with_type2(self, edges: list[tuple[int, int]]) -> ADG:
+        """The same actions ordered by other Type 2 ``edges`` (tail, head vertex ids), e.g.
+        switched ones (:mod:`gateway.execution.reschedule`); ExecutionError if the graph would
+        have a cycle."""
+        out = copy.copy(self)  # the vertex lists are shared: neither graph changes them
+        nv = self.n_vertices
+        indegree = [0 if self.is_first[v] else 1 for v in range(nv)]
+        succ: list[list[int]] = [[] for _ in range(nv)]
+        for t, h in edges:
+            succ[t].append(h)
+            indegree[h] += 1
+        for v in range(nv - 1):
+            if not self.is_first[v + 1]:
+                succ[v].append(v + 1)
+        level = [0] * nv
+        ready = [v for v in range(nv) if indegree[v] == 0]
+        seen = 0
+        while ready:
+            v = ready.pop()
+            seen += 1
+            for w in succ[v]:
+                if level[w] <= level[v]:
+                    level[w] = level[v] + 1
+                indegree[w] -= 1
+                if indegree[w] == 0:
+                    ready.append(w)
+        if seen < nv:
+            raise ExecutionError("the Type 2 edges make a cycle: the robots would wait for "
+                                 "each other forever")
+        out._set_edges(list(edges), level)
+        return out
+
+    def type2_pairs(self) -> list[tuple[int, int]]:
+        """Every Type 2 edge as (tail, head) vertex ids, by tail."""
+        return [(v, w) for v in range(self.n_vertices)
+                for w in self.t2_succ[self.t2_succ_ptr[v]:self.t2_succ_ptr[v + 1]]]
 
     def _type2_edges(self) -> list[tuple[int, int]]:
         """(tail, head) for every move leaving u and the first later entry of each other robot.

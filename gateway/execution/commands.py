@@ -91,6 +91,16 @@ class PlanAdopted:
 
 
 @dataclass(frozen=True, slots=True)
+class Rescheduled:
+    """The current plan's Type 2 edges were switched (reschedule-first, no stop): on each
+    ``(cell, first, second)`` of ``switches`` robot ``first`` now passes before ``second``;
+    the estimate says the fleet finishes ``gain_ms`` earlier (sum of completion times)."""
+
+    switches: tuple[tuple[Cell, int, int], ...]
+    gain_ms: float
+
+
+@dataclass(frozen=True, slots=True)
 class Completed:
     """Every robot has finished its last action."""
 
@@ -98,4 +108,4 @@ class Completed:
     makespan_ms: float
 
 
-Command = Dispatch | Cancel | Trigger | SolveRequest | PlanAdopted | Completed
+Command = Dispatch | Cancel | Trigger | SolveRequest | PlanAdopted | Rescheduled | Completed

@@ -54,17 +54,20 @@ from gateway.execution.commands import (
     Completed,
     Dispatch,
     PlanAdopted,
+    Rescheduled,
     SolveRequest,
     Trigger,
 )
 from gateway.execution.errors import ExecutionError
 from gateway.execution.monitor import Monitor
 from gateway.execution.params import PAPER
-from gateway.execution.policies import NoReplan, ReplanPolicy
+from gateway.execution.policies import NoReplan, ReplanPolicy, Rescheduling
+from gateway.execution.reschedule import Schedule, Search, improve
 from gateway.execution.trace_records import (
     TraceSink,
     event_record,
     plan_record,
+    reschedule_record,
     trigger_record,
 )
 from gateway.planning.grid import Cell
@@ -146,6 +149,7 @@ class Executor:
         tx = [self.durations[adg.robot_of[v]].of(adg.kind[v]) for v in range(adg.n_vertices)]
         self.monitor = Monitor(adg, now_ms=now_ms, action_ms=tx,
                                base_completion_ms=self._completion)
+        self._schedule: Schedule | None = None  # the visit order, built at the first reschedule
         self._status = bytearray(adg.n_vertices)
         self._blocked = bytearray(adg.n_vertices)
         self._cancelling = bytearray(adg.n_vertices)
@@ -432,9 +436,61 @@ class Executor:
         self._advance(now_ms)
         self.monitor.advance(self._now)
         self._watch_blocks()
-        if (self.mode is Mode.RUNNING and not self.paused and self.replans < self.max_replans
-                and self.policy.should_replan(self._now, self.monitor)):
+        if self.mode is not Mode.RUNNING or self.paused:
+            return
+        if isinstance(self.policy, Rescheduling) and \
+                self.policy.should_reschedule(self._now, self.monitor):
+            self._reschedule()
+        if self.replans < self.max_replans and self.policy.should_replan(self._now, self.monitor):
             self._trigger(self.policy.name)
+
+    def reschedule(self, now_ms: float, search: Search = improve) -> bool:
+        """Reschedule-first (:mod:`gateway.execution.reschedule`): switch Type 2 edges of the
+        current plan so that others pass a delayed robot, as ``search`` proposes (by default
+        when the monitor's estimate says the fleet then finishes earlier). No robot stops:
+        only actions not dispatched yet may get new dependencies. True if the schedule
+        changed."""
+        self._check_time(now_ms)
+        if self.mode is not Mode.RUNNING:
+            raise ExecutionError(f"cannot reschedule now: the executor is {self.mode.value}")
+        self._advance(now_ms)
+        self.monitor.advance(self._now)
+        return self._reschedule(search)
+
+    def _reschedule(self, search: Search = improve) -> bool:
+        if self._schedule is None:
+            self._schedule = Schedule.of(self.adg)
+        status, adg = self._status, self.adg
+        # What the fleet reported, for the estimate: a robot waiting for a blocked cell waits
+        # until the block's expected end; an action running e ms late runs e ms more (the
+        # blocks' scale-free rule, gateway.execution.blocks)
+        holds = {}
+        for queue in self._queue:
+            if not queue:
+                continue
+            v = queue[0]
+            if status[v] == _DISPATCHED and self._blocked[v] and adg.dst[v] in self.blocks.open:
+                holds[v] = self.blocks.expected_end_ms(adg.dst[v])
+            elif status[v] == _STARTED:
+                late = self._now - self.monitor.start_ms(adg.robot_of[v], adg.step_of[v]) \
+                    - self.monitor.tx[v]
+                if late > 0:
+                    holds[v] = self._now + late
+        found = search(self._schedule, adg, self.monitor, lambda v: status[v] == _PENDING,
+                       holds)
+        if found is None:
+            return False
+        self.adg, self.monitor, self._schedule = found.adg, found.monitor, found.schedule
+        self._out.append(Rescheduled(found.switches, found.gain_ms))
+        if self._record is not None:
+            adg = self.adg
+            self._record(reschedule_record(
+                self._now, self.plan_id,
+                [(adg.robot_of[t], adg.step_of[t], adg.robot_of[h], adg.step_of[h])
+                 for t, h in adg.type2_pairs()],
+                found.switches, found.gain_ms))
+        self._dispatch_ready()
+        return True
 
     def pause(self, now_ms: float) -> None:
         """The fleet stands still (running actions complete, no new one starts) until

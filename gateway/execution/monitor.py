@@ -25,6 +25,7 @@ oracle and ``bench/monitor.py`` as the baseline.
 
 from __future__ import annotations
 
+import copy
 import heapq
 import math
 from array import array
@@ -79,8 +80,8 @@ class _Layer:
 
 
 def _layers(adg: ADG) -> list[_Layer]:
-    """The ADG's vertices by plan step: every edge goes to a later step (``ADG.order``)."""
-    step = np.asarray(adg.step_of, dtype=np.int64)
+    """The ADG's vertices by level: every edge goes to a higher level (``ADG.level``)."""
+    step = np.asarray(adg.level, dtype=np.int64)
     order = np.argsort(step, kind="stable")
     pred_ptr, pred = np.asarray(adg.pred_ptr, np.int64), np.asarray(adg.pred, np.int64)
     t2_ptr, t2 = np.asarray(adg.t2_pred_ptr, np.int64), np.asarray(adg.t2_pred, np.int64)
@@ -159,6 +160,8 @@ class Monitor:
         self._queued = bytearray(nv)
         self._tc = array("d", [math.nan]) * nv  # every vertex "changes" at first evaluation
         self._layer_cache: list[_Layer] | None = None
+        self._hold: dict[int, float] = {}  # see with_holds
+        self._hold_np: npt.NDArray[np.float64] | None = None
         # seeds of starts and finishes not yet propagated: the work is deferred to the next
         # query or clamping step, so a burst of events between two ticks costs one pass over
         # the union of their descendants instead of one pass each (same values: every vertex
@@ -169,6 +172,60 @@ class Monitor:
             if self._remaining[v] == 0:
                 heapq.heappush(self._thresholds, (self._ts[v], v, _READY_KIND))
         self._delta0 = array("d", self._delta)
+        self._views()
+
+    def rewired(self, adg: ADG) -> Monitor:
+        """A copy of this monitor on ``adg``: the same actions (vertex ids) with other Type 2
+        edges (a rescheduled ADG). Every action keeps its state, real times and Δ0; only
+        the actions whose incoming edges changed, and what follows them, are re-evaluated.
+        This monitor is left as it was."""
+        old = self.adg
+        if adg.n_vertices != old.n_vertices or adg.first != old.first:
+            raise ExecutionError("a rewired monitor needs the same actions")
+        self._flush()
+        out = copy.copy(self)
+        out.adg = adg
+        out._state = bytearray(self._state)
+        out._remaining = array("i", self._remaining)
+        out._ts, out._tc = array("d", self._ts), array("d", self._tc)
+        out._delta, out._delta0 = array("d", self._delta), array("d", self._delta0)
+        out._next = list(self._next)
+        out._thresholds = list(self._thresholds)
+        out._active = set(self._active)
+        out._queued = bytearray(len(self._queued))
+        out._layer_cache = None
+        out._pending = []
+        changed = [v for v in range(adg.n_vertices)
+                   if adg.predecessors(v) != old.predecessors(v)]
+        for v in changed:
+            out._remaining[v] = sum(1 for p in adg.predecessors(v) if out._state[p] != DONE)
+            if adg.t2_pred_ptr[v] == adg.t2_pred_ptr[v + 1]:
+                out._delta[v] = 0.0  # (propagation sets Δ only where there are Type 2 edges)
+            if out._state[v] == NOT_STARTED and out._remaining[v] == 0:
+                base = max((out._tc[p] for p in adg.predecessors(v)),
+                           default=out.release_ms[adg.robot_of[v]])
+                heapq.heappush(out._thresholds, (base, v, _READY_KIND))
+                if base < out.now_ms:
+                    out._active.add(v)
+        out._views()
+        out._propagate(changed)
+        return out
+
+    def with_holds(self, holds: dict[int, float]) -> Monitor:
+        """A copy of this monitor for what-if estimates in which each vertex ``v`` of
+        ``holds`` cannot start (not started) or finish (started) before ``holds[v]``: a robot
+        waiting for a blocked cell until the block's expected end, an action that runs late.
+        Its copies (:meth:`rewired`) keep the holds. This monitor is left as it was."""
+        out = self.rewired(self.adg)
+        out._hold = dict(holds)
+        out._hold_np = np.full(self.adg.n_vertices, -math.inf)
+        for v, until in holds.items():
+            out._hold_np[v] = until
+        out._propagate(list(holds))
+        return out
+
+    def _views(self) -> None:
+        """numpy views of the flat arrays (no copies)."""
         self._np_state = np.frombuffer(self._state, np.uint8)
         self._np_remaining = np.frombuffer(self._remaining, np.intc)
         self._np_ts = np.frombuffer(self._ts, np.float64)
@@ -186,25 +243,26 @@ class Monitor:
         predecessor's t_c. Successors are re-evaluated only if t_c changed.
         """
         adg = self.adg
-        step_of, queued = adg.step_of, self._queued
+        level_of, queued = adg.level, self._queued
         pred_ptr, pred, succ_ptr, succ = adg.pred_ptr, adg.pred, adg.succ_ptr, adg.succ
         t2_ptr, t2, is_first, robot_of = adg.t2_pred_ptr, adg.t2_pred, adg.is_first, adg.robot_of
         state, remaining, release = self._state, self._remaining, self.release_ms
         ts_of, tc_of, delta = self._ts, self._tc, self._delta
-        now, tx_of = self.now_ms, self.tx
-        # Every edge goes from a plan step to a later one (ADG.order), so visiting the dirty
-        # vertices step by step is a topological order; a bucket per step and a heap of the
-        # steps that have one is much cheaper than a heap of vertices (a tick re-clamps
-        # every late frontier action and moves most of the plan's future).
+        now, tx_of, hold = self.now_ms, self.tx, self._hold
+        # Every edge goes from a level (the plan step, unless rescheduled) to a higher one, so
+        # visiting the dirty vertices level by level is a topological order; a bucket per
+        # level and a heap of the levels that have one is much cheaper than a heap of
+        # vertices (a tick re-clamps every late frontier action and moves most of the
+        # plan's future).
         buckets: dict[int, list[int]] = {}
         steps: list[int] = []
         for v in seeds:
             if not queued[v]:
                 queued[v] = 1
-                bucket = buckets.get(step_of[v])
+                bucket = buckets.get(level_of[v])
                 if bucket is None:
-                    buckets[step_of[v]] = [v]
-                    steps.append(step_of[v])
+                    buckets[level_of[v]] = [v]
+                    steps.append(level_of[v])
                 else:
                     bucket.append(v)
         heapq.heapify(steps)
@@ -218,12 +276,16 @@ class Monitor:
                     tc = ts_of[v] + tx_of[v]
                     if tc < now:
                         tc = now
+                    if hold and v in hold and tc < hold[v]:
+                        tc = hold[v]
                 else:
                     lo, hi = pred_ptr[v], pred_ptr[v + 1]
                     ts = max([tc_of[p] for p in pred[lo:hi]]) if lo < hi \
                         else release[robot_of[v]]
                     if ts < now and remaining[v] == 0:
                         ts = now
+                    if hold and v in hold and ts < hold[v]:
+                        ts = hold[v]
                     ts_of[v] = ts
                     tc = ts + tx_of[v]
                 lo, hi = t2_ptr[v], t2_ptr[v + 1]
@@ -238,10 +300,10 @@ class Monitor:
                     for w in succ[succ_ptr[v] : succ_ptr[v + 1]]:
                         if not queued[w]:
                             queued[w] = 1
-                            bucket = buckets.get(step_of[w])
+                            bucket = buckets.get(level_of[w])
                             if bucket is None:
-                                buckets[step_of[w]] = [w]
-                                heapq.heappush(steps, step_of[w])
+                                buckets[level_of[w]] = [w]
+                                heapq.heappush(steps, level_of[w])
                             else:
                                 bucket.append(w)
 
@@ -271,10 +333,14 @@ class Monitor:
                 waiting = st == NOT_STARTED
                 v0, t0 = verts[waiting], start[waiting]
                 t0 = np.where((t0 < now) & (remaining[v0] == 0), now, t0)
+                if self._hold_np is not None:
+                    t0 = np.maximum(t0, self._hold_np[v0])
                 ts[v0] = t0
                 tc[v0] = t0 + tx[v0]
                 v1 = verts[st == STARTED]
                 tc[v1] = np.maximum(ts[v1] + tx[v1], now)
+                if self._hold_np is not None:
+                    tc[v1] = np.maximum(tc[v1], self._hold_np[v1])
             if layer.with_t2.size:
                 prev = np.where(layer.t2_first, release[layer.t2_robot], tc[layer.t2_prev])
                 d = np.maximum.reduceat(tc[layer.t2_flat], layer.t2_off) - prev
@@ -487,7 +553,7 @@ def algorithm1(adg: ADG, *, now_ms: float, action_ms: float | Sequence[float],
     ts, tc, delta = [0.0] * nv, [0.0] * nv, [0.0] * nv
     by_step: dict[int, list[int]] = {}
     for v in range(nv):
-        by_step.setdefault(adg.step_of[v], []).append(v)
+        by_step.setdefault(adg.level[v], []).append(v)
     for step in sorted(by_step):
         for v in by_step[step]:
             preds = adg.predecessors(v)

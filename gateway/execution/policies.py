@@ -1,23 +1,26 @@
-"""When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request.
+"""When to replan (DESIGN section 2): never, at a random time, on slack, or on operator request;
+and when to reschedule first (switch Type 2 edges without stopping the fleet).
 
 Every policy answers ``should_replan(now_ms, monitor)`` at the executor's ticks; a time-based
 policy also says when it next wants a tick (``next_wakeup_ms``) so event-driven drivers need not
-poll. The executor enforces the replan budget (``max_replans``); an operator's "replan now" is
-``Executor.request_replan`` and works whatever the policy.
+poll. A policy that also reschedules (:class:`Rescheduling`) is asked
+``should_reschedule(now_ms, monitor)`` first at every tick. The executor enforces the replan
+budget (``max_replans``); an operator's "replan now" is ``Executor.request_replan`` and works
+whatever the policy.
 """
 
 from __future__ import annotations
 
 import random
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Literal, Protocol, get_args
+from typing import TYPE_CHECKING, Literal, Protocol, get_args, runtime_checkable
 
 from gateway.execution.params import PAPER
 
 if TYPE_CHECKING:
     from gateway.execution.monitor import Monitor
 
-PolicyName = Literal["none", "random", "slack", "operator"]
+PolicyName = Literal["none", "random", "slack", "operator", "reschedule", "reschedule+slack"]
 """Every replanning policy's name (the wire protocol's ``PolicyName`` must equal it)."""
 
 
@@ -101,6 +104,56 @@ class SlackReplan:
         return None
 
 
+@runtime_checkable
+class Rescheduling(Protocol):
+    """A policy that also asks for reschedule-first (``Executor.reschedule``)."""
+
+    def should_reschedule(self, now_ms: float, monitor: Monitor) -> bool:
+        """True if the executor should try switching Type 2 edges now."""
+        ...
+
+
+class RescheduleFirst(NoReplan):
+    """Reschedule-first: while the fleet slack exceeds ``reschedule_ms``, try (at most every
+    ``retry_ms``) to let others pass the delayed robots by switching Type 2 edges, adopted
+    only when the estimate says the fleet finishes earlier (no stop, no replan budget); never
+    replan."""
+
+    name = "reschedule"
+
+    def __init__(self, *, reschedule_ms: float = PAPER.action_ms,
+                 retry_ms: float = PAPER.action_ms) -> None:
+        self.reschedule_ms = float(reschedule_ms)
+        self.retry_ms = float(retry_ms)
+        self.next_try_ms: float | None = None
+        """No try before this (None: none yet)."""
+
+    def should_reschedule(self, now_ms: float, monitor: Monitor) -> bool:
+        """True when the fleet slack exceeds ``reschedule_ms`` and the last try is
+        ``retry_ms`` ago."""
+        if (self.next_try_ms is not None and now_ms < self.next_try_ms) \
+                or monitor.fleet_slack() <= self.reschedule_ms:
+            return False
+        self.next_try_ms = now_ms + self.retry_ms
+        return True
+
+
+class RescheduleThenSlack(RescheduleFirst):
+    """Reschedule first, and replan as the slack policy does (``Δ̄F > Δ̄T``): a reschedule
+    that lets others pass brings the slack back down, so the full replan comes only when
+    reordering could not help."""
+
+    name = "reschedule+slack"
+
+    def __init__(self, threshold_ms: float = PAPER.threshold_ms, **kwargs: float) -> None:
+        super().__init__(**kwargs)
+        self.threshold_ms = float(threshold_ms)
+
+    def should_replan(self, now_ms: float, monitor: Monitor) -> bool:
+        """True while Δ̄F is above the threshold."""
+        return monitor.fleet_slack() > self.threshold_ms
+
+
 PolicyFactory = Callable[[int, float, float, float], ReplanPolicy]
 """``(seed, threshold_ms, makespan_lb_ms, intruder_appear_ms) -> policy``."""
 
@@ -110,6 +163,8 @@ POLICIES: dict[str, PolicyFactory] = {
         seed, intruder_appear_ms=appear, makespan_lb_ms=lb),
     "slack": lambda seed, threshold, lb, appear: SlackReplan(threshold),
     "operator": lambda seed, threshold, lb, appear: OperatorOnly(),
+    "reschedule": lambda seed, threshold, lb, appear: RescheduleFirst(),
+    "reschedule+slack": lambda seed, threshold, lb, appear: RescheduleThenSlack(threshold),
 }
 """The policy registry: every policy by name."""
 

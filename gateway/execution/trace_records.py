@@ -58,6 +58,18 @@ def trigger_record(t_ms: float, policy: str, fleet_slack_ms: float) -> Record:
     return {"t_ms": t_ms, "type": "trigger", "policy": policy, "fleet_slack_ms": fleet_slack_ms}
 
 
+def reschedule_record(t_ms: float, plan: int, edges: Sequence[tuple[int, int, int, int]],
+                      switches: Sequence[tuple[Cell, int, int]], gain_ms: float) -> Record:
+    """``{"t_ms", "type": "reschedule", "plan", "edges": [[robot, action, robot2, action2],
+    ...], "switches": [[[x, y], first, second], ...], "gain_ms"}``: the plan's Type 2 edges
+    from now on (every one, tail first), the switches that made them (on cell ``[x, y]``
+    robot ``first`` now passes before ``second``) and the estimated gain in SOC."""
+    return {"t_ms": t_ms, "type": "reschedule", "plan": plan,
+            "edges": [list(e) for e in edges],
+            "switches": [[list(cell), first, second] for cell, first, second in switches],
+            "gain_ms": gain_ms}
+
+
 def intruder_record(t_ms: float, cell: Cell, state: str) -> Record:
     """``{"t_ms", "type": "intruder", "cell": [x, y], "state": "on"|"off"}``."""
     if state not in ("on", "off"):

@@ -42,6 +42,7 @@ from gateway.execution.commands import (
     Completed,
     Dispatch,
     PlanAdopted,
+    Rescheduled,
     SolveRequest,
     Trigger,
 )
@@ -465,6 +466,9 @@ class Engine:
                     (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
                 self.solvers.spawn("replan", self.problem, starts, c.goals, None, None,
                                    "omni" if hs is None else "turning")
+            elif isinstance(c, Rescheduled):
+                log.info("rescheduled", extra={"switches": len(c.switches),
+                                               "gain_ms": round(c.gain_ms, 1)})
             elif isinstance(c, PlanAdopted):
                 for gs in self.robots.values():
                     gs.plan_adopted()

@@ -92,9 +92,9 @@ def test_the_informed_variant_adds_rows_to_a_finished_folder(campaign: tuple[
     exps, _ = join_experiments(rows)
     for e in exps:
         # Informed replans exactly when slack does (the same trigger on the same run).
-        assert e.t_i is not None and e.informed_at_ms == e.slack_at_ms
+        assert e.extra["informed"][1] == e.slack_at_ms
         if e.slack_at_ms is None:
-            assert e.t_i == e.t_p == e.t_n
+            assert e.extra["informed"][0] == e.t_p == e.t_n
 
 
 def test_best_prefers_not_replanning_then_the_earliest() -> None:

@@ -158,3 +158,30 @@ def test_maps_keep_the_campaign_order() -> None:
     rows = _experiment("zeta", 1, 10, 12, 11, 11, slack_at=None) + ROWS
     assert list(summarize(rows, resamples=50, maps_first=["zeta", "a"])["maps"]) == ["zeta", "a"]
     assert list(summarize(rows, resamples=50)["maps"]) == ["a", "zeta"]
+
+
+def test_the_paper_totals_finding_holds_for_its_printed_numbers() -> None:
+    # the slack total is the mean of the maps, the random one is not; a weighted mean gives
+    # both only with room32 at most 6% of the weight (grid over all weightings, 1% steps)
+    from experiments.stats import PAPER_MITIGATION, PAPER_TOTALS, paper_totals
+
+    got = paper_totals({"slack": None, "random": None}, {"slack": None, "random": None})
+    assert round(100 * got["paper_mean_of_maps"]["slack"], 2) == 100 * PAPER_TOTALS[0]
+    assert round(100 * got["paper_mean_of_maps"]["random"], 2) == 7.81
+    assert round(100 * got["paper_weighted_by_experiments"]["random"], 2) == 7.76
+    values = list(PAPER_MITIGATION.values())
+    room = list(PAPER_MITIGATION).index("room-32-32-4")
+    fits = []
+    steps = range(101)
+    for a in steps:
+        for b in steps:
+            for c in steps:
+                d = 100 - a - b - c
+                if d < 0:
+                    continue
+                w = (a, b, c, d)
+                s = sum(x * v[0] for x, v in zip(w, values, strict=True)) / 100
+                r = sum(x * v[1] for x, v in zip(w, values, strict=True)) / 100
+                if abs(s - PAPER_TOTALS[0]) <= 5e-5 and abs(r - PAPER_TOTALS[1]) <= 5e-5:
+                    fits.append(w)
+    assert fits and max(w[room] for w in fits) <= 6

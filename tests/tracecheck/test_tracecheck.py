@@ -12,6 +12,7 @@ from gateway.execution.trace_records import (
     event_record,
     intruder_record,
     plan_record,
+    reschedule_record,
     summary_record,
 )
 from gateway.runtime.trace import JsonlWriter
@@ -68,6 +69,19 @@ def test_action_before_predecessor_and_shared_cell_are_caught() -> None:
     assert any("started before its predecessors [(0, 1)]" in e for e in report.errors)
     assert [(c.t_ms, c.cell, c.who, c.holders) for c in report.collisions] == [
         (2000, (1, 0), "robot 1", ("robot 0",))]
+
+
+def test_a_reschedule_may_not_add_a_dependency_to_a_dispatched_action_or_a_cycle() -> None:
+    start = [plan_record(0, 0, PATHS), ev(0, "dispatch", 0, 0), ev(0, "dispatch", 1, 0)]
+    late = check_trace([*start, reschedule_record(0, 0, [(0, 1, 1, 2), (1, 1, 0, 0)], [], 0)])
+    assert any("action (0, 0) gains predecessors [(1, 1)] after its dispatch" in e
+               for e in late.errors)
+    cycle = check_trace([*start, reschedule_record(0, 0, [(0, 1, 1, 2), (1, 2, 0, 1)], [], 0)])
+    assert any("the rescheduled graph has a cycle" in e for e in cycle.errors)
+    # the same edges as the plan's are a reschedule that changes nothing
+    same = check_trace([plan_record(0, 0, PATHS),
+                        reschedule_record(0, 0, [(0, 1, 1, 2)], [], 0), *good_trace()[1:]])
+    assert same.ok, same.errors
 
 
 def test_two_robots_on_one_cell_without_precedence_error() -> None:

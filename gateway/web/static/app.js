@@ -179,7 +179,7 @@ function syncControls() {
     $("speed").value = String(s.speed);
     $("speed-out").textContent = `${s.speed}×`;
   }
-  $("threshold").disabled = s.policy !== "slack";
+  $("threshold").disabled = !["slack", "reschedule+slack"].includes(s.policy);
   $("policy-now").textContent = s.policy === "slack"
     ? `slack > ${fmtS(s.threshold_ms)}` : s.policy;
 }

@@ -158,6 +158,10 @@ export class FleetModel {
         this.note(e.t_ms, `replan triggered (${e.policy}, fleet slack ${fmtS(e.fleet_slack_ms)})`,
           "warn");
         return true;
+      case "reschedule":
+        this.note(e.t_ms, `rescheduled: ${e.switches.map(([c, a, b]) =>
+          `robot ${a} passes (${c[0]}, ${c[1]}) before robot ${b}`).join("; ")}`, "plan");
+        return true;
       case "slack":
         s.fleet_slack.push([e.t_ms, e.fleet_slack_ms]);
         if (s.fleet_slack.length > 3000) s.fleet_slack.shift();
