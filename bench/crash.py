@@ -8,7 +8,8 @@ random moments (``--kills`` in all, drawn with ``--seed``) and restarted at once
 command line; robots reconnect by themselves. Each disturbed run is checked:
 
 * ``resumed``: restarts after which the gateway carried on with the run (``/healthz`` says
-  ``running``, not ``empty``/``loaded``);
+  ``running``, not ``empty``/``loaded``); ``from_snapshot``: kills that found the journal
+  compacted (it starts with the snapshot of a replan, ``--policy random``);
 * ``lost``: completions the robots made that the gateway's trace lacks at the end (and, for a
   run that never completes, the plan's actions it did not complete);
 * ``duplicated``: actions a robot executed more than once;
@@ -31,6 +32,7 @@ import contextlib
 import json
 import random
 import socket
+import sqlite3
 import statistics
 import subprocess
 import sys
@@ -69,8 +71,9 @@ class GatewayProcess:
         config = workdir / "gateway.json"
         config.write_text(json.dumps({"speed": speed, "policy": policy, "trace": str(self.trace),
                                       "ping_interval_s": 2.0, "ping_timeout_s": 2.0}))
+        self.journal = workdir / "journal.sqlite"
         self.cmd = [sys.executable, "-m", "gateway", "serve", "--config", str(config),
-                    "--journal", str(workdir / "journal.sqlite"), "--port", str(port),
+                    "--journal", str(self.journal), "--port", str(port),
                     "--log-level", "WARNING"]
         self.log_path = workdir / "gateway.log"
         self.log = self.log_path.open("a")
@@ -112,6 +115,16 @@ class GatewayProcess:
             self.proc.wait()
             self._killed_at = time.perf_counter()
         self.proc = None
+
+    def journal_starts_with(self) -> str | None:
+        """The kind of the journal's first committed record (``snapshot``: compacted at a
+        replan), read-only: the journal stays as the killed process left it."""
+        db = sqlite3.connect(f"file:{self.journal}?mode=ro", uri=True)
+        try:
+            row = db.execute("SELECT kind FROM records ORDER BY seq LIMIT 1").fetchone()
+        finally:
+            db.close()
+        return None if row is None else str(row[0])
 
     def stop(self) -> None:
         """End the process for good."""
@@ -160,7 +173,7 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
                      range(len(plan.paths)), clock=LoopClock(speed), send_state=True,
                      reconnect_delay_s=0.05, seed=rng.randrange(1 << 30))
     fleet.on_event = on_event
-    resumed = 0
+    resumed = from_snapshot = 0
     # loaded first: robots are welcomed with their start in this plan, not the last run's
     await _operator(gw.port, LoadPlan(msg_id="load", seq=0, map=str(map_file),
                                       paths=[list(p) for p in plan.paths]))
@@ -174,6 +187,7 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
             if (await asyncio.to_thread(gw.health)).get("gateway") == "done":
                 break  # done already: no point in killing
             gw.kill()
+            from_snapshot += gw.journal_starts_with() == "snapshot"
             await asyncio.sleep(rng.uniform(0.0, 0.3))  # down for a while
             await asyncio.to_thread(gw.start)
             status = (await asyncio.to_thread(gw.health)).get("gateway")
@@ -193,7 +207,8 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
     # lost: completions the robots made that the gateway's trace lacks, and, if the run did
     # not complete, the plan's actions never completed
     missing = 0 if summary is not None else max(0, total - len(finished))
-    return {"resumed": resumed, "lost": len(completed - finished) + missing,
+    return {"resumed": resumed, "from_snapshot": from_snapshot,
+            "lost": len(completed - finished) + missing,
             "duplicated": sum(n - 1 for n in executed.values() if n > 1),
             "collisions": len(report.collisions), "trace_errors": len(report.errors),
             "soc_ms": None if summary is None else float(summary["soc_ms"]),
@@ -227,6 +242,7 @@ def run(kills: int, seed: int, robots: int, steps: int, speed: float,
     made = gw.starts - 1
     socs = [r["soc_ms"] for r in runs if r["soc_ms"] is not None]
     return {"kills": made, "resumed": sum(r["resumed"] for r in runs),
+            "from_snapshot": sum(r["from_snapshot"] for r in runs),
             "lost": sum(r["lost"] for r in runs),
             "duplicated": sum(r["duplicated"] for r in runs),
             "collisions": sum(r["collisions"] for r in runs),

@@ -363,8 +363,9 @@ class Journal:
         """A new run: forget every earlier record (the plan boundary) and write ``run``."""
         self._replace(run)
 
-    def compact(self, snapshot: SnapshotRecord) -> None:
-        """A new plan: ``snapshot`` replaces every record (those it sums up)."""
+    def compact(self, snapshot: _Record) -> None:
+        """``snapshot`` (a :class:`SnapshotRecord` at a new plan) sums up every record so far
+        and replaces them."""
         self._replace(snapshot)
 
     def discard(self) -> None:
