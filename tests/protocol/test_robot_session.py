@@ -327,9 +327,10 @@ class Gateway:
     def __init__(self, n: int) -> None:
         self.n = n
         self.next = 0  # next index to dispatch
-        self.outstanding: list[int] = []  # dispatched, neither finished nor cancelled
+        self.outstanding: list[int] = []  # dispatched, neither finished, cancelled nor refused
         self.finished: list[int] = []
         self.cancelled: list[int] = []
+        self.refused: list[int] = []  # taken back: after a cancel, the chain no longer fits
         self.cancelling: set[int] = set()
 
     def hear(self, effects: list[RobotEffect]) -> None:
@@ -337,11 +338,12 @@ class Gateway:
             if not isinstance(e, Send):
                 continue
             m = e.message
-            if isinstance(m, Finished | Cancelled):
+            if isinstance(m, Finished | Cancelled | ActionRefused):
                 i = int(m.action_id.split(".")[2])
                 if i in self.outstanding:  # the gateway applies each once
                     self.outstanding.remove(i)
-                    (self.finished if isinstance(m, Finished) else self.cancelled).append(i)
+                    done = {Finished: self.finished, Cancelled: self.cancelled}
+                    done.get(type(m), self.refused).append(i)
             if isinstance(m, Started):
                 i = int(m.action_id.split(".")[2])
                 assert i not in self.cancelled, f"{i} started after its cancel was confirmed"
@@ -420,7 +422,10 @@ def test_random_interleavings_never_lose_or_double_an_action(ops: list[str]) -> 
         executed.append(int(a.action_id.split(".")[2]))
     gw.hear(s.drain())
     assert gw.outstanding == []  # nothing lost
-    assert sorted(gw.finished + gw.cancelled) == list(range(gw.next))  # each exactly once
-    assert not set(gw.finished) & set(gw.cancelled)
+    # each exactly once: finished, cancelled, or refused (taken back by the gateway)
+    assert sorted(gw.finished + gw.cancelled + gw.refused) == list(range(gw.next))
+    # a robot refuses only an action that no longer starts where it will stand: one queued
+    # after a cancelled action (the chain of actions 0, 1, 2, ... fits otherwise)
+    assert all(any(c < r for c in gw.cancelled) for r in gw.refused), (gw.cancelled, gw.refused)
     assert len(executed) == len(set(executed)) and set(executed) == set(gw.finished)
     assert executed == sorted(executed)  # index order
