@@ -155,6 +155,7 @@ class Engine:
         self._unlocked_at: float | None = None  # perf_counter of the finish being applied
         self.status_listeners: list[Callable[[GatewayStatus], None]] = []
         self.before_tick: list[Callable[[float], None]] = []
+        self._tick_failing = False
         """Called with the tick's time once the instant is quiet, just before each monitor
         tick (a simulated world in the same process steps its intruder here, in the order of
         the discrete-event driver: robot events, then the world, then the tick)."""
@@ -243,7 +244,7 @@ class Engine:
                         for hook in self.before_tick:
                             hook(next_tick)
                         await self._quiesce()
-                        self._tick()
+                        self._tick_safely()
                         next_tick = self._next_tick(next_tick)
                         continue
             self.metrics.queue_depth.set(self.queue.qsize())
@@ -296,6 +297,18 @@ class Engine:
             item.fn()
         else:
             self._solver_done(item)
+
+    def _tick_safely(self) -> None:
+        """Tick; an internal error is logged (once until a tick succeeds again) and the owner
+        task lives on: a silently dead owner task would stall the whole fleet."""
+        try:
+            self._tick()
+        except Exception:
+            if not self._tick_failing:
+                log.exception("internal error in the monitor tick")
+            self._tick_failing = True
+        else:
+            self._tick_failing = False
 
     def _tick(self) -> None:
         if self.lifelong is not None:
