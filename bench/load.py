@@ -64,6 +64,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
@@ -243,12 +244,10 @@ def _percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
-async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
-                 ) -> tuple[FleetStats, float, int, float]:
-    """Run the fleet until every action was finished (or the deadline); returns the stats,
-    the execution's wall time, the number of plan actions and the longest GC pause."""
-    total = sum(len(p) - 1 for p in plan.paths)
-    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(len(plan.paths)),
+@contextlib.asynccontextmanager
+async def _connected_fleet(port: int, robots: int, jitter: float) -> AsyncIterator[SimFleet]:
+    """A simulated fleet of ``robots`` connected to the gateway on ``port``, stopped on exit."""
+    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(robots),
                      send_state=True, reconnect_delay_s=1.0, duration_jitter=jitter)
     await fleet.start()
     try:
@@ -258,6 +257,17 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
         # and collect rarely, as the gateway does during a run
         gc.freeze()
         gc.set_threshold(*GC_THRESHOLDS)
+        yield fleet
+    finally:
+        await fleet.stop()
+
+
+async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
+                 ) -> tuple[FleetStats, float, int, float]:
+    """Run the fleet until every action was finished (or the deadline); returns the stats,
+    the execution's wall time, the number of plan actions and the longest GC pause."""
+    total = sum(len(p) - 1 for p in plan.paths)
+    async with _connected_fleet(port, len(plan.paths), jitter) as fleet:
         pauses = GcPauses()
         t0 = time.perf_counter()
         end = t0 + deadline_s
@@ -266,8 +276,6 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
         first = min(fleet.stats.received.values(), default=t0)
         last = max(fleet.stats.finish_sent.values(), default=t0)
         return fleet.stats, last - first, total, pauses.max_ms
-    finally:
-        await fleet.stop()
 
 
 def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
@@ -397,20 +405,12 @@ def unlocked_by_finish(records: list[dict[str, Any]]
 async def _drive_shift(port: int, robots: int, jitter: float,
                        result: subprocess.Popen[str]) -> FleetStats:
     """Run the fleet until the gateway process prints its result (the shift is over)."""
-    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(robots),
-                     send_state=True, reconnect_delay_s=1.0, duration_jitter=jitter)
-    await fleet.start()
-    try:
-        await fleet.wait_connected(timeout=120.0)
-        gc.freeze()
-        gc.set_threshold(*GC_THRESHOLDS)
+    async with _connected_fleet(port, robots, jitter) as fleet:
         assert result.stdout is not None
         line = await asyncio.get_running_loop().run_in_executor(None, result.stdout.readline)
         fleet.stats.errors.extend([] if line else ["the gateway process printed no result"])
         _SHIFT_RESULT.append(line)
         return fleet.stats
-    finally:
-        await fleet.stop()
 
 
 _SHIFT_RESULT: list[str] = []
