@@ -155,7 +155,6 @@ class Engine:
         self._unlocked_at: float | None = None  # perf_counter of the finish being applied
         self.status_listeners: list[Callable[[GatewayStatus], None]] = []
         self.before_tick: list[Callable[[float], None]] = []
-        self._tick_failing = False
         """Called with the tick's time once the instant is quiet, just before each monitor
         tick (a simulated world in the same process steps its intruder here, in the order of
         the discrete-event driver: robot events, then the world, then the tick)."""
@@ -164,6 +163,7 @@ class Engine:
         tunes the garbage collector here; what they take is not charged to the run)."""
         self.before_commit: list[Callable[[], None]] = []
         """Called before each commit (the task journal appends the task events here)."""
+        self._tick_failing = False  # the last monitor tick raised (logged once per streak)
 
     # -------------------------------------------------------------------------- status
     @property

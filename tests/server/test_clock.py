@@ -117,3 +117,25 @@ def test_an_intruder_report_takes_effect_when_it_arrived(tmp_path: Path) -> None
     [on] = [r for r in records if r["type"] == "intruder"]
     assert on["t_ms"] == 1210.0
     assert check_trace(records).errors == []
+
+
+async def _monitor_fails_for_a_while(gw: Gateway) -> None:
+    ex = gw.engine.executor
+    assert ex is not None
+    tick = ex.tick
+
+    def failing_tick(now_ms: float) -> None:
+        if 1000.0 <= now_ms < 2000.0:
+            raise RuntimeError("monitor bug")
+        tick(now_ms)
+
+    ex.tick = failing_tick  # type: ignore[method-assign]
+
+
+def test_a_failing_monitor_tick_is_logged_once_and_the_run_goes_on(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    # An exception in a tick used to end the owner task silently: the fleet stalled.
+    soc, makespan, _ = run_virtual(_run_lab(tmp_path / "t.jsonl", _monitor_fails_for_a_while))
+    assert (soc, makespan) == (10000.0, 5000.0)  # the plan's times: robots were never held
+    failures = [r for r in caplog.records if r.getMessage() == "internal error in the monitor tick"]
+    assert len(failures) == 1  # ten failing ticks (every 100 ms for 1 s), one log record
