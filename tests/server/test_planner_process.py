@@ -14,12 +14,14 @@ from typing import Any
 
 import pytest
 
+from gateway.runtime.solver_time import SolverTime
+from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.server.planner_process import PlannerDied, PlannerProcess
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
-from sim_clients.shift import start_shift, stop_shift
+from sim_clients.shift import ShiftStats, start_shift, stop_shift
 from sim_clients.wms import Wms
 from tracecheck import check_trace, read_trace
 
@@ -121,3 +123,33 @@ def test_a_planner_process_answers_reports_errors_and_restarts() -> None:
     assert planner.pid is None
     with pytest.raises(PlannerDied, match="closed"):
         planner.call(req)
+
+
+@pytest.mark.parametrize("solver_time", [250.0, "measured"])
+def test_under_virtual_time_the_planner_process_is_charged_as_told(
+        solver_time: SolverTime) -> None:
+    """In-memory robots, virtual time: each call's segment arrives after the charged time
+    (a fixed 250 ms, or the CPU time the worker measured), and the shift runs as usual."""
+
+    async def main() -> tuple[list[float], int, ShiftStats]:
+        config = GatewayConfig(port=0, map=None, autostart=True, log_level="WARNING",
+                               lifelong=LifelongSettings(robots=6, warehouse=(2, 3)))
+        async with Gateway(config, clock=VirtualClock(solver_time=solver_time)) as gw:
+            run = gw.engine.lifelong
+            assert run is not None and run.planner.pid is not None
+            fleet = SimFleet(gw.connect, range(6), clock=gw.clock, send_state=False)
+            await start_shift(gw, fleet)
+            while gw.engine.now_ms() < 30_000.0:
+                await asyncio.sleep(0.1)
+            stats = await stop_shift(gw, fleet)
+            await fleet.stop()
+            return list(run.planner_ms), run.executor.segments, stats
+
+    charged, segments, stats = run_virtual(main())
+    assert segments >= 20 and len(charged) >= segments
+    if solver_time == "measured":
+        assert charged[0] > 0.0 and all(0.0 <= ms < 5000.0 for ms in charged)
+    else:
+        assert set(charged) == {250.0}
+    assert stats.finished_tasks >= 3 and stats.lost == stats.duplicated == 0
+    assert stats.collisions == 0
