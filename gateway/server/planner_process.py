@@ -117,7 +117,8 @@ class PlannerProcess:
                 self._proc = subprocess.Popen(
                     [sys.executable, "-m", "gateway.server.planner_process",
                      str(to_worker_r), str(from_worker_w)],
-                    stdin=subprocess.DEVNULL, pass_fds=(to_worker_r, from_worker_w))
+                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                    pass_fds=(to_worker_r, from_worker_w))  # stderr: its one-line errors
             finally:
                 os.close(to_worker_r)
                 os.close(from_worker_w)
