@@ -23,7 +23,6 @@ their ``hello``), the trace file, the clock. No I/O here but the engine's.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import time
@@ -143,8 +142,14 @@ def replay_shift(records: Sequence[JournalRecord], ex: JournaledLifelong, *,
         if isinstance(rec, TaskRecord):
             i = _task_change(pool, records, i - 1)
             continue
-        with contextlib.suppress(ExecutionError):  # refused live as well: nothing changed
+        try:
             _apply(ex, out, rec, on_report, on_start)
+        except JournalError:
+            raise
+        except ExecutionError:  # refused live as well: nothing changed
+            pass
+        except Exception:  # an internal error live too (the engine logged it and went on)
+            log.exception("replaying a %s record raised, as it did live", rec.kind)
         commands = ex.drain()
         if commands:
             on_commands(commands)
