@@ -24,11 +24,12 @@ from bench.crash import (
     lifelong_shift,
     shift_defects,
 )
-from gateway.execution.lifelong import PlanRequest, Segment, WindowPlanner
+from gateway.execution.lifelong import PlanRequest, Segment
 from gateway.planning.lorr import warehouse_problem
 from gateway.runtime.journal import Journal
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
+from gateway.server.planner_process import PlannerProcess
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import start_shift, stop_shift
@@ -64,14 +65,14 @@ def test_a_planner_call_outstanding_at_the_crash_is_planned_again(
     """The gateway goes down while a planner call runs (its segment never journaled); the
     restarted one replays the shift up to that call, plans it again and the shift goes on."""
     slow = threading.Event()
-    plan = WindowPlanner.__call__
+    plan = PlannerProcess.call
 
-    def planner(self: WindowPlanner, req: PlanRequest) -> Segment:
+    def planner(self: PlannerProcess, req: PlanRequest) -> tuple[Segment, float]:
         if slow.is_set():
             time.sleep(1.0)
         return plan(self, req)
 
-    monkeypatch.setattr(WindowPlanner, "__call__", planner)
+    monkeypatch.setattr(PlannerProcess, "call", planner)
     journal = tmp_path / "journal.sqlite"
     config = GatewayConfig(port=free_port(), map=None, autostart=True, speed=10.0,
                            trace=tmp_path / "trace.jsonl", journal=journal,
