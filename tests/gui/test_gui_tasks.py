@@ -104,29 +104,36 @@ def test_robots_tasks_finished_list_and_throughput(tasks_page: Page) -> None:
 
 # ---------------------------------------------------------------------------- the live map
 def gateway_snapshot(page: Page) -> Any:
-    """The gateway's own state now: the snapshot a new operator connection gets (a second
-    websocket with the page's login; not the page's model)."""
+    """The gateway's own state now: a snapshot on a second operator websocket with the page's
+    login (opened once, then ``get_snapshot``), not the page's model."""
     return page.evaluate("""() => new Promise((ok, fail) => {
-      const scheme = location.protocol === "https:" ? "wss" : "ws";
-      const ws = new WebSocket(`${scheme}://${location.host}/ws`);
-      ws.onmessage = (m) => {
+      let ws = window.testGateway;
+      const ask = () => ws.send(JSON.stringify({
+        v: 2, type: "get_snapshot", msg_id: `t${Date.now()}`, seq: 0}));
+      const take = (m) => {
         const msg = JSON.parse(m.data);
-        if (msg.type === "snapshot") { ws.close(); ok(msg); }
+        if (msg.type === "snapshot") { ws.removeEventListener("message", take); ok(msg); }
       };
-      ws.onerror = () => fail(new Error("websocket error"));
+      if (!ws) {
+        const scheme = location.protocol === "https:" ? "wss" : "ws";
+        ws = window.testGateway = new WebSocket(`${scheme}://${location.host}/ws`);
+        ws.onerror = () => fail(new Error("websocket error"));
+        ws.addEventListener("message", take);  // the snapshot on connect
+      } else {
+        ws.addEventListener("message", take);
+        ask();
+      }
     })""")
 
 
 def on_way(page_cell: list[int], before: dict[str, Any], after: dict[str, Any],
            robot: int) -> bool:
     """Whether the page's cell of ``robot`` is one the gateway had it on between two of its
-    snapshots: on its committed path from where it stood in ``before`` to where it stands in
-    ``after``."""
+    snapshots: on its committed path from where it stood in ``before`` up to where it stands
+    in ``after``."""
     path = before["paths"][robot]
     end = after["robots"][robot]["cell"]
-    if end not in path:
-        return False
-    return page_cell in path[:path.index(end) + 1]
+    return page_cell == end or (end in path and page_cell in path[:path.index(end) + 1])
 
 
 def test_the_map_shows_the_shift_live(tasks_page: Page) -> None:
@@ -148,15 +155,18 @@ def test_the_map_shows_the_shift_live(tasks_page: Page) -> None:
     # where the page draws them is where the gateway has them (the two must agree at a
     # moment: robots move on while we look)
     agreed = False
+    last: Any = None
     for _ in range(40):
         before = gateway_snapshot(page)
+        page.wait_for_timeout(50)  # events reach the page a little after the gateway
         shown = page.evaluate("window.fleetgate.robots()")
         after = gateway_snapshot(page)
         if all(on_way(r["cell"], before, after, r["id"]) for r in shown):
             agreed = True
             break
-        page.wait_for_timeout(100)
-    assert agreed, "the page's robots never stood where the gateway had them"
+        last = [(r["cell"], before["paths"][r["id"]], after["robots"][r["id"]]["cell"])
+                for r in shown]
+    assert agreed, f"the page's robots never stood where the gateway had them: {last}"
     clock = page.evaluate("window.fleetgate.clock()")  # the page runs the shift's clock
     assert abs(clock - gateway_snapshot(page)["t_ms"]) < 5000.0
     # each robot is drawn on the canvas where the page's model has it (read in the frame the
