@@ -256,7 +256,8 @@ class Simulation:
 
     def fork(self, share: Sequence[object] = ()) -> Self:
         """An independent copy of the run as it stands. What never changes is shared (the
-        configuration, the current plan and its ADG), and so are the objects of ``share``."""
+        configuration, the current plan and its ADG), and so are the objects of ``share``;
+        the copied monitor views its own flat arrays (``Monitor.__getstate__``)."""
         ex = self.executor
         shared = {id(o): o for o in (self.cfg, ex.plan, ex.adg, *share)}
         return copy.deepcopy(self, shared)
