@@ -85,11 +85,11 @@ def test_each_experiment_starts_from_the_blocks_of_the_earlier_ones_only(learned
 
 
 def test_a_folder_keeps_its_block_history(learned: Path) -> None:
-    with open_executor(1) as (pool, n):
-        with pytest.raises(CampaignError, match="learned_blocks: 100 there, 0 now"):
-            run_campaign(CampaignSpec(SPEC.groups, 1, 3, sim=SimSettings(solver_time="zero"),
-                                      plan_time_limit_s=20, extra_variants=SPEC.extra_variants),
-                         learned, MAPS, executor=pool, workers=n)
+    cold = CampaignSpec(SPEC.groups, 1, 3, sim=SimSettings(solver_time="zero"),
+                        plan_time_limit_s=20, extra_variants=SPEC.extra_variants)
+    with (open_executor(1) as (pool, n),
+          pytest.raises(CampaignError, match="learned_blocks: 100 there, 0 now")):
+        run_campaign(cold, learned, MAPS, executor=pool, workers=n)
 
 
 def test_history_settings_are_free_while_no_row_depends_on_them(tmp_path: Path) -> None:
