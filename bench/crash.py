@@ -22,6 +22,18 @@ command line; robots reconnect by themselves. Each disturbed run is checked:
 Prints ONE line (``--json``: a JSON object with the keys above).
 
     .venv/bin/python bench/crash.py --kills 20 --seed 1 --json
+
+``--lifelong``: a warehouse shift instead (tasks from the task list, and a batch submitted
+through the task API and retried with its idempotency key after each restart), killed every
+``--every`` x U(0.5, 1.5) seconds; the same shift must go on after each restart. Besides
+``resumed``, ``lost``, ``duplicated``, ``collisions`` and ``trace_errors``: ``renumbered``
+(a second shift start in the trace, plan time going back, a segment or action number
+repeated or skipped), ``run_ids`` (distinct run ids robots were sent: 1), ``finished_twice``
+and ``robot_changed`` (tasks that finished twice, or changed robots once started),
+``retry_created``, ``event_gaps`` (task event ids), and ``throughput_ratio``: tasks finished
+per minute of plan time against an undisturbed shift of the same fleet (the downtime is in it).
+
+    .venv/bin/python bench/crash.py --lifelong --kills 10 --seed 1 --json
 """
 
 from __future__ import annotations
@@ -29,6 +41,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import itertools
 import json
 import random
 import socket
@@ -38,11 +51,14 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
 import urllib.request
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from gateway.planning.grid import Grid
+from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
@@ -68,7 +84,7 @@ class GatewayProcess:
     def __init__(self, workdir: Path, port: int, speed: float, policy: str) -> None:
         self.port = port
         self.trace = workdir / "trace.jsonl"
-        config = workdir / "gateway.json"
+        config = self.config = workdir / "gateway.json"
         config.write_text(json.dumps({"speed": speed, "policy": policy, "trace": str(self.trace),
                                       "ping_interval_s": 2.0, "ping_timeout_s": 2.0}))
         self.journal = workdir / "journal.sqlite"
@@ -256,6 +272,184 @@ def run(kills: int, seed: int, robots: int, steps: int, speed: float,
             "robots": robots, "steps": steps, "speed": speed, "seed": seed, "policy": policy}
 
 
+# ---------------------------------------------------------------------------- lifelong shifts
+def _http(port: int, method: str, path: str, body: Any = None) -> tuple[int, Any]:
+    """One task API request with operator credentials: (status, JSON body)."""
+    req = urllib.request.Request(
+        f"http://127.0.0.1:{port}{path}", method=method,
+        data=None if body is None else json.dumps(body).encode(),
+        headers={"Authorization": f"Bearer {OPERATOR}", "Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read() or b"null")
+
+
+def _task_events(port: int) -> list[dict[str, Any]]:
+    """Every task event the gateway kept (its server-sent event stream from the first one),
+    each with its event ``id``."""
+    last = _http(port, "GET", "/tasks?limit=1")[1]["last_event"]
+    out: list[dict[str, Any]] = []
+    if not last:
+        return out
+    req = urllib.request.Request(f"http://127.0.0.1:{port}/tasks/events?after=0",
+                                 headers={"Authorization": f"Bearer {OPERATOR}"})
+    with urllib.request.urlopen(req, timeout=30) as r:
+        fields: dict[str, str] = {}
+        for raw in r:
+            line = raw.decode().rstrip("\r\n")
+            if line:
+                name, _, value = line.partition(":")
+                fields[name] = value.lstrip(" ")
+            elif "data" in fields:
+                out.append({**json.loads(fields["data"]), "id": int(fields["id"])})
+                fields = {}
+                if out[-1]["id"] == last:
+                    return out
+    return out
+
+
+def shift_defects(records: list[dict[str, Any]]) -> dict[str, int]:
+    """What a lifelong shift's trace shows went wrong: ``collisions`` and other ``trace_errors``
+    (tracecheck; a shift cut off by a shutdown, with actions running and no summary, is not
+    an error), ``renumbered`` (a second shift start, plan time going back, a segment or action
+    number repeated or skipped), ``dispatched_twice`` and ``actions_run``."""
+    report = check_trace(records)
+    errors = [e for e in report.errors if e != "no summary record"
+              and not (e.startswith("robots ") and " never finished " in e)]
+    times = [float(r["t_ms"]) for r in records]
+    segments = [r["segment"] for r in records if r["type"] == "segment"]
+    dispatched = [(r["robot"], r["action"]) for r in records if r["type"] == "dispatch"]
+    numbers: dict[int, list[int]] = {}
+    for robot, action in dispatched:
+        numbers.setdefault(robot, []).append(action)
+    renumbered = (abs([r["type"] for r in records].count("plan") - 1)
+                  + sum(1 for a, b in itertools.pairwise(times) if b < a)
+                  + (segments != list(range(len(segments))))
+                  + sum(sorted(set(ns)) != list(range(len(set(ns))))
+                        for ns in numbers.values()))
+    return {"collisions": len(report.collisions), "trace_errors": len(errors),
+            "renumbered": renumbered, "dispatched_twice": len(dispatched) - len(set(dispatched)),
+            "actions_run": report.actions_run}
+
+
+async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: list[float],
+                         run_s: float, rng: random.Random, grid: Grid) -> dict[str, Any]:
+    """A shift of ``robots`` simulated robots on the gateway ``gw`` (started here, in lifelong
+    mode, with a task list and a batch submitted through the task API), killed with SIGKILL
+    after each delay (s) of ``kills`` and restarted at once; then ``run_s`` more seconds.
+    Returns the counts of :func:`shift_defects` and ``resumed``, ``lost`` (completions robots
+    made before the last kill that the trace lacks), ``duplicated`` (actions a robot executed
+    twice), ``run_ids`` (distinct run ids robots were sent), ``retry_created`` (a retried
+    submission that made tasks again), ``tasks_finished`` (and ``finished_at_last_kill``),
+    ``finished_twice`` and
+    ``robot_changed`` (tasks that finished twice, or whose robot changed once started), the
+    shift's plan time and its tasks per plan minute."""
+    executed: Counter[tuple[int, int, int]] = Counter()
+    completed: set[tuple[int, int]] = set()
+
+    def on_event(kind: str, plan: int, robot: int, index: int) -> None:
+        if kind == "execute":
+            executed[(plan, robot, index)] += 1
+        elif kind == "finished":
+            completed.add((robot, index))
+
+    gw.start()
+    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"), range(robots),
+                     clock=LoopClock(speed), send_state=False, reconnect_delay_s=0.05,
+                     duration_jitter=0.2, seed=rng.randrange(1 << 30))
+    fleet.on_event = on_event
+    free = [list(c) for c in grid.free_cells()]
+    batch = {"tasks": [{"errands": rng.sample(free, 2)} for _ in range(robots)],
+             "idempotency_key": "bench-1"}
+    resumed = retry_created = finished_at_kill = 0
+    before_last_kill: set[tuple[int, int]] = set()
+    await fleet.start()
+    try:
+        await fleet.wait_connected(timeout=60.0)
+        await asyncio.to_thread(_http, gw.port, "POST", "/tasks", batch)
+        for delay in kills:
+            await asyncio.sleep(delay)
+            finished_at_kill = (await asyncio.to_thread(
+                _http, gw.port, "GET", "/tasks?limit=1"))[1]["counts"]["finished"]
+            gw.kill()
+            before_last_kill = set(completed)
+            await asyncio.sleep(rng.uniform(0.0, 0.3))  # down for a while
+            await asyncio.to_thread(gw.start)
+            resumed += (await asyncio.to_thread(gw.health)).get("gateway") == "running"
+            status, _ = await asyncio.to_thread(_http, gw.port, "POST", "/tasks", batch)
+            retry_created += status != 200
+        await asyncio.sleep(run_s)
+        events = await asyncio.to_thread(_task_events, gw.port)
+        counts = (await asyncio.to_thread(_http, gw.port, "GET", "/tasks?limit=1"))[1]
+    finally:
+        await fleet.stop()
+        gw.stop()
+    records = read_trace(gw.trace)
+    finished = {(r["robot"], r["action"]) for r in records if r["type"] == "finish"}
+    tasks: dict[int, list[tuple[str, int]]] = {}
+    for e in events:
+        tasks.setdefault(e["task"], []).append((e["state"], e["robot"]))
+    plan_ms = max((float(r["t_ms"]) for r in records), default=0.0)
+    done = int(counts["counts"]["finished"])
+    defects = shift_defects(records)
+    defects["renumbered"] += len(list(gw.trace.parent.glob(gw.trace.name + ".*")))  # new shift
+    return {**defects, "resumed": resumed, "finished_at_last_kill": finished_at_kill,
+            "lost": len(before_last_kill - finished),
+            "duplicated": sum(n - 1 for n in executed.values() if n > 1),
+            "run_ids": len({aid.split(".")[0] for aid in fleet.stats.received}),
+            "retry_created": retry_created, "robot_errors": len(fleet.stats.errors),
+            "event_gaps": sum(1 for i, e in enumerate(events, 1) if e["id"] != i),
+            "tasks_finished": done,
+            "finished_twice": sum(1 for s in tasks.values()
+                                  if [st for st, _ in s].count("finished") > 1),
+            "robot_changed": sum(1 for s in tasks.values()
+                                 if len({r for st, r in s if st in ("started", "finished")}) > 1),
+            "plan_ms": plan_ms, "tasks_per_min": done * 60_000.0 / plan_ms if plan_ms else 0.0}
+
+
+def lifelong_config(gw: GatewayProcess, robots: int, warehouse: tuple[int, int]) -> None:
+    """Turn ``gw``'s configuration into a shift of ``robots`` in a generated warehouse."""
+    cfg = json.loads(gw.config.read_text())
+    gw.config.write_text(json.dumps({**cfg, "map": None, "autostart": True, "lifelong": {
+        "robots": robots, "warehouse": list(warehouse)}}))
+
+
+def run_lifelong(kills: int, seed: int, robots: int, speed: float,
+                 every_s: float) -> dict[str, Any]:
+    """An undisturbed shift (the baseline's tasks per plan minute), then a shift killed
+    ``kills`` times, every ``every_s`` x U(0.5, 1.5) seconds."""
+    rng = random.Random(seed)
+    warehouse = (2, 3) if robots <= 10 else (4, 6)
+    grid = warehouse_problem(robots, 0, warehouse, p_delay=0.0).grid
+    delays = [every_s * rng.uniform(0.5, 1.5) for _ in range(kills)]
+    with tempfile.TemporaryDirectory() as tmp:
+        out = []
+        for name, ks in (("base", []), ("killed", delays)):
+            work = Path(tmp) / name
+            work.mkdir()
+            gw = GatewayProcess(work, free_port(), speed, "none")
+            lifelong_config(gw, robots, warehouse)
+            # the baseline runs as long (wall) as the killed shift runs between kills
+            out.append(asyncio.run(lifelong_shift(gw, robots, speed, ks,
+                                                  sum(delays) if not ks else every_s,
+                                                  rng, grid)))
+            out[-1]["mean_down_s"] = round(statistics.mean(gw.down_s), 2) if gw.down_s \
+                else None
+    base, shift = out
+    keys = ("resumed", "lost", "duplicated", "collisions", "trace_errors", "renumbered",
+            "dispatched_twice", "run_ids", "retry_created", "event_gaps", "finished_twice",
+            "robot_changed", "robot_errors", "tasks_finished", "actions_run", "mean_down_s")
+    return {"kills": kills, **{k: shift[k] for k in keys},
+            "throughput_ratio": round(shift["tasks_per_min"] / base["tasks_per_min"], 3)
+            if base["tasks_per_min"] else None,
+            "baseline_tasks_finished": base["tasks_finished"],
+            "baseline_defects": sum(base[k] for k in ("lost", "duplicated", "collisions",
+                                                       "trace_errors", "renumbered")),
+            "robots": robots, "speed": speed, "seed": seed, "lifelong": True}
+
+
 def main() -> int:
     """Parse arguments and run."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -269,14 +463,27 @@ def main() -> int:
     p.add_argument("--policy", choices=["none", "random"], default="none",
                    help="the gateway's replanning policy (random: one replan per run at a "
                         "random time, so kills also hit replans)")
+    p.add_argument("--lifelong", action="store_true",
+                   help="kill a lifelong shift (tasks streaming) instead of one-shot runs")
+    p.add_argument("--every", type=float, default=3.0,
+                   help="--lifelong: seconds between kills (x U(0.5, 1.5))")
     p.add_argument("--json", action="store_true", help="print the result as one JSON line")
     args = p.parse_args()
-    if args.kills < 0 or args.robots < 1 or args.steps < 1 or args.kills_per_run < 1:
-        p.error("--kills >= 0, --robots, --steps and --kills-per-run >= 1")
-    result = run(args.kills, args.seed, args.robots, args.steps, args.speed,
-                 args.kills_per_run, args.policy)
+    if args.kills < 0 or args.robots < 1 or args.steps < 1 or args.kills_per_run < 1 \
+            or args.every <= 0:
+        p.error("--kills >= 0, --robots, --steps and --kills-per-run >= 1, --every > 0")
+    if args.lifelong:
+        result = run_lifelong(args.kills, args.seed, args.robots, args.speed, args.every)
+    else:
+        result = run(args.kills, args.seed, args.robots, args.steps, args.speed,
+                     args.kills_per_run, args.policy)
     if args.json:
         print(json.dumps(result))
+    elif args.lifelong:
+        print(f"{result['kills']} kills of a shift: {result['resumed']} resumed, "
+              f"{result['lost']} lost, {result['duplicated']} duplicated, "
+              f"{result['collisions']} collisions, {result['finished_twice']} tasks finished "
+              f"twice; throughput {result['throughput_ratio']}x the undisturbed shift's")
     else:
         print(f"{result['kills']} kills: {result['resumed']} resumed, {result['lost']} lost, "
               f"{result['duplicated']} duplicated, {result['collisions']} collisions; SOC "

@@ -28,10 +28,10 @@ The rules, written once here:
 * each ``ack`` is recorded; an ``ack`` of an action never dispatched is refused
   (``unknown_action``);
 * a report about an applied action is a ``duplicate`` (a completion reported twice is applied
-  once), a report about an action never dispatched (or of an earlier plan: REPORT-3) is
-  ``unknown_action``, a repeated
-  ``started`` / ``blocked`` is a ``duplicate``; everything else goes to the executor, which may
-  still reject it (``rejected``);
+  once; a session remembers the latest :data:`APPLIED_KEEP` applied actions), a report about
+  an action never dispatched (or of an earlier plan: REPORT-3) is ``unknown_action``, a
+  repeated ``started`` / ``blocked`` is a ``duplicate``; everything else goes to the executor,
+  which may still reject it (``rejected``);
 * protocol v2 (the version of the robot's ``hello``): a ``blocked`` of a move under way is a
   stop on the way (a bumper), told to the executor as ``stopped``; its ``unblocked`` resumes
   the move. A ``refused`` action that has not started goes to the executor as ``refused``
@@ -67,6 +67,11 @@ ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked"
                         "refused"]
 """What the executor is told: a v2 robot's ``blocked`` of a move under way is ``stopped``."""
 Phase = Literal["dispatched", "running", "blocked"]
+APPLIED_KEEP = 512
+"""Applied actions a session remembers per robot (the latest): twice what one ``hello`` can
+list as finished, so a reconnecting robot's catch-up and any late repeat of a recent report
+are still recognised (``duplicate``); an older repeat is an ``unknown_action``. Either way it
+changes nothing, and a lifelong shift's sessions stay bounded."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,7 +145,8 @@ class GatewaySession:
     """The protocol version of the robot's latest ``hello``."""
     held: dict[str, Held] = field(default_factory=dict)
     applied: dict[str, str] = field(default_factory=dict)
-    """Action id -> "finished" / "cancelled" / "refused", for the current plan."""
+    """Action id -> "finished" / "cancelled" / "refused", for the current plan: the latest
+    :data:`APPLIED_KEEP` (in the order they were applied)."""
     next_index: int = 0
     """Actions of the current plan finished."""
     disowned: set[str] = field(default_factory=set)
@@ -295,12 +301,19 @@ class GatewaySession:
         elif r.kind == "refused":  # the executor took back this action and the later ones
             for aid in [a for a in self.held if self._taken_back_with(a, r)]:
                 del self.held[aid]
-                self.applied[aid] = "refused"
+                self._applied(aid, "refused")
         else:
             del self.held[r.action_id]
-            self.applied[r.action_id] = r.kind
+            self._applied(r.action_id, r.kind)
             if r.kind == "finished":
                 self.next_index = max(self.next_index, r.index + 1)
+
+    def _applied(self, aid: str, kind: str) -> None:
+        """Remember that ``aid`` ended as ``kind``; forget the oldest beyond the bound."""
+        applied = self.applied
+        applied[aid] = kind
+        while len(applied) > APPLIED_KEEP:
+            del applied[next(iter(applied))]
 
     def rejected(self, r: Report, reason: str) -> None:
         """The executor refused report ``r`` (nothing changes; the sender is told)."""

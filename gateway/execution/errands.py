@@ -113,9 +113,14 @@ class ErrandBook:
         tasks_of = list(self.plan_task)
         tasks = self.pool.tasks
         for r, hits in enumerate(reached):
-            if hits and self.plan_task[r] >= 0:
+            if self.plan_task[r] < 0:
+                continue
+            task = tasks.get(self.plan_task[r])
+            if task is None or task.robot != r:  # cancelled or paused while it was planned
+                self.plan_task[r] = tasks_of[r] = -1
+            elif hits:
                 self.plan_idx[r] += len(hits)
-                if self.plan_idx[r] >= len(tasks[self.plan_task[r]].errands):
+                if self.plan_idx[r] >= len(task.errands):
                     self.plan_task[r] = -1
         return tasks_of
 

@@ -31,8 +31,11 @@ plan compacts it: :meth:`Journal.compact` replaces every record by one snapshot 
 executor carries into the plan (:class:`SnapshotRecord`). The file's free pages are returned at
 those plan boundaries (``auto_vacuum=INCREMENTAL``).
 
-In lifelong mode the journal holds the task book's changes instead (:class:`TaskRecord`), from
-which a restarted gateway rebuilds it (:mod:`gateway.server.task_journal`).
+In lifelong mode the journal holds the shift instead: the task book's changes
+(:class:`TaskRecord`), the shift's start (:class:`ShiftRecord`), and the inputs of its executor
+(reports, ticks, pause, resume, stop, "plan now", adopted segments (:class:`SegmentRecord`),
+failed planner calls), from which a restarted gateway replays the shift
+(:mod:`gateway.server.shift_journal`).
 """
 
 from __future__ import annotations
@@ -100,9 +103,11 @@ class ReportRecord(_Record):
 
 
 class TimeRecord(_Record):
-    """A monitor tick, a pause, a resume, a replan request or an abandoned replan at ``t_ms``."""
+    """A monitor tick, a pause, a resume, a replan request or an abandoned replan at ``t_ms``
+    (in a lifelong shift also its ``stop``; ``replan`` is the operator's "plan now" and
+    ``abandon`` a planner call that failed)."""
 
-    kind: Literal["tick", "pause", "resume", "replan", "abandon"]
+    kind: Literal["tick", "pause", "resume", "replan", "abandon", "stop"]
     t_ms: float
 
 
@@ -173,6 +178,36 @@ class TaskRecord(_Record):
     listed: bool = False
 
 
+class ShiftRecord(_Record):
+    """A lifelong shift starts (plan time 0): its run id (the first part of its action ids)
+    and the wall time and clock speed of its time 0 (a restarted gateway continues the
+    shift's clock). The shift's parameters are the configuration's."""
+
+    kind: Literal["shift"] = "shift"
+    run_id: str
+    wall_start_s: float
+    speed: float
+
+
+class SegmentRecord(_Record):
+    """The planner's window for call ``call`` adopted at ``t_ms`` by a lifelong shift
+    (the :class:`~gateway.execution.lifelong.Segment`: planner states step by step, and the
+    steps at which each robot reaches its goals)."""
+
+    kind: Literal["segment"] = "segment"
+    call: int
+    t_ms: float
+    states: list[list[int]]
+    reached: list[list[int]]
+
+
+class ThresholdRecord(_Record):
+    """The operator set a lifelong shift's slack threshold."""
+
+    kind: Literal["threshold"] = "threshold"
+    threshold_ms: float
+
+
 class SnapshotRecord(_Record):
     """A plan boundary: the run's records up to plan ``plan_id`` adopted at ``t_ms``, compacted.
     It holds what the executor carries into a new plan (the rest of its state starts afresh
@@ -210,7 +245,8 @@ class SnapshotRecord(_Record):
 
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
-    | SpeedRecord | SnapshotRecord | ShadowRecord | TaskRecord,
+    | SpeedRecord | SnapshotRecord | ShadowRecord | TaskRecord | ShiftRecord | SegmentRecord
+    | ThresholdRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 

@@ -15,8 +15,9 @@ through the engine's robot sessions as in a one-shot run.
 The live task pool is :attr:`LifelongRun.tasks` (``Engine.tasks``): a task API reads it and
 submits to it from the owner task.
 
-Not journaled yet: a restart starts a new shift (the executor's state is a deterministic
-function of its inputs, so a journal can replay it later).
+With a journal the executor is a :class:`~gateway.server.shift_journal.JournaledLifelong`:
+its inputs (adopted segments included) are journaled before they are applied, and a restarted
+gateway replays them and continues the same shift (:mod:`gateway.server.shift_journal`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 from dataclasses import dataclass
 from functools import partial
 from typing import TYPE_CHECKING
@@ -33,7 +35,6 @@ from gateway.execution.commands import Command
 from gateway.execution.errands import TaskDistances
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import (
-    LifelongExecutor,
     LifelongMode,
     PlanRequest,
     Segment,
@@ -42,9 +43,10 @@ from gateway.execution.lifelong import (
 from gateway.execution.tasks import TaskPool
 from gateway.planning.grid import Grid
 from gateway.planning.lorr import read_problem, warehouse_problem
-from gateway.runtime.journal import new_run_id
+from gateway.runtime.journal import ShiftRecord, new_run_id
 from gateway.server.config import GatewayConfig
 from gateway.server.items import OwnerCall
+from gateway.server.shift_journal import JournaledLifelong
 from protocol import Pose
 from protocol.messages import HEADINGS, GatewayStatus
 
@@ -95,7 +97,7 @@ class LifelongRun:
             pool = TaskPool(shift.tasks, shift.reveal, leg=distances.leg)
         except ValueError as exc:
             raise ValueError(f"lifelong mode: {exc}") from None
-        self.executor = LifelongExecutor(
+        self.executor = JournaledLifelong(
             grid, shift.starts, shift.headings, pool, scheduler=s.scheduler,
             distances=distances, period_ms=s.period_ms, window=s.window,
             durations=ActionDurations.uniform(cfg.action_ms), lookahead=cfg.dispatch_lookahead,
@@ -153,6 +155,9 @@ class LifelongRun:
         e.runs += 1
         e.run_id = new_run_id()
         e.clock.reset()
+        if self.executor.sink is not None:
+            self.executor.sink(ShiftRecord(run_id=e.run_id, wall_start_s=time.time(),
+                                           speed=e.clock.speed))
         self.executor.start(0.0)
         e.status_changed()
         self.route()

@@ -154,13 +154,13 @@ class OperatorCommands:
             case SetThreshold():
                 e.threshold_ms = msg.threshold_ms
                 if e.lifelong is not None:
-                    e.lifelong.executor.threshold_ms = msg.threshold_ms
+                    e.lifelong.executor.set_threshold(msg.threshold_ms)
                 self._policy_changed(replace=False)
                 e.status_changed()
                 return f"threshold {e.threshold_ms} ms"
             case SetSpeed():
                 e.clock.set_speed(msg.speed)
-                if e.executor is not None and e.journal is not None:
+                if e.journal is not None and (e.executor is not None or e.lifelong is not None):
                     e.journal.append(SpeedRecord(speed=msg.speed))
                 for w in e.worlds:
                     w.send(SetSpeed, speed=msg.speed)

@@ -18,7 +18,8 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
-from gateway.runtime.journal import Journal, JournalRecord, TaskRecord
+from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord, TaskRecord
+from gateway.server.shift_journal import resume_shift
 
 if TYPE_CHECKING:
     from gateway.server.engine import Engine
@@ -75,23 +76,35 @@ def restore_tasks(pool: TaskPool, records: Iterable[JournalRecord], now: float) 
 
 
 def journal_tasks(engine: Engine) -> bool:
-    """Journal the task book of the engine's shift from now on, after rebuilding it from the
-    journal (True if there was something to rebuild). A journaled one-shot run is abandoned:
-    the gateway is in lifelong mode now."""
-    pool, journal = engine.tasks, engine.journal
-    assert pool is not None and journal is not None
+    """Journal the engine's shift from now on (its task book, and its executor's inputs), after
+    rebuilding it from the journal (True if there was something to rebuild): a journaled
+    shift is replayed and goes on (:func:`~gateway.server.shift_journal.resume_shift`); task
+    records alone (tasks submitted before a shift started, or a journal of a gateway that
+    journaled only its tasks) rebuild the book. A journaled one-shot run is abandoned: the
+    gateway is in lifelong mode now."""
+    pool, journal, run = engine.tasks, engine.journal, engine.lifelong
+    assert pool is not None and journal is not None and run is not None
     records = list(journal.records())
-    if records and not isinstance(records[0], TaskRecord):
+    if records and not isinstance(records[0], TaskRecord | ShiftRecord):
         journal.discard()
         log.warning("journaled one-shot run abandoned: the gateway is in lifelong mode",
                     extra={"journal": str(journal.path)})
         records = []
     last = 0
-    if records:
+    if any(isinstance(rec, ShiftRecord) for rec in records):
+        resume_shift(engine, records)
+        last = pool.event_seq
+    elif records:
         last = restore_tasks(pool, records, pool.now)
-        assert engine.lifelong is not None
-        engine.lifelong.executor.book.adopt()  # robots go on with their started tasks
+        run.executor.book.adopt()  # robots go on with their started tasks
         log.info("task book rebuilt from the journal", extra={
             "records": len(records), "tasks": len(pool.book), "finished": pool.finished})
-    engine.before_commit.append(TaskJournal(pool, journal, last).flush)
+    tasks = TaskJournal(pool, journal, last)
+    engine.before_commit.append(tasks.flush)
+
+    def sink(rec: JournalRecord) -> None:
+        tasks.flush()  # the task changes before the input first: the replay's order
+        journal.append(rec)
+
+    run.executor.sink = sink
     return bool(records)

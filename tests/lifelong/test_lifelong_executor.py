@@ -9,6 +9,7 @@ import dataclasses
 import heapq
 import random
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -50,8 +51,10 @@ def drive(seed: int, *, robots: int = 10, size: int = 12, turning: bool = True,
           horizon_ms: float = 40_000.0, latency_ms: float = 300.0, jitter: float = 0.3,
           stop_p: float = 0.05, stop_ms: tuple[float, float] = (100.0, 3000.0),
           lookahead: int = 1, threshold_ms: float | None = 2000.0,
-          executor: type[LifelongExecutor] = LifelongExecutor) -> Run:
-    """Run a shift of ``horizon_ms`` in virtual time, then stop it and drain the fleet."""
+          executor: Callable[..., LifelongExecutor] = LifelongExecutor,
+          each: Callable[[LifelongExecutor, float], None] | None = None) -> Run:
+    """Run a shift of ``horizon_ms`` in virtual time, then stop it and drain the fleet;
+    ``each(ex, t)`` is called after every event (e.g. a task API's changes)."""
     prob = small_problem(seed, robots=robots, size=size, p_delay=0.0)
     rng = random.Random(seed)
     grid = prob.grid
@@ -129,6 +132,8 @@ def drive(seed: int, *, robots: int = 10, size: int = 12, turning: bool = True,
             running[data] = None
             ex.finished(data, d.plan, d.action, t)
             push(t, "try", data)
+        if each is not None:
+            each(ex, t)
         route(t)
     assert done, "the stopped run never completed"
     records.append(summary_record(sum(ex.completion), max(ex.completion)))

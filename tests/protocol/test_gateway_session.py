@@ -26,7 +26,14 @@ from protocol import (
     Pose,
     Welcome,
 )
-from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot, hello_refusal
+from protocol.gateway_session import (
+    APPLIED_KEEP,
+    GatewaySession,
+    Refuse,
+    Report,
+    ToRobot,
+    hello_refusal,
+)
 from protocol.robot_session import Abort, RobotSession, Send
 
 _n = iter(range(10**9))
@@ -137,6 +144,36 @@ def test_refusals_duplicates_and_unknown_actions() -> None:
     codes = [(e.code, e.ref) for e in gs.drain() if isinstance(e, Refuse)]
     assert codes == [(ErrorCode.DUPLICATE, "f2")]
     assert gs.applied == {"0.0.0": "finished"}
+
+
+def test_a_long_shift_keeps_only_the_latest_applied_actions() -> None:
+    """A lifelong shift never starts a new plan: ``applied`` stays bounded, a reconnecting
+    robot's catch-up and a late repeat of a recent report are still recognised, and a repeat
+    of a long-forgotten action is refused without changing anything."""
+    gs = GatewaySession(0)
+    link = object()
+    gs.hello(hello(), 0.0)
+    gs.welcome(link, version=2, start=None, plan=0, state_period_ms=100.0, paused=False)
+    n = 3 * APPLIED_KEEP
+    for i in range(n):
+        gs.dispatch(fields(i))
+        gs.report("started", f"0.0.{i}", f"s{i}", link, float(i))
+        gs.report("finished", f"0.0.{i}", f"f{i}", link, i + 0.5)
+        accept_all(gs)
+    assert len(gs.applied) == APPLIED_KEEP and gs.next_index == n
+    assert next(iter(gs.applied)) == f"0.0.{n - APPLIED_KEEP}"
+    gs.report("finished", f"0.0.{n - 1}", "late", link, n + 1.0)
+    gs.report("finished", "0.0.0", "ancient", link, n + 1.0)
+    assert [(e.code, e.ref) for e in gs.drain()] == [
+        (ErrorCode.DUPLICATE, "late"), (ErrorCode.UNKNOWN_ACTION, "ancient")]
+    # the robot comes back listing the last 256 finishes (a hello's limit): nothing is applied
+    # again, nothing is disowned
+    gs.disconnected(link)
+    gs.dispatch(fields(n))
+    recent = [f"0.0.{i}" for i in range(n - 256, n)]
+    gs.hello(hello(finished=recent, acked=[f"0.0.{n}"]), n + 2.0)
+    assert accept_all(gs) == [] and gs.disowned == set()
+    assert len(gs.applied) == APPLIED_KEEP and gs.next_index == n
 
 
 # ---------------------------------------------------------------------------- property test

@@ -1,0 +1,325 @@
+"""Durable lifelong shifts: the shift executor's inputs journaled, and replayed after a restart.
+
+:class:`JournaledLifelong` is the shift's executor in a gateway with a journal: every input
+(a robot report, a monitor tick, pause, resume, stop, the operator's "plan now", an adopted
+segment, a failed planner call, a new slack threshold) is handed to its sink before it is
+applied. The sink first appends the task book's events not journaled yet (so a task change
+made by the task API is journaled before the next executor input, in the order it happened),
+then the input. The executor and the task book are deterministic and read no clock, so
+:func:`replay_shift` of the records through a fresh executor of the same configuration
+rebuilds both, field by field: the live ADG, every robot's cell and action counter, the
+segment counter, the planner call outstanding, the task assignments and errand progress.
+Task events the replayed executor makes again are checked against the journaled ones (a
+difference is a :class:`~gateway.runtime.journal.JournalError`); the others are the task API's
+changes (a submission, a cancel, a pause, a resume), applied again at their time.
+
+The planner's output is journaled (a :class:`~gateway.runtime.journal.SegmentRecord`), not
+recomputed: it runs off the owner task, and when it answers is part of the input. A call still
+outstanding when the gateway died is planned again after the replay (its answer never left
+the process). :func:`resume_shift` wires a replay into the engine: run id, robot sessions
+(which learn what was dispatched and reported, so reconnecting robots are re-synchronised by
+their ``hello``), the trace file, the clock. No I/O here but the engine's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from gateway.execution.errors import ExecutionError
+from gateway.execution.lifelong import (
+    LifelongCommand,
+    LifelongExecutor,
+    PlanRequest,
+    Segment,
+)
+from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
+from gateway.execution.trace_records import Record
+from gateway.runtime.journal import (
+    JournalError,
+    JournalRecord,
+    ReportRecord,
+    SegmentRecord,
+    ShiftRecord,
+    SpeedRecord,
+    TaskRecord,
+    ThresholdRecord,
+    TimeRecord,
+)
+
+if TYPE_CHECKING:
+    from gateway.server.engine import Engine
+
+log = logging.getLogger("fleetgate.lifelong")
+
+Sink = Callable[[Any], None]
+"""Where a journaled shift hands its input records."""
+
+
+class JournaledLifelong(LifelongExecutor):
+    """A :class:`LifelongExecutor` that hands every input to :attr:`sink` before applying it
+    (None: not journaled, e.g. while it is being replayed)."""
+
+    sink: Sink | None = None
+
+    def set_record(self, record: Callable[[Record], None] | None) -> None:
+        """Where trace records go from now on."""
+        self._record = record
+
+    def _report(self, event: str, robot: int, plan: int, action: int, now_ms: float,
+                reason: str = "") -> None:
+        if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
+            self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
+                                                   index=action, t_ms=now_ms, reason=reason))
+
+    def _time(self, kind: str, now_ms: float) -> None:
+        if self.sink is not None:
+            self.sink(TimeRecord.model_construct(kind=kind, t_ms=now_ms))
+
+    def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("started", robot, plan, action, now_ms)
+        super().started(robot, plan, action, now_ms)
+
+    def finished(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("finished", robot, plan, action, now_ms)
+        super().finished(robot, plan, action, now_ms)
+
+    def blocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("blocked", robot, plan, action, now_ms)
+        super().blocked(robot, plan, action, now_ms)
+
+    def stopped(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("stopped", robot, plan, action, now_ms)
+        super().stopped(robot, plan, action, now_ms)
+
+    def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("unblocked", robot, plan, action, now_ms)
+        super().unblocked(robot, plan, action, now_ms)
+
+    def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        self._report("cancelled", robot, plan, action, now_ms)
+        super().cancelled(robot, plan, action, now_ms)
+
+    def refused(self, robot: int, plan: int, action: int, now_ms: float,
+                reason: str = "") -> None:
+        self._report("refused", robot, plan, action, now_ms, reason)
+        super().refused(robot, plan, action, now_ms, reason)
+
+    def tick(self, now_ms: float) -> None:
+        self._time("tick", now_ms)
+        super().tick(now_ms)
+
+    def pause(self, now_ms: float) -> None:
+        self._time("pause", now_ms)
+        super().pause(now_ms)
+
+    def resume(self, now_ms: float) -> None:
+        self._time("resume", now_ms)
+        super().resume(now_ms)
+
+    def stop(self, now_ms: float) -> None:
+        self._time("stop", now_ms)
+        super().stop(now_ms)
+
+    def plan_now(self, now_ms: float) -> None:
+        self._time("replan", now_ms)
+        super().plan_now(now_ms)
+
+    def plan_failed(self, call: int, now_ms: float) -> None:
+        self._time("abandon", now_ms)
+        super().plan_failed(call, now_ms)
+
+    def adopt(self, segment: Segment, now_ms: float) -> None:
+        if self.sink is not None:
+            self.sink(SegmentRecord(
+                call=segment.call, t_ms=now_ms, states=[list(s) for s in segment.states],
+                reached=[list(r) for r in segment.reached]))
+        super().adopt(segment, now_ms)
+
+    def set_threshold(self, threshold_ms: float) -> None:
+        """The operator's slack threshold."""
+        if self.sink is not None:
+            self.sink(ThresholdRecord(threshold_ms=threshold_ms))
+        self.threshold_ms = threshold_ms
+
+
+@dataclass
+class ShiftReplayed:
+    """What a replay rebuilt besides the executor and the robot sessions."""
+
+    shift: ShiftRecord | None = None
+    """The shift's start (None: the journal holds task changes made before it started)."""
+    speed: float | None = None
+    """The clock speed set last during the shift (None: the shift's start speed)."""
+    last_t_ms: float = 0.0
+    records: int = 0
+
+
+def replay_shift(records: Sequence[JournalRecord], ex: JournaledLifelong, *,
+                 on_commands: Callable[[list[LifelongCommand]], None],
+                 on_report: Callable[[ReportRecord], None],
+                 on_start: Callable[[ShiftRecord], None]) -> ShiftReplayed:
+    """Feed the journaled shift to ``ex`` (fresh, of the shift's configuration, not
+    journaling): ``on_start`` gets the shift's start before the executor starts,
+    ``on_commands`` what the executor commands after each record (planner requests included:
+    the caller decides what to do with them), ``on_report`` every report it accepted (one it
+    refused live is refused again). JournalError if the task events do not follow."""
+    out = ShiftReplayed()
+    pool = ex.pool
+    i = 0
+    while i < len(records):
+        rec = records[i]
+        i += 1
+        out.records += 1
+        t = getattr(rec, "t_ms", None)
+        if t is not None:
+            out.last_t_ms = max(out.last_t_ms, t)
+        if isinstance(rec, TaskRecord):
+            i = _task_change(pool, records, i - 1)
+            continue
+        with contextlib.suppress(ExecutionError):  # refused live as well: nothing changed
+            _apply(ex, out, rec, on_report, on_start)
+        commands = ex.drain()
+        if commands:
+            on_commands(commands)
+    return out
+
+
+def _apply(ex: JournaledLifelong, out: ShiftReplayed, rec: JournalRecord,
+           on_report: Callable[[ReportRecord], None],
+           on_start: Callable[[ShiftRecord], None]) -> None:
+    match rec:
+        case ShiftRecord():
+            out.shift = rec
+            on_start(rec)
+            ex.start(0.0)
+        case ReportRecord(event="refused"):
+            ex.refused(rec.robot, rec.plan, rec.index, rec.t_ms, rec.reason)
+            on_report(rec)
+        case ReportRecord():
+            getattr(ex, rec.event)(rec.robot, rec.plan, rec.index, rec.t_ms)
+            on_report(rec)
+        case TimeRecord(kind="tick"):
+            ex.tick(rec.t_ms)
+        case TimeRecord(kind="pause"):
+            ex.pause(rec.t_ms)
+        case TimeRecord(kind="resume"):
+            ex.resume(rec.t_ms)
+        case TimeRecord(kind="stop"):
+            ex.stop(rec.t_ms)
+        case TimeRecord(kind="replan"):
+            ex.plan_now(rec.t_ms)
+        case TimeRecord(kind="abandon"):
+            req = ex.outstanding
+            if req is None:
+                raise JournalError("a failed planner call is journaled, but none is outstanding")
+            ex.plan_failed(req.call, rec.t_ms)
+        case SegmentRecord():
+            ex.adopt(Segment(rec.call, rec.states, rec.reached), rec.t_ms)
+        case ThresholdRecord():
+            ex.set_threshold(rec.threshold_ms)
+        case SpeedRecord():
+            out.speed = rec.speed
+        case _:
+            raise JournalError(f"a {rec.kind} record in a lifelong shift's journal")
+
+
+def _task_change(pool: TaskPool, records: Sequence[JournalRecord], i: int) -> int:
+    """Replay the task record ``records[i]`` (and the rest of its submission); returns the
+    index of the next record. A record of an event the pool made again is checked; any other
+    is a change of the task API (submit, cancel, pause, resume), made again."""
+    rec = records[i]
+    assert isinstance(rec, TaskRecord)
+    if rec.seq <= pool.event_seq:
+        _check(pool, rec)
+        return i + 1
+    task = pool.book.get(rec.task)
+    end = i + 1
+    if rec.state == "queued" and task is None and rec.errands is not None \
+            and rec.task == pool.next_id and not rec.listed:
+        new = [NewTask(tuple(rec.errands), rec.priority, rec.deadline_ms)]
+        while end < len(records):
+            nxt = records[end]
+            if not (isinstance(nxt, TaskRecord) and nxt.state == "queued"
+                    and nxt.errands is not None and nxt.task == rec.task + len(new)
+                    and nxt.key == rec.key and nxt.t_ms == rec.t_ms and not nxt.listed
+                    and nxt.seq == rec.seq + len(new)):
+                break
+            new.append(NewTask(tuple(nxt.errands), nxt.priority, nxt.deadline_ms))
+            end += 1
+        pool.submit(new, rec.t_ms, rec.key)
+    elif rec.state == "cancelled" and task is not None:
+        pool.cancel(rec.task, rec.t_ms)
+    elif rec.state == "paused" and task is not None:
+        pool.pause(rec.task, rec.t_ms)
+    elif rec.state == "queued" and task is not None and task.state == "paused":
+        pool.resume(rec.task, rec.t_ms)
+    else:
+        raise JournalError(f"task event {rec.seq} ({rec.state} task {rec.task}) does not "
+                           "follow from the journal")
+    for k in range(i, end):
+        _check(pool, records[k])
+    return end
+
+
+def _check(pool: TaskPool, rec: JournalRecord) -> None:
+    """The pool made the journaled event ``rec`` again: the same one (JournalError if not)."""
+    assert isinstance(rec, TaskRecord)
+    events, _ = pool.events_after(rec.seq - 1)
+    if not events or events[0].seq != rec.seq:
+        return  # dropped from the pool's window already (``keep``): nothing to compare
+    want = TaskEvent(rec.seq, rec.task, rec.state, rec.robot, rec.done, rec.t_ms)
+    if events[0] != want:
+        raise JournalError(f"task event {rec.seq} replayed as {events[0]}, journaled as "
+                           f"{want}")
+
+
+def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftReplayed:
+    """Replay the journaled shift into the engine's fresh one and carry on: same run id,
+    the clock continued, robot sessions rebuilt, the trace completed, an outstanding planner
+    call planned again."""
+    run = engine.lifelong
+    assert run is not None and isinstance(run.executor, JournaledLifelong)
+    ex = run.executor
+    trace: list[str] = []
+
+    def record(rec: dict[str, object]) -> None:
+        engine.feed.record(rec)
+        trace.append(json.dumps(rec) + "\n")
+
+    def start(rec: ShiftRecord) -> None:
+        engine.run_id = rec.run_id
+        engine.runs += 1
+
+    def commands(cs: list[LifelongCommand]) -> None:
+        engine.route([c for c in cs if not isinstance(c, PlanRequest)])
+
+    ex.set_record(record)
+    engine._replayed_trace = trace  # a stopped shift's summary record goes there too
+    engine._replaying = True
+    try:
+        done = replay_shift(records, ex, on_commands=commands,
+                            on_report=engine._replayed_report, on_start=start)
+    finally:
+        engine._replaying = False
+        ex.set_record(engine.feed.record)
+    if done.shift is None:
+        return done
+    engine.feed.resume_trace(trace)
+    speed = done.speed if done.speed is not None else done.shift.speed
+    engine.clock.set_speed(speed)
+    away = (time.time() - done.shift.wall_start_s) * 1000.0 * speed
+    engine.clock.reset(max(done.last_t_ms, away))
+    engine.paused = ex.paused
+    if ex.outstanding is not None:  # its answer was never journaled: plan it again
+        run._plan(ex.outstanding)
+    log.info("resumed the journaled shift", extra={
+        "run": engine.run_id, "records": done.records, "segments": ex.segments,
+        "t_ms": round(engine.clock.now_ms()), "finished_tasks": ex.finished_tasks})
+    engine.status_changed()
+    return done
