@@ -142,6 +142,16 @@ class GatewayProcess:
             db.close()
         return None if row is None else str(row[0])
 
+    def journal_size(self) -> tuple[int, int]:
+        """The journal's committed records and its files' bytes (database and WAL)."""
+        db = sqlite3.connect(f"file:{self.journal}?mode=ro", uri=True)
+        try:
+            count = int(db.execute("SELECT COUNT(*) FROM records").fetchone()[0])
+        finally:
+            db.close()
+        files = [self.journal, self.journal.with_name(self.journal.name + "-wal")]
+        return count, sum(f.stat().st_size for f in files if f.exists())
+
     def stop(self) -> None:
         """End the process for good."""
         if self.proc is not None and self.proc.poll() is None:
@@ -318,7 +328,7 @@ def shift_defects(records: list[dict[str, Any]]) -> dict[str, int]:
     report = check_trace(records)
     errors = [e for e in report.errors if e != "no summary record"
               and not (e.startswith("robots ") and " never finished " in e)]
-    times = [float(r["t_ms"]) for r in records]
+    times = [float(r["t_ms"]) for r in records if "t_ms" in r]  # (a summary has none)
     segments = [r["segment"] for r in records if r["type"] == "segment"]
     dispatched = [(r["robot"], r["action"]) for r in records if r["type"] == "dispatch"]
     numbers: dict[int, list[int]] = {}
@@ -345,7 +355,8 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
     submission that made tasks again), ``tasks_finished`` (and ``finished_at_last_kill``),
     ``finished_twice`` and
     ``robot_changed`` (tasks that finished twice, or whose robot changed once started), the
-    shift's plan time and its tasks per plan minute."""
+    shift's plan time and its tasks per plan minute, and the journal's records and size at
+    the end (``journal_records``, ``journal_kb``)."""
     executed: Counter[tuple[int, int, int]] = Counter()
     completed: set[tuple[int, int]] = set()
 
@@ -387,11 +398,12 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
         await fleet.stop()
         gw.stop()
     records = read_trace(gw.trace)
+    journal_records, journal_bytes = gw.journal_size()
     finished = {(r["robot"], r["action"]) for r in records if r["type"] == "finish"}
     tasks: dict[int, list[tuple[str, int]]] = {}
     for e in events:
         tasks.setdefault(e["task"], []).append((e["state"], e["robot"]))
-    plan_ms = max((float(r["t_ms"]) for r in records), default=0.0)
+    plan_ms = max((float(r["t_ms"]) for r in records if "t_ms" in r), default=0.0)
     done = int(counts["counts"]["finished"])
     defects = shift_defects(records)
     defects["renumbered"] += len(list(gw.trace.parent.glob(gw.trace.name + ".*")))  # new shift
@@ -406,7 +418,8 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
                                   if [st for st, _ in s].count("finished") > 1),
             "robot_changed": sum(1 for s in tasks.values()
                                  if len({r for st, r in s if st in ("started", "finished")}) > 1),
-            "plan_ms": plan_ms, "tasks_per_min": done * 60_000.0 / plan_ms if plan_ms else 0.0}
+            "plan_ms": plan_ms, "tasks_per_min": done * 60_000.0 / plan_ms if plan_ms else 0.0,
+            "journal_records": journal_records, "journal_kb": journal_bytes // 1024}
 
 
 def lifelong_config(gw: GatewayProcess, robots: int, warehouse: tuple[int, int]) -> None:
@@ -440,7 +453,8 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
     base, shift = out
     keys = ("resumed", "lost", "duplicated", "collisions", "trace_errors", "renumbered",
             "dispatched_twice", "run_ids", "retry_created", "event_gaps", "finished_twice",
-            "robot_changed", "robot_errors", "tasks_finished", "actions_run", "mean_down_s")
+            "robot_changed", "robot_errors", "tasks_finished", "actions_run", "mean_down_s",
+            "plan_ms", "journal_records", "journal_kb")
     return {"kills": kills, **{k: shift[k] for k in keys},
             "throughput_ratio": round(shift["tasks_per_min"] / base["tasks_per_min"], 3)
             if base["tasks_per_min"] else None,

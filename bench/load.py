@@ -34,17 +34,29 @@ measured at all for it. The result line says which lookahead was used.
 
 ``--lifelong``: a warehouse shift instead of one plan. The gateway (child process) runs in
 lifelong mode on a generated warehouse (about 12 free cells per robot, ``--robots`` turning
-robots, a task stream from the problem's task list revealed as the LoRR Start-Kit does) for
-``--seconds`` of plan time in real time (actions last 1000 ms x U(1-J, 1+J)), then stops the
-shift (robots finish what they hold). Reported: ``throughput_ratio`` = tasks finished per
-minute over the network against the same problem in virtual time (``run_lifelong``, one
-action per 1000 ms tick, the planner's measured CPU time charged as the LoRR rules do),
-measured in the same invocation; ``p99_ms``: robot side, from a robot's ``finished`` handed to
-its websocket to the arrival of each action the gateway dispatched on that finish (found in
-the gateway's trace: the dispatch records that follow the finish record); ``lost`` (dispatched,
-never received) and ``duplicated`` (received again, or one action number under two ids).
+robots) with the problem's task list OFF (``task_list = false``): its task pool is fed only by
+a simulated WMS in this process (``sim_clients.wms``) through the HTTP task API, ``POST
+/tasks`` with the operator's token, an ``Idempotency-Key`` per batch, and the task event
+stream to learn which tasks ended. The WMS submits the problem's task list in order and keeps
+``reveal`` of them outstanding (LoRR's ``numTasksReveal`` x team size, the number the
+Start-Kit keeps revealed) plus a lead of ``reveal / 20`` (at least 8) in the gateway's backlog;
+the gateway's pool reveals ``reveal`` at a time, oldest first, so its schedulers see the same
+task stream as the Start-Kit's reveal rule gives the virtual-time reference, and the lead
+absorbs the WMS's reaction time (``wms_min_lead`` < 0 would mean the pool was short of tasks
+for a moment). The shift runs for ``--seconds`` of plan time in real time (actions last 1000
+ms x U(1-J, 1+J)), then stops (robots finish what they hold). Reported:
+``throughput_ratio`` = tasks finished per minute over the network against the same problem in
+virtual time (``run_lifelong``: the same task list revealed by the Start-Kit's rule, one
+action per 1000 ms tick, the scheduler's and planner's measured CPU time charged as the LoRR
+rules do), measured in the same invocation; ``p99_ms``: robot side, from a robot's
+``finished`` handed to its websocket to the arrival of each action the gateway dispatched on
+that finish (found in the gateway's trace: the dispatch records that follow the finish
+record); ``lost`` (dispatched, never received) and ``duplicated`` (received again, or one
+action number under two ids); ``task_api_p99_ms``: the WMS's ``POST /tasks`` round trips
+during the shift (the initial fill left out). ``--profile FILE`` profiles the gateway's event
+loop thread (CPU time of that thread).
 
-    .venv/bin/python bench/load.py --lifelong --robots 500 --seconds 60 --json
+    .venv/bin/python bench/load.py --lifelong --robots 500 --seconds 90 --lookahead 1 --json
 """
 
 from __future__ import annotations
@@ -56,6 +68,7 @@ import cProfile
 import gc
 import json
 import math
+import os
 import pstats
 import random
 import resource
@@ -76,7 +89,7 @@ from gateway.planning.instance import Instance
 from gateway.planning.lorr import LorrProblem, warehouse_blocks, warehouse_problem
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
-from gateway.server.config import GatewayConfig, LifelongSettings
+from gateway.server.config import GatewayConfig, LifelongSettings, TokensConfig
 from gateway.server.gateway import Gateway
 from gateway.server.gc_tuning import GC_THRESHOLDS
 from gateway.server.items import OwnerCall
@@ -85,6 +98,7 @@ from protocol import parse_action_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
 from sim_clients.lifelong import LifelongConfig, run_lifelong
+from sim_clients.wms import Wms
 from tracecheck import check_trace, read_trace
 
 P99_LIMIT_MS = 50.0
@@ -340,13 +354,19 @@ def shift_problem(robots: int, seed: int) -> LorrProblem:
     return warehouse_problem(robots, seed, warehouse_blocks(robots), p_delay=0.0)
 
 
+def shift_reveal(problem: LorrProblem) -> int:
+    """Tasks the Start-Kit keeps revealed (and the gateway's pool: ``reveal`` unset)."""
+    return max(1, int(problem.num_tasks_reveal * problem.team_size))
+
+
 async def _serve_shift(robots: int, seed: int, seconds: float, trace: Path, lookahead: int,
                        window: int) -> dict[str, Any]:
     config = GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
                            ping_timeout_s=20.0, log_level="WARNING", trace=trace,
                            dispatch_lookahead=lookahead,
                            lifelong=LifelongSettings(robots=robots, seed=seed, window=window,
-                                                     warehouse=warehouse_blocks(robots)))
+                                                     warehouse=warehouse_blocks(robots),
+                                                     task_list=False))
     async with Gateway(config) as gw:
         run = gw.engine.lifelong
         assert run is not None
@@ -379,8 +399,15 @@ async def _serve_shift(robots: int, seed: int, seconds: float, trace: Path, look
 def serve_shift_main(args: argparse.Namespace) -> None:
     """``--serve-lifelong TRACE``: run the shift; print the port, then a JSON line."""
     _raise_fd_limit()
+    # the event loop's thread only: the planner's own CPU is not the loop's
+    profiler = cProfile.Profile(time.thread_time) if args.profile is not None else None
+    if profiler is not None:
+        profiler.enable()
     result = asyncio.run(_serve_shift(args.robots, args.seed, args.seconds,
                                       args.serve_lifelong, args.lookahead, args.window))
+    if profiler is not None:
+        profiler.disable()
+        profiler.dump_stats(str(args.profile))
     print(json.dumps(result), flush=True)
 
 
@@ -402,34 +429,53 @@ def unlocked_by_finish(records: list[dict[str, Any]]
     return out
 
 
-async def _drive_shift(port: int, robots: int, jitter: float,
+async def _drive_shift(port: int, robots: int, jitter: float, wms: Wms,
                        result: subprocess.Popen[str]) -> FleetStats:
-    """Run the fleet until the gateway process prints its result (the shift is over)."""
-    async with _connected_fleet(port, robots, jitter) as fleet:
-        assert result.stdout is not None
-        line = await asyncio.get_running_loop().run_in_executor(None, result.stdout.readline)
-        fleet.stats.errors.extend([] if line else ["the gateway process printed no result"])
-        _SHIFT_RESULT.append(line)
-        return fleet.stats
+    """Fill the gateway's task pool through the task API, then run the fleet (the shift
+    starts once every robot is there) and the WMS until the gateway process prints its result
+    (the shift is over)."""
+    await wms.fill()
+    wms.stats.post_ms.clear()  # the initial fill is not the shift's
+    feeding = asyncio.get_running_loop().create_task(wms.run(), name="wms")
+    try:
+        async with _connected_fleet(port, robots, jitter) as fleet:
+            assert result.stdout is not None
+            line = await asyncio.get_running_loop().run_in_executor(None,
+                                                                    result.stdout.readline)
+            fleet.stats.errors.extend([] if line else ["the gateway process printed no result"])
+            _SHIFT_RESULT.append(line)
+    finally:
+        feeding.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await feeding  # a WMS error (a refused POST) is raised here
+    return fleet.stats
 
 
 _SHIFT_RESULT: list[str] = []
 
 
 def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-              window: int) -> dict[str, Any]:
-    """One lifelong network run and its virtual-time baseline; the measurements as a dict."""
+              window: int, profile: Path | None = None) -> dict[str, Any]:
+    """One lifelong network run fed through the task API, and its virtual-time baseline; the
+    measurements as a dict."""
+    problem = shift_problem(robots, seed)
+    reveal = shift_reveal(problem)
     with tempfile.TemporaryDirectory() as tmp:
         trace = Path(tmp) / "trace.jsonl"
         cmd = [sys.executable, __file__, "--serve-lifelong", str(trace), "--robots",
                str(robots), "--seed", str(seed), "--seconds", str(seconds), "--lookahead",
                str(lookahead), "--window", str(window)]
+        if profile is not None:
+            cmd += ["--profile", str(profile)]
         gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
         try:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
             _SHIFT_RESULT.clear()
-            stats = asyncio.run(_drive_shift(port, robots, jitter, gw))
+            wms = Wms(port, TokensConfig().operators[0],
+                      [tuple(problem.grid.cell(c) for c in t) for t in problem.tasks],
+                      keep=reveal, lead=max(8, reveal // 20))
+            stats = asyncio.run(_drive_shift(port, robots, jitter, wms, gw))
             gw.wait(timeout=60)
         finally:
             if gw.poll() is None:
@@ -445,7 +491,7 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
     dispatched = {(int(r["robot"]), int(r["action"])) for r in records
                   if r["type"] == "dispatch"}
     t0 = time.process_time()
-    virtual = run_lifelong(LifelongConfig(shift_problem(robots, seed), ticks=seconds, period=1,
+    virtual = run_lifelong(LifelongConfig(problem, ticks=seconds, period=1,
                                           tick_ms=1000.0, seed=seed, window=window))
     virtual_cpu = time.process_time() - t0
     minutes = gateway.get("elapsed_ms", 0.0) / 60_000.0
@@ -469,7 +515,14 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
             "segments": gateway.get("segments"), "slack_triggers": gateway.get("triggers"),
             "planner_p50_ms": gateway.get("planner_p50_ms"),
             "planner_max_ms": gateway.get("planner_max_ms"),
-            "virtual_cpu_s": round(virtual_cpu, 1), "cpu_pressure_pct": cpu_pressure()}
+            "virtual_cpu_s": round(virtual_cpu, 1), "reveal": reveal,
+            "task_posts": len(wms.stats.post_ms),
+            "task_api_p50_ms": round(statistics.median(wms.stats.post_ms), 3)
+            if wms.stats.post_ms else None,
+            "task_api_p99_ms": round(_percentile(wms.stats.post_ms, 0.99), 3)
+            if wms.stats.post_ms else None,
+            "wms_submitted": wms.stats.submitted, "wms_min_lead": wms.stats.min_lead,
+            "cpu_pressure_pct": cpu_pressure(), "load_1min": round(os.getloadavg()[0], 1)}
 
 
 def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
@@ -581,13 +634,15 @@ def main() -> int:
         p.error("--pairs must be >= 1")
     if args.lifelong:
         shift = run_shift(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                          args.window)
+                          args.window, args.profile)
         print(json.dumps(shift) if args.json else
               f"lifelong: {shift['robots']} robots, {args.seconds} s: "
               f"{shift['tasks_per_min_network']} tasks/min over the network vs "
               f"{shift['tasks_per_min_virtual']} in virtual time = throughput_ratio "
               f"{shift['throughput_ratio']}; p99 {shift['p99_ms']} ms; lost {shift['lost']}, "
-              f"duplicated {shift['duplicated']}, collisions {shift['collisions']}")
+              f"duplicated {shift['duplicated']}, collisions {shift['collisions']}; POST "
+              f"/tasks p99 {shift['task_api_p99_ms']} ms")
+        _print_profile(args.profile)
         return 0
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
                         args.lookahead, journal=args.journal)
@@ -618,9 +673,13 @@ def main() -> int:
               + (" (0 = classic dispatch: every latency is finish -> the dispatch it unlocks)"
                  if args.lookahead == 0 else
                  " (Type 1 unlocks happen before the finish: latencies are not comparable)"))
-    if args.profile is not None and args.profile.exists():
-        pstats.Stats(str(args.profile), stream=sys.stderr).sort_stats("tottime").print_stats(25)
+    _print_profile(args.profile)
     return 0
+
+
+def _print_profile(profile: Path | None) -> None:
+    if profile is not None and profile.exists():
+        pstats.Stats(str(profile), stream=sys.stderr).sort_stats("tottime").print_stats(25)
 
 
 if __name__ == "__main__":

@@ -35,8 +35,11 @@ The rules, written once here:
 * protocol v2 (the version of the robot's ``hello``): a ``blocked`` of a move under way is a
   stop on the way (a bumper), told to the executor as ``stopped``; its ``unblocked`` resumes
   the move. A ``refused`` action that has not started goes to the executor as ``refused``
-  (with the robot's reason); once taken, it and the robot's later actions of that plan are
-  no longer held, and a repeated or ``queued_behind`` refusal of them is dropped silently.
+  (with the robot's reason); once taken, it and the actions dispatched to the robot after it
+  (of that plan, or of a lifelong shift's later segments) are no longer held, and a repeated,
+  ``queued_behind`` or ``pose_mismatch`` refusal of them is dropped silently, also when it
+  arrives after they were dispatched again (the robot had not answered them yet: its answer
+  is about the old dispatch).
 """
 
 from __future__ import annotations
@@ -57,8 +60,8 @@ from protocol.messages import (
     RobotActivity,
     ToRobotMessage,
     Welcome,
+    action_run,
     parse_action_id,
-    plan_key,
 )
 
 ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled", "refused"]
@@ -151,6 +154,10 @@ class GatewaySession:
     """Actions of the current plan finished."""
     disowned: set[str] = field(default_factory=set)
     """Actions the robot said it holds that the gateway never dispatched: cancelled."""
+    owed: set[str] = field(default_factory=set)
+    """Actions taken back with a refusal of an earlier one before the robot answered them:
+    it will refuse them too, and that refusal is about the old dispatch even if it arrives
+    after the action was dispatched again (until the next ``hello``)."""
     _out: list[GatewayEffect] = field(default_factory=list)
 
     # ------------------------------------------------------------------ state
@@ -172,6 +179,7 @@ class GatewaySession:
         self.held.clear()
         self.applied.clear()
         self.disowned.clear()
+        self.owed.clear()
         self.next_index = 0
 
     def drain(self) -> list[GatewayEffect]:
@@ -186,6 +194,7 @@ class GatewaySession:
         resend), then calls :meth:`welcome` with the connection."""
         self.link = None
         self.version = msg.v
+        self.owed.clear()  # what was in flight on the old connection is gone
         if msg.pose is not None:
             self.pose = msg.pose
         holds = set(msg.acked)
@@ -245,6 +254,7 @@ class GatewaySession:
         """The robot acknowledged action ``aid``."""
         if not self._linked(link, ref):
             return
+        self.owed.discard(aid)  # it took the action after all
         h = self.held.get(aid)
         if h is not None:
             h.acked = True
@@ -260,7 +270,8 @@ class GatewaySession:
             return
         if pose is not None:
             self.pose = pose
-        if kind == "refused" and self.applied.get(aid) == "refused":
+        if kind == "refused" and (self.applied.get(aid) == "refused" or aid in self.owed):
+            self.owed.discard(aid)
             return  # taken back already (a refusal of an earlier action covered it)
         if kind == "cancelled" and aid in self.disowned:
             self.disowned.discard(aid)  # the robot dropped what the gateway disowned
@@ -300,6 +311,8 @@ class GatewaySession:
             h.phase = "running" if h.moved else "dispatched"
         elif r.kind == "refused":  # the executor took back this action and the later ones
             for aid in [a for a in self.held if self._taken_back_with(a, r)]:
+                if aid != r.action_id and not self.held[aid].acked:
+                    self.owed.add(aid)
                 del self.held[aid]
                 self._applied(aid, "refused")
         else:
@@ -367,9 +380,12 @@ class GatewaySession:
 
     @staticmethod
     def _taken_back_with(aid: str, r: Report) -> bool:
-        """Whether the refusal ``r`` also takes back held action ``aid`` (same plan, not
-        before it)."""
-        return plan_key(aid) == plan_key(r.action_id) and parse_action_id(aid)[2] >= r.index
+        """Whether the refusal ``r`` also takes back held action ``aid``: dispatched after it
+        in the same run (its plan, or a later one: a lifelong shift's later segments, whose
+        action numbers go on), not before it."""
+        plan, _, index = parse_action_id(aid)
+        return (action_run(aid) == action_run(r.action_id) and plan >= r.plan
+                and index >= r.index)
 
     def _refuse(self, code: ErrorCode, ref: str | None, detail: str) -> None:
         self._out.append(Refuse(code, ref, detail))

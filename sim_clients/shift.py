@@ -50,9 +50,14 @@ async def stop_shift(gateway: Gateway, fleet: SimFleet, timeout_s: float = 60.0
     gateway.engine.queue.put_nowait(OwnerCall(lifelong.stop))
     await asyncio.wait_for(gateway.wait_done(), timeout_s)
     ex = lifelong.executor
+    # a robot's action numbers count up over the shift and it finishes them in order: every
+    # number below its next index was dispatched (a session remembers only its latest
+    # applied actions)
     sent = {(robot, index) for gs in gateway.engine.robots.values()
             for aid in (*gs.held, *gs.applied)
             for _, robot, index in [parse_action_id(aid)]}
+    sent |= {(gs.robot_id, i) for gs in gateway.engine.robots.values()
+             for i in range(gs.next_index)}
     got = {(robot, index) for aid in fleet.stats.received
            for _, robot, index in [parse_action_id(aid)]}
     return ShiftStats(finished_tasks=ex.finished_tasks, elapsed_ms=ex.now_ms,

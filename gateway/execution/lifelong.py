@@ -13,7 +13,9 @@ never repeat), up to ``lookahead`` actions beyond the one they run, each only on
 dependency is done (the Type 1 order is the robot's: it runs its queue in order). Reports
 (started, finished, blocked, unblocked, stopped, refused) are checked against the head of the
 robot's queue like the one-shot executor's. A robot completes an errand when it finishes the
-action that brings it onto the errand's cell; the task pool is told.
+action that brings it onto the errand's cell; the task pool is told. A robot may refuse an
+action it has not started: it and the robot's later dispatched actions are taken back and
+dispatched again, unchanged, at the next planning call.
 
 Monitor: :meth:`~LifelongExecutor.estimate` is Algorithm 1 over every committed action of every
 segment (``LiveADG.estimate``). Slack across segments: each action has one Type 2 dependency in
@@ -154,7 +156,7 @@ class LifelongExecutor:
         self._sent = [0] * n  # dispatched, unfinished actions (the head first)
         self._started_at = [_NO_START] * n  # start time of the running head action
         self._blocked = bytearray(n)
-        self._refusing = bytearray(n)
+        self._refusing = bytearray(n)  # refused an action: nothing until the next call
         self._waiters: list[set[int]] = [set() for _ in range(n)]  # robots whose next dispatch
         # waits for an action of this robot
         self._segment_of: list[deque[tuple[int, int]]] = [deque() for _ in range(n)]
@@ -316,8 +318,14 @@ class LifelongExecutor:
         return out
 
     def _call(self) -> None:
-        """Assign tasks and ask the driver for the next window."""
+        """Assign tasks and ask the driver for the next window; the robots that refused an
+        action get it again."""
         adg, book, n = self.adg, self.book, self.n
+        if any(self._refusing):
+            refusing = [r for r in range(n) if self._refusing[r]]
+            self._refusing = bytearray(n)
+            for r in refusing:
+                self._fill(r)
         book.forget_gone()  # first: a task cancelled or paused is no robot's to release
         if self.reassign and self.calls % self.reassign == 0:
             book.release_unstarted(self._now)
@@ -554,8 +562,11 @@ class LifelongExecutor:
     def refused(self, robot: int, plan: int, action: int, now_ms: float,
                 reason: str = "") -> None:
         """The robot will not execute the action (not started): it and the robot's later
-        dispatched ones are taken back, and the robot gets no dispatch any more (its committed
-        actions cannot be withdrawn: robots that depend on them wait; an operator must act)."""
+        dispatched ones go back to committed, not dispatched (a ``refused`` trace record each,
+        the first with the reason). Its committed actions cannot be withdrawn (robots that
+        depend on them wait), so the robot gets them again, the refused one first, at the next
+        planning call (as a one-shot replan gives a refusing robot work again): at most one
+        refusal per period if the robot keeps refusing."""
         pos = self._event("refused", robot, plan, action, now_ms)
         if pos == 0 and self._started_at[robot] != _NO_START:
             raise ExecutionError(f"refused of robot {robot} action {action}: it has already "

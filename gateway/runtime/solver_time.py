@@ -25,7 +25,11 @@ def run_charged(fn: Callable[[], T], solver_time: SolverTime) -> tuple[T, float]
     """
     t0 = time.thread_time()
     result = fn()
-    cpu_ms = (time.thread_time() - t0) * 1000.0
+    return result, charge_ms((time.thread_time() - t0) * 1000.0, solver_time)
+
+
+def charge_ms(cpu_ms: float, solver_time: SolverTime) -> float:
+    """The virtual ms a planner call that took ``cpu_ms`` of CPU costs."""
     if solver_time == "measured":
-        return result, cpu_ms
-    return result, 0.0 if solver_time == "zero" else float(solver_time)
+        return cpu_ms
+    return 0.0 if solver_time == "zero" else float(solver_time)

@@ -11,7 +11,9 @@ The two clocks differ in how they run the planner: :class:`RealClock` runs it in
 (events keep arriving while it works); :class:`VirtualClock` runs it inline, so virtual time
 stands still while it computes, and then charges its time as configured ("measured": the
 solver's CPU time, "zero", or a fixed number of ms; DESIGN section 2) by sleeping that long in
-virtual time.
+virtual time. ``run_measured`` is the same for a planner that runs in another process and
+reports its own CPU time (the lifelong planner process): a thread waits for it in real time;
+under virtual time the loop waits for it inline and charges the CPU time it reported.
 Plan time can run ``speed`` times faster than the loop clock (the demo's ``--speed``).
 """
 
@@ -22,7 +24,7 @@ import time
 from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 
-from gateway.runtime.solver_time import SolverTime, run_charged
+from gateway.runtime.solver_time import SolverTime, charge_ms, run_charged
 
 T = TypeVar("T")
 
@@ -82,6 +84,13 @@ class RealClock(LoopClock):
         result = await asyncio.to_thread(fn)
         return result, (time.perf_counter() - t0) * 1000.0
 
+    async def run_measured(self, fn: Callable[[], tuple[T, float]]) -> tuple[T, float]:
+        """Wait off the loop for ``fn`` (work done elsewhere: its result and its CPU ms);
+        returns the result and the wall ms it took."""
+        t0 = time.perf_counter()
+        result, _cpu_ms = await asyncio.to_thread(fn)
+        return result, (time.perf_counter() - t0) * 1000.0
+
 
 class VirtualClock(LoopClock):
     """Virtual time; needs a looptime loop (:func:`run_virtual`).
@@ -118,6 +127,14 @@ class VirtualClock(LoopClock):
     async def run_solver(self, fn: Callable[[], T]) -> tuple[T, float]:
         """Run ``fn`` inline (virtual time stands still), then sleep the charged time."""
         result, charge = run_charged(fn, self.solver_time)
+        await self.sleep_until_ms(self.now_ms() + charge)
+        return result, charge
+
+    async def run_measured(self, fn: Callable[[], tuple[T, float]]) -> tuple[T, float]:
+        """Wait for ``fn`` (work done elsewhere: its result and its CPU ms) inline, so virtual
+        time stands still, then sleep what its CPU ms charge."""
+        result, cpu_ms = fn()
+        charge = charge_ms(cpu_ms, self.solver_time)
         await self.sleep_until_ms(self.now_ms() + charge)
         return result, charge
 

@@ -5,11 +5,13 @@
 routes what it emits: dispatches, the slack trigger and the end of the shift go through the
 engine's routing (the same wire protocol as a one-shot run: action ids are
 ``run.segment.robot.n``, ``n`` counting the robot's actions over the shift, so they never
-repeat); a :class:`~gateway.execution.lifelong.PlanRequest` runs the windowed planner off the
-event loop (as the engine's planner tasks do: a thread in real time, charged time under a
+repeat); a :class:`~gateway.execution.lifelong.PlanRequest` goes to the windowed planner in
+its own process (:class:`~gateway.server.planner_process.PlannerProcess`, so it never holds
+the event loop's GIL; a thread waits for it in real time, its CPU time is charged under a
 virtual clock) while robots keep reporting, and its segment comes back through the owner's
 queue as an :class:`~gateway.server.items.OwnerCall` to be appended to the live ADG. Nobody
-stops for it. The engine ticks the run every monitor period; robot reports reach the executor
+stops for it. If the planner process dies, one error line says so and the next period plans
+again in a new one. The engine ticks the run every monitor period; robot reports reach the executor
 through the engine's robot sessions as in a one-shot run.
 
 The live task pool is :attr:`LifelongRun.tasks` (``Engine.tasks``): a task API reads it and
@@ -38,7 +40,6 @@ from gateway.execution.lifelong import (
     LifelongMode,
     PlanRequest,
     Segment,
-    WindowPlanner,
 )
 from gateway.execution.tasks import TaskPool
 from gateway.planning.grid import Grid
@@ -46,6 +47,7 @@ from gateway.planning.lorr import read_problem, warehouse_problem
 from gateway.runtime.journal import ShiftRecord, new_run_id
 from gateway.server.config import GatewayConfig
 from gateway.server.items import OwnerCall
+from gateway.server.planner_process import PlannerDied, PlannerProcess
 from gateway.server.shift_journal import JournaledLifelong
 from protocol import Pose
 from protocol.messages import HEADINGS, GatewayStatus
@@ -103,7 +105,11 @@ class LifelongRun:
             durations=ActionDurations.uniform(cfg.action_ms), lookahead=cfg.dispatch_lookahead,
             threshold_ms=s.threshold_ms, record=engine.feed.record)
         self.turning = shift.headings is not None
-        self.planner = WindowPlanner(grid, len(shift.starts), self.turning, s.seed)
+        self.planner = PlannerProcess(grid, len(shift.starts), self.turning, s.seed)
+        try:
+            self.planner.start()  # the first window must not wait for it
+        except PlannerDied as exc:
+            raise ValueError(f"lifelong mode: {exc}") from None
         self.planner_ms: list[float] = []
         """Wall (real clock) or charged (virtual clock) ms of each planner call."""
         self._solving: asyncio.Task[None] | None = None
@@ -181,9 +187,11 @@ class LifelongRun:
         self.route()
 
     def cancel(self) -> None:
-        """Cancel a running planner call (the gateway is closing)."""
+        """Cancel a running planner call and end the planner process (the gateway is
+        closing)."""
         if self._solving is not None:
             self._solving.cancel()
+        self.planner.close()
 
     # ------------------------------------------------------------------ routing
     def route(self) -> None:
@@ -203,8 +211,12 @@ class LifelongRun:
         async def run() -> None:
             segment: Segment | None = None
             try:
-                segment, charged = await e.clock.run_solver(partial(self.planner, req))
+                segment, charged = await e.clock.run_measured(partial(self.planner.call, req))
                 self.planner_ms.append(charged)
+            except PlannerDied as exc:
+                if not self.planner.closed:
+                    log.error("lifelong planner process died", extra={
+                        "call": req.call, "error": str(exc)})
             except Exception as exc:  # a planner bug: one line, the next period plans again
                 log.error("lifelong planner failed", extra={"call": req.call,
                                                             "error": repr(exc)[:300]})

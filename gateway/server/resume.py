@@ -54,7 +54,56 @@ def plan_of(paths: Sequence[Sequence[Cell]], headings: Sequence[Sequence[int]] |
     return Plan(cells, None if headings is None else tuple(tuple(h) for h in headings))
 
 
-class JournaledExecutor(Executor):
+class JournaledReports:
+    """Mixin of a journaled executor (one-shot or lifelong; listed before it in the bases):
+    every robot report is handed to :attr:`sink` before the executor applies it."""
+
+    sink: Sink | None = None
+
+    def _report(self, event: ExecutorEvent, robot: int, plan: int, action: int,
+                now_ms: float, reason: str = "") -> None:
+        if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
+            self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
+                                                   index=action, t_ms=now_ms, reason=reason))
+
+    def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """Journal, then apply, a robot's ``started``."""
+        self._report("started", robot, plan, action, now_ms)
+        super().started(robot, plan, action, now_ms)  # type: ignore[misc]
+
+    def finished(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """Journal, then apply, a robot's ``finished``."""
+        self._report("finished", robot, plan, action, now_ms)
+        super().finished(robot, plan, action, now_ms)  # type: ignore[misc]
+
+    def blocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """Journal, then apply, a robot's ``blocked`` before it starts."""
+        self._report("blocked", robot, plan, action, now_ms)
+        super().blocked(robot, plan, action, now_ms)  # type: ignore[misc]
+
+    def stopped(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """Journal, then apply, a robot's ``blocked`` on the way."""
+        self._report("stopped", robot, plan, action, now_ms)
+        super().stopped(robot, plan, action, now_ms)  # type: ignore[misc]
+
+    def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """Journal, then apply, a robot's ``unblocked``."""
+        self._report("unblocked", robot, plan, action, now_ms)
+        super().unblocked(robot, plan, action, now_ms)  # type: ignore[misc]
+
+    def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
+        """Journal, then apply, a robot's ``cancelled``."""
+        self._report("cancelled", robot, plan, action, now_ms)
+        super().cancelled(robot, plan, action, now_ms)  # type: ignore[misc]
+
+    def refused(self, robot: int, plan: int, action: int, now_ms: float,
+                reason: str = "") -> None:
+        """Journal, then apply, a robot's refusal."""
+        self._report("refused", robot, plan, action, now_ms, reason)
+        super().refused(robot, plan, action, now_ms, reason)  # type: ignore[misc]
+
+
+class JournaledExecutor(JournaledReports, Executor):
     """An :class:`Executor` that hands every input to ``sink`` before applying it."""
 
     def __init__(self, plan: Plan, *, sink: Sink | None = None, **kwargs: Any) -> None:
@@ -68,41 +117,6 @@ class JournaledExecutor(Executor):
     def _log(self, record: Any) -> None:
         if self.sink is not None:
             self.sink(record)
-
-    def _report(self, event: ExecutorEvent, robot: int, plan: int, action: int,
-                now_ms: float, reason: str = "") -> None:
-        if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
-            self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
-                                                   index=action, t_ms=now_ms, reason=reason))
-
-    def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("started", robot, plan, action, now_ms)
-        super().started(robot, plan, action, now_ms)
-
-    def finished(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("finished", robot, plan, action, now_ms)
-        super().finished(robot, plan, action, now_ms)
-
-    def blocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("blocked", robot, plan, action, now_ms)
-        super().blocked(robot, plan, action, now_ms)
-
-    def stopped(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("stopped", robot, plan, action, now_ms)
-        super().stopped(robot, plan, action, now_ms)
-
-    def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("unblocked", robot, plan, action, now_ms)
-        super().unblocked(robot, plan, action, now_ms)
-
-    def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("cancelled", robot, plan, action, now_ms)
-        super().cancelled(robot, plan, action, now_ms)
-
-    def refused(self, robot: int, plan: int, action: int, now_ms: float,
-                reason: str = "") -> None:
-        self._report("refused", robot, plan, action, now_ms, reason)
-        super().refused(robot, plan, action, now_ms, reason)
 
     def tick(self, now_ms: float) -> None:
         if self.sink is not None:

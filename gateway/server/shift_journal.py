@@ -23,13 +23,12 @@ their ``hello``), the trace file, the clock. No I/O here but the engine's.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import (
@@ -51,64 +50,25 @@ from gateway.runtime.journal import (
     ThresholdRecord,
     TimeRecord,
 )
+from gateway.server.resume import JournaledReports
 
 if TYPE_CHECKING:
     from gateway.server.engine import Engine
 
 log = logging.getLogger("fleetgate.lifelong")
 
-Sink = Callable[[Any], None]
-"""Where a journaled shift hands its input records."""
 
-
-class JournaledLifelong(LifelongExecutor):
+class JournaledLifelong(JournaledReports, LifelongExecutor):
     """A :class:`LifelongExecutor` that hands every input to :attr:`sink` before applying it
     (None: not journaled, e.g. while it is being replayed)."""
-
-    sink: Sink | None = None
 
     def set_record(self, record: Callable[[Record], None] | None) -> None:
         """Where trace records go from now on."""
         self._record = record
 
-    def _report(self, event: str, robot: int, plan: int, action: int, now_ms: float,
-                reason: str = "") -> None:
-        if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
-            self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
-                                                   index=action, t_ms=now_ms, reason=reason))
-
     def _time(self, kind: str, now_ms: float) -> None:
         if self.sink is not None:
             self.sink(TimeRecord.model_construct(kind=kind, t_ms=now_ms))
-
-    def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("started", robot, plan, action, now_ms)
-        super().started(robot, plan, action, now_ms)
-
-    def finished(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("finished", robot, plan, action, now_ms)
-        super().finished(robot, plan, action, now_ms)
-
-    def blocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("blocked", robot, plan, action, now_ms)
-        super().blocked(robot, plan, action, now_ms)
-
-    def stopped(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("stopped", robot, plan, action, now_ms)
-        super().stopped(robot, plan, action, now_ms)
-
-    def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("unblocked", robot, plan, action, now_ms)
-        super().unblocked(robot, plan, action, now_ms)
-
-    def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
-        self._report("cancelled", robot, plan, action, now_ms)
-        super().cancelled(robot, plan, action, now_ms)
-
-    def refused(self, robot: int, plan: int, action: int, now_ms: float,
-                reason: str = "") -> None:
-        self._report("refused", robot, plan, action, now_ms, reason)
-        super().refused(robot, plan, action, now_ms, reason)
 
     def tick(self, now_ms: float) -> None:
         self._time("tick", now_ms)
@@ -182,8 +142,14 @@ def replay_shift(records: Sequence[JournalRecord], ex: JournaledLifelong, *,
         if isinstance(rec, TaskRecord):
             i = _task_change(pool, records, i - 1)
             continue
-        with contextlib.suppress(ExecutionError):  # refused live as well: nothing changed
+        try:
             _apply(ex, out, rec, on_report, on_start)
+        except JournalError:
+            raise
+        except ExecutionError:  # refused live as well: nothing changed
+            pass
+        except Exception:  # an internal error live too (the engine logged it and went on)
+            log.exception("replaying a %s record raised, as it did live", rec.kind)
         commands = ex.drain()
         if commands:
             on_commands(commands)

@@ -10,10 +10,30 @@ from __future__ import annotations
 
 import asyncio
 import random
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
-from bench.crash import GatewayProcess, free_port, lifelong_config, lifelong_shift
+import pytest
+
+from bench.crash import (
+    GatewayProcess,
+    free_port,
+    lifelong_config,
+    lifelong_shift,
+    shift_defects,
+)
+from gateway.execution.lifelong import PlanRequest, Segment
 from gateway.planning.lorr import warehouse_problem
+from gateway.runtime.journal import Journal
+from gateway.server.config import GatewayConfig, LifelongSettings
+from gateway.server.gateway import Gateway
+from gateway.server.planner_process import PlannerProcess
+from sim_clients.connect import websocket_connector
+from sim_clients.fleet import SimFleet
+from sim_clients.shift import start_shift, stop_shift
+from tracecheck import check_trace, read_trace
 
 ROBOTS = 6
 
@@ -37,3 +57,77 @@ def test_a_killed_lifelong_gateway_continues_the_same_shift(tmp_path: Path) -> N
         assert out[key] == 0, (key, out)
     assert out["actions_run"] > 100
     assert out["tasks_finished"] > out["finished_at_last_kill"] > 0  # the shift went on
+
+
+
+def test_a_planner_call_outstanding_at_the_crash_is_planned_again(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The gateway goes down while a planner call runs (its segment never journaled); the
+    restarted one replays the shift up to that call, plans it again and the shift goes on."""
+    slow = threading.Event()
+    plan = PlannerProcess.call
+
+    def planner(self: PlannerProcess, req: PlanRequest) -> tuple[Segment, float]:
+        if slow.is_set():
+            time.sleep(1.0)
+        return plan(self, req)
+
+    monkeypatch.setattr(PlannerProcess, "call", planner)
+    journal = tmp_path / "journal.sqlite"
+    config = GatewayConfig(port=free_port(), map=None, autostart=True, speed=10.0,
+                           trace=tmp_path / "trace.jsonl", journal=journal,
+                           log_level="WARNING",
+                           lifelong=LifelongSettings(robots=ROBOTS, warehouse=(2, 3)))
+    out: dict[str, Any] = {}
+
+    async def started() -> tuple[Gateway, Any]:
+        gw = Gateway(config)
+        await gw.start()
+        ex = gw.engine.lifelong.executor  # type: ignore[union-attr]
+        out.setdefault("at_start", []).append(
+            (ex.outstanding.call if ex.outstanding is not None else None, ex.segments))
+        await gw.listen()
+        return gw, ex
+
+    async def main() -> None:
+        gw, ex = await started()
+        fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{config.port}/ws"),
+                         range(ROBOTS), clock=gw.clock, send_state=False,
+                         reconnect_delay_s=0.05)
+        try:
+            await start_shift(gw, fleet)
+            run = gw.engine.run_id
+            while ex.segments < 3:
+                await asyncio.sleep(0.02)
+            slow.set()
+            while ex.outstanding is None or ex.segments < 4:
+                await asyncio.sleep(0.02)
+            await asyncio.sleep(0.2)  # the call is running in the planner's thread
+            out["call"], out["segments"] = ex.outstanding.call, ex.segments
+            await gw.stop()  # down in the middle of the call: its answer is never adopted
+            slow.clear()
+            out["kinds"] = [r.kind for r in Journal(journal).records()]
+            gw, ex = await started()  # the robots reconnect by themselves
+            out["resumed"] = (gw.resumed, gw.engine.run_id == run)
+            while ex.segments < out["segments"] + 5:
+                await asyncio.sleep(0.02)
+            out["stats"] = await stop_shift(gw, fleet)
+        finally:
+            await fleet.stop()
+            await gw.stop()
+
+    async def bounded() -> None:
+        async with asyncio.timeout(120):  # a call never planned again stalls the shift
+            await main()
+
+    asyncio.run(bounded())
+    # the call's answer was not journaled; the restart replayed the shift up to the call,
+    # which was outstanding again (and then answered: the shift went on)
+    assert out["kinds"].count("segment") == out["segments"]
+    assert out["resumed"] == (True, True)
+    assert out["at_start"] == [(None, 0), (out["call"], out["segments"])]
+    stats = out["stats"]
+    assert stats.lost == 0 and stats.duplicated == 0 and stats.collisions == 0
+    records = read_trace(tmp_path / "trace.jsonl")
+    assert check_trace(records).ok
+    assert shift_defects(records)["renumbered"] == 0
