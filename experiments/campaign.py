@@ -58,6 +58,10 @@ EXTRA_VARIANTS: tuple[str, ...] = ("informed", "shadow", "reschedule", "reschedu
 the paper's."""
 ALL_VARIANTS = VARIANTS + EXTRA_VARIANTS
 """Every variant, in the order rows are sorted."""
+HISTORY_VARIANTS: frozenset[str] = frozenset({"informed", "shadow", "reschedule",
+                                              "reschedule+slack", "reschedule+informed"})
+"""The variants whose runs use the block estimates (:mod:`gateway.execution.blocks`), so
+their rows depend on the block history they start from; the others never read it."""
 
 COLUMNS: tuple[str, ...] = ("map", "agents", "instance", "seed", "variant", "soc_ms",
                             "makespan_ms", "replanned", "replan_at_ms", "solver_ms")
@@ -78,6 +82,7 @@ MAX_GENERATION_ATTEMPTS = 50
 """Instances generated per slot before giving up when the planner keeps failing."""
 
 RowKey = tuple[str, int, int, int, str]
+ExperimentKey = tuple[str, int, int, int]
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -159,6 +164,11 @@ class SimSettings:
     block_history_ms: tuple[float, ...] = ()
     """How long the blocks the fleets saw before each run lasted (a warm start of the block
     estimates of ``informed`` and ``shadow``; empty: every run starts cold)."""
+    learned_blocks: int = 0
+    """Learned block history (0: off): the runs of :data:`HISTORY_VARIANTS` start with the
+    durations of the last ``learned_blocks`` blocks the fleet reported in the no-replan
+    (``intruder``) runs of the experiments that come before theirs on the same map, in
+    campaign order (:func:`learned_histories`); the first experiment of a map starts cold."""
 
 
 @dataclass(frozen=True)
@@ -194,6 +204,10 @@ class CampaignSpec:
             raise CampaignError("--instances and --seeds must be positive")
         if self.plan_time_limit_s <= 0:
             raise CampaignError("--plan-time-limit must be positive")
+        if self.sim.learned_blocks < 0:
+            raise CampaignError("the learned block memory must be >= 0")
+        if self.sim.learned_blocks and self.sim.block_history_ms:
+            raise CampaignError("a block history is either learned or given, not both")
 
     def settings(self) -> dict[str, Any]:
         """The settings that change results; an output folder is only reused with equal ones."""
@@ -204,6 +218,12 @@ class CampaignSpec:
     def slots(self) -> list[tuple[str, int, int]]:
         """Every instance slot ``(map, agents, index)`` in campaign order."""
         return [(m, n, i) for m, n in self.groups for i in range(self.instances)]
+
+    def experiments(self) -> list[ExperimentKey]:
+        """Every experiment ``(map, agents, index, seed)`` in campaign order (the order of
+        ``--maps``/``--agents``, then instances, then seeds)."""
+        return [(m, n, i, s) for m, n, i in self.slots()
+                for s in self.experiment_seeds(m, n, i)]
 
     def experiment_seeds(self, map: str, agents: int, index: int) -> list[int]:
         """The simulation seeds of one instance (the ``seed`` column of ``results.csv``).
@@ -321,6 +341,9 @@ class ExperimentTask:
     seed: int
     variants: tuple[str, ...]
     sim: SimSettings
+    history: tuple[float, ...] | None = None
+    """The block history the :data:`HISTORY_VARIANTS` start from instead of the settings'
+    (the learned one)."""
 
 
 VARIANT_CONFIG: dict[str, tuple[bool, PolicyName, bool]] = {
@@ -338,22 +361,25 @@ replans when the slack policy does, ``reschedule+informed`` too, informed."""
 
 
 def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
-                   sim: SimSettings) -> SimConfig:
-    """The simulation of ``variant`` from the instance's initial plan."""
+                   sim: SimSettings, history: tuple[float, ...] | None = None) -> SimConfig:
+    """The simulation of ``variant`` from the instance's initial plan (a variant of
+    :data:`HISTORY_VARIANTS` starts from ``history`` if given)."""
     intruder, policy, informed = VARIANT_CONFIG[variant]
+    if history is None or variant not in HISTORY_VARIANTS:
+        history = sim.block_history_ms
     return SimConfig(
         grid=grid, plan=plan, seed=seed, intruder=intruder, policy=policy, informed=informed,
         threshold_ms=sim.threshold_ms, solver_time=parse_solver_time(sim.solver_time),
-        solver_time_limit_s=sim.replan_time_limit_s, block_history=sim.block_history_ms,
+        solver_time_limit_s=sim.replan_time_limit_s, block_history=history,
         intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
                                        leave_ms=sim.intruder_leave_ms,
                                        reading=sim.intruder_reading))
 
 
 def simulate_variant(grid: Grid, plan: Plan, seed: int, variant: str,
-                     sim: SimSettings) -> SimResult:
+                     sim: SimSettings, history: tuple[float, ...] | None = None) -> SimResult:
     """One simulation of ``variant`` from the instance's initial plan."""
-    return run_simulation(variant_config(grid, plan, seed, variant, sim))
+    return run_simulation(variant_config(grid, plan, seed, variant, sim, history))
 
 
 @dataclass(frozen=True)
@@ -368,21 +394,31 @@ class Failure:
     error: str
 
 
-Outcome = tuple[list[Row], list[Failure]]
+@dataclass(frozen=True)
+class Blocks:
+    """One line of ``blocks.csv``: how long each block the fleet reported in one experiment's
+    no-replan (``intruder``) run lasted, in the order they cleared."""
+
+    key: ExperimentKey
+    durations_ms: tuple[float, ...]
+
+
+Outcome = tuple[list[Row], list[Failure], Blocks | None]
 
 
 def run_experiment(task: ExperimentTask) -> Outcome:
-    """Simulate each requested variant of one experiment from the instance's initial plan.
+    """Simulate each requested variant of one experiment from the instance's initial plan;
+    with the ``intruder`` variant, also what its blocks lasted.
 
     A variant whose simulation raises is reported as a :class:`Failure` instead of stopping
     the campaign (its experiment stays incomplete and a rerun tries it again).
     """
     grid = load_grid(task.map_path)
     rec = task.record
-    rows, failures = [], []
+    rows, failures, blocks = [], [], None
     for variant in task.variants:
         try:
-            res = simulate_variant(grid, rec.plan, task.seed, variant, task.sim)
+            res = simulate_variant(grid, rec.plan, task.seed, variant, task.sim, task.history)
         except Exception as exc:  # one bad run must not sink a long campaign
             failures.append(Failure(rec.map, rec.agents, rec.index, task.seed, variant,
                                     f"{type(exc).__name__}: {exc}"))
@@ -391,7 +427,32 @@ def run_experiment(task: ExperimentTask) -> Outcome:
         rows.append(Row(rec.map, rec.agents, rec.index, task.seed, variant, res.soc_ms,
                         res.makespan_ms, res.replans > 0, min(acted, default=None),
                         res.solver_ms))
-    return rows, failures
+        if variant == "intruder":
+            blocks = Blocks((rec.map, rec.agents, rec.index, task.seed), res.blocks_ms)
+    return rows, failures, blocks
+
+
+def learned_histories(order: Sequence[ExperimentKey], blocks: dict[ExperimentKey, Blocks],
+                      memory: int) -> dict[ExperimentKey, tuple[float, ...]]:
+    """The learned block history of each experiment of ``order`` (campaign order): the last
+    ``memory`` durations of the blocks reported in the experiments before it on the same map
+    (never its own, never a later one's), oldest first. An experiment is left out if an
+    earlier one on its map has no recorded blocks yet (its history is not known)."""
+    out: dict[ExperimentKey, tuple[float, ...]] = {}
+    seen: dict[str, list[float]] = {}
+    broken: set[str] = set()
+    for key in order:
+        m = key[0]
+        if m in broken:
+            continue
+        past = seen.setdefault(m, [])
+        out[key] = tuple(past[-memory:]) if memory else ()
+        got = blocks.get(key)
+        if got is None:
+            broken.add(m)
+        else:
+            past.extend(got.durations_ms)
+    return out
 
 
 def run_chunk(tasks: Sequence[ExperimentTask]) -> list[Outcome]:
@@ -442,19 +503,50 @@ def write_results(path: Path, rows: Iterable[Row]) -> None:
     os.replace(tmp, path)
 
 
-class _Appender:
-    """Appends rows to ``results.csv`` and flushes after each batch."""
+BLOCKS_COLUMNS: tuple[str, ...] = ("map", "agents", "instance", "seed", "blocks_ms")
+"""``blocks.csv`` columns: an experiment and its intruder run's block durations, ``;``-joined
+(empty if the fleet reported no block)."""
 
-    def __init__(self, path: Path) -> None:
+
+def read_blocks(path: Path) -> dict[ExperimentKey, Blocks]:
+    """The experiments' blocks in ``blocks.csv`` (none if it does not exist; a last line cut
+    short by an interruption is dropped)."""
+    if not path.exists():
+        return {}
+    lines = path.read_text().splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines = lines[:-1]
+    reader = csv.reader(lines)
+    if tuple(next(reader, BLOCKS_COLUMNS)) != BLOCKS_COLUMNS:
+        raise CampaignError(f"{path}: not a blocks.csv (unexpected header)")
+    out = {}
+    for number, fields in enumerate(reader, start=2):
+        try:
+            m, agents, inst, seed, durations = fields
+            key = (m, int(agents), int(inst), int(seed))
+            out[key] = Blocks(key, tuple(float(d) for d in durations.split(";") if d))
+        except ValueError as exc:
+            raise CampaignError(f"{path}:{number}: {exc}") from None
+    return out
+
+
+class _Appender:
+    """Appends lines to a CSV file (``results.csv``, ``blocks.csv``) and flushes after each
+    batch."""
+
+    def __init__(self, path: Path, header: Sequence[str]) -> None:
+        if path.exists() and not path.read_bytes().endswith(b"\n"):
+            with path.open("r+b") as f:  # a line cut short by an interruption
+                f.truncate(f.read().rfind(b"\n") + 1)
         fresh = not path.exists() or path.stat().st_size == 0
         self._file = path.open("a", newline="")
         self._writer = csv.writer(self._file, lineterminator="\n")
         if fresh:
-            self._writer.writerow(COLUMNS)
+            self._writer.writerow(header)
             self._file.flush()
 
-    def append(self, rows: Sequence[Row]) -> None:
-        self._writer.writerows(r.to_csv() for r in rows)
+    def append(self, lines: Iterable[Sequence[str]]) -> None:
+        self._writer.writerows(lines)
         self._file.flush()
 
     def close(self) -> None:
@@ -484,6 +576,8 @@ class CampaignResult:
     """Wall time of the experiment phase (simulations, replans included)."""
     records: dict[tuple[str, int, int], InstanceRecord] = field(default_factory=dict)
     """The instances by slot ``(map, agents, index)``."""
+    blocks: dict[ExperimentKey, Blocks] = field(default_factory=dict)
+    """What the blocks of each experiment's intruder run lasted (``blocks.csv``)."""
 
 
 SCHEDULER_CONNECT_S = 5.0
@@ -521,6 +615,10 @@ def open_executor(workers: int = 1,
         yield client.get_executor(pure=False), max(1, threads)
 
 
+HISTORY_SETTINGS = frozenset({"block_history_ms", "learned_blocks"})
+"""The settings only the rows of :data:`HISTORY_VARIANTS` depend on."""
+
+
 def _check_settings(out: Path, spec: CampaignSpec) -> None:
     path = out / "campaign.json"
     settings = spec.settings()
@@ -529,11 +627,15 @@ def _check_settings(out: Path, spec: CampaignSpec) -> None:
         default = CampaignSpec(spec.groups, 1, 1).settings()
         old = {**default, **json.loads(path.read_text())}
         diff = sorted(k for k in settings if old.get(k) != settings[k])
+        if set(diff) <= HISTORY_SETTINGS and not any(
+                r.variant in HISTORY_VARIANTS for r in read_results(out / "results.csv")):
+            diff = []  # no row there depends on them
         if diff:
+            hint = " (--block-history none: a cold one)" if set(diff) & HISTORY_SETTINGS else ""
             raise CampaignError(
                 f"{out} holds a campaign made with other settings ("
                 + ", ".join(f"{k}: {old.get(k)!r} there, {settings[k]!r} now" for k in diff)
-                + "); use another --out")
+                + f"); use another --out or the same settings{hint}")
     path.write_text(json.dumps(settings, indent=2) + "\n")
 
 
@@ -600,51 +702,89 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     results_path = out / "results.csv"
     existing = read_results(results_path)
     done = {r.key for r in existing}
-    tasks = []
-    wanted: set[RowKey] = set()
-    for m, n, i in slots:
-        for s in spec.experiment_seeds(m, n, i):
-            wanted.update((m, n, i, s, v) for v in spec.variants)
-            variants = tuple(v for v in spec.variants if (m, n, i, s, v) not in done)
-            if variants:
-                tasks.append(ExperimentTask(map_paths[m], records[(m, n, i)], s, variants,
-                                            spec.sim))
-    total = len(slots) * spec.seeds
-    finished = total - len(tasks)
-    if limit is not None:
-        tasks = tasks[:max(0, limit)]
-    # The largest fleets first: the long tasks do not straggle at the end.
-    tasks.sort(key=lambda t: -t.record.agents)
-    size = chunk_size or max(1, min(8, len(tasks) // (workers * 16)))
-    chunks = chunked(tasks, size)
+    blocks_path = out / "blocks.csv"
+    blocks = read_blocks(blocks_path)
+    order = spec.experiments()
+    left = {k: [v for v in spec.variants if (*k, v) not in done] for k in order}
+    learned = spec.sim.learned_blocks > 0
 
+    def task(key: ExperimentKey, variants: Sequence[str],
+             history: tuple[float, ...] | None = None) -> ExperimentTask:
+        m, n, i, seed = key
+        return ExperimentTask(map_paths[m], records[(m, n, i)], seed, tuple(variants),
+                              spec.sim, history)
+
+    # Learned history: first every run that does not depend on it (and the intruder run of
+    # every experiment whose blocks are not recorded), then, knowing every experiment's
+    # blocks, the history variants.
+    first = []
+    for k, variants in left.items():
+        now = [v for v in variants if not (learned and v in HISTORY_VARIANTS)]
+        if learned and k not in blocks and "intruder" not in now:
+            now.insert(0, "intruder")
+        if now:
+            first.append(task(k, now))
+    budget = None if limit is None else max(0, limit)
+    if budget is not None:
+        first = first[:budget]
+        budget -= len(first)
+    total = len(order)
+    finished = sum(1 for v in left.values() if not v)
     new_rows: list[Row] = []
     failures: list[Failure] = []
     report("experiments", finished, total)
     began = time.perf_counter()
-    appender = _Appender(results_path)
+    appender = _Appender(results_path, COLUMNS)
+    block_log = _Appender(blocks_path, BLOCKS_COLUMNS)
     failure_log = (out / "failures.jsonl").open("w")  # this run's failures (retried on rerun)
-    try:
-        for outcomes in run_chunks(executor, run_chunk, chunks, in_flight_chunks * workers):
-            for rows, failed in outcomes:
-                appender.append(rows)
+    ran: set[ExperimentKey] = set()
+
+    def run_tasks(tasks: list[ExperimentTask]) -> None:
+        nonlocal finished
+        ran.update((t.record.map, t.record.agents, t.record.index, t.seed) for t in tasks)
+        # The largest fleets first: the long tasks do not straggle at the end.
+        tasks.sort(key=lambda t: -t.record.agents)
+        size = chunk_size or max(1, min(8, len(tasks) // (workers * 16)))
+        for outcomes in run_chunks(executor, run_chunk, chunked(tasks, size),
+                                   in_flight_chunks * workers):
+            for rows, failed, got in outcomes:
+                if got is not None and got.key not in blocks:
+                    blocks[got.key] = got
+                    block_log.append([[*map(str, got.key),
+                                       ";".join(_fmt(d) for d in got.durations_ms)]])
+                rows = [r for r in rows if r.key not in done]  # (an intruder rerun)
+                done.update(r.key for r in rows)
+                appender.append(r.to_csv() for r in rows)
                 new_rows.extend(rows)
                 failures.extend(failed)
                 failure_log.writelines(json.dumps(asdict(x)) + "\n" for x in failed)
                 failure_log.flush()
-                finished += 1
+                for r in rows:
+                    waiting = left[r.key[:4]]
+                    waiting.remove(r.variant)
+                    finished += not waiting
             report("experiments", finished, total)
+
+    try:
+        run_tasks(first)
+        if learned:
+            histories = learned_histories(order, blocks, spec.sim.learned_blocks)
+            second = [task(k, v, histories[k]) for k, v in left.items()
+                      if v and k in histories]
+            run_tasks(second if budget is None else second[:budget])
     finally:
         appender.close()
+        block_log.close()
         failure_log.close()
 
     running_s = time.perf_counter() - began
     rows = existing + new_rows
     write_results(results_path, rows)
+    wanted = {(*k, v) for k in order for v in spec.variants}
     mine = [r for r in rows if r.key in wanted]
-    return CampaignResult(sorted(mine, key=Row.sort_key), len(todo), len(tasks),
+    return CampaignResult(sorted(mine, key=Row.sort_key), len(todo), len(ran),
                           len(mine) == len(wanted), failures, round(planning_s, 3),
-                          round(running_s, 3), records)
+                          round(running_s, 3), records, blocks)
 
 
 def run_chunks(executor: Executor, fn: Callable[[Sequence[T]], R],

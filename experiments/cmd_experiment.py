@@ -20,6 +20,8 @@ from gateway.runtime.mapstore import MapNotFound, resolve
 if TYPE_CHECKING:
     from rich.table import Table
 
+    from experiments.campaign import Blocks, SimSettings
+
 JsonDict = dict[str, Any]
 
 
@@ -82,9 +84,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="also run the 'shadow' variant: solve in the background while the fleet "
                    "moves (informed) and adopt a plan only when the estimate, the stop included, "
                    "says it pays (not the paper's)")
-    p.add_argument("--block-history", type=_durations, default=(), metavar="MS[,MS..]",
-                   help="informed and shadow: how long the blocks the fleet saw before each run "
-                   "lasted (a warm start of the block estimates; default none: cold)")
+    p.add_argument("--block-history", type=_history, default="learned",
+                   metavar="learned|none|MS[,MS..]",
+                   help="what the block estimates of the informed, shadow and reschedule "
+                   "variants start from. learned (default): the durations of the blocks the "
+                   "fleet reported in the no-replan (intruder) runs of the experiments before "
+                   "each one on the same map, in campaign order (--maps, --agents, instance, "
+                   "seed; never its own or a later one's), the last --block-memory of them; "
+                   "the first experiment of each map starts cold. none: every run starts cold. "
+                   "MS,MS..: these durations, given, for every run")
+    p.add_argument("--block-memory", type=int, default=LEARNED_BLOCKS, metavar="N",
+                   help="--block-history learned: how many of the latest blocks are remembered "
+                   f"(default {LEARNED_BLOCKS}, as the gateway across runs)")
     p.add_argument("--reschedule", action="store_true",
                    help="also run the 'reschedule' variant (switch Type 2 edges so others pass "
                    "a delayed robot, never replan) and 'reschedule+slack' (reschedule first, "
@@ -116,11 +127,19 @@ def _solver_time(text: str) -> str:
     return text
 
 
-def _durations(text: str) -> tuple[float, ...]:
+LEARNED_BLOCKS = 100
+"""The blocks a learned history remembers by default (the gateway keeps as many across
+runs)."""
+
+
+def _history(text: str) -> str | tuple[float, ...]:
+    if text in ("learned", "none"):
+        return text
     try:
         values = tuple(float(c) for c in text.split(",") if c)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of ms") \
+        raise argparse.ArgumentTypeError(f"{text!r} is not learned, none or a comma-separated list "
+                                         "of ms") \
             from None
     if not all(0 < v < float("inf") for v in values):
         raise argparse.ArgumentTypeError(f"{text!r}: durations must be positive ms")
@@ -366,6 +385,27 @@ def oracle_cost_line(cost: JsonDict, workers_hint: int) -> str:
     return line
 
 
+def history_statement(sim: SimSettings, blocks: dict[Any, Blocks]) -> str:
+    """What the block estimates of the history variants started from, in words (the
+    summary's ``campaign.block_history``)."""
+    if sim.block_history_ms:
+        return ("given: every informed, shadow and reschedule run starts with the block "
+                "durations " + ", ".join(f"{d:g}" for d in sim.block_history_ms) + " ms "
+                "(typed on the command line, not learned)")
+    if not sim.learned_blocks:
+        return "none: every run starts cold (no earlier block known)"
+    durations = sorted(d for b in blocks.values() for d in b.durations_ms)
+    seen = (f"; the intruder runs reported {len(durations)} blocks in "
+            f"{sum(1 for b in blocks.values() if b.durations_ms)} of {len(blocks)} experiments"
+            + (f", median {durations[len(durations) // 2]:.0f} ms" if durations else ""))
+    return ("learned: each experiment's informed, shadow and reschedule runs start with the "
+            f"last {sim.learned_blocks} durations of the blocks the fleet reported (its "
+            "block tracker, from the robots' blocked reports to the cell being free; not the "
+            "simulator's ground truth) in the no-replan (intruder) runs of the experiments "
+            "before it on the same map, in campaign order; never its own or a later "
+            "experiment's; the first experiment of each map starts cold" + seen)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) the campaign, then write the summary and plots and print the tables."""
     from rich.console import Console
@@ -378,6 +418,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     from experiments.campaign import (
+        HISTORY_VARIANTS,
         PAPER_GROUPS,
         PAPER_INSTANCES,
         PAPER_SEEDS,
@@ -403,10 +444,14 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--oracle-sample must be positive, got {args.oracle_sample}")
     if args.oracle_sample is not None and not args.oracle:
         raise UsageError("--oracle-sample needs --oracle")
+    if args.block_memory < 1:
+        raise UsageError(f"--block-memory must be positive, got {args.block_memory}")
+    history = args.block_history
     sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
                       replan_time_limit_s=args.replan_time_limit,
                       intruder_reading=args.intruder_reading,
-                      block_history_ms=args.block_history)
+                      block_history_ms=history if isinstance(history, tuple) else (),
+                      learned_blocks=args.block_memory if history == "learned" else 0)
     files = _map_files(groups, args.maps_dir)
     named = [(_short(m), n) for m, n in groups]
     stems = {_short(m) for m in files}
@@ -456,7 +501,8 @@ def run(args: argparse.Namespace) -> int:
                            "experiments_run": result.ran, "wall_s": round(wall, 3),
                            "planning_s": result.planning_s, "running_s": result.running_s,
                            "failures": [asdict(f) for f in result.failures],
-                           **spec.settings()}
+                           **spec.settings(),
+                           "block_history": history_statement(spec.sim, result.blocks)}
     exps, _ = join_experiments(result.rows)
     pictures = plot_all(exps, args.out, order, rules)
     if oracle is not None:
@@ -480,6 +526,8 @@ def run(args: argparse.Namespace) -> int:
         out.print(table)
     if len(summary["maps"]) > 1:
         out.print(f"paper totals: {summary['paper_totals']['finding']}", highlight=False)
+    if set(spec.variants) & HISTORY_VARIANTS:
+        out.print(f"block history: {summary['campaign']['block_history']}", highlight=False)
     if oracle is not None:
         out.print(oracle_table(summary["oracle"]))
         out.print(oracle_line(summary["oracle"]), highlight=False)

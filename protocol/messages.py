@@ -466,6 +466,10 @@ class RobotView(_Model):
     goal: Cell
     remaining: list[Cell] = Field(default_factory=list)
     slack_ms: float = 0.0
+    task: int | None = None
+    """Lifelong: the task the robot works on (None: none)."""
+    errands: list[Cell] = Field(default_factory=list)
+    """Lifelong: that task's errand cells still to reach, the next one first."""
 
 
 class ActionCounts(_Model):
@@ -530,6 +534,10 @@ class Snapshot(Envelope):
     max_replans: int = 1
     """Replans allowed per run (operator's included): "replan now" is refused beyond it."""
     replan_marks: list[ReplanMark] = Field(default_factory=list)
+    lifelong: bool = False
+    """A lifelong shift: ``paths`` are the robots' committed steps from where they stand."""
+    path_offsets: list[int] = Field(default_factory=list)
+    """Lifelong: the action number of each path's first step (empty: all 0)."""
 
 
 EventKind = Literal[

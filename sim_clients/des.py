@@ -141,6 +141,10 @@ class SimResult(RunSummary):
     """Times the policy switched Type 2 edges (reschedule-first)."""
     reschedule_at_ms: float | None = None
     """When it first did; None if it never did."""
+    blocks_ms: tuple[float, ...] = ()
+    """How long each block the fleet reported in this run lasted, in the order they cleared:
+    what the executor's block tracker learned from the robots' reports (a block's duration is
+    from the first report to the cell being free again), not the simulator's ground truth."""
 
 
 def policy_for(config: SimConfig) -> ReplanPolicy:
@@ -256,7 +260,8 @@ class Simulation:
 
     def fork(self, share: Sequence[object] = ()) -> Self:
         """An independent copy of the run as it stands. What never changes is shared (the
-        configuration, the current plan and its ADG), and so are the objects of ``share``."""
+        configuration, the current plan and its ADG), and so are the objects of ``share``;
+        the copied monitor views its own flat arrays (``Monitor.__getstate__``)."""
         ex = self.executor
         shared = {id(o): o for o in (self.cfg, ex.plan, ex.adg, *share)}
         return copy.deepcopy(self, shared)
@@ -283,7 +288,8 @@ class Simulation:
             intruder_cell=intr.cell if intr is not None and intr.entered_ms is not None
             else None,
             intruder_on_ms=intr.entered_ms if intr is not None else None, end_ms=self.now,
-            reschedules=self.reschedules, reschedule_at_ms=self.reschedule_at)
+            reschedules=self.reschedules, reschedule_at_ms=self.reschedule_at,
+            blocks_ms=tuple(self.executor.blocks.history[len(self.cfg.block_history):]))
 
     def wake_robot(self, k: int, now: float) -> None:
         if self.robot_wake[k] != now:

@@ -224,6 +224,17 @@ class Monitor:
         out._propagate(list(holds))
         return out
 
+    def __getstate__(self) -> dict[str, object]:
+        """The state without the numpy views: a copy (``copy``, ``deepcopy``, pickle) makes
+        its own views of its own flat arrays (a copied view would be a separate array that no
+        longer sees them)."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_np_")}
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        """Restore a copy's state and view its flat arrays."""
+        self.__dict__.update(state)
+        self._views()
+
     def _views(self) -> None:
         """numpy views of the flat arrays (no copies)."""
         self._np_state = np.frombuffer(self._state, np.uint8)

@@ -87,7 +87,7 @@ from gateway.server.resume import (
 )
 from gateway.server.session import Session
 from gateway.server.solver_tasks import SolverTasks
-from gateway.server.views import FleetView, snapshot_fields
+from gateway.server.views import FleetView, ShiftView, snapshot_fields
 from protocol import (
     Ack,
     ActionRefused,
@@ -312,7 +312,9 @@ class Engine:
 
     def _tick(self) -> None:
         if self.lifelong is not None:
-            self.lifelong.tick(self.now_ms())
+            now = self.now_ms()
+            self.lifelong.tick(now)
+            self.feed.slack(now, self.lifelong.executor.fleet_slack_ms)
             return
         ex = self.executor
         if ex is None or ex.mode is Mode.DONE:
@@ -692,7 +694,9 @@ class Engine:
             threshold_ms=self.threshold_ms,
             policy=self.policy_name, speed=self.clock.speed, slack_series=feed.slack_series,
             intruders=feed.intruders, replan_marks=feed.replan_marks, problem=self.problem,
-            executor=self.executor, robots=self.robots)
+            executor=self.executor, robots=self.robots,
+            shift=None if self.lifelong is None else ShiftView(
+                self.lifelong.shift.name, self.lifelong.executor))
 
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""

@@ -104,7 +104,7 @@ class OperatorFeed:
         if not self.operators or kind not in EVENT_KINDS:
             return  # several records per action: build no event nobody would receive
         fields: dict[str, Any] = {k: v for k, v in rec.items()
-                                  if k not in ("type", "t_ms", "agents", "motion")}
+                                  if k not in ("type", "t_ms", "agents", "motion", "lifelong")}
         agents: Any = rec.get("agents")
         if agents is not None:
             fields["paths"] = [[c[:2] for c in a["path"]] for a in agents]

@@ -1,5 +1,12 @@
 """What operators see: the fields of a ``snapshot`` message, built from a :class:`FleetView`,
-the read model the engine hands over (this module knows nothing of the engine)."""
+the read model the engine hands over (this module knows nothing of the engine).
+
+A lifelong shift has no plan up front: its snapshot (``lifelong`` true) shows the map, each
+robot's committed path from where it stands (``paths[r]``, whose first step is the robot's
+action number ``path_offsets[r]``; segments are appended as the shift goes, so a page follows
+the ``finish`` events along it and the next snapshot extends it), its task and the task's
+remaining errand cells (the next one first, also its ``goal``), and who waits for whom.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +15,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from gateway.execution.executor import Executor
+from gateway.execution.lifelong import LifelongExecutor
+from gateway.execution.tasks import Task
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
 from gateway.server.planner import Problem
@@ -34,6 +43,20 @@ class FleetView:
     problem: Problem | None
     executor: Executor | None
     robots: Mapping[int, GatewaySession]
+    shift: ShiftView | None = None
+    """The lifelong shift (then ``problem`` and ``executor`` are None)."""
+
+
+@dataclass(frozen=True)
+class ShiftView:
+    """A lifelong shift as operators see it: its map's name and its executor."""
+
+    name: str
+    executor: LifelongExecutor
+
+
+PATH_AHEAD = 24
+"""Committed steps per robot a lifelong snapshot shows (a window is a few steps)."""
 
 
 def _heading(pose: Pose | None, ex: Executor | None, plan: Plan | None,
@@ -67,6 +90,11 @@ def snapshot_fields(view: FleetView) -> dict[str, Any]:
         "intruders": sorted(view.intruders),
         "replan_marks": [ReplanMark(**m) for m in view.replan_marks],
     }
+    if view.shift is not None:
+        sex = view.shift.executor
+        out.update(shift_fields(view.shift, view.robots),
+                   t_ms=sex.now_ms if sex.done else view.t_ms)
+        return out
     if problem is None:
         return out
     out["map_name"] = problem.map_name
@@ -108,3 +136,54 @@ def snapshot_fields(view: FleetView) -> dict[str, Any]:
                    waits=[WaitEdge(robot=a, action=b, for_robot=c, for_action=d)
                           for a, b, c, d in ex.monitor.blocking_edges()])
     return out
+
+
+def _current_tasks(ex: LifelongExecutor) -> dict[int, Task]:
+    """Each robot's current task: of those it holds, the one it got first."""
+    out: dict[int, Task] = {}
+    for task in ex.pool.tasks.values():
+        r = task.robot
+        if r >= 0 and (r not in out or (task.assigned_at, task.id) <
+                       (out[r].assigned_at, out[r].id)):
+            out[r] = task
+    return out
+
+
+def shift_fields(shift: ShiftView, sessions: Mapping[int, GatewaySession]) -> dict[str, Any]:
+    """The snapshot fields of a lifelong shift (see the module doc)."""
+    ex = shift.executor
+    adg, cell_of = ex.adg, ex.grid.cell
+    tasks = _current_tasks(ex)
+    paths, headings, robots, waits = [], [], [], []
+    counts = {"dispatched": 0, "running": 0, "blocked": 0, "finished": sum(adg.done)}
+    pending = 0
+    for r in range(ex.n):
+        queue = adg.queue[r]
+        ahead = [queue[i] for i in range(min(len(queue), PATH_AHEAD))]
+        path = [cell_of(ex.cell[r]), *(cell_of(a.cell) for a in ahead)]
+        paths.append(path)
+        if ex.turning:
+            headings.append([ex.heading[r], *(a.heading for a in ahead)])
+        sent = ex.busy(r)
+        pending += len(queue) - sent
+        if sent < len(queue):  # its next action waits for another robot's
+            a = queue[sent]
+            if a.dep_robot >= 0 and adg.done[a.dep_robot] <= a.dep_seq:
+                waits.append(WaitEdge(robot=r, action=adg.done[r] + sent,
+                                      for_robot=a.dep_robot, for_action=a.dep_seq))
+        rec = sessions.get(r) or GatewaySession(r)
+        for h in rec.held.values():
+            counts[h.phase] += 1
+        held = next(iter(rec.held), None)
+        task = tasks.get(r)
+        errands = [cell_of(c) for c in task.errands[task.done:]] if task is not None else []
+        robots.append(RobotView(
+            robot_id=r, connected=rec.connected, cell=path[0],
+            heading=HEADINGS[ex.heading[r]] if ex.turning else None,
+            activity=rec.activity(), action_id=held, goal=errands[0] if errands else path[0],
+            remaining=path, task=task.id if task is not None else None, errands=errands))
+    return {
+        "lifelong": True, "map_name": shift.name, "rows": map_rows(ex.grid), "plan": 0,
+        "paths": paths, "headings": headings, "path_offsets": list(adg.done),
+        "robots": robots, "actions": ActionCounts(pending=pending, **counts), "waits": waits,
+    }

@@ -151,8 +151,8 @@ def test_a_simulation_that_raises_is_a_failure_not_a_crash(full: Path) -> None:
     rec = InstanceRecord.from_json(json.loads((full / "instances" / "lab-5-000.json").read_text()))
     task = ExperimentTask(MAPS["lab"], rec, 3, ("lower_bound", "slack"),
                           SimSettings(solver_time="zero", threshold_ms=-1))
-    rows, failures = run_experiment(task)
-    assert rows == []
+    rows, failures, blocks = run_experiment(task)
+    assert rows == [] and blocks is None
     assert [(f.instance, f.seed, f.variant) for f in failures] == [(0, 3, "lower_bound"),
                                                                    (0, 3, "slack")]
     assert all("threshold_ms" in f.error for f in failures)

@@ -100,3 +100,107 @@ def test_robots_tasks_finished_list_and_throughput(tasks_page: Page) -> None:
     seen = page.evaluate("window.fleetgate.tasks.finishedAt.length")
     assert sum(bars) >= 1 and sum(bars) <= seen
     assert int(page.locator("#tasks-rate").text_content().split()[0]) <= seen
+
+
+# ---------------------------------------------------------------------------- the live map
+def gateway_snapshot(page: Page) -> Any:
+    """The gateway's own state now: a snapshot on a second operator websocket with the page's
+    login (opened once, then ``get_snapshot``), not the page's model."""
+    return page.evaluate("""() => new Promise((ok, fail) => {
+      let ws = window.testGateway;
+      const ask = () => ws.send(JSON.stringify({
+        v: 2, type: "get_snapshot", msg_id: `t${Date.now()}`, seq: 0}));
+      const take = (m) => {
+        const msg = JSON.parse(m.data);
+        if (msg.type === "snapshot") { ws.removeEventListener("message", take); ok(msg); }
+      };
+      if (!ws) {
+        const scheme = location.protocol === "https:" ? "wss" : "ws";
+        ws = window.testGateway = new WebSocket(`${scheme}://${location.host}/ws`);
+        ws.onerror = () => fail(new Error("websocket error"));
+        ws.addEventListener("message", take);  // the snapshot on connect
+      } else {
+        ws.addEventListener("message", take);
+        ask();
+      }
+    })""")
+
+
+def on_way(page_cell: list[int], before: dict[str, Any], after: dict[str, Any],
+           robot: int) -> bool:
+    """Whether the page's cell of ``robot`` is one the gateway had it on between two of its
+    snapshots: on its committed path from where it stood in ``before`` up to where it stands
+    in ``after``."""
+    path = before["paths"][robot]
+    end = after["robots"][robot]["cell"]
+    return page_cell == end or (end in path and page_cell in path[:path.index(end) + 1])
+
+
+def test_the_map_shows_the_shift_live(tasks_page: Page) -> None:
+    """The warehouse, each robot where the gateway has it (moving on as the shift runs, its
+    heading), each busy robot's task errands with the next one marked, and robots paused."""
+    page = tasks_page
+    page.wait_for_function("() => { const s = window.fleetgate.model.snap;"
+                           " return s && s.lifelong && window.fleetgate.drawn().length === 6; }",
+                           timeout=20_000)
+    snap = gateway_snapshot(page)
+    assert snap["lifelong"] and page.evaluate("window.fleetgate.model.snap.rows") == snap["rows"]
+    assert "robots" in (page.get_by_role("img", name="Map").get_attribute("aria-label") or "")
+    # the robots move on the map as the shift runs
+    drawn = page.evaluate("window.fleetgate.drawn().map(d => [d.id, d.x, d.y])")
+    page.wait_for_function(
+        "prev => window.fleetgate.drawn().filter(d => { const p = prev[d.id];"
+        " return Math.hypot(d.x - p[1], d.y - p[2]) > 1; }).length >= 3",
+        arg=drawn, timeout=20_000)
+    # where the page draws them is where the gateway has them (the two must agree at a
+    # moment: robots move on while we look)
+    agreed = False
+    last: Any = None
+    for _ in range(40):
+        before = gateway_snapshot(page)
+        page.wait_for_timeout(50)  # events reach the page a little after the gateway
+        shown = page.evaluate("window.fleetgate.robots()")
+        after = gateway_snapshot(page)
+        if all(on_way(r["cell"], before, after, r["id"]) for r in shown):
+            agreed = True
+            break
+        last = [(r["cell"], before["paths"][r["id"]], after["robots"][r["id"]]["cell"])
+                for r in shown]
+    assert agreed, f"the page's robots never stood where the gateway had them: {last}"
+    clock = page.evaluate("window.fleetgate.clock()")  # the page runs the shift's clock
+    assert abs(clock - gateway_snapshot(page)["t_ms"]) < 5000.0
+    # each robot is drawn on the canvas where the page's model has it (read in the frame the
+    # map was just drawn in: within a fifth of a cell)
+    off = page.evaluate("""async () => {
+      await new Promise((ok) => requestAnimationFrame(ok));  // right after the map's frame
+      const box = document.getElementById("map").getBoundingClientRect();
+      const robots = window.fleetgate.robots();
+      const [a, b] = [window.fleetgate.cellCenter(0, 0), window.fleetgate.cellCenter(1, 0)];
+      return window.fleetgate.drawn().map((d, i) => {
+        const c = window.fleetgate.cellCenter(...robots[i].pos);
+        return Math.hypot(box.left + d.x - c.x, box.top + d.y - c.y) / (b.x - a.x);
+      });
+    }""")
+    assert len(off) == 6 and max(off) < 0.2, off
+    # a busy robot's task: its errand cells still to reach, the next one marked
+    seen = False
+    for _ in range(40):
+        busy = api(page, "/tasks?state=assigned,started")["tasks"]
+        errands = page.evaluate("window.fleetgate.drawnErrands()")
+        for task in busy:
+            want = [list(c) for c in task["errands"][task["errands_done"]:]]
+            got = [e for e in errands if e["robot"] == task["robot"]]
+            if want and [e["cell"] for e in got] == want and got[0]["next"] \
+                    and got[0]["task"] == task["id"] and not any(e["next"] for e in got[1:]):
+                seen = True
+        if seen:
+            break
+        page.wait_for_timeout(150)
+    assert seen, "no robot's task errands were drawn as the task API has them"
+    # paused: every robot that is not moving wears the pause badge; resumed: none does
+    page.locator("#btn-pause").click()
+    page.wait_for_function("() => window.fleetgate.status() === 'paused' && "
+                           "window.fleetgate.drawn().some(d => d.paused)")
+    page.locator("#btn-resume").click()
+    page.wait_for_function("() => window.fleetgate.status() === 'running' && "
+                           "!window.fleetgate.drawn().some(d => d.paused)")

@@ -247,6 +247,7 @@ class Shift:
 
 
 def start(seed: int, robots: int = 3, turning: bool = True, lookahead: int = 1) -> Shift:
+    """A shift whose robots said hello and were welcomed, its first planning call out."""
     s = Shift(seed, robots, turning, lookahead)
     for r in range(robots):
         s.connect(r)

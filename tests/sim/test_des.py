@@ -14,7 +14,14 @@ from hypothesis import strategies as st
 from gateway.execution.trace_records import Record
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
-from sim_clients.des import PolicyName, SimConfig, SimResult, SimulationError, run_simulation
+from sim_clients.des import (
+    PolicyName,
+    SimConfig,
+    SimResult,
+    Simulation,
+    SimulationError,
+    run_simulation,
+)
 from sim_clients.intruder import IntruderConfig
 from tracecheck import check_trace
 
@@ -144,3 +151,39 @@ def test_an_abandoned_replan_resumes_the_old_plan() -> None:
         report = check_trace(records)
         assert report.ok, report.errors
         assert report.actions_run == sum(len(p) - 1 for p in plan.paths)
+
+
+@pytest.mark.parametrize("vectorised", [False, True])
+def test_a_fork_goes_on_exactly_as_the_run_it_was_forked_from(
+        vectorised: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    # A forked run must keep the monitor's numpy views on its own flat arrays: fleet slack
+    # (numpy maxima) and, on large plans, the vectorised recomputation read and write them.
+    # ``vectorised`` lowers the size thresholds so that every tick of this small plan takes the
+    # vectorised path. The fork, taken at 2 s, is compared tick by tick with a fresh run.
+    if vectorised:
+        monkeypatch.setattr("gateway.execution.monitor.VECTOR_MIN_VERTICES", 1)
+        monkeypatch.setattr("gateway.execution.monitor.VECTOR_MIN_ACTIVE", 1)
+    grid = open_grid(6, 5)
+    plan = random_plan(grid, 7, 14, random.Random(5))
+    config = SimConfig(grid, plan, seed=3, policy="slack", threshold_ms=500.0,
+                       solver_time="zero",
+                       intruder_config=IntruderConfig(appear_ms=1000, leave_ms=7000),
+                       extra_delay=lambda p, robot, action: 1500.0 if action == 2 else 0.0)
+    fresh, forked = Simulation(config), Simulation(config)
+    fresh.start()
+    forked.start()
+    forked.run_until(2000.0)
+    fork = forked.fork()
+    seen_slack = set()
+    for t in range(2100, 30_000, 100):
+        fresh.run_until(float(t))
+        fork.run_until(float(t))
+        if fresh.finished() or fork.finished():
+            break
+        a, b = fresh.executor.monitor, fork.executor.monitor
+        assert (b.fleet_slack(), b.snapshot()) == (a.fleet_slack(), a.snapshot()), t
+        seen_slack.add(a.fleet_slack())
+    assert len(seen_slack) > 2  # the slack moved while the two were compared
+    fresh.run_until(None)
+    fork.run_until(None)
+    assert fork.result() == fresh.result()

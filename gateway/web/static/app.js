@@ -13,6 +13,8 @@ const chart = new SlackChart($("chart"));
 let armed = false; // the next map click places an intruder
 let snapshotAsked = 0; // performance.now() of the outstanding get_snapshot (0: none)
 let tableDrawn = 0;
+let logDirty = false; // events arrived since the log was drawn (drawn at most 4 times a second)
+let logDrawn = 0;
 
 const scheme = location.protocol === "https:" ? "wss" : "ws";
 const url = `${scheme}://${location.host}/ws`; // the login cookie authenticates it
@@ -37,7 +39,7 @@ function onMessage(msg) {
     model.applyEvent(msg);
     if (["status", "plan", "summary"].includes(msg.event)) askSnapshot(true);
     if (msg.event === "status" || msg.event === "plan") syncControls();
-    if (msg.event !== "slack") renderLog();
+    if (msg.event !== "slack") logDirty = true;
   } else if (msg.type === "error") {
     notify(`gateway: ${msg.code} ${msg.detail}`, true);
   }
@@ -60,7 +62,7 @@ let shownInstance = ""; // the loaded instance the Instance form last showed
 function showInstance(snap) {
   const robots = (snap.paths || []).length;
   const key = `${snap.map_name}|${snap.scen_name}|${robots}`;
-  if (!snap.map_name || key === shownInstance) return;
+  if (!snap.map_name || snap.lifelong || key === shownInstance) return;
   if ($("load-form").contains(document.activeElement)) return;
   shownInstance = key;
   $("map-name").value = snap.map_name;
@@ -192,10 +194,13 @@ function renderPanels() {
   const s = model.snap;
   if (!s) return;
   const plan = $("plan-now");
-  plan.textContent = s.plan === null ? "–" : `#${s.plan} (${s.replans} replan${s.replans === 1 ? "" : "s"})`;
+  plan.textContent = s.lifelong ? "lifelong shift" : s.plan === null ? "–"
+    : `#${s.plan} (${s.replans} replan${s.replans === 1 ? "" : "s"})`;
+  $("legend-goal").hidden = !!s.lifelong;
+  $("legend-errands").hidden = !s.lifelong;
   plan.dataset.plan = s.plan === null ? "" : String(s.plan);
   $("map-now").textContent = s.map_name ? `${s.map_name} · ${s.robots.length} robots` : "–";
-  const hasRun = s.plan !== null;
+  const hasRun = s.plan !== null && !s.lifelong; // a shift has no SOC or plan costs
   $("soc").textContent = hasRun ? fmtS(s.soc_ms) : "–";
   $("makespan").textContent = hasRun ? fmtS(s.makespan_ms) : "–";
   $("est-soc").textContent = hasRun ? fmtS(s.est_soc_ms) : "–";
@@ -208,7 +213,8 @@ function renderPanels() {
   $("progress").max = Math.max(1, total);
   $("progress").value = a.finished;
   $("progress-text").textContent = s.plan === null ? "no run yet"
-    : `${a.finished} / ${total} actions of plan #${s.plan}`;
+    : s.lifelong ? `${a.finished} actions done, ${total - a.finished} committed`
+      : `${a.finished} / ${total} actions of plan #${s.plan}`;
   const count = (activity) => s.robots.filter((r) => r.activity === activity).length;
   $("map").setAttribute("aria-label", s.map_name
     ? `Map ${s.map_name}: ${s.robots.length} robots, ${count("running")} moving, `
@@ -271,14 +277,23 @@ function frame() {
     $("slack-now").textContent = s.plan === null ? "" : `now ${fmtS(last)}`;
     $("clock").textContent = s.plan === null ? "–" : `${(now / 1000).toFixed(1)} s`;
   }
+  if (logDirty && wall - logDrawn > 250) {
+    logDirty = false;
+    logDrawn = wall;
+    renderLog();
+  }
   requestAnimationFrame(frame);
 }
 
-// Keep the picture fresh: a snapshot every 250 ms while a run is live, every 2 s otherwise.
+// Keep the picture fresh: while a run is live a snapshot every 250 ms per 60 robots (at most
+// every 2 s: a big fleet's snapshot is large, and the events move its robots in between),
+// every 2 s otherwise.
 setInterval(() => {
   if (!conn.connected) return;
-  if (model.active || model.status === "planning") askSnapshot();
-  else if (performance.now() - (model.anchorWall || 0) > 2000) askSnapshot();
+  const robots = model.snap ? model.snap.robots.length : 0;
+  const live = model.active || model.status === "planning";
+  const every = live ? Math.min(2000, 250 * Math.max(1, robots / 60)) : 2000;
+  if (performance.now() - (model.anchorWall || 0) >= every) askSnapshot();
 }, 250);
 
 // For tests and the curious: the GUI's view of the fleet.
@@ -290,10 +305,14 @@ window.fleetgate = {
   plan: () => (model.snap ? model.snap.plan : null),
   robots: () => model.robots().map((r) => ({
     id: r.id, cell: r.cell, pos: r.pos, activity: r.activity, remaining: r.remaining,
-    heading: r.heading, angle: r.angle, turning: r.turning,
+    heading: r.heading, angle: r.angle, turning: r.turning, connected: r.connected,
+    paused: r.paused, task: r.task, errands: r.errands,
   })),
-  /** What the map last drew per robot: canvas centre, radius, heading angle, turning. */
+  /** What the map last drew per robot: canvas centre, radius, heading angle, turning,
+   * connected, paused. */
   drawn: () => mapView.drawn || [],
+  /** The errand cells the map last drew (lifelong): robot, task, cell, next, canvas x/y. */
+  drawnErrands: () => mapView.drawnErrands || [],
   slack: () => (model.snap ? model.snap.fleet_slack.slice() : []),
   /** The run's clock as the page shows it (plan ms). */
   clock: () => model.now(),

@@ -1,5 +1,6 @@
-// The map canvas: grid, goals, paths ahead, robots (spanning both cells while moving),
-// who waits for whom, intruders; and which cell a click hits.
+// The map canvas: grid, goals (a lifelong shift: each robot's task errands, the next one
+// filled), paths ahead, robots (spanning both cells while moving; grey offline, a pause badge
+// while paused), who waits for whom, intruders; and which cell a click hits.
 
 const PALETTE = [
   "#1c7ed6", "#e8590c", "#2b8a3e", "#ae3ec9", "#e67700", "#0c8599", "#d6336c", "#5f3dc4",
@@ -96,7 +97,11 @@ export class MapView {
     ctx.drawImage(this.gridImage, 0, 0);
     ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
     const s = model.snap;
-    for (const r of robots) this.drawGoal(r);
+    this.drawnErrands = [];
+    for (const r of robots) {
+      if (s.lifelong) this.drawErrands(r);
+      else this.drawGoal(r);
+    }
     for (const r of robots) this.drawPath(r);
     for (const c of s.intruders) this.drawIntruder(c, wall);
     if (this.hover && this.isFree(...this.hover)) this.drawHover(this.hover);
@@ -161,6 +166,36 @@ export class MapView {
       ctx.textBaseline = "middle";
       ctx.fillText(String(r.id), cx, cy);
     }
+  }
+
+  /** A lifelong robot's task: its errand cells still to reach, the next one filled and
+   * outlined boldly, the later ones dashed (numbered in order when cells are large). */
+  drawErrands(r) {
+    const { ctx, cell } = this;
+    const color = robotColor(r.id);
+    r.errands.forEach((c, i) => {
+      const [cx, cy] = this.center(c[0], c[1]);
+      const h = cell * (i === 0 ? 0.4 : 0.3);
+      ctx.strokeStyle = color;
+      ctx.lineWidth = Math.max(i === 0 ? 2 : 1.2, cell * (i === 0 ? 0.1 : 0.06));
+      ctx.setLineDash(i === 0 ? [] : [cell * 0.12, cell * 0.08]);
+      if (i === 0) {
+        ctx.globalAlpha = 0.3;
+        ctx.fillStyle = color;
+        ctx.fillRect(cx - h, cy - h, 2 * h, 2 * h);
+        ctx.globalAlpha = 1;
+      }
+      ctx.strokeRect(cx - h, cy - h, 2 * h, 2 * h);
+      ctx.setLineDash([]);
+      if (cell >= 16) {
+        ctx.fillStyle = color;
+        ctx.font = `600 ${Math.round(cell * 0.26)}px system-ui, sans-serif`;
+        ctx.textAlign = "center";
+        ctx.textBaseline = "middle";
+        ctx.fillText(`${r.id}·${i + 1}`, cx, cy);
+      }
+      this.drawnErrands.push({ robot: r.id, task: r.task, cell: c, next: i === 0, x: cx, y: cy });
+    });
   }
 
   drawPath(r) {
@@ -235,7 +270,21 @@ export class MapView {
         ctx.setLineDash([]);
       }
     }
-    this.drawn.push({ id: r.id, x: cx, y: cy, rad, angle: r.angle, turning: r.turning });
+    if (r.paused) { // two bars on a dark badge at the top right
+      const b = rad * 0.55;
+      const [bx, by] = [cx + rad * 0.7, cy - rad * 0.7];
+      ctx.fillStyle = "#343a40";
+      ctx.beginPath();
+      ctx.arc(bx, by, b, 0, 2 * Math.PI);
+      ctx.fill();
+      ctx.fillStyle = "#ffffff";
+      ctx.fillRect(bx - b * 0.45, by - b * 0.5, b * 0.3, b);
+      ctx.fillRect(bx + b * 0.15, by - b * 0.5, b * 0.3, b);
+    }
+    this.drawn.push({
+      id: r.id, x: cx, y: cy, rad, angle: r.angle, turning: r.turning,
+      connected: r.connected, paused: r.paused,
+    });
     if (cell >= 12) {
       ctx.fillStyle = "#ffffff";
       ctx.font = `700 ${Math.round(cell * 0.34)}px system-ui, sans-serif`;

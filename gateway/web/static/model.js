@@ -81,6 +81,12 @@ export class FleetModel {
     return this.snap ? this.snap.robots[id] : undefined;
   }
 
+  /** Index in robot ``id``'s path of the step its action ``action`` makes (a lifelong
+   * snapshot's paths start at the robot's next action, ``path_offsets``). */
+  step(id, action) {
+    return action - ((this.snap.path_offsets || [])[id] || 0);
+  }
+
   /** Patch the snapshot with one event; returns true if the picture changed. */
   applyEvent(e) {
     const s = this.snap;
@@ -104,13 +110,14 @@ export class FleetModel {
       case "finish":
         if (r && samePlan) {
           const path = s.paths[e.robot];
-          if (path && path[e.action + 1]) {
-            r.cell = path[e.action + 1];
-            r.remaining = path.slice(e.action + 1);
+          const k = this.step(e.robot, e.action) + 1; // a lifelong path may not reach it yet
+          if (path && path[k]) {
+            r.cell = path[k];
+            r.remaining = path.slice(k);
           }
           const heads = (s.headings || [])[e.robot];
-          if (heads && heads[e.action + 1] !== undefined) {
-            r.heading = HEADING_LETTERS[heads[e.action + 1]];
+          if (heads && heads[k] !== undefined) {
+            r.heading = HEADING_LETTERS[heads[k]];
           }
           r.activity = "idle";
           r.action_id = null;
@@ -212,12 +219,17 @@ export class FleetModel {
         progress: 0, activity: r.activity, connected: r.connected, goal: r.goal,
         heading: r.heading, slack_ms: r.slack_ms, remaining: r.remaining || [],
         angle: r.heading ? HEADING_ANGLE[r.heading] : null, turning: false,
+        task: r.task ?? null, errands: r.errands || [],
+        paused: s.status === "paused" && r.activity !== "running",
       };
       const aid = parseActionId(r.action_id);
       const path = s.paths[r.robot_id];
-      if (r.activity === "running" && aid && aid[0] === s.plan && path && path[aid[2] + 1]) {
-        const from = path[aid[2]];
-        const to = path[aid[2] + 1];
+      // a lifelong action id names its segment, not the snapshot's plan
+      const k = aid ? this.step(r.robot_id, aid[2]) : -1;
+      if (r.activity === "running" && aid && (s.lifelong || aid[0] === s.plan) && path
+          && path[k] && path[k + 1]) {
+        const from = path[k];
+        const to = path[k + 1];
         const t0 = this.starts.has(r.robot_id) ? this.starts.get(r.robot_id) : now;
         const p = Math.max(0, Math.min(0.97, (now - t0) / ACTION_MS));
         out.from = from;
@@ -225,8 +237,8 @@ export class FleetModel {
         out.progress = p;
         out.pos = [from[0] + (to[0] - from[0]) * p, from[1] + (to[1] - from[1]) * p];
         const heads = (s.headings || [])[r.robot_id];
-        if (heads && heads[aid[2] + 1] !== undefined) {
-          const [h0, h1] = [heads[aid[2]], heads[aid[2] + 1]];
+        if (heads && heads[k + 1] !== undefined) {
+          const [h0, h1] = [heads[k], heads[k + 1]];
           out.heading = HEADING_LETTERS[h0];
           out.angle = HEADING_ANGLE[out.heading];
           if (h0 !== h1) { // a 90-degree turn in place: clockwise (+1) or counter-clockwise
@@ -242,7 +254,7 @@ export class FleetModel {
   /** SOC and makespan (ms) of the run's first plan (later plans start mid-run). */
   planCosts() {
     const s = this.snap;
-    if (s && s.paths.length && (s.plan === null || s.plan === 0)) {
+    if (s && !s.lifelong && s.paths.length && (s.plan === null || s.plan === 0)) {
       const costs = s.paths.map(pathCost);
       this.baseline = {
         soc: costs.reduce((a, b) => a + b, 0) * ACTION_MS,
