@@ -503,6 +503,20 @@ def write_results(path: Path, rows: Iterable[Row]) -> None:
     os.replace(tmp, path)
 
 
+def appended_csv_rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, list[str]]]:
+    """The numbered rows (from line 2) of a CSV file written by appending (``blocks.csv``,
+    ``oracle.csv``): none if it does not exist, a last line cut short by an interruption
+    dropped; a :class:`CampaignError` if its header is not ``columns``."""
+    if not path.exists():
+        return
+    lines = path.read_text().splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines = lines[:-1]
+    reader = csv.reader(lines)
+    if tuple(next(reader, columns)) != tuple(columns):
+        raise CampaignError(f"{path}: unexpected header (expected {','.join(columns)})")
+    yield from enumerate(reader, start=2)
+
 BLOCKS_COLUMNS: tuple[str, ...] = ("map", "agents", "instance", "seed", "blocks_ms")
 """``blocks.csv`` columns: an experiment and its intruder run's block durations, ``;``-joined
 (empty if the fleet reported no block)."""
@@ -511,16 +525,8 @@ BLOCKS_COLUMNS: tuple[str, ...] = ("map", "agents", "instance", "seed", "blocks_
 def read_blocks(path: Path) -> dict[ExperimentKey, Blocks]:
     """The experiments' blocks in ``blocks.csv`` (none if it does not exist; a last line cut
     short by an interruption is dropped)."""
-    if not path.exists():
-        return {}
-    lines = path.read_text().splitlines(keepends=True)
-    if lines and not lines[-1].endswith("\n"):
-        lines = lines[:-1]
-    reader = csv.reader(lines)
-    if tuple(next(reader, BLOCKS_COLUMNS)) != BLOCKS_COLUMNS:
-        raise CampaignError(f"{path}: not a blocks.csv (unexpected header)")
     out = {}
-    for number, fields in enumerate(reader, start=2):
+    for number, fields in appended_csv_rows(path, BLOCKS_COLUMNS):
         try:
             m, agents, inst, seed, durations = fields
             key = (m, int(agents), int(inst), int(seed))

@@ -39,6 +39,7 @@ from experiments.campaign import (
     InstanceRecord,
     Progress,
     SimSettings,
+    appended_csv_rows,
     chunked,
     load_grid,
     run_chunks,
@@ -242,16 +243,8 @@ def write_oracle_rows(path: Path, rows: Iterable[OracleRow], *, append: bool) ->
 
 def read_oracle_rows(path: Path) -> list[OracleRow]:
     """The rows of ``oracle.csv`` (none if missing; a last line cut short is dropped)."""
-    if not path.exists():
-        return []
-    lines = path.read_text().splitlines(keepends=True)
-    if lines and not lines[-1].endswith("\n"):
-        lines = lines[:-1]
-    reader = csv.reader(lines)
-    if tuple(next(reader, ORACLE_COLUMNS)) != ORACLE_COLUMNS:
-        raise ValueError(f"{path}: not an oracle.csv (unexpected header)")
     out = []
-    for number, cells in enumerate(reader, start=2):
+    for number, cells in appended_csv_rows(path, ORACLE_COLUMNS):
         try:
             out.append(_parse_row(cells))
         except (TypeError, ValueError) as exc:

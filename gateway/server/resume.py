@@ -102,6 +102,23 @@ class JournaledReports:
         self._report("refused", robot, plan, action, now_ms, reason)
         super().refused(robot, plan, action, now_ms, reason)  # type: ignore[misc]
 
+    def replay_common(self, rec: JournalRecord,
+                      on_report: Callable[[ReportRecord], None]) -> bool:
+        """Apply a journaled robot report, tick, pause or resume, which every executor takes
+        alike (a report is then passed to ``on_report``); False for any other record."""
+        match rec:
+            case ReportRecord(event="refused"):
+                self.refused(rec.robot, rec.plan, rec.index, rec.t_ms, rec.reason)
+            case ReportRecord():
+                getattr(self, rec.event)(rec.robot, rec.plan, rec.index, rec.t_ms)
+            case TimeRecord(kind="tick" | "pause" | "resume"):
+                getattr(self, rec.kind)(rec.t_ms)
+            case _:
+                return False
+        if isinstance(rec, ReportRecord):
+            on_report(rec)
+        return True
+
 
 class JournaledExecutor(JournaledReports, Executor):
     """An :class:`Executor` that hands every input to ``sink`` before applying it."""
@@ -308,19 +325,9 @@ def _commands(ex: Executor, out: Replayed, on_commands: Callable[[list[Command]]
 def _apply(ex: JournaledExecutor, out: Replayed, rec: JournalRecord,
            on_report: Callable[[ReportRecord], None],
            trace: Callable[[Record], None] | None) -> None:
+    if ex.replay_common(rec, on_report):
+        return
     match rec:
-        case ReportRecord(event="refused"):
-            ex.refused(rec.robot, rec.plan, rec.index, rec.t_ms, rec.reason)
-            on_report(rec)
-        case ReportRecord():
-            getattr(ex, rec.event)(rec.robot, rec.plan, rec.index, rec.t_ms)
-            on_report(rec)
-        case TimeRecord(kind="tick"):
-            ex.tick(rec.t_ms)
-        case TimeRecord(kind="pause"):
-            ex.pause(rec.t_ms)
-        case TimeRecord(kind="resume"):
-            ex.resume(rec.t_ms)
         case TimeRecord(kind="replan"):
             ex.request_replan(rec.t_ms)
         case TimeRecord(kind="abandon"):

@@ -159,23 +159,13 @@ def replay_shift(records: Sequence[JournalRecord], ex: JournaledLifelong, *,
 def _apply(ex: JournaledLifelong, out: ShiftReplayed, rec: JournalRecord,
            on_report: Callable[[ReportRecord], None],
            on_start: Callable[[ShiftRecord], None]) -> None:
+    if ex.replay_common(rec, on_report):
+        return
     match rec:
         case ShiftRecord():
             out.shift = rec
             on_start(rec)
             ex.start(0.0)
-        case ReportRecord(event="refused"):
-            ex.refused(rec.robot, rec.plan, rec.index, rec.t_ms, rec.reason)
-            on_report(rec)
-        case ReportRecord():
-            getattr(ex, rec.event)(rec.robot, rec.plan, rec.index, rec.t_ms)
-            on_report(rec)
-        case TimeRecord(kind="tick"):
-            ex.tick(rec.t_ms)
-        case TimeRecord(kind="pause"):
-            ex.pause(rec.t_ms)
-        case TimeRecord(kind="resume"):
-            ex.resume(rec.t_ms)
         case TimeRecord(kind="stop"):
             ex.stop(rec.t_ms)
         case TimeRecord(kind="replan"):
