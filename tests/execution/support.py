@@ -15,6 +15,8 @@ import random
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from hypothesis import strategies as st
+
 from gateway.execution.commands import (
     Cancel,
     Completed,
@@ -25,9 +27,9 @@ from gateway.execution.commands import (
 )
 from gateway.execution.executor import MONITOR_PERIOD_MS, Executor, Mode
 from gateway.execution.monitor import NOT_STARTED, Estimate, algorithm1
-from gateway.planning.grid import Cell
+from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
-from gateway.planning.random_plans import open_grid, random_walks
+from gateway.planning.random_plans import open_grid, random_plan, random_walks
 
 Action = tuple[int, int]  # (robot, action index)
 
@@ -373,3 +375,21 @@ class Driver:
             mine = [growth[v] for v in unstarted if adg.robot_of[v] == r]
             assert mon.robot_slack(r) == max(mine, default=0.0)
         assert ex.soc_ms == sum(self.last_finish)
+
+
+Delays = dict[tuple[int, int], int]
+"""Extra ms of a robot's action: ``(robot, action index) -> ms``."""
+
+
+@st.composite
+def delayed_plans(draw: st.DrawFn, min_agents: int, min_steps: int) -> tuple[Grid, Plan, Delays]:
+    """A random plan on a small open grid (3-6 x 3-6 cells, at least ``min_agents`` robots and
+    ``min_steps`` steps) and random extra delays of up to 8 of its actions."""
+    w, h = draw(st.integers(3, 6)), draw(st.integers(3, 6))
+    n = draw(st.integers(min_agents, max(min_agents, w * h // 3)))
+    grid = open_grid(w, h)
+    plan = random_plan(grid, n, draw(st.integers(min_steps, 14)),
+                       random.Random(draw(st.integers(0, 2**32 - 1))))
+    delays = draw(st.dictionaries(st.tuples(st.integers(0, n - 1), st.integers(0, 12)),
+                                  st.integers(1, 4000), max_size=8))
+    return grid, plan, delays

@@ -21,10 +21,10 @@ from gateway.execution.reschedule import Rescheduled, Schedule, Search, gains_ed
 from gateway.execution.trace_records import Record
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
-from gateway.planning.random_plans import open_grid, random_plan
+from gateway.planning.random_plans import open_grid
 from sim_clients.des import SimConfig, Simulation, run_simulation
 from sim_clients.intruder import IntruderConfig
-from tests.execution.support import brute_type2, random_robust_plan
+from tests.execution.support import brute_type2, delayed_plans, random_robust_plan
 from tracecheck import check_trace
 
 
@@ -112,13 +112,7 @@ def _check_monitor(ex: Executor, records: list[Record]) -> None:
 def runs(draw: st.DrawFn) -> tuple[SimConfig, list[float], int]:
     """A random plan with random delays, maybe an intruder and a slack policy, and the times
     at which random switches are made."""
-    w, h = draw(st.integers(3, 6)), draw(st.integers(3, 6))
-    n = draw(st.integers(2, max(2, w * h // 3)))
-    grid = open_grid(w, h)
-    plan = random_plan(grid, n, draw(st.integers(4, 14)),
-                       random.Random(draw(st.integers(0, 2**32 - 1))))
-    delays = draw(st.dictionaries(st.tuples(st.integers(0, n - 1), st.integers(0, 12)),
-                                  st.integers(1, 4000), max_size=8))
+    grid, plan, delays = draw(delayed_plans(2, 4))
     appear = draw(st.integers(0, 3000))
     config = SimConfig(
         grid, plan, seed=draw(st.integers(0, 1000)), intruder=draw(st.booleans()),

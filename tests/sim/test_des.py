@@ -23,6 +23,7 @@ from sim_clients.des import (
     run_simulation,
 )
 from sim_clients.intruder import IntruderConfig
+from tests.execution.support import delayed_plans
 from tracecheck import check_trace
 
 
@@ -37,13 +38,7 @@ def traced(config: SimConfig) -> tuple[SimResult, list[Record]]:
 def scenarios(draw: st.DrawFn) -> tuple[SimConfig, dict[tuple[int, int], int]]:
     """A random plan on a small open grid, random per-action delays, a random intruder and a
     random policy (low slack thresholds too, so that replans happen often)."""
-    w, h = draw(st.integers(3, 6)), draw(st.integers(3, 6))
-    n = draw(st.integers(1, max(1, w * h // 3)))
-    grid = open_grid(w, h)
-    plan = random_plan(grid, n, draw(st.integers(3, 14)),
-                       random.Random(draw(st.integers(0, 2**32 - 1))))
-    delays = draw(st.dictionaries(st.tuples(st.integers(0, n - 1), st.integers(0, 12)),
-                                  st.integers(1, 4000), max_size=8))
+    grid, plan, delays = draw(delayed_plans(1, 3))
     appear = draw(st.integers(0, 3000))
     intruder = IntruderConfig(appear_ms=appear, leave_ms=appear + draw(st.integers(1000, 12000)),
                               lead_ms=draw(st.sampled_from([0, 1000, 2000])))
