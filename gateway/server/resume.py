@@ -56,7 +56,8 @@ def plan_of(paths: Sequence[Sequence[Cell]], headings: Sequence[Sequence[int]] |
 
 class JournaledReports:
     """Mixin of a journaled executor (one-shot or lifelong; listed before it in the bases):
-    every robot report is handed to :attr:`sink` before the executor applies it."""
+    every robot report, tick, pause and resume is handed to :attr:`sink` before the executor
+    applies it."""
 
     sink: Sink | None = None
 
@@ -102,6 +103,25 @@ class JournaledReports:
         self._report("refused", robot, plan, action, now_ms, reason)
         super().refused(robot, plan, action, now_ms, reason)  # type: ignore[misc]
 
+    def _time(self, kind: str, now_ms: float) -> None:
+        if self.sink is not None:  # built only if journaled (ten ticks a second)
+            self.sink(TimeRecord.model_construct(kind=kind, t_ms=now_ms))
+
+    def tick(self, now_ms: float) -> None:
+        """Journal, then apply, a monitor tick."""
+        self._time("tick", now_ms)
+        super().tick(now_ms)  # type: ignore[misc]
+
+    def pause(self, now_ms: float) -> None:
+        """Journal, then apply, the operator's pause."""
+        self._time("pause", now_ms)
+        super().pause(now_ms)  # type: ignore[misc]
+
+    def resume(self, now_ms: float) -> None:
+        """Journal, then apply, the operator's resume."""
+        self._time("resume", now_ms)
+        super().resume(now_ms)  # type: ignore[misc]
+
     def replay_common(self, rec: JournalRecord,
                       on_report: Callable[[ReportRecord], None]) -> bool:
         """Apply a journaled robot report, tick, pause or resume, which every executor takes
@@ -134,19 +154,6 @@ class JournaledExecutor(JournaledReports, Executor):
     def _log(self, record: Any) -> None:
         if self.sink is not None:
             self.sink(record)
-
-    def tick(self, now_ms: float) -> None:
-        if self.sink is not None:
-            self.sink(TimeRecord.model_construct(kind="tick", t_ms=now_ms))
-        super().tick(now_ms)
-
-    def pause(self, now_ms: float) -> None:
-        self._log(TimeRecord(kind="pause", t_ms=now_ms))
-        super().pause(now_ms)
-
-    def resume(self, now_ms: float) -> None:
-        self._log(TimeRecord(kind="resume", t_ms=now_ms))
-        super().resume(now_ms)
 
     def request_replan(self, now_ms: float) -> None:
         self._log(TimeRecord(kind="replan", t_ms=now_ms))

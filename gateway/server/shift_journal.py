@@ -66,22 +66,6 @@ class JournaledLifelong(JournaledReports, LifelongExecutor):
         """Where trace records go from now on."""
         self._record = record
 
-    def _time(self, kind: str, now_ms: float) -> None:
-        if self.sink is not None:
-            self.sink(TimeRecord.model_construct(kind=kind, t_ms=now_ms))
-
-    def tick(self, now_ms: float) -> None:
-        self._time("tick", now_ms)
-        super().tick(now_ms)
-
-    def pause(self, now_ms: float) -> None:
-        self._time("pause", now_ms)
-        super().pause(now_ms)
-
-    def resume(self, now_ms: float) -> None:
-        self._time("resume", now_ms)
-        super().resume(now_ms)
-
     def stop(self, now_ms: float) -> None:
         self._time("stop", now_ms)
         super().stop(now_ms)
