@@ -32,6 +32,7 @@ import argparse
 import copy
 import dataclasses
 import json
+import statistics
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -103,6 +104,8 @@ class JournaledShift:
     """A new executor of the shift's configuration (to replay a journal into)."""
     before_compaction: list[int]
     """Records of the first compacted journal right before each of its compactions."""
+    compact_ms: list[float]
+    """Wall ms of each of its compactions (snapshot, encoding, the transaction)."""
 
 
 def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
@@ -118,6 +121,7 @@ def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
     made: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
     tasks: list[TaskJournal] = []
     before: list[int] = []
+    compact_ms: list[float] = []
 
     def executor(*args: Any, **kw: Any) -> LifelongExecutor:
         made.append((copy.deepcopy(args), {**kw, "record": None}))
@@ -148,11 +152,15 @@ def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
             if compaction_due(ex, every):
                 tj.flush()
                 journal.commit()
-                if journal is journals[0][0]:
+                first = journal is journals[0][0]
+                if first:
                     before.append(journal.count())
+                t0 = time.perf_counter()
                 journal.compact(ShiftSnapshotRecord(
                     shift=start, speed=1.0, threshold_ms=0.0, replan_marks=[],
                     trace_lines=0, state=snapshot_shift(ex)))
+                if first:
+                    compact_ms.append((time.perf_counter() - t0) * 1000.0)
 
     run = drive_shift(prob, seed, horizon_ms=seconds * 1000.0, trace=False,
                       executor=executor, each=each, routed=routed)
@@ -161,7 +169,7 @@ def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
         tj.journal.commit()
     args, kw = made[0]
     return JournaledShift(run.ex, lambda: JournaledLifelong(*copy.deepcopy(args), **kw),
-                          before)
+                          before, compact_ms)
 
 
 def replayed(path: Path, fresh: JournaledLifelong) -> tuple[float, int]:
@@ -205,6 +213,9 @@ def journal_run(robots: int, seconds: float, every: int, seed: int) -> dict[str,
             "compacted_records": comp_n, "compacted_kb": sizes[1] // 1024,
             "compacted_max_records": max(shift.before_compaction, default=comp_n),
             "compacted_replay_s": round(comp_s, 3),
+            "compaction_ms_median": round(statistics.median(shift.compact_ms), 1)
+            if shift.compact_ms else None,
+            "compaction_ms_max": round(max(shift.compact_ms, default=0.0), 1),
             "replay_ratio": round(comp_s / full_s, 4) if full_s else None,
             "drive_cpu_s": round(drive_s, 1), "equal": True}
 

@@ -19,6 +19,13 @@ outstanding when the gateway died is planned again after the replay (its answer 
 the process). :func:`resume_shift` wires a replay into the engine: run id, robot sessions
 (which learn what was dispatched and reported, so reconnecting robots are re-synchronised by
 their ``hello``), the trace file, the clock. No I/O here but the engine's.
+
+Compaction: every ``snapshot_segments`` adopted segments :func:`compact_shift` replaces the
+journal's records by one :class:`~gateway.runtime.journal.ShiftSnapshotRecord` (the shift's
+state, :mod:`gateway.execution.shift_state`, and what the engine keeps besides). A journal
+that starts with one is replayed by restoring the snapshot into the fresh executor, then
+feeding it the records after it; the robot sessions learn the executor's dispatched,
+unfinished actions from the executor itself.
 """
 
 from __future__ import annotations

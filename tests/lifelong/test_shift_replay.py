@@ -38,6 +38,7 @@ from gateway.execution.shift_state import snapshot_shift
 from gateway.execution.tasks import NewTask, TaskError
 from gateway.runtime.journal import (
     Journal,
+    JournalError,
     JournalRecord,
     ShiftRecord,
     ShiftSnapshotRecord,
@@ -281,3 +282,18 @@ def test_a_crash_at_a_compaction_replays_to_the_shift_it_killed(tmp_path: Path,
     replay_shift(records, fresh, on_commands=lambda cs: None, on_report=lambda rec: None,
                  on_start=lambda rec: None)
     assert snapshot_shift(fresh) == killed.state
+
+
+def test_a_snapshot_that_does_not_fit_is_a_one_line_journal_error(tmp_path: Path) -> None:
+    """A snapshot of another layout version, or of another fleet, stops the replay with a
+    precise journal error (the gateway prints it as one line), not a traceback."""
+    shift = journaled_shift(_PROBLEM, 5, 3.0, [(Journal(tmp_path / "j.sqlite"), 0)])
+    snap = ShiftSnapshotRecord(shift=_START, speed=1.0, threshold_ms=0.0, replan_marks=[],
+                               trace_lines=0, state=snapshot_shift(shift.live))
+    for state, says in [
+            (dataclasses.replace(snap.state, version=99), "of version 99 cannot be restored"),
+            (dataclasses.replace(snap.state, robots=9), "of 9 robots, the configuration has 8")]:
+        bad = snap.model_copy(update={"state": state})
+        with pytest.raises(JournalError, match=says):
+            replay_shift([bad], shift.fresh(), on_commands=lambda cs: None,
+                         on_report=lambda rec: None, on_start=lambda rec: None)
