@@ -33,7 +33,7 @@ from openapi_spec_validator import validate as validate_spec
 from bench.crash import GatewayProcess, free_port
 from gateway.planning.lorr import warehouse_problem
 from gateway.web import __file__ as web_init
-from tests.server.task_client import Reply, call
+from tests.server.task_client import Reply, Sse, call, sse
 
 ROBOTS = 3
 TOKEN = secrets.token_urlsafe(24)
@@ -344,3 +344,32 @@ def test_nothing_an_unauthenticated_client_reads_holds_the_token(served: Served)
         assert TOKEN not in text and TOKEN[:12] not in text, path
     served.gw.log.flush()
     assert TOKEN[:12] not in served.gw.log_path.read_text()
+
+
+def test_the_event_stream_is_as_described(served: Served) -> None:
+    """Every event so far comes once, in order, with its id, and conforms to the schema the
+    document names for the stream's data; a bad Last-Event-ID is a described 400."""
+    stream = served.spec["paths"]["/tasks/events"]["get"]["responses"]["200"]["content"]
+    validator = _strict_validator(stream["text/event-stream"]["x-event-data"], served.spec)
+
+    async def main() -> tuple[int, list[Sse], Reply]:
+        assert (await call(served.port, "POST", "/tasks", {"errands": [FREE[2]]},
+                           AUTH)).status == 201
+        last = (await call(served.port, "GET", "/tasks?limit=1", headers=AUTH)).json()
+        events = []
+        async with asyncio.timeout(30):
+            async for ev in sse(served.port, "/tasks/events?after=0", AUTH):
+                events.append(ev)
+                if ev.id == last["last_event"]:
+                    break
+        bad = await call(served.port, "GET", "/tasks/events", headers={
+            **AUTH, "Last-Event-ID": "yesterday"})
+        return last["last_event"], events, bad
+
+    last, events, bad = asyncio.run(main())
+    assert [e.id for e in events] == list(range(1, last + 1))
+    for ev in events:
+        assert ev.event == "task" and ev.data["seq"] == ev.id
+        validator.validate(ev.data)
+    check_described(served.spec, "/tasks/events", "GET", bad)
+    assert bad.status == 400 and "Last-Event-ID" in bad.json()["error"]
