@@ -27,7 +27,10 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict, deque
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, fields
+from operator import attrgetter
+from typing import Any
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import LifelongExecutor, LifelongMode, PlanRequest
@@ -39,33 +42,47 @@ SNAPSHOT_VERSION = 1
 
 ActionRow = tuple[int, int, int, int, int, int]
 """A committed action: kind, cell, heading, dependency robot, dependency seq, append order."""
-EventRow = tuple[int, int, TaskState, int, int, float]
-"""A task event: seq, task, state, robot, errands done, time."""
 NewTaskRow = tuple[list[int], int, float | None]
 """One task of a submission: errands, priority, deadline."""
 
 
 @dataclass(frozen=True)
-class TaskSnapshot:
-    """One kept task (every field of :class:`~gateway.execution.tasks.Task`)."""
+class TaskColumns:
+    """Kept tasks column by column, in the book's order (task k is entry k of every list):
+    every field of :class:`~gateway.execution.tasks.Task`. A long shift keeps up to ``keep``
+    ended tasks; lists of plain values encode and validate several times faster than an
+    object per task."""
 
-    id: int
-    errands: list[int]
-    release_tick: int
-    robot: int
-    done: int
-    finish_tick: float
-    length: int
-    priority: int
-    deadline: float | None
-    key: str | None
-    state: TaskState
-    submitted: float
-    assigned_at: float
-    errand_at: list[float]
-    cancelled_at: float
-    listed: bool
-    announced: int
+    id: list[int]
+    errands: list[tuple[int, ...]]
+    release_tick: list[int]
+    robot: list[int]
+    done: list[int]
+    finish_tick: list[float]
+    length: list[int]
+    priority: list[int]
+    deadline: list[float | None]
+    key: list[str | None]
+    state: list[TaskState]
+    submitted: list[float]
+    assigned_at: list[float]
+    errand_at: list[list[float]]
+    cancelled_at: list[float]
+    listed: list[bool]
+    announced: list[int]
+
+
+@dataclass(frozen=True)
+class EventColumns:
+    """Kept task events column by column, oldest first (every field of
+    :class:`~gateway.execution.tasks.TaskEvent`)."""
+
+    seq: list[int]
+    task: list[int]
+    state: list[TaskState]
+    robot: list[int]
+    done: list[int]
+    t: list[float]
 
 
 @dataclass(frozen=True)
@@ -73,7 +90,7 @@ class PoolSnapshot:
     """The task pool: its kept tasks (in the book's order) and, by id in their order, where
     each waits; its events, keys and counters."""
 
-    book: list[TaskSnapshot]
+    book: TaskColumns
     tasks: list[int]
     open: list[int]
     waiting: list[int]
@@ -84,7 +101,7 @@ class PoolSnapshot:
     """The backlog heap as a list: -priority, deadline (None: none), task id."""
     keys: list[tuple[str, list[NewTaskRow], list[int]]]
     """Idempotency keys (oldest first): the submission and the ids it made."""
-    events: list[EventRow]
+    events: EventColumns
     event_seq: int
     finished: int
     next_id: int
@@ -180,24 +197,34 @@ def snapshot_shift(ex: LifelongExecutor) -> ShiftState:
         pool=_pool_snapshot(ex.pool))
 
 
+_TASK_FIELDS = tuple(f.name for f in fields(Task))
+_EVENT_FIELDS = tuple(f.name for f in fields(TaskEvent))
+
+
+def _columns(items: Iterable[Any], names: Sequence[str]) -> dict[str, list[Any]]:
+    """``{field: [its value in each item]}``."""
+    rows = list(items)
+    return {name: list(map(attrgetter(name), rows)) for name in names}
+
+
+def _rows(columns: Any, names: Sequence[str]) -> Iterator[tuple[Any, ...]]:
+    """Each item's values in field order (the inverse of :func:`_columns`)."""
+    return zip(*(getattr(columns, name) for name in names), strict=True)
+
+
 def _pool_snapshot(pool: TaskPool) -> PoolSnapshot:
+    tasks = _columns(pool.book.values(), _TASK_FIELDS)
+    tasks["errand_at"] = list(map(list, tasks["errand_at"]))  # a live task appends to it
     return PoolSnapshot(
-        book=[_task_snapshot(t) for t in pool.book.values()], tasks=list(pool.tasks),
+        book=TaskColumns(**tasks), tasks=list(pool.tasks),
         open=list(pool.open), waiting=list(pool._waiting), paused=list(pool._paused),
         ended=list(pool._ended), released=list(pool._released),
         backlog=[(-p, None if math.isinf(d) else d, i) for (p, d), i in pool._backlog],
         keys=[(key, [(list(t.errands), t.priority, t.deadline) for t in new], list(ids))
               for key, (new, ids) in pool._keys.items()],
-        events=[(e.seq, e.task, e.state, e.robot, e.done, e.t) for e in pool.events],
+        events=EventColumns(**_columns(pool.events, _EVENT_FIELDS)),
         event_seq=pool.event_seq, finished=pool.finished, next_id=pool.next_id,
         listed=pool._listed, now=pool.now)
-
-
-def _task_snapshot(t: Task) -> TaskSnapshot:
-    return TaskSnapshot(
-        t.id, list(t.errands), t.release_tick, t.robot, t.done, t.finish_tick, t.length,
-        t.priority, t.deadline, t.key, t.state, t.submitted, t.assigned_at, list(t.errand_at),
-        t.cancelled_at, t.listed, t.announced)
 
 
 def restore_shift(ex: LifelongExecutor, state: ShiftState) -> None:
@@ -245,10 +272,11 @@ def restore_shift(ex: LifelongExecutor, state: ShiftState) -> None:
 
 
 def _restore_pool(pool: TaskPool, snap: PoolSnapshot) -> None:
-    book = {t.id: Task(
-        t.id, tuple(t.errands), t.release_tick, t.robot, t.done, t.finish_tick, t.length,
-        t.priority, t.deadline, t.key, t.state, t.submitted, t.assigned_at, list(t.errand_at),
-        t.cancelled_at, t.listed, t.announced) for t in snap.book}
+    book = {}
+    for row in _rows(snap.book, _TASK_FIELDS):
+        task = Task(*row)
+        task.errands, task.errand_at = tuple(task.errands), list(task.errand_at)
+        book[task.id] = task
     pool.book = book
     pool.tasks = {i: book[i] for i in snap.tasks}
     pool.open = {i: book[i] for i in snap.open}
@@ -260,6 +288,7 @@ def _restore_pool(pool: TaskPool, snap: PoolSnapshot) -> None:
     pool._keys = OrderedDict(
         (key, (tuple(NewTask(tuple(e), p, d) for e, p, d in new), list(ids)))
         for key, new, ids in snap.keys)
-    pool.events = deque((TaskEvent(*e) for e in snap.events), maxlen=pool.keep)
+    pool.events = deque((TaskEvent(*e) for e in _rows(snap.events, _EVENT_FIELDS)),
+                        maxlen=pool.keep)
     pool.event_seq, pool.finished, pool.next_id = snap.event_seq, snap.finished, snap.next_id
     pool._listed, pool.now = snap.listed, snap.now
