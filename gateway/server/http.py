@@ -37,7 +37,8 @@ DEFAULT_STATIC = Path(gateway.web.__file__).resolve().parent / "static"
 REASONS = {200: "OK", 201: "Created", 204: "No Content", 303: "See Other", 400: "Bad Request",
            401: "Unauthorized", 403: "Forbidden", 404: "Not Found", 405: "Method Not Allowed",
            408: "Request Timeout", 409: "Conflict", 413: "Content Too Large",
-           414: "URI Too Long", 415: "Unsupported Media Type", 422: "Unprocessable Content",
+           414: "URI Too Long", 415: "Unsupported Media Type", 417: "Expectation Failed",
+           422: "Unprocessable Content",
            426: "Upgrade Required", 500: "Internal Server Error", 501: "Not Implemented",
            503: "Service Unavailable"}
 

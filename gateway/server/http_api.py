@@ -5,10 +5,12 @@ answers bodiless GETs): the task API's routes are taken off the websocket server
 connection's request head first. A request for a path of :data:`API_PREFIXES` is an
 :class:`ApiRequest` for the API's handler: head, then a body of at most ``MAX_BODY_BYTES``
 (``Content-Length`` only), within the handshake timeout; anything else goes on to the
-websocket server unchanged (the upgrade, the GUI's files, probes). One request per connection
-(``Connection: close``); a handler answers with a complete :class:`ApiResponse` or a stream of
-chunks (server-sent events) that ends when the client goes or the gateway stops. Over TLS the
-same applies: the head is read after the TLS handshake.
+websocket server unchanged (the upgrade, the GUI's files, probes) if it is a bodiless GET, else
+it is refused here (405, or 400 for a body): the websocket server would drop it unanswered. One
+request per connection (``Connection: close``); a handler answers with a complete
+:class:`ApiResponse` or a stream of chunks (server-sent events) that ends when the client goes
+or the gateway stops. ``Expect: 100-continue`` is answered before the body is read. Over TLS
+the same applies: the head is read after the TLS handshake.
 """
 
 from __future__ import annotations
@@ -116,6 +118,33 @@ def _parse_head(head: bytes) -> tuple[str, str, str, Headers]:
     return method, url.path, url.query, headers
 
 
+def _continue_expected(headers: Headers) -> bool:
+    """Whether the client waits for ``100 Continue`` before its body (curl does for large
+    bodies); HttpError(417) for any other expectation."""
+    expect = headers.get_all("Expect")
+    if not expect:
+        return False
+    if [e.lower() for e in expect] != ["100-continue"]:
+        raise HttpError(417, f"unsupported Expect: {', '.join(expect)[:60]} (only "
+                             "100-continue)")
+    return True
+
+
+def _not_plain(head: bytes) -> HttpError | None:
+    """Why a request for a path outside the API is refused here (the websocket server's routes
+    are bodiless GETs; it would drop anything else without an answer), or None: it is one."""
+    try:
+        method, path, _, headers = _parse_head(head)
+    except HttpError:
+        return None  # the websocket server refuses it
+    if method != "GET":
+        return HttpError(405, f"{method} {path[:100]}: only GET is served here",
+                         [("Allow", "GET")])
+    if "Transfer-Encoding" in headers or set(headers.get_all("Content-Length")) - {"0"}:
+        return HttpError(400, f"GET {path[:100]} takes no body")
+    return None
+
+
 def _is_api(head: bytes) -> bool:
     """Whether a request head asks for an API path."""
     line = head.split(b"\r\n", 1)[0].split(b" ")
@@ -159,16 +188,22 @@ class RoutingConnection(ServerConnection):
             end = self._buffer.find(b"\r\n\r\n")
             if end < 0 and len(self._buffer) <= MAX_HEAD_BYTES:
                 return
-            if end < 0 or not _is_api(bytes(self._buffer[:end])):
+            head = bytes(self._buffer[:max(end, 0)])
+            refusal = _not_plain(head) if end >= 0 and not _is_api(head) else None
+            if end < 0 or not (_is_api(head) or refusal):
                 self._to_websockets()
                 return
             self._mode = "api"
-            head, rest = bytes(self._buffer[:end]), self._buffer[end + 4:]
-            self._buffer = bytearray(rest)
+            self._buffer = self._buffer[end + 4:]
             self.live.add(self)
+            if refusal is not None:
+                self._refuse(refusal)
+                return
             try:
                 self._head = _parse_head(head)
                 self._body_needed = self._body_length(self._head[3])
+                if _continue_expected(self._head[3]) and len(self._buffer) < self._body_needed:
+                    self._write(b"HTTP/1.1 100 Continue\r\n\r\n")
             except HttpError as exc:
                 self._refuse(exc)
                 return

@@ -124,6 +124,10 @@ class LifelongRun:
         self._warm = _WarmQueue(distances)
         self._warming: asyncio.Task[None] | None = None
         engine.before_commit.append(self._warm_tasks)
+        self.started: ShiftRecord | None = None
+        """The shift's start (its run id, wall time and speed of time 0), once started."""
+        self.after_adopt: Callable[[], None] | None = None
+        """Called after each adopted segment is routed (the journal compacts here)."""
 
     # ------------------------------------------------------------------ state
     @property
@@ -172,9 +176,10 @@ class LifelongRun:
         e.runs += 1
         e.run_id = new_run_id()
         e.clock.reset()
+        self.started = ShiftRecord(run_id=e.run_id, wall_start_s=time.time(),
+                                   speed=e.clock.speed)
         if self.executor.sink is not None:
-            self.executor.sink(ShiftRecord(run_id=e.run_id, wall_start_s=time.time(),
-                                           speed=e.clock.speed))
+            self.executor.sink(self.started)
         self.executor.start(0.0)
         e.status_changed()
         self.route()
@@ -284,6 +289,8 @@ class LifelongRun:
         if segment is None:
             ex.plan_failed(req.call, now)
         self.route()
+        if segment is not None and self.after_adopt is not None:
+            self.after_adopt()
 
 
 class _WarmQueue:

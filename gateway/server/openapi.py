@@ -12,6 +12,8 @@ from pydantic.json_schema import models_json_schema
 
 from gateway.execution.tasks import TASK_STATES
 from gateway.server.task_models import (
+    KEY_PATTERN,
+    MAX_KEY_CHARS,
     MAX_LIST,
     ApiError,
     SubmitBatch,
@@ -37,11 +39,15 @@ def _json(model: type[BaseModel], description: str) -> dict[str, Any]:
 
 
 def _errors(*codes: int) -> dict[str, Any]:
+    """The refusals an operation names, each and any other (``default``) an ApiError."""
     words = {400: "malformed request", 401: "no credentials", 403: "refused credentials",
              404: "no such task", 409: "conflict with the task's state or an idempotency key",
-             413: "body too large", 415: "body not JSON", 422: "not a free cell of the map",
+             413: "body too large", 414: "query too long", 415: "body not JSON",
+             422: "not a free cell of the map",
              503: "not in lifelong mode, or too many event streams"}
-    return {str(c): _json(ApiError, words[c]) for c in codes}
+    return {**{str(c): _json(ApiError, words[c]) for c in codes},
+            "default": _json(ApiError, "any other refusal (e.g. 408 request too slow, 417 "
+                                       "unsupported Expect, 500 internal error)")}
 
 
 _TASK_ID = {"name": "id", "in": "path", "required": True,
@@ -49,20 +55,22 @@ _TASK_ID = {"name": "id", "in": "path", "required": True,
 
 
 def _paths() -> dict[str, Any]:
-    auth = (401, 403, 503)
+    auth = (400, 401, 403, 503)
     return {
         "/tasks": {
             "post": {
                 "summary": "Submit one task or a batch",
                 "operationId": "submitTasks",
                 "parameters": [{"name": "Idempotency-Key", "in": "header", "required": False,
-                                "schema": {"type": "string", "maxLength": 128}}],
+                                "schema": {"type": "string", "minLength": 1,
+                                           "maxLength": MAX_KEY_CHARS,
+                                           "pattern": KEY_PATTERN}}],
                 "requestBody": {"required": True, "content": {"application/json": {
                     "schema": {"oneOf": [_ref(SubmitOne), _ref(SubmitBatch)]}}}},
                 "responses": {
                     "201": _json(SubmitResponse, "the tasks were created"),
                     "200": _json(SubmitResponse, "a retry: the tasks of the first request"),
-                    **_errors(400, *auth, 409, 413, 415, 422)},
+                    **_errors(*auth, 409, 413, 415, 422)},
             },
             "get": {
                 "summary": "List tasks in id order, a page at a time",
@@ -80,13 +88,13 @@ def _paths() -> dict[str, Any]:
                     {"name": "limit", "in": "query", "required": False,
                      "schema": {"type": "integer", "minimum": 1, "maximum": MAX_LIST}}],
                 "responses": {"200": _json(TaskList, "a page of tasks"),
-                              **_errors(400, *auth)},
+                              **_errors(*auth, 414)},
             },
         },
         "/tasks/{id}": {
             "get": {"summary": "One task", "operationId": "getTask", "parameters": [_TASK_ID],
                     "responses": {"200": _json(TaskView, "the task"),
-                                  **_errors(400, *auth, 404)}},
+                                  **_errors(*auth, 404)}},
             "delete": {"summary": "Cancel a task no errand of which is done",
                        "operationId": "cancelTask", "parameters": [_TASK_ID],
                        "responses": {"200": _json(TaskView, "the cancelled task"),
@@ -120,7 +128,7 @@ def _paths() -> dict[str, Any]:
                 "responses": {"200": {"description": "the stream", "content": {
                     "text/event-stream": {"schema": {"type": "string"},
                                           "x-event-data": _ref(TaskEventView)}}},
-                    **_errors(400, *auth)},
+                    **_errors(*auth, 414)},
             },
         },
     }

@@ -30,7 +30,7 @@ from collections.abc import AsyncIterator, Callable
 from typing import TYPE_CHECKING, Literal, TypeVar, cast
 from urllib.parse import parse_qs
 
-from pydantic import TypeAdapter, ValidationError
+from pydantic import ValidationError
 
 from gateway.execution.tasks import (
     TASK_STATES,
@@ -49,7 +49,6 @@ from gateway.server.task_models import (
     MAX_LIST,
     SubmitBatch,
     SubmitOne,
-    SubmitRequest,
     SubmitResponse,
     TaskAction,
     TaskList,
@@ -62,8 +61,7 @@ if TYPE_CHECKING:
     from gateway.planning.grid import Grid
     from gateway.server.engine import Engine
 
-_SUBMIT: TypeAdapter[SubmitRequest] = TypeAdapter(SubmitRequest)
-_TASK_PATH = re.compile(r"^/tasks/([0-9]{1,12})(/pause|/resume)?$")
+_TASK_PATH = re.compile(r"^/tasks/([^/]+)(/pause|/resume)?$")
 KEEPALIVE_S = 15.0
 """A comment line on an idle event stream this often (proxies keep it open)."""
 POLL_S = 0.1
@@ -113,10 +111,16 @@ class TaskApi:
         m = _TASK_PATH.match(req.path)
         if m is None:
             raise HttpError(404, f"no route {req.path[:100]}")
-        task_id, action = int(m.group(1)), m.group(2)
+        action = m.group(2)
+        if action is not None and req.method != "POST":
+            raise HttpError(405, f"{action[1:]} a task with POST", [("Allow", "POST")])
+        if action is None and req.method not in ("GET", "DELETE"):
+            raise HttpError(405, f"{req.method} /tasks/{{id}}: use GET or DELETE",
+                            [("Allow", "GET, DELETE")])
+        if not (m.group(1).isdigit() and len(m.group(1)) <= 18):
+            raise HttpError(404, f"no task {m.group(1)[:40]!r}: a task id is a whole number")
+        task_id = int(m.group(1))
         if action is not None:
-            if req.method != "POST":
-                raise HttpError(405, f"{action[1:]} a task with POST", [("Allow", "POST")])
             act: Literal["pause", "resume"] = "pause" if action == "/pause" else "resume"
             task = await self._change(lambda p, now: (p.pause if act == "pause"
                                                       else p.resume)(task_id, now))
@@ -125,11 +129,8 @@ class TaskApi:
         if req.method == "GET":
             return json_answer(200, task_view(self._found(pool, task_id), grid)
                                .model_dump(mode="json"))
-        if req.method == "DELETE":
-            task = await self._change(lambda p, now: p.cancel(task_id, now))
-            return json_answer(200, task_view(task, grid).model_dump(mode="json"))
-        raise HttpError(405, f"{req.method} /tasks/{{id}}: use GET or DELETE",
-                        [("Allow", "GET, DELETE")])
+        task = await self._change(lambda p, now: p.cancel(task_id, now))  # DELETE
+        return json_answer(200, task_view(task, grid).model_dump(mode="json"))
 
     def _grid(self) -> Grid:
         run = self._engine.lifelong
@@ -246,8 +247,8 @@ class TaskApi:
             raise HttpError(400, "the body must be a JSON object: a task or {\"tasks\": [...]}")
         model: type[SubmitOne] | type[SubmitBatch] = SubmitBatch if "tasks" in data \
             else SubmitOne
-        try:
-            return model.model_validate(data, strict=False)
+        try:  # strict: "5", true and 1.0 are no integers, "100" is no number
+            return model.model_validate_json(text, strict=True)
         except ValidationError as exc:
             raise HttpError(400, _first_error(exc)) from None
 

@@ -28,7 +28,9 @@ MAX_BODY_BYTES = 256 * 1024
 
 Coordinate = Annotated[int, Field(ge=0, le=1_000_000)]
 Cell = tuple[Coordinate, Coordinate]
-Key = Annotated[str, Field(min_length=1, max_length=MAX_KEY_CHARS, pattern=r"^[!-~]+$")]
+KEY_PATTERN = r"^[!-~]+$"
+"""An idempotency key: printable ASCII, no spaces."""
+Key = Annotated[str, Field(min_length=1, max_length=MAX_KEY_CHARS, pattern=KEY_PATTERN)]
 Ms = Annotated[float, Field(ge=0, le=1e15, allow_inf_nan=False)]
 
 
@@ -57,10 +59,6 @@ class SubmitBatch(_Model):
 
     tasks: list[TaskSpec] = Field(min_length=1, max_length=MAX_BATCH)
     idempotency_key: Key | None = None
-
-
-SubmitRequest = SubmitOne | SubmitBatch
-"""The body of ``POST /tasks``: one task, or ``{"tasks": [...]}``."""
 
 
 class TaskView(_Model):

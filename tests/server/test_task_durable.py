@@ -1,6 +1,7 @@
 """Durable tasks: ``fleetgate serve`` in lifelong mode, killed with SIGKILL and restarted with
 the same command line, loses no accepted task and finishes none twice (the journal rebuilds
-the task book; the event stream goes on with the same event ids)."""
+the task book: ``GET /tasks/{id}`` shows each task as before, its idempotency key still
+answers a retry; the event stream goes on with the same event ids)."""
 
 from __future__ import annotations
 
@@ -63,8 +64,11 @@ def test_a_killed_gateway_keeps_every_accepted_task_and_finishes_each_once(
         await fleet.stop()
         late = await call(port, "POST", "/tasks", {"errands": [free[1]]})
         assert late.status == 201  # acknowledged: it must survive what comes now
+        every = [*ids, late.json()["tasks"][0]["id"]]
+        out["views"] = [(await call(port, "GET", f"/tasks/{i}")).json() for i in every]
         gw.kill()
         gw.start()
+        out["views_after"] = [(await call(port, "GET", f"/tasks/{i}")).json() for i in every]
         listed = (await call(port, "GET", "/tasks")).json()
         out["after_restart"] = {t["id"]: t["state"] for t in listed["tasks"]}
         retry = await call(port, "POST", "/tasks", batch)
@@ -92,6 +96,15 @@ def test_a_killed_gateway_keeps_every_accepted_task_and_finishes_each_once(
     assert out["retry"] == (200, ids)  # the idempotency key survived the restart
     finished_before = [i for i, s in out["after_restart"].items() if s == "finished"]
     assert len(finished_before) >= 2
+    # GET /tasks/{id} after the restart: what was submitted and when is kept; a finished
+    # or started task is shown exactly as before (its robot, errand and finish times too)
+    for before, after in zip(out["views"], out["views_after"], strict=True):
+        same = ("id", "errands", "priority", "deadline_ms", "idempotency_key", "submitted_ms")
+        assert {k: after[k] for k in same} == {k: before[k] for k in same}
+        if before["state"] in ("finished", "started"):  # a started one stays with its robot
+            assert after == before
+        else:
+            assert after["state"] in ("queued", "assigned"), after
     by_task: dict[int, list[str]] = {}
     for ev in out["events"]:
         by_task.setdefault(ev.data["task"], []).append(ev.data["state"])
