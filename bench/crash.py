@@ -32,6 +32,8 @@ repeated or skipped), ``run_ids`` (distinct run ids robots were sent: 1), ``fini
 and ``robot_changed`` (tasks that finished twice, or changed robots once started),
 ``retry_created``, ``event_gaps`` (task event ids), and ``throughput_ratio``: tasks finished
 per minute of plan time against an undisturbed shift of the same fleet (the downtime is in it).
+``from_snapshot`` counts the kills that found the shift's journal compacted into a snapshot
+(every 60 segments by default: the gateway's ``snapshot_segments``).
 
     .venv/bin/python bench/crash.py --lifelong --kills 10 --seed 1 --json
 """
@@ -374,7 +376,7 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
     free = [list(c) for c in grid.free_cells()]
     batch = {"tasks": [{"errands": rng.sample(free, 2)} for _ in range(robots)],
              "idempotency_key": "bench-1"}
-    resumed = retry_created = finished_at_kill = 0
+    resumed = retry_created = finished_at_kill = from_snapshot = 0
     before_last_kill: set[tuple[int, int]] = set()
     await fleet.start()
     try:
@@ -385,6 +387,7 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
             finished_at_kill = (await asyncio.to_thread(
                 _http, gw.port, "GET", "/tasks?limit=1"))[1]["counts"]["finished"]
             gw.kill()
+            from_snapshot += gw.journal_starts_with() == "shift_snapshot"
             before_last_kill = set(completed)
             await asyncio.sleep(rng.uniform(0.0, 0.3))  # down for a while
             await asyncio.to_thread(gw.start)
@@ -407,7 +410,8 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
     done = int(counts["counts"]["finished"])
     defects = shift_defects(records)
     defects["renumbered"] += len(list(gw.trace.parent.glob(gw.trace.name + ".*")))  # new shift
-    return {**defects, "resumed": resumed, "finished_at_last_kill": finished_at_kill,
+    return {**defects, "resumed": resumed, "from_snapshot": from_snapshot,
+            "finished_at_last_kill": finished_at_kill,
             "lost": len(before_last_kill - finished),
             "duplicated": sum(n - 1 for n in executed.values() if n > 1),
             "run_ids": len({aid.split(".")[0] for aid in fleet.stats.received}),
@@ -422,11 +426,14 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
             "journal_records": journal_records, "journal_kb": journal_bytes // 1024}
 
 
-def lifelong_config(gw: GatewayProcess, robots: int, warehouse: tuple[int, int]) -> None:
-    """Turn ``gw``'s configuration into a shift of ``robots`` in a generated warehouse."""
+def lifelong_config(gw: GatewayProcess, robots: int, warehouse: tuple[int, int],
+                    snapshot_segments: int | None = None) -> None:
+    """Turn ``gw``'s configuration into a shift of ``robots`` in a generated warehouse (its
+    journal compacted every ``snapshot_segments`` segments; None: the default)."""
     cfg = json.loads(gw.config.read_text())
+    compact = {} if snapshot_segments is None else {"snapshot_segments": snapshot_segments}
     gw.config.write_text(json.dumps({**cfg, "map": None, "autostart": True, "lifelong": {
-        "robots": robots, "warehouse": list(warehouse)}}))
+        "robots": robots, "warehouse": list(warehouse), **compact}}))
 
 
 def run_lifelong(kills: int, seed: int, robots: int, speed: float,
@@ -451,10 +458,10 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
             out[-1]["mean_down_s"] = round(statistics.mean(gw.down_s), 2) if gw.down_s \
                 else None
     base, shift = out
-    keys = ("resumed", "lost", "duplicated", "collisions", "trace_errors", "renumbered",
-            "dispatched_twice", "run_ids", "retry_created", "event_gaps", "finished_twice",
-            "robot_changed", "robot_errors", "tasks_finished", "actions_run", "mean_down_s",
-            "plan_ms", "journal_records", "journal_kb")
+    keys = ("resumed", "from_snapshot", "lost", "duplicated", "collisions", "trace_errors",
+            "renumbered", "dispatched_twice", "run_ids", "retry_created", "event_gaps",
+            "finished_twice", "robot_changed", "robot_errors", "tasks_finished", "actions_run",
+            "mean_down_s", "plan_ms", "journal_records", "journal_kb")
     return {"kills": kills, **{k: shift[k] for k in keys},
             "throughput_ratio": round(shift["tasks_per_min"] / base["tasks_per_min"], 3)
             if base["tasks_per_min"] else None,

@@ -13,18 +13,41 @@ Part 2: ``--robots`` robots for 600 simulated seconds (one action a second, a pl
 second) on a generated warehouse of about 10,000 free cells (shelf rows, like MovingAI's
 warehouse-10-20-10-2-1), in CPU seconds; the goal is 60 s on 2 cores, and LSMART (2026, the
 same ADG execution) takes 268 s on 16 cores. Prints one result line.
+
+``--journal`` (instead): the shift journal's size and restart time, compacted against not.
+A ``--robots`` shift on a generated warehouse runs ``--seconds`` of plan time in virtual time
+(:mod:`sim_clients.shift_des`: jittered actions, random stops, planner latency) through the
+gateway's journaled executor into two real journals: one never compacted (as before
+compaction existed), one compacted into a snapshot every ``--every`` segments as the gateway
+does. Each is then read back and replayed into a fresh executor (what a restart does before
+it serves), which must equal the live shift. Prints one line: records, bytes and replay CPU
+seconds of both, and ``replay_ratio`` (compacted / uncompacted replay time).
+
+    .venv/bin/python bench/lifelong.py --journal --robots 100 --seconds 3600 --json
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
+import json
+import statistics
+import tempfile
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
-from gateway.planning.lorr import read_problem, warehouse_problem
+from gateway.execution.lifelong import LifelongExecutor
+from gateway.execution.shift_state import snapshot_shift
+from gateway.planning.lorr import LorrProblem, read_problem, warehouse_problem
 from gateway.planning.movingai import format_map
+from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord, ShiftSnapshotRecord
+from gateway.server.shift_journal import JournaledLifelong, compaction_due, replay_shift
+from gateway.server.task_journal import TaskJournal
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from sim_clients.shift_des import drive_shift
 from tracecheck.lorr import check_output, read_free
 
 REPO = Path(__file__).resolve().parents[1]
@@ -72,8 +95,133 @@ def speed_run(robots: int, seconds: int, seed: int) -> tuple[float, int, int]:
     return cpu, res.finished, int(problem.grid.free.sum())
 
 
+@dataclasses.dataclass
+class JournaledShift:
+    """A shift driven in virtual time into journals (see :func:`journaled_shift`)."""
+
+    live: LifelongExecutor
+    fresh: Callable[[], JournaledLifelong]
+    """A new executor of the shift's configuration (to replay a journal into)."""
+    before_compaction: list[int]
+    """Records of the first compacted journal right before each of its compactions."""
+    compact_ms: list[float]
+    """Wall ms of each of its compactions (snapshot, encoding, the transaction)."""
+
+
+def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
+                    journals: Sequence[tuple[Journal, int]],
+                    each: Callable[[LifelongExecutor, float], None] | None = None
+                    ) -> JournaledShift:
+    """Drive ``prob``'s shift for ``seconds`` of plan time (``each``: as in
+    :func:`~sim_clients.shift_des.drive_shift`), journaling its inputs (and task events) into
+    each journal; one with ``every`` > 0 is compacted every ``every`` adopted segments as the
+    gateway does (commit, then one snapshot replaces the records). Commits happen when plan
+    time moves on (the gateway commits before its owner task yields)."""
+    start = ShiftRecord(run_id="bench", wall_start_s=0.0, speed=1.0)
+    made: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
+    tasks: list[TaskJournal] = []
+    before: list[int] = []
+    compact_ms: list[float] = []
+
+    def executor(*args: Any, **kw: Any) -> LifelongExecutor:
+        made.append((copy.deepcopy(args), {**kw, "record": None}))
+        ex = JournaledLifelong(*args, **kw)
+        tasks.extend(TaskJournal(ex.pool, j) for j, _ in journals)
+
+        def sink(rec: JournalRecord) -> None:
+            for tj in tasks:
+                tj.flush()
+                tj.journal.append(rec)
+
+        ex.sink = sink
+        sink(start)
+        return ex
+
+    last = {"t": -1.0, "segments": 0}
+
+    def routed(ex: LifelongExecutor, t: float) -> None:
+        if t != last["t"]:
+            last["t"] = t
+            for tj in tasks:
+                tj.flush()
+                tj.journal.commit()
+        if ex.segments == last["segments"]:
+            return
+        last["segments"] = ex.segments
+        for tj, (journal, every) in zip(tasks, journals, strict=True):
+            if compaction_due(ex, every):
+                tj.flush()
+                journal.commit()
+                first = journal is journals[0][0]
+                if first:
+                    before.append(journal.count())
+                t0 = time.perf_counter()
+                journal.compact(ShiftSnapshotRecord(
+                    shift=start, speed=1.0, threshold_ms=0.0, replan_marks=[],
+                    trace_lines=0, state=snapshot_shift(ex)))
+                if first:
+                    compact_ms.append((time.perf_counter() - t0) * 1000.0)
+
+    run = drive_shift(prob, seed, horizon_ms=seconds * 1000.0, trace=False,
+                      executor=executor, each=each, routed=routed)
+    for tj in tasks:
+        tj.flush()
+        tj.journal.commit()
+    args, kw = made[0]
+    return JournaledShift(run.ex, lambda: JournaledLifelong(*copy.deepcopy(args), **kw),
+                          before, compact_ms)
+
+
+def replayed(path: Path, fresh: JournaledLifelong) -> tuple[float, int]:
+    """Read the journal at ``path`` and replay it into ``fresh``, as a restart does: CPU
+    seconds and records."""
+    t0 = time.process_time()
+    journal = Journal(path)
+    records = list(journal.records())
+    journal.close()
+    replay_shift(records, fresh, on_commands=lambda cs: None, on_report=lambda rec: None,
+                 on_start=lambda rec: None)
+    return time.process_time() - t0, len(records)
+
+
+def journal_run(robots: int, seconds: float, every: int, seed: int) -> dict[str, Any]:
+    """The ``--journal`` measurement (see the module doc)."""
+    prob = warehouse_problem(robots, seed, (4, 6) if robots <= 200 else (13, 25),
+                             p_delay=0.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = [Path(tmp) / "full.sqlite", Path(tmp) / "compacted.sqlite"]
+        journals = [Journal(paths[1]), Journal(paths[0])]
+        t0 = time.process_time()
+        shift = journaled_shift(prob, seed, seconds, [(journals[0], every), (journals[1], 0)])
+        drive_s = time.process_time() - t0
+        for j in journals:
+            j.close()
+        sizes = [p.stat().st_size for p in paths]
+        result = {}
+        want = snapshot_shift(shift.live)
+        for name, path in zip(("full", "compacted"), paths, strict=True):
+            fresh = shift.fresh()
+            cpu_s, records = replayed(path, fresh)
+            if snapshot_shift(fresh) != want:
+                raise SystemExit(f"the {name} journal's replay differs from the live shift")
+            result[name] = (records, cpu_s)
+    (full_n, full_s), (comp_n, comp_s) = result["full"], result["compacted"]
+    return {"robots": robots, "plan_s": seconds, "every": every,
+            "segments": shift.live.segments, "actions": sum(shift.live.adg.done),
+            "tasks_finished": shift.live.finished_tasks,
+            "full_records": full_n, "full_kb": sizes[0] // 1024, "full_replay_s": round(full_s, 3),
+            "compacted_records": comp_n, "compacted_kb": sizes[1] // 1024,
+            "compacted_max_records": max(shift.before_compaction, default=comp_n),
+            "compacted_replay_s": round(comp_s, 3),
+            "compaction_ms_median": round(statistics.median(shift.compact_ms), 1)
+            if shift.compact_ms else None,
+            "compaction_ms_max": round(max(shift.compact_ms, default=0.0), 1),
+            "replay_ratio": round(comp_s / full_s, 4) if full_s else None,
+            "drive_cpu_s": round(drive_s, 1), "equal": True}
+
+
 def main() -> None:
-    """Run both parts and print one result line."""
+    """Run both parts (or the ``--journal`` measurement) and print one result line."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ticks", type=int, default=600, help="ticks per LoRR problem")
     ap.add_argument("--robots", type=int, default=1000, help="robots in the speed run")
@@ -81,7 +229,23 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--delay-seeds", type=int, default=1,
                     help="delay seeds per LoRR problem (mean and min ratio reported)")
+    ap.add_argument("--journal", action="store_true",
+                    help="measure the shift journal's size and replay time, compacted or not")
+    ap.add_argument("--every", type=int, default=60,
+                    help="--journal: segments between snapshots of the compacted journal")
+    ap.add_argument("--json", action="store_true", help="--journal: print one JSON line")
     args = ap.parse_args()
+    if args.journal:
+        out = journal_run(args.robots, args.seconds, args.every, args.seed)
+        print(json.dumps(out) if args.json else
+              f"lifelong journal: {out['robots']} robots x {out['plan_s']} s of plan time "
+              f"({out['actions']} actions): uncompacted {out['full_records']} "
+              f"records, {out['full_kb']} KB, replayed in {out['full_replay_s']} s CPU; "
+              f"compacted every {out['every']} segments {out['compacted_records']} records "
+              f"(at most {out['compacted_max_records']}), {out['compacted_kb']} KB, replayed "
+              f"in {out['compacted_replay_s']} s CPU; replay_ratio {out['replay_ratio']}; "
+              "both replays equal the live shift")
+        return
     parts = []
     if SHARED.is_dir():
         runs = shared_runs(args.ticks, args.delay_seeds)

@@ -202,6 +202,18 @@ class LifelongExecutor:
         """The robot's dispatched, unfinished actions."""
         return self._sent[robot]
 
+    def dispatched(self, robot: int) -> list[Dispatch]:
+        """The robot's dispatched, unfinished actions, as they were dispatched (a shift
+        restored from a snapshot tells the robot sessions with them)."""
+        q = self.adg.queue[robot]
+        return [self._command(robot, pos, q[pos], q[pos - 1] if pos else None)
+                for pos in range(self._sent[robot])]
+
+    def head_state(self, robot: int) -> tuple[bool, bool]:
+        """Whether the robot's first dispatched action is started, and whether it is
+        blocked."""
+        return self._started_at[robot] != _NO_START, bool(self._blocked[robot])
+
     def drain(self) -> list[LifelongCommand]:
         """The commands emitted since the last call, in order."""
         out, self._out = self._out, []
@@ -607,15 +619,20 @@ class LifelongExecutor:
             self._dispatch(robot, pos, a, queue[pos - 1] if pos else None)
 
     def _dispatch(self, robot: int, pos: int, a: LiveAction, prev: LiveAction | None) -> None:
+        self._out.append(self._command(robot, pos, a, prev))
+        self._trace("dispatch", robot, self.adg.done[robot] + pos)
+
+    def _command(self, robot: int, pos: int, a: LiveAction, prev: LiveAction | None
+                 ) -> Dispatch:
+        """The dispatch of the robot's pending action ``a`` at ``pos`` (after ``prev``)."""
         number = self.adg.done[robot] + pos
         src_cell, src_heading = (self.cell[robot], self.heading[robot]) if prev is None \
             else (prev.cell, prev.heading)
         cell_of = self.grid.cell
-        self._out.append(Dispatch(
+        return Dispatch(
             self.segment_of(robot, number), robot, number, cell_of(src_cell), cell_of(a.cell),
             self._tx[a.kind], src_heading if self.turning else None,
-            a.heading if self.turning else None))
-        self._trace("dispatch", robot, number)
+            a.heading if self.turning else None)
 
     def _maybe_done(self) -> None:
         if self.mode is LifelongMode.STOPPING and not any(self._sent):

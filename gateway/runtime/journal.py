@@ -35,7 +35,8 @@ In lifelong mode the journal holds the shift instead: the task book's changes
 (:class:`TaskRecord`), the shift's start (:class:`ShiftRecord`), and the inputs of its executor
 (reports, ticks, pause, resume, stop, "plan now", adopted segments (:class:`SegmentRecord`),
 failed planner calls), from which a restarted gateway replays the shift
-(:mod:`gateway.server.shift_journal`).
+(:mod:`gateway.server.shift_journal`). Every few segments :meth:`Journal.compact` replaces
+them by one :class:`ShiftSnapshotRecord` of the shift's state.
 """
 
 from __future__ import annotations
@@ -49,6 +50,8 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+from gateway.execution.shift_state import ShiftState
 
 Cell = tuple[int, int]
 
@@ -243,10 +246,28 @@ class SnapshotRecord(_Record):
     """Trace records the run wrote before this plan (its trace file starts with them)."""
 
 
+class ShiftSnapshotRecord(_Record):
+    """A lifelong shift's records so far, compacted: the shift's start, what its executor and
+    task book are (:class:`~gateway.execution.shift_state.ShiftState`) and what the engine
+    keeps besides; replaying it gives what replaying those records gave."""
+
+    kind: Literal["shift_snapshot"] = "shift_snapshot"
+    shift: ShiftRecord
+    speed: float
+    """The clock's speed."""
+    threshold_ms: float
+    """The slack threshold operators are shown."""
+    replan_marks: list[dict[str, float | int | str]]
+    """The shift's planning triggers so far, as operators see them."""
+    trace_lines: int
+    """Trace records the shift wrote before the snapshot (its trace file starts with them)."""
+    state: ShiftState
+
+
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
     | SpeedRecord | SnapshotRecord | ShadowRecord | TaskRecord | ShiftRecord | SegmentRecord
-    | ThresholdRecord,
+    | ThresholdRecord | ShiftSnapshotRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 
@@ -400,8 +421,9 @@ class Journal:
         self._replace(run)
 
     def compact(self, snapshot: _Record) -> None:
-        """``snapshot`` (a :class:`SnapshotRecord` at a new plan) sums up every record so far
-        and replaces them."""
+        """``snapshot`` (a :class:`SnapshotRecord` at a new plan, a
+        :class:`ShiftSnapshotRecord` in a shift) sums up every record so far and replaces
+        them."""
         self._replace(snapshot)
 
     def discard(self) -> None:

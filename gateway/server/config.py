@@ -108,6 +108,9 @@ class LifelongSettings(BaseModel):
     the API are added to the same pool)."""
     threshold_ms: float | None = Field(default=PAPER.threshold_ms, ge=0)
     """Fleet-slack threshold of the early planning call (None: no slack trigger)."""
+    snapshot_segments: int = Field(default=60, ge=0)
+    """With a journal: compact it into a snapshot of the shift every this many adopted
+    segments (0: never; the journal then grows with the shift)."""
 
 
     @model_validator(mode="before")

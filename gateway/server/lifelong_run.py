@@ -28,6 +28,7 @@ import asyncio
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import TYPE_CHECKING
@@ -122,6 +123,10 @@ class LifelongRun:
         self.planner_ms: list[float] = []
         """Wall (real clock) or charged (virtual clock) ms of each planner call."""
         self._solving: asyncio.Task[None] | None = None
+        self.started: ShiftRecord | None = None
+        """The shift's start (its run id, wall time and speed of time 0), once started."""
+        self.after_adopt: Callable[[], None] | None = None
+        """Called after each adopted segment is routed (the journal compacts here)."""
 
     # ------------------------------------------------------------------ state
     @property
@@ -170,9 +175,10 @@ class LifelongRun:
         e.runs += 1
         e.run_id = new_run_id()
         e.clock.reset()
+        self.started = ShiftRecord(run_id=e.run_id, wall_start_s=time.time(),
+                                   speed=e.clock.speed)
         if self.executor.sink is not None:
-            self.executor.sink(ShiftRecord(run_id=e.run_id, wall_start_s=time.time(),
-                                           speed=e.clock.speed))
+            self.executor.sink(self.started)
         self.executor.start(0.0)
         e.status_changed()
         self.route()
@@ -250,6 +256,8 @@ class LifelongRun:
         if segment is None:
             ex.plan_failed(req.call, now)
         self.route()
+        if segment is not None and self.after_adopt is not None:
+            self.after_adopt()
 
 
 def throughput_per_min(finished: int, elapsed_ms: float) -> float:

@@ -19,6 +19,13 @@ outstanding when the gateway died is planned again after the replay (its answer 
 the process). :func:`resume_shift` wires a replay into the engine: run id, robot sessions
 (which learn what was dispatched and reported, so reconnecting robots are re-synchronised by
 their ``hello``), the trace file, the clock. No I/O here but the engine's.
+
+Compaction: every ``snapshot_segments`` adopted segments :func:`compact_shift` replaces the
+journal's records by one :class:`~gateway.runtime.journal.ShiftSnapshotRecord` (the shift's
+state, :mod:`gateway.execution.shift_state`, and what the engine keeps besides). A journal
+that starts with one is replayed by restoring the snapshot into the fresh executor, then
+feeding it the records after it; the robot sessions learn the executor's dispatched,
+unfinished actions from the executor itself.
 """
 
 from __future__ import annotations
@@ -34,17 +41,21 @@ from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import (
     LifelongCommand,
     LifelongExecutor,
+    LifelongMode,
     PlanRequest,
     Segment,
 )
+from gateway.execution.shift_state import restore_shift, snapshot_shift
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
 from gateway.execution.trace_records import Record
 from gateway.runtime.journal import (
+    ExecutorEvent,
     JournalError,
     JournalRecord,
     ReportRecord,
     SegmentRecord,
     ShiftRecord,
+    ShiftSnapshotRecord,
     SpeedRecord,
     TaskRecord,
     ThresholdRecord,
@@ -100,6 +111,10 @@ class ShiftReplayed:
     """The shift's start (None: the journal holds task changes made before it started)."""
     speed: float | None = None
     """The clock speed set last during the shift (None: the shift's start speed)."""
+    threshold_ms: float | None = None
+    """The slack threshold the operator set last (None: never in the journal)."""
+    snapshot: ShiftSnapshotRecord | None = None
+    """The snapshot the journal starts with, if it is compacted."""
     last_t_ms: float = 0.0
     records: int = 0
 
@@ -107,15 +122,31 @@ class ShiftReplayed:
 def replay_shift(records: Sequence[JournalRecord], ex: JournaledLifelong, *,
                  on_commands: Callable[[list[LifelongCommand]], None],
                  on_report: Callable[[ReportRecord], None],
-                 on_start: Callable[[ShiftRecord], None]) -> ShiftReplayed:
+                 on_start: Callable[[ShiftRecord], None],
+                 on_snapshot: Callable[[ShiftSnapshotRecord], None] | None = None
+                 ) -> ShiftReplayed:
     """Feed the journaled shift to ``ex`` (fresh, of the shift's configuration, not
-    journaling): ``on_start`` gets the shift's start before the executor starts,
-    ``on_commands`` what the executor commands after each record (planner requests included:
-    the caller decides what to do with them), ``on_report`` every report it accepted (one it
-    refused live is refused again). JournalError if the task events do not follow."""
+    journaling): ``on_start`` gets the shift's start before the executor starts (or is
+    restored from the snapshot the journal starts with; ``on_snapshot`` then gets the snapshot
+    once it is restored), ``on_commands`` what the executor commands after each record
+    (planner requests included: the caller decides what to do with them), ``on_report`` every
+    report it accepted (one it refused live is refused again). JournalError if the task events
+    do not follow or the snapshot does not fit ``ex``."""
     out = ShiftReplayed()
     pool = ex.pool
     i = 0
+    if records and isinstance(records[0], ShiftSnapshotRecord):
+        snap = records[0]
+        i = out.records = 1
+        out.shift, out.speed, out.threshold_ms = snap.shift, snap.speed, snap.threshold_ms
+        out.snapshot, out.last_t_ms = snap, snap.state.now_ms
+        on_start(snap.shift)
+        try:
+            restore_shift(ex, snap.state)
+        except ExecutionError as exc:
+            raise JournalError(f"the journal's shift snapshot: {exc}") from None
+        if on_snapshot is not None:
+            on_snapshot(snap)
     while i < len(records):
         rec = records[i]
         i += 1
@@ -162,6 +193,7 @@ def _apply(ex: JournaledLifelong, out: ShiftReplayed, rec: JournalRecord,
         case SegmentRecord():
             ex.adopt(Segment(rec.call, rec.states, rec.reached), rec.t_ms)
         case ThresholdRecord():
+            out.threshold_ms = rec.threshold_ms
             ex.set_threshold(rec.threshold_ms)
         case SpeedRecord():
             out.speed = rec.speed
@@ -239,18 +271,37 @@ def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftRepla
     def commands(cs: list[LifelongCommand]) -> None:
         engine.route([c for c in cs if not isinstance(c, PlanRequest)])
 
+    def restored(snap: ShiftSnapshotRecord) -> None:
+        """The robot sessions learn what the restored executor has dispatched (and which of
+        those actions are under way), as a replay of the records would have told them."""
+        engine.feed.replan_marks = [dict(m) for m in snap.replan_marks]
+        for r in range(ex.n):
+            held = ex.dispatched(r)
+            engine.route(list(held))
+            started, blocked = ex.head_state(r)
+            events: list[ExecutorEvent] = ["started"] * started
+            events += ["stopped" if started else "blocked"] * blocked
+            for event in events:
+                engine._replayed_report(ReportRecord(
+                    event=event, robot=r, plan=held[0].plan, index=held[0].action,
+                    t_ms=ex.now_ms))
+
     ex.set_record(record)
     engine._replayed_trace = trace  # a stopped shift's summary record goes there too
     engine._replaying = True
     try:
         done = replay_shift(records, ex, on_commands=commands,
-                            on_report=engine._replayed_report, on_start=start)
+                            on_report=engine._replayed_report, on_start=start,
+                            on_snapshot=restored)
     finally:
         engine._replaying = False
         ex.set_record(engine.feed.record)
     if done.shift is None:
         return done
-    engine.feed.resume_trace(trace)
+    run.started = done.shift
+    engine.feed.resume_trace(trace, 0 if done.snapshot is None else done.snapshot.trace_lines)
+    if done.threshold_ms is not None:
+        engine.threshold_ms = done.threshold_ms
     speed = done.speed if done.speed is not None else done.shift.speed
     engine.clock.set_speed(speed)
     away = (time.time() - done.shift.wall_start_s) * 1000.0 * speed
@@ -263,3 +314,27 @@ def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftRepla
         "t_ms": round(engine.clock.now_ms()), "finished_tasks": ex.finished_tasks})
     engine.status_changed()
     return done
+
+
+def compact_shift(engine: Engine, every: int) -> None:
+    """After an adopted segment (between two owner-task items): every ``every`` segments
+    (0: never) of a running shift, replace the journal's records by a snapshot of the shift.
+    What is buffered is committed and the trace flushed first, then one transaction deletes
+    the records and writes the snapshot: a crash before it leaves the records, one after it
+    the snapshot, and both replay to the same shift."""
+    run, journal = engine.lifelong, engine.journal
+    assert run is not None and journal is not None
+    if not compaction_due(run.executor, every) or run.started is None:
+        return
+    engine.commit()
+    feed = engine.feed
+    journal.compact(ShiftSnapshotRecord(
+        shift=run.started, speed=engine.clock.speed, threshold_ms=engine.threshold_ms,
+        replan_marks=feed.replan_marks, trace_lines=feed.trace_lines,
+        state=snapshot_shift(run.executor)))
+
+
+def compaction_due(ex: LifelongExecutor, every: int) -> bool:
+    """Whether a shift that has just adopted a segment is compacted now: every ``every``
+    segments (0: never), while it runs (a stopping shift's end is left to its records)."""
+    return every > 0 and ex.segments % every == 0 and ex.mode is LifelongMode.RUNNING

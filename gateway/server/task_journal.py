@@ -15,11 +15,18 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
+from functools import partial
 from typing import TYPE_CHECKING
 
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
-from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord, TaskRecord
-from gateway.server.shift_journal import resume_shift
+from gateway.runtime.journal import (
+    Journal,
+    JournalRecord,
+    ShiftRecord,
+    ShiftSnapshotRecord,
+    TaskRecord,
+)
+from gateway.server.shift_journal import compact_shift, resume_shift
 
 if TYPE_CHECKING:
     from gateway.server.engine import Engine
@@ -85,13 +92,13 @@ def journal_tasks(engine: Engine) -> bool:
     pool, journal, run = engine.tasks, engine.journal, engine.lifelong
     assert pool is not None and journal is not None and run is not None
     records = list(journal.records())
-    if records and not isinstance(records[0], TaskRecord | ShiftRecord):
+    if records and not isinstance(records[0], TaskRecord | ShiftRecord | ShiftSnapshotRecord):
         journal.discard()
         log.warning("journaled one-shot run abandoned: the gateway is in lifelong mode",
                     extra={"journal": str(journal.path)})
         records = []
     last = 0
-    if any(isinstance(rec, ShiftRecord) for rec in records):
+    if any(isinstance(rec, ShiftRecord | ShiftSnapshotRecord) for rec in records):
         resume_shift(engine, records)
         last = pool.event_seq
     elif records:
@@ -107,4 +114,6 @@ def journal_tasks(engine: Engine) -> bool:
         journal.append(rec)
 
     run.executor.sink = sink
+    assert engine.config.lifelong is not None
+    run.after_adopt = partial(compact_shift, engine, engine.config.lifelong.snapshot_segments)
     return bool(records)

@@ -1,40 +1,26 @@
-"""The sans-I/O lifelong executor, driven by a small discrete-event loop in these tests: robots
-run what they are dispatched with jittered durations and random stops, the planner answers
-after a random latency (so segments arrive while robots move), and the independent trace
-checker re-derives the ADG from the trace and replays occupancy."""
+"""The sans-I/O lifelong executor, driven by a small discrete-event loop
+(:mod:`sim_clients.shift_des`): robots run what they are dispatched with jittered durations and
+random stops, the planner answers after a random latency (so segments arrive while robots
+move), and the independent trace checker re-derives the ADG from the trace and replays
+occupancy."""
 
 from __future__ import annotations
 
 import dataclasses
-import heapq
-import random
-from collections import deque
-from collections.abc import Callable
 from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.execution.commands import Completed, Dispatch, Trigger
+from gateway.execution.commands import Dispatch, Trigger
 from gateway.execution.errands import TaskDistances
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import LifelongExecutor, PlanRequest, Segment, WindowPlanner
 from gateway.execution.tasks import TaskPool
-from gateway.execution.trace_records import summary_record
+from sim_clients.shift_des import ShiftRun, drive_shift
 from tests.lifelong.support import small_problem
 from tracecheck import check_trace
-
-
-@dataclasses.dataclass
-class Run:
-    """What a driven run produced."""
-
-    ex: LifelongExecutor
-    records: list[dict[str, Any]]
-    dispatched: list[tuple[int, int, int]]
-    moving_at_adoption: int
-    """Segments adopted while at least one robot was in the middle of an action."""
 
 
 class _NoDeps(LifelongExecutor):
@@ -47,97 +33,9 @@ class _NoDeps(LifelongExecutor):
                 q[i] = dataclasses.replace(a, dep_robot=-1)
 
 
-def drive(seed: int, *, robots: int = 10, size: int = 12, turning: bool = True,
-          horizon_ms: float = 40_000.0, latency_ms: float = 300.0, jitter: float = 0.3,
-          stop_p: float = 0.05, stop_ms: tuple[float, float] = (100.0, 3000.0),
-          lookahead: int = 1, threshold_ms: float | None = 2000.0,
-          executor: Callable[..., LifelongExecutor] = LifelongExecutor,
-          each: Callable[[LifelongExecutor, float], None] | None = None) -> Run:
-    """Run a shift of ``horizon_ms`` in virtual time, then stop it and drain the fleet;
-    ``each(ex, t)`` is called after every event (e.g. a task API's changes)."""
-    prob = small_problem(seed, robots=robots, size=size, p_delay=0.0)
-    rng = random.Random(seed)
-    grid = prob.grid
-    pool = TaskPool(prob.tasks, max(1, int(1.5 * robots)))
-    records: list[dict[str, Any]] = []
-    ex = executor(grid, prob.starts, [0] * robots if turning else None, pool,
-                  distances=TaskDistances(grid), lookahead=lookahead,
-                  threshold_ms=threshold_ms, record=records.append)
-    planner = WindowPlanner(grid, robots, turning, seed)
-    events: list[tuple[float, int, str, Any]] = []
-    order = 0
-    queues: list[deque[Dispatch]] = [deque() for _ in range(robots)]
-    running: list[Dispatch | None] = [None] * robots
-    dispatched: list[tuple[int, int, int]] = []
-    moving_at_adoption = 0
-    waiting: set[int] = set()  # robots that reported blocked
-    done = False
-
-    def push(t: float, kind: str, data: Any) -> None:
-        nonlocal order
-        order += 1
-        heapq.heappush(events, (t, order, kind, data))
-
-    def route(t: float) -> None:
-        nonlocal done
-        for c in ex.drain():
-            if isinstance(c, Dispatch):
-                dispatched.append((c.plan, c.robot, c.action))
-                queues[c.robot].append(c)
-                push(t, "try", c.robot)
-            elif isinstance(c, PlanRequest):
-                push(t + rng.uniform(0, latency_ms), "adopt", planner(c))
-            elif isinstance(c, Completed):
-                done = True
-            else:
-                assert isinstance(c, Trigger)
-
-    ex.start(0.0)
-    route(0.0)
-    push(100.0, "tick", None)
-    stopped = False
-    while events and not done:
-        t, _, kind, data = heapq.heappop(events)
-        if not stopped and t >= horizon_ms:
-            ex.stop(t)
-            stopped = True
-        if kind == "tick":
-            ex.tick(t)
-            push(t + 100.0, "tick", None)
-        elif kind == "adopt":
-            moving_at_adoption += any(d is not None for d in running)
-            if ex.outstanding is not None:
-                ex.adopt(data, t)
-        elif kind == "try":
-            r = data
-            if running[r] is None and queues[r]:
-                d = running[r] = queues[r].popleft()
-                if rng.random() < stop_p:  # the cell looks taken for a while
-                    ex.blocked(r, d.plan, d.action, t)
-                    waiting.add(r)
-                    push(t + rng.uniform(*stop_ms), "go", r)
-                else:
-                    push(t, "go", r)
-        elif kind == "go":
-            d = running[data]
-            assert d is not None
-            if data in waiting:
-                waiting.discard(data)
-                ex.unblocked(data, d.plan, d.action, t)
-            ex.started(data, d.plan, d.action, t)
-            push(t + d.duration_ms * rng.uniform(1 - jitter, 1 + jitter), "finish", data)
-        elif kind == "finish":
-            d = running[data]
-            assert d is not None
-            running[data] = None
-            ex.finished(data, d.plan, d.action, t)
-            push(t, "try", data)
-        if each is not None:
-            each(ex, t)
-        route(t)
-    assert done, "the stopped run never completed"
-    records.append(summary_record(sum(ex.completion), max(ex.completion)))
-    return Run(ex, records, dispatched, moving_at_adoption)
+def drive(seed: int, *, robots: int = 10, size: int = 12, **kw: Any) -> ShiftRun:
+    """:func:`~sim_clients.shift_des.drive_shift` on a random ``size`` x ``size`` map."""
+    return drive_shift(small_problem(seed, robots=robots, size=size, p_delay=0.0), seed, **kw)
 
 
 @pytest.mark.parametrize("turning", [True, False])

@@ -2,7 +2,12 @@
 time (robots with jittered durations and stops, planner answers after a random latency, task
 API changes and operator pauses at random moments) journals its inputs into a real SQLite
 journal; at random points and at the end, a fresh executor fed the committed records must equal
-the live one in every field (executor, live ADG, errand book, task pool)."""
+the live one in every field (executor, live ADG, errand book, task pool).
+
+Snapshots too: at the same random points the live shift's state is snapshotted
+(:func:`~gateway.execution.shift_state.snapshot_shift`, through the journal record's JSON); a
+fresh executor restored from it must equal the live one field by field, and after the records
+that followed it (the journal a compaction there would have left) the live one at the end."""
 
 from __future__ import annotations
 
@@ -10,24 +15,42 @@ import contextlib
 import copy
 import dataclasses
 import enum
+import multiprocessing
+import os
 import random
+import signal
+import sqlite3
 import tempfile
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydantic import TypeAdapter
 
+from bench.lifelong import journaled_shift
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import LifelongExecutor
+from gateway.execution.shift_state import snapshot_shift
 from gateway.execution.tasks import NewTask, TaskError
-from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord
+from gateway.runtime.journal import (
+    Journal,
+    JournalError,
+    JournalRecord,
+    ShiftRecord,
+    ShiftSnapshotRecord,
+)
 from gateway.server.shift_journal import JournaledLifelong, replay_shift
 from gateway.server.task_journal import TaskJournal
+from tests.lifelong.support import small_problem
 from tests.lifelong.test_lifelong_executor import drive
 
+_ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
+_START = ShiftRecord(run_id="test", wall_start_s=0.0, speed=1.0)
+_PROBLEM = small_problem(5, robots=8, size=10, p_delay=0.0)
 _NOT_STATE = {"grid", "_record", "sink", "distances", "scheduler", "leg", "pool", "_out",
               "durations", "space"}
 """Attributes that are configuration, outputs or links (the pool is compared on its own)."""
@@ -112,6 +135,7 @@ def test_replaying_the_journal_rebuilds_the_shift_field_by_field(
     with tempfile.TemporaryDirectory() as tmp:
         journal = Journal(Path(tmp) / "journal.sqlite")
         checkpoints: list[tuple[int, Any]] = []
+        snapshots: list[tuple[int, ShiftSnapshotRecord]] = []
         made: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
         flush: list[Callable[[], None]] = []
 
@@ -126,6 +150,10 @@ def test_replaying_the_journal_rebuilds_the_shift_field_by_field(
                 if rng.random() < 0.01:  # the state before this input: what is committed
                     journal.commit()
                     checkpoints.append((journal.count(), shift_state(ex)))
+                    snapshots.append((journal.count(), _ADAPTER.validate_json(
+                        ShiftSnapshotRecord(shift=_START, speed=1.0, threshold_ms=0.0,
+                                            replan_marks=[], trace_lines=0,
+                                            state=snapshot_shift(ex)).model_dump_json())))
                 journal.append(rec)
 
             ex.sink = sink
@@ -140,11 +168,132 @@ def test_replaying_the_journal_rebuilds_the_shift_field_by_field(
         journal.close()
     args, kw = made[0]
     assert len(records) > 100
-    for n, want in [*checkpoints, (len(records), shift_state(run.ex))]:
+    end = shift_state(run.ex)
+
+    def replayed(journaled: list[JournalRecord]) -> Any:
         fresh = _Shift(*copy.deepcopy(args), **kw)
-        replay_shift(records[:n], fresh, on_commands=lambda cs: None,
+        replay_shift(journaled, fresh, on_commands=lambda cs: None,
                      on_report=lambda rec: None, on_start=lambda rec: None)
-        got = shift_state(fresh)
-        for part in ("executor", "pool"):
-            for key in want[part]:
-                assert got[part][key] == want[part][key], (n, part, key)
+        return shift_state(fresh)
+
+    for n, want in [*checkpoints, (len(records), end)]:
+        _equal(replayed(records[:n]), want, n)
+    for (n, snap), (_, want) in zip(snapshots, checkpoints, strict=True):
+        _equal(replayed([snap]), want, ("restored", n))
+        _equal(replayed([snap, *records[n:]]), end, ("restored and replayed", n))
+
+
+def _equal(got: Any, want: Any, where: Any) -> None:
+    """``got`` equals ``want`` in every field of the executor and the pool."""
+    for part in ("executor", "pool"):
+        for key in want[part]:
+            assert got[part][key] == want[part][key], (where, part, key)
+
+
+def test_a_compacted_journal_stays_bounded_over_a_long_shift_and_resumes_exactly(
+        tmp_path: Path) -> None:
+    """Two minutes of plan time of eight robots (task API changes and operator pauses
+    included), compacted every five segments as the gateway does: the journal never holds
+    more than a few seconds' records, while the same shift's uncompacted journal keeps
+    growing; replaying the compacted one rebuilds the live shift field by field."""
+    compacted, full = Journal(tmp_path / "compacted.sqlite"), Journal(tmp_path / "full.sqlite")
+    shift = journaled_shift(_PROBLEM, 5, 120.0, [(compacted, 5), (full, 0)],
+                            each=_api(random.Random(5), 0.02))
+    records = list(compacted.records())
+    written = full.count()
+    compacted.close()
+    full.close()
+    assert shift.live.segments >= 100
+    assert len(shift.before_compaction) >= shift.live.segments // 5 - 1  # one per 5 segments
+    assert isinstance(records[0], ShiftSnapshotRecord)
+    # bounded: about five seconds of records (~150) whenever it is looked at, against
+    # the 3,000+ the uncompacted journal holds at the end
+    assert max(shift.before_compaction) * 10 < written
+    assert (tmp_path / "compacted.sqlite").stat().st_size * 4 \
+        < (tmp_path / "full.sqlite").stat().st_size
+    want = shift_state(shift.live)
+    fresh = shift.fresh()
+    replay_shift(records, fresh, on_commands=lambda cs: None, on_report=lambda rec: None,
+                 on_start=lambda rec: None)
+    _equal(shift_state(fresh), want, "compacted")
+
+
+class _KilledAtCommit:
+    """A journal's connection whose process is killed when a transaction is to commit."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db = db
+
+    def execute(self, sql: str, *args: Any) -> sqlite3.Cursor:
+        """Run ``sql``; SIGKILL instead of a ``COMMIT``."""
+        if sql == "COMMIT":
+            os.kill(os.getpid(), signal.SIGKILL)
+        return self.db.execute(sql, *args)
+
+
+def _crash_at_compaction(path: Path, where: str, out: Path) -> None:
+    """A child process: a journaled shift killed (SIGKILL) at its third compaction, ``where``
+    is ``before`` the snapshot's transaction (its records committed), ``inside`` it (records
+    deleted and the snapshot written, not committed) or ``after`` its commit. The snapshot
+    it was writing goes to ``out`` first."""
+    compact, seen = Journal.compact, []
+
+    def crashing(journal: Journal, snapshot: Any) -> None:
+        seen.append(snapshot)
+        if len(seen) < 3:
+            compact(journal, snapshot)
+            return
+        out.write_text(snapshot.model_dump_json())
+        if where == "inside":
+            journal._db = _KilledAtCommit(journal._db)  # type: ignore[assignment]
+        if where != "before":
+            compact(journal, snapshot)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    Journal.compact = crashing  # type: ignore[method-assign]
+    journaled_shift(_PROBLEM, 5, 60.0, [(Journal(path), 3)], each=_api(random.Random(5), 0.02))
+
+
+@pytest.mark.parametrize("where", ["before", "inside", "after"])
+def test_a_crash_at_a_compaction_replays_to_the_shift_it_killed(tmp_path: Path,
+                                                                 where: str) -> None:
+    """SIGKILL right before a compaction's transaction, in the middle of it (the records
+    deleted, the snapshot written, no commit) or right after its commit: the journal holds
+    the records (the two first cases: the transaction never happened) or the snapshot, and
+    both replay to the state the shift had when it was killed."""
+    path, out = tmp_path / "journal.sqlite", tmp_path / "snapshot.json"
+    child = multiprocessing.get_context("spawn").Process(
+        target=_crash_at_compaction, args=(path, where, out))
+    child.start()
+    child.join(120)
+    assert child.exitcode == -signal.SIGKILL
+    killed = _ADAPTER.validate_json(out.read_text())
+    assert isinstance(killed, ShiftSnapshotRecord)
+    journal = Journal(path)
+    records = list(journal.records())
+    journal.close()
+    kinds = [r.kind for r in records]
+    # two compactions happened before: the journal starts with the second one's snapshot
+    # and its records, or (after the commit) is the killed one's snapshot alone
+    assert (kinds[0] == "shift_snapshot" and len(records) > 1) or where == "after"
+    assert (records == [killed]) == (where == "after")
+    configured = journaled_shift(_PROBLEM, 5, 1.0, [(Journal(tmp_path / "j2.sqlite"), 0)])
+    fresh = configured.fresh()
+    replay_shift(records, fresh, on_commands=lambda cs: None, on_report=lambda rec: None,
+                 on_start=lambda rec: None)
+    assert snapshot_shift(fresh) == killed.state
+
+
+def test_a_snapshot_that_does_not_fit_is_a_one_line_journal_error(tmp_path: Path) -> None:
+    """A snapshot of another layout version, or of another fleet, stops the replay with a
+    precise journal error (the gateway prints it as one line), not a traceback."""
+    shift = journaled_shift(_PROBLEM, 5, 3.0, [(Journal(tmp_path / "j.sqlite"), 0)])
+    snap = ShiftSnapshotRecord(shift=_START, speed=1.0, threshold_ms=0.0, replan_marks=[],
+                               trace_lines=0, state=snapshot_shift(shift.live))
+    for state, says in [
+            (dataclasses.replace(snap.state, version=99), "of version 99 cannot be restored"),
+            (dataclasses.replace(snap.state, robots=9), "of 9 robots, the configuration has 8")]:
+        bad = snap.model_copy(update={"state": state})
+        with pytest.raises(JournalError, match=says):
+            replay_shift([bad], shift.fresh(), on_commands=lambda cs: None,
+                         on_report=lambda rec: None, on_start=lambda rec: None)

@@ -1,7 +1,8 @@
 """A lifelong shift survives SIGKILL: ``fleetgate serve`` (its own process) runs a warehouse shift
 of simulated robots over real websockets, is killed with SIGKILL twice mid-shift (robots
 running actions, a planner call possibly outstanding) and restarted with the same command
-line; the robots reconnect by themselves and the SAME shift goes on. The independent checker
+line; the robots reconnect by themselves and the SAME shift goes on (its journal compacted
+into a snapshot every five segments, so each restart resumes from one). The independent checker
 (tracecheck) reads the one trace file the three processes appended to
 (``bench.crash.lifelong_shift``, the crash benchmark's ``--lifelong`` shift, counts what went
 wrong)."""
@@ -29,7 +30,9 @@ from gateway.planning.lorr import warehouse_problem
 from gateway.runtime.journal import Journal
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
+from gateway.server.items import OwnerCall
 from gateway.server.planner_process import PlannerProcess
+from protocol import SetThreshold
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import start_shift, stop_shift
@@ -40,12 +43,13 @@ ROBOTS = 6
 
 def test_a_killed_lifelong_gateway_continues_the_same_shift(tmp_path: Path) -> None:
     gw = GatewayProcess(tmp_path, free_port(), speed=10.0, policy="none")
-    lifelong_config(gw, ROBOTS, (2, 3))
+    lifelong_config(gw, ROBOTS, (2, 3), snapshot_segments=5)  # compacted every 0.5 s
     rng = random.Random(7)
     grid = warehouse_problem(ROBOTS, 0, (2, 3), p_delay=0.0).grid
     out = asyncio.run(lifelong_shift(gw, ROBOTS, 10.0, [rng.uniform(1.5, 2.5) for _ in range(2)],
                                      3.0, rng, grid))
     assert out["resumed"] == 2  # both restarts went on with the shift
+    assert out["from_snapshot"] == 2  # from a compacted journal: a snapshot, then records
     assert out["run_ids"] == 1  # the robots saw one run: action ids went on
     # no collision, no other trace error, one shift start, plan time never went back,
     # no segment or action number repeated or skipped, nothing dispatched or executed twice,
@@ -131,3 +135,36 @@ def test_a_planner_call_outstanding_at_the_crash_is_planned_again(
     records = read_trace(tmp_path / "trace.jsonl")
     assert check_trace(records).ok
     assert shift_defects(records)["renumbered"] == 0
+
+
+@pytest.mark.parametrize("every", [0, 3])
+def test_the_operators_slack_threshold_survives_a_restart(tmp_path: Path, every: int) -> None:
+    """The operator sets the shift's slack threshold; a restarted gateway shows it to
+    operators (and its executor uses it) again, from the journaled threshold record, or from
+    the snapshot that compacted it (``every`` 3: the record itself is gone)."""
+    config = GatewayConfig(port=0, map=None, autostart=False, speed=10.0,
+                           journal=tmp_path / "journal.sqlite", log_level="WARNING",
+                           lifelong=LifelongSettings(robots=ROBOTS, warehouse=(2, 3),
+                                                     snapshot_segments=every))
+    out: dict[str, Any] = {}
+
+    async def main() -> None:
+        async with Gateway(config) as gw:
+            run = gw.engine.lifelong
+            assert run is not None and gw.engine.journal is not None
+            assert gw.engine.threshold_ms != 1234.0
+            gw.engine.queue.put_nowait(OwnerCall(run.start))
+            assert (await gw.command(SetThreshold(msg_id="t", seq=0,
+                                                  threshold_ms=1234.0)))[0] is None
+            while run.executor.segments < 7:
+                await asyncio.sleep(0.02)
+            out["kinds"] = [r.kind for r in gw.engine.journal.records()]
+        async with Gateway(config) as again:
+            assert again.resumed and again.engine.lifelong is not None
+            out["shown"] = again.engine.read_model().threshold_ms
+            out["used"] = again.engine.lifelong.executor.threshold_ms
+
+    asyncio.run(main())
+    assert out["shown"] == out["used"] == 1234.0
+    assert ("threshold" in out["kinds"]) == (every == 0)
+    assert (out["kinds"][0] == "shift_snapshot") == (every > 0)
