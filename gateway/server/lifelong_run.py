@@ -51,8 +51,10 @@ from gateway.execution.lifelong import (
 )
 from gateway.execution.tasks import TaskPool
 from gateway.planning.grid import Grid
-from gateway.planning.lorr import read_problem, warehouse_problem
+from gateway.planning.lorr import random_problem, read_problem, warehouse_problem
+from gateway.planning.movingai import read_map
 from gateway.runtime.journal import ShiftRecord, new_run_id
+from gateway.runtime.mapstore import MapNotFound, resolve
 from gateway.server.config import GatewayConfig
 from gateway.server.items import OwnerCall
 from gateway.server.planner_process import PlannerDied, PlannerFailed, PlannerProcess, Warm
@@ -83,8 +85,15 @@ def shift_from(config: GatewayConfig) -> Shift:
     """The shift ``config.lifelong`` describes (ValueError, one line, if it cannot be read)."""
     s = config.lifelong
     assert s is not None
-    prob = read_problem(s.problem) if s.problem is not None else warehouse_problem(
-        s.robots, s.seed, s.warehouse, p_delay=0.0)
+    if s.problem is not None:
+        prob = read_problem(s.problem)
+    elif s.map is not None:
+        try:
+            prob = random_problem(read_map(resolve(s.map, "map")), s.robots, s.seed)
+        except (MapNotFound, OSError) as exc:
+            raise ValueError(f"lifelong.map: {exc}") from None
+    else:
+        prob = warehouse_problem(s.robots, s.seed, s.warehouse, p_delay=0.0)
     n = prob.team_size
     headings = (config.start_heading,) * n if config.motion == "turning" else None
     reveal = max(1, int((s.reveal or prob.num_tasks_reveal) * n))
