@@ -4,7 +4,8 @@ The gateway runs in lifelong mode (a generated warehouse, or ``--problem`` a LoR
 the simulated robots connect on loopback like remote ones, and the shift starts when all are
 online. Tasks stream in from the problem's task list (the LoRR Start-Kit's reveal rule); the
 terminal shows a live status line (tasks finished, tasks per minute, robots, queue) until
-Ctrl-C (or ``--seconds`` of plan time), then the shift stops: robots finish what they were
+Ctrl-C or SIGTERM (or ``--seconds`` of plan time; on a pipe or in a log the status is a line
+every few seconds), then the shift stops: robots finish what they were
 dispatched and a summary line (or ``--json``) is printed.
 """
 
@@ -24,7 +25,10 @@ if TYPE_CHECKING:
     from gateway.server.engine import Engine
 
 STATUS_PERIOD_S = 0.25
-"""How often the status line is redrawn (wall time)."""
+"""How often the status line is redrawn on a terminal (wall time)."""
+LOG_PERIOD_S = 5.0
+"""How often the status is printed as a line of its own when stderr is no terminal (a pipe,
+a log file, journald)."""
 DEFAULT_ROBOTS = 20
 
 
@@ -42,14 +46,18 @@ def shift_status(engine: Engine) -> str:
 
 
 async def _show(engine: Engine, status: StatusLine) -> None:
+    """The live status until cancelled: redrawn in place on a terminal, else a line every
+    :data:`LOG_PERIOD_S`."""
     import asyncio
 
-    if not status.live:
-        return
     try:
         while True:
-            status.set(shift_status(engine))
-            await asyncio.sleep(STATUS_PERIOD_S)
+            if status.live:
+                status.set(shift_status(engine))
+                await asyncio.sleep(STATUS_PERIOD_S)
+            else:
+                await asyncio.sleep(LOG_PERIOD_S)
+                status.print(shift_status(engine))
     finally:
         status.clear()
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from gateway.planning.generators import warehouse_map
 from gateway.planning.grid import Grid
@@ -271,18 +272,29 @@ def warehouse_problem(robots: int, seed: int, blocks: tuple[int, int] = (13, 25)
     stations)."""
     grid = warehouse_map(blocks[0], blocks[1], 10, shelf_depth=2, aisle=2, border=2,
                          name="warehouse")
-    rng = np.random.default_rng(seed)
     free = grid.free
     blocked = ~free
     near = np.zeros_like(free)
     near[1:, :] |= blocked[:-1, :]
     near[:-1, :] |= blocked[1:, :]
     stations = np.flatnonzero((near & free).ravel())
-    cells = np.flatnonzero(free.ravel())
+    return random_problem(grid, robots, seed, stations, p_delay)
+
+
+def random_problem(grid: Grid, robots: int, seed: int,
+                   stations: npt.NDArray[np.intp] | None = None, p_delay: float = 0.0
+                   ) -> LorrProblem:
+    """``robots`` on distinct random free cells of ``grid`` and ``4 * robots`` two-errand
+    tasks between random ``stations`` (flat cell ids; None: every free cell), drawn with
+    ``seed``; ValueError if the robots do not fit."""
+    rng = np.random.default_rng(seed)
+    cells = np.flatnonzero(grid.free.ravel())
     if robots > cells.size:
         raise ValueError(f"{robots} robots do not fit on {cells.size} free cells")
     starts = rng.choice(cells, size=robots, replace=False)
-    tasks = tuple((int(a), int(b)) for a, b in rng.choice(stations, size=(4 * robots, 2)))
+    tasks = tuple((int(a), int(b)) for a, b in rng.choice(
+        cells if stations is None else stations, size=(4 * robots, 2)))
     delay = DelayConfig(seed=seed, min_delay=1, max_delay=4, p_delay=p_delay)
     return LorrProblem(grid=grid, starts=tuple(int(s) for s in starts), tasks=tasks,
-                       num_tasks_reveal=1.5, agent_counter=1, delay=delay, name="warehouse")
+                       num_tasks_reveal=1.5, agent_counter=1, delay=delay,
+                       name=grid.name or "map")

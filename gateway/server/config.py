@@ -12,7 +12,14 @@ import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AliasChoices,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    model_validator,
+)
 from pydantic_settings import (
     BaseSettings,
     JsonConfigSettingsSource,
@@ -74,9 +81,14 @@ class LifelongSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     problem: Path | None = None
-    """A LoRR problem (JSON: map, robots' starts, task list); None: a generated warehouse."""
+    """A LoRR problem (JSON: map, robots' starts, task list); None: ``map``, else a generated
+    warehouse."""
+    map: str | None = None
+    """A MovingAI map (a name or a ``.map`` path, as the one-plan ``map``) instead of the
+    generated warehouse: ``robots`` start on free cells drawn with ``seed``; its task list
+    (``task_list``) is four two-errand tasks per robot between free cells."""
     robots: int = Field(default=20, ge=1)
-    """Robots of the generated warehouse (a problem brings its own)."""
+    """Robots of the generated warehouse or of ``map`` (a problem brings its own)."""
     warehouse: tuple[int, int] = (4, 6)
     """Shelf blocks (x, y) of the generated warehouse; (13, 25) is about 10,000 free cells."""
     seed: int = 0
@@ -86,8 +98,9 @@ class LifelongSettings(BaseModel):
     """The windowed planner: 1-robust PIBT (gateway/planning/pibt.py)."""
     period_ms: float = Field(default=1000.0, gt=0)
     """Time between planning calls (LoRR's planning period)."""
-    window: int = Field(default=0, ge=0)
-    """Timesteps planned per call (0: enough for a period, ceil(period_ms / action_ms))."""
+    window: int = Field(default=0, ge=0, validation_alias=AliasChoices("window", "horizon"))
+    """Timesteps planned per call, the planning horizon (also ``horizon``; 0: enough for a
+    period, ceil(period_ms / action_ms))."""
     reveal: float | None = Field(default=None, gt=0)
     """Tasks kept revealed per robot (None: the problem's numTasksReveal)."""
     task_list: bool = True
@@ -98,6 +111,20 @@ class LifelongSettings(BaseModel):
     snapshot_segments: int = Field(default=60, ge=0)
     """With a journal: compact it into a snapshot of the shift every this many adopted
     segments (0: never; the journal then grows with the shift)."""
+
+
+    @model_validator(mode="before")
+    @classmethod
+    def _window_or_horizon(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "window" in data and "horizon" in data:
+            raise ValueError("give lifelong.window or horizon (its other name), not both")
+        return data
+
+    @model_validator(mode="after")
+    def _one_map(self) -> LifelongSettings:
+        if self.problem is not None and self.map is not None:
+            raise ValueError("give lifelong.problem (its own map) or lifelong.map, not both")
+        return self
 
 
 class ConfigError(ValueError):
@@ -216,8 +243,11 @@ class GatewayConfig(BaseSettings):
 
     @model_validator(mode="after")
     def _map_needs_agents(self) -> GatewayConfig:
-        if self.lifelong is not None:
-            return self  # the shift brings its own map
+        if self.lifelong is not None:  # the shift has its own map
+            if "map" in self.model_fields_set and self.map is not None:
+                raise ValueError(f"map = {self.map!r} is the one-plan mode's: in lifelong mode "
+                                 "set lifelong.map (or lifelong.problem)")
+            return self
         if "map" in self.model_fields_set and self.map is not None and self.instance is None \
                 and self.scen is None and self.agents is None:
             raise ValueError(f"map = {self.map!r} needs scen or agents to load an instance at "
@@ -248,7 +278,8 @@ def _is_loopback(host: str) -> bool:
 def _first_error(exc: ValidationError) -> str:
     err = exc.errors(include_url=False)[0]
     where = ".".join(str(p) for p in err["loc"])
-    return f"{where}: {err['msg']}" if where else str(err["msg"])
+    msg = str(err["msg"]).removeprefix("Value error, ")
+    return f"{where}: {msg}" if where else msg
 
 
 def load_config(path: str | Path | None = None, **overrides: Any) -> GatewayConfig:

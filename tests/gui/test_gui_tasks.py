@@ -4,6 +4,7 @@ resume and cancel (checked against the task API itself)."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from typing import Any
 
@@ -204,3 +205,53 @@ def test_the_map_shows_the_shift_live(tasks_page: Page) -> None:
     page.locator("#btn-resume").click()
     page.wait_for_function("() => window.fleetgate.status() === 'running' && "
                            "!window.fleetgate.drawn().some(d => d.paused)")
+
+
+# ---------------------------------------------------------------------------- a long shift
+def api_change(page: Page, method: str, path: str, body: Any = None) -> tuple[int, Any]:
+    """A change through the task API with the page's login (status, answer)."""
+    return tuple(page.evaluate(  # type: ignore[return-value]
+        """async ([m, p, b]) => {
+          const r = await fetch(p, {method: m, credentials: 'same-origin',
+            headers: {'Content-Type': 'application/json'},
+            body: b === null ? undefined : JSON.stringify(b)});
+          return [r.status, await r.json()];
+        }""", [method, path, body]))
+
+
+def test_a_reloaded_page_shows_every_open_task_and_the_recent_finishes(
+        tasks_page: Page) -> None:
+    """After more than a page of tasks (1000), a page opened anew lists every open one (here
+    three paused at the head of the queue, beyond the first thousand ids), counts them as
+    the gateway does, and charts the finishes it did not see happen. Runs last: it leaves
+    a thousand tasks queued."""
+    page = tasks_page
+    expect(page.locator("#finished-list li").first).to_be_visible(timeout=60_000)
+    errands = api(page, "/tasks?limit=1")["tasks"][0]["errands"]
+    assert api_change(page, "POST", "/tasks",
+                      {"tasks": [{"errands": errands}] * 1000})[0] == 201
+    status, made = api_change(page, "POST", "/tasks",
+                              {"tasks": [{"errands": errands, "priority": 7}] * 3})
+    held = [t["id"] for t in made["tasks"]]
+    assert status == 201 and min(held) > 1000
+    for task in held:
+        assert api_change(page, "POST", f"/tasks/{task}/pause")[0] == 200
+    before = api(page, "/tasks?limit=1")["counts"]
+    page.reload()
+    expect(page.locator("#tasks-card")).to_be_visible(timeout=20_000)
+    expect(page.locator("#queue-rows tr").first).to_have_attribute("data-task", str(held[0]),
+                                                                  timeout=20_000)
+    head = page.evaluate("() => [...document.querySelectorAll('#queue-rows tr')].slice(0, 3)"
+                         ".map(tr => [Number(tr.dataset.task), tr.dataset.state])")
+    assert head == [[task, "paused"] for task in held]
+    page.wait_for_function("n => window.fleetgate.tasks.bars &&"
+                           " window.fleetgate.tasks.bars.reduce((a, b) => a + b, 0) >= n",
+                           arg=before["finished"], timeout=20_000)  # all within 20 minutes
+    counts = page.locator("#tasks-counts").text_content() or ""
+    queued, paused = (int(n) for n in re.findall(r"(\d+) (?:queued|paused)", counts))
+    finished = int(re.findall(r"(\d+) finished", counts)[0])
+    assert paused == before["paused"] == 3
+    assert before["queued"] >= 900 and queued >= before["queued"] - 50  # robots take a few
+    assert finished >= before["finished"]
+    for task in held:
+        assert api_change(page, "DELETE", f"/tasks/{task}")[0] == 200

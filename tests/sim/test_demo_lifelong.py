@@ -2,10 +2,21 @@
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
+import os
+import pty
+import re
+import signal
+import socket
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
+
+import pytest
 
 from tracecheck import check_trace, read_trace
 
@@ -36,3 +47,71 @@ def test_lifelong_demo_errors_are_one_line(tmp_path: Path) -> None:
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
         f"fleetgate: LoRR problem not found: {tmp_path / 'missing.json'}"]
+
+
+STATUS = re.compile(r"t (\d+\.\d) s \| tasks \d+ \(\d+\.\d/min\) \| robots 4/4 \| queue \d+ \| "
+                    r"running")
+
+
+@pytest.mark.parametrize(("terminal", "sig"), [(True, signal.SIGINT), (False, signal.SIGTERM)])
+def test_until_stopped_the_status_is_live_and_a_signal_ends_it_cleanly(
+        terminal: bool, sig: signal.Signals) -> None:
+    """Without ``--seconds`` the shift runs until a signal; the status line is redrawn in
+    place on a terminal (a line every few seconds on a pipe) and moves on; Ctrl-C or SIGTERM
+    stops it with exit 0, a summary line and no traceback."""
+    cmd = [*FLEETGATE, "demo", "--lifelong", "--headless", "--port", "0", "--robots", "4",
+           "--speed", "5"]
+    if terminal:
+        main, sub = pty.openpty()
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=sub)
+        os.close(sub)
+        read = functools.partial(os.read, main, 4096)
+    else:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        assert proc.stderr is not None
+        read = functools.partial(os.read, proc.stderr.fileno(), 4096)
+    out = bytearray()
+
+    def drain() -> None:
+        with contextlib.suppress(OSError):  # EIO: the terminal's other end is closed
+            while chunk := read():
+                out.extend(chunk)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 60
+        # two different times on a terminal (it moves on), one line on a pipe (every 5 s)
+        while len({m[1] for m in STATUS.finditer(out.decode(errors="replace"))}) < (
+                2 if terminal else 1):
+            assert time.monotonic() < deadline and proc.poll() is None, out.decode()
+            time.sleep(0.1)
+        proc.send_signal(sig)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    reader.join(10)
+    text = out.decode(errors="replace")
+    assert "Traceback" not in text and "shift started: Ctrl-C stops it" in text
+    assert re.search(r"shift stopped: \d+ tasks in [\d.]+ s \([\d.]+/min\), \d+ actions, 0 lost, "
+                     r"0 duplicated, 0 collisions", text), text
+    assert ("\r\x1b[Kt " in text) == terminal  # redrawn in place only on a terminal
+    if not terminal:
+        assert all(STATUS.fullmatch(line) or not line.startswith("t ")
+                   for line in text.splitlines())
+    if terminal:
+        os.close(main)
+
+
+def test_a_busy_port_is_one_precise_line() -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        proc = subprocess.run([*FLEETGATE, "demo", "--lifelong", "--headless", "--port",
+                               str(port)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.startswith(f"fleetgate: cannot listen on 127.0.0.1:{port}: ")
+    assert proc.stderr.count("\n") == 1 and "address already in use" in proc.stderr

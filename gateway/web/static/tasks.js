@@ -1,17 +1,26 @@
 // Tasks of a lifelong shift (the task API): the queue, each robot's task and errand, the
 // finished tasks and a live throughput chart (tasks finished per minute of the gateway's
 // clock); the operator pauses, resumes and cancels tasks. The card stays hidden while the
-// gateway is not in lifelong mode. State: GET /tasks, then its server-sent events.
+// gateway is not in lifelong mode. State: every open task (GET /tasks, page by page), then
+// the server-sent events from somewhat before that read: the older ones only give the chart
+// and the finished list their recent finishes, the newer ones change the tasks.
 
 const MINUTE = 60000;
 const KEEP_ENDED = 50; // finished and cancelled tasks kept for the list
 const BARS = 20; // minutes shown by the chart
+const REPLAY = 20000; // events read again after a (re)load: about 20 minutes at 500 robots
+const OPEN = "queued,paused,assigned,started";
+const RECENT = 10; // finished tasks listed
 
 export class TaskBoard {
   constructor(card) {
     this.card = card;
     this.tasks = new Map(); // id -> TaskView
-    this.finishedAt = []; // t_ms of each finish seen
+    this.finishedAt = []; // t_ms of each finish seen (the chart's last BARS minutes)
+    this.recent = []; // [task id, t_ms] of the latest finishes, newest first
+    this.missing = new Set(); // ids of tasks events named that are not read yet
+    this.finished = 0; // tasks finished in the shift (kept by the gateway)
+    this.loadedAt = 0; // the last event the task list had seen when it was read
     this.lastEvent = 0;
     this.nowMs = 0;
     this.source = null;
@@ -24,25 +33,36 @@ export class TaskBoard {
     await this.reload();
   }
 
-  /** Read the whole book again (first load, and after a `reset` event). */
+  /** Read every open task again (first load, and after a `reset` event). */
   async reload() {
-    let r;
+    const open = [];
+    let first = null;
+    let after = -1;
     try {
-      r = await fetch("/tasks?limit=1000", { credentials: "same-origin" });
+      do {
+        const r = await fetch(`/tasks?state=${OPEN}&limit=1000&after=${after}`,
+          { credentials: "same-origin" });
+        if (!r.ok) { // 503: not in lifelong mode; anything else: try again later
+          this.card.hidden = true;
+          setTimeout(() => this.reload(), r.status === 503 ? 10000 : 2000);
+          return;
+        }
+        const body = await r.json();
+        first ??= body;
+        open.push(...body.tasks);
+        after = body.next_after;
+      } while (after !== null);
     } catch {
       setTimeout(() => this.reload(), 2000);
       return;
     }
-    if (!r.ok) { // 503: not in lifelong mode; anything else: try again later
-      this.card.hidden = true;
-      setTimeout(() => this.reload(), r.status === 503 ? 10000 : 2000);
-      return;
-    }
-    const body = await r.json();
-    this.tasks = new Map(body.tasks.map((t) => [t.id, t]));
-    this.finishedAt = body.tasks.filter((t) => t.state === "finished").map((t) => t.finished_ms);
-    this.lastEvent = body.last_event;
-    this.nowMs = body.now_ms;
+    this.tasks = new Map(open.map((t) => [t.id, t]));
+    this.finished = first.counts.finished;
+    this.finishedAt = [];
+    this.recent = [];
+    this.loadedAt = first.last_event; // later events change the tasks read since
+    this.lastEvent = Math.max(0, first.last_event - REPLAY);
+    this.nowMs = first.now_ms;
     this.card.hidden = false;
     this.listen();
     this.render();
@@ -52,17 +72,26 @@ export class TaskBoard {
     if (this.source) this.source.close();
     const es = new EventSource(`/tasks/events?after=${this.lastEvent}`);
     es.addEventListener("task", (e) => this.onEvent(JSON.parse(e.data)));
-    es.addEventListener("reset", () => this.reload());
+    // events were dropped: reload, unless only some of the replayed ones (the chart's)
+    es.addEventListener("reset", () => { if (this.lastEvent >= this.loadedAt) this.reload(); });
     this.source = es;
   }
 
   onEvent(ev) {
     this.lastEvent = Math.max(this.lastEvent, ev.seq);
     this.nowMs = Math.max(this.nowMs, ev.t_ms);
-    if (ev.state === "finished") this.finishedAt.push(ev.t_ms);
+    if (ev.state === "finished") {
+      this.finishedAt.push(ev.t_ms);
+      this.recent = [[ev.task, ev.t_ms], ...this.recent.slice(0, RECENT - 1)];
+    }
+    if (ev.seq <= this.loadedAt) { // replayed: the task list read is newer
+      this.scheduleRender();
+      return;
+    }
+    if (ev.state === "finished") this.finished += 1;
     const t = this.tasks.get(ev.task);
     if (t === undefined) {
-      this.fetchTask(ev.task);
+      if (ev.state !== "finished" && ev.state !== "cancelled") this.fetchTasks(ev.task);
     } else {
       t.state = ev.state;
       t.robot = ev.robot;
@@ -71,12 +100,26 @@ export class TaskBoard {
     this.scheduleRender();
   }
 
-  async fetchTask(id) {
-    const r = await fetch(`/tasks/${id}`, { credentials: "same-origin" });
-    if (r.ok) {
-      this.tasks.set(id, await r.json());
+  /** Read the tasks events name that the board does not know yet (a batch of new ones is
+   * read a page at a time, not one request each). */
+  fetchTasks(id) {
+    this.missing.add(id);
+    if (this.missing.size > 1) return; // a read is due already
+    setTimeout(async () => {
+      const ids = this.missing;
+      this.missing = new Set();
+      const low = Math.min(...ids);
+      const r = await fetch(`/tasks?after=${low - 1}&limit=1000`, { credentials: "same-origin" });
+      if (!r.ok) return;
+      const page = await r.json();
+      for (const t of page.tasks) {
+        if (ids.has(t.id) && !this.tasks.has(t.id)) this.tasks.set(t.id, t);
+      }
+      if (page.next_after !== null) { // more than a page apart: the rest next time
+        for (const rest of ids) if (rest > page.next_after) this.fetchTasks(rest);
+      }
       this.scheduleRender();
-    }
+    }, 100);
   }
 
   scheduleRender() {
@@ -91,13 +134,14 @@ export class TaskBoard {
   }
 
   render() {
+    this.finishedAt = this.finishedAt.filter((t) => t > this.nowMs - BARS * MINUTE);
     const all = [...this.tasks.values()];
     const ended = all.filter((t) => t.state === "finished" || t.state === "cancelled")
       .sort((a, b) => (b.finished_ms ?? b.cancelled_ms) - (a.finished_ms ?? a.cancelled_ms));
     for (const t of ended.slice(KEEP_ENDED)) this.tasks.delete(t.id);
     const count = (s) => all.filter((t) => t.state === s).length;
     this.$("tasks-counts").textContent = `${count("queued")} queued, ${count("paused")} paused, `
-      + `${count("assigned") + count("started")} at work, ${this.finishedAt.length} finished`;
+      + `${count("assigned") + count("started")} at work, ${this.finished} finished`;
     this.$("tasks-rate").textContent = `${this.rate()} / min`;
     const queue = all.filter((t) => t.state === "queued" || t.state === "paused")
       .sort((a, b) => b.priority - a.priority || a.id - b.id).slice(0, 30);
@@ -109,11 +153,10 @@ export class TaskBoard {
     this.$("work-rows").replaceChildren(...work.map((t) => row(t, [
       t.robot, t.id, `${t.errands_done + 1} of ${t.errands.length}`,
     ], t.errands_done === 0 ? ["pause", "cancel"] : []))); // started: no longer
-    const done = ended.filter((t) => t.state === "finished").slice(0, 10);
-    this.$("finished-list").replaceChildren(...done.map((t) => {
+    this.$("finished-list").replaceChildren(...this.recent.map(([id, t]) => {
       const li = document.createElement("li");
-      li.textContent = `task ${t.id} finished at ${(t.finished_ms / 1000).toFixed(1)} s`;
-      li.dataset.task = t.id;
+      li.textContent = `task ${id} finished at ${(t / 1000).toFixed(1)} s`;
+      li.dataset.task = id;
       return li;
     }));
     this.drawChart();
