@@ -218,7 +218,9 @@ class RoutingConnection(ServerConnection):
     def eof_received(self) -> bool | None:  # type: ignore[override]
         if self._mode == "ws":
             return super().eof_received()
-        return True  # a half-closed client still gets its answer
+        # a half-closed client still gets its answer (TLS has no half-close: asyncio would
+        # warn on every request that True has no effect)
+        return None if self.tls else True
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._cancel_timer()
