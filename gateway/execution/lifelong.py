@@ -1,7 +1,9 @@
 """Lifelong execution for a driver (sans-I/O): a warehouse shift on a live ADG.
 
 :class:`LifelongExecutor` wraps :class:`~gateway.execution.live_adg.LiveADG`. Every
-``period_ms`` (at a :meth:`~LifelongExecutor.tick`) it assigns tasks to robots without one
+``period_ms`` (at a :meth:`~LifelongExecutor.tick`; at a fixed rate: a call made late does not
+push the later ones back, :meth:`~LifelongExecutor.next_wakeup_ms` says when the next is due)
+it assigns tasks to robots without one
 (:class:`~gateway.execution.errands.ErrandBook` over a :class:`~gateway.execution.tasks.TaskPool`)
 and asks its driver for the next window of the plan with a :class:`PlanRequest` (the driver runs
 the planner off its event loop and answers :meth:`~LifelongExecutor.adopt` with a
@@ -354,7 +356,11 @@ class LifelongExecutor:
                                        self.window)
         self._out.append(self.outstanding)
         self.calls += 1
-        self._next_call = self._now + self.period_ms
+        # fixed rate: the next call is due a period after this one was due, so a call made
+        # late (a busy driver, a slow answer) does not push every later one back; one made
+        # early (a trigger, the operator) starts the period again
+        due = min(self._next_call, self._now)
+        self._next_call = max(due + self.period_ms, self._now)
 
     def plan_failed(self, call: int, now_ms: float) -> None:
         """The planner could not answer call ``call``: the next period plans again."""

@@ -24,7 +24,7 @@ from __future__ import annotations
 import random
 from array import array
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,22 +110,45 @@ class StateSpace:
         self.prefetch([goal])
         return self._cache[goal]
 
+    def cached(self, goal: int) -> bool:
+        """Whether the table of ``goal`` is cached."""
+        return goal in self._cache
+
+    def missing(self, goals: Iterable[int]) -> list[int]:
+        """The goals of ``goals`` without a cached table, sorted, each once."""
+        cache = self._cache
+        return sorted({g for g in goals if g not in cache})
+
     def prefetch(self, goals: Sequence[int]) -> None:
         """Compute the missing tables of ``goals`` together (one batched search)."""
+        missing = self.missing(goals)
+        if missing:
+            self.offer(goal_tables(self.grid, self.turning, missing))
+
+    def offer(self, tables: Mapping[int, array[int]]) -> None:
+        """Cache tables computed elsewhere (:func:`goal_tables` of this grid and model, e.g. in
+        another process); a table already cached is kept."""
         cache = self._cache
-        missing = sorted({g for g in goals if g not in cache})
-        if not missing:
-            return
-        for i in range(0, len(missing), 32):
-            chunk = missing[i : i + 32]
-            cells = [self.grid.cell(g) for g in chunk]
-            found = (turning_distance_tables(self.grid, cells) if self.turning
-                     else distance_tables(self.grid, cells))
-            rows = np.where(found < 0, UNREACHABLE, np.minimum(found, UNREACHABLE))
-            for g, row in zip(chunk, rows.astype(np.int16), strict=True):
-                self._cache[g] = array("h", row.tobytes())
-        while len(self._cache) > self._capacity:
-            self._cache.popitem(last=False)
+        for g, table in tables.items():
+            if g not in cache:
+                cache[g] = table
+        while len(cache) > self._capacity:
+            cache.popitem(last=False)
+
+
+def goal_tables(grid: Grid, turning: bool, goals: Sequence[int]) -> dict[int, array[int]]:
+    """The distance table of each goal cell (:meth:`StateSpace.distances`: int16, capped at
+    :data:`UNREACHABLE`), searched in batches."""
+    out: dict[int, array[int]] = {}
+    for i in range(0, len(goals), 32):
+        chunk = goals[i : i + 32]
+        cells = [grid.cell(g) for g in chunk]
+        found = (turning_distance_tables(grid, cells) if turning
+                 else distance_tables(grid, cells))
+        rows = np.where(found < 0, UNREACHABLE, np.minimum(found, UNREACHABLE))
+        for g, row in zip(chunk, rows.astype(np.int16), strict=True):
+            out[g] = array("h", row.tobytes())
+    return out
 
 
 @dataclass

@@ -273,7 +273,8 @@ class Engine:
     def _next_tick(self, after: float) -> float:
         period = float(MONITOR_PERIOD_MS)
         t = (math.floor(after / period) + 1) * period
-        wake = self.executor.next_wakeup_ms() if self.executor is not None else None
+        core = self._core()  # a shift's planning call is due at its own time, not a tick's
+        wake = core.next_wakeup_ms() if core is not None else None
         return min(t, wake) if wake is not None and wake > after else t
 
     def _handle_safely(self, item: Item) -> None:

@@ -11,7 +11,12 @@ the event loop's GIL; a thread waits for it in real time, its CPU time is charge
 virtual clock) while robots keep reporting, and its segment comes back through the owner's
 queue as an :class:`~gateway.server.items.OwnerCall` to be appended to the live ADG. Nobody
 stops for it. If the planner process dies, one error line says so and the next period plans
-again in a new one. The engine ticks the run every monitor period; robot reports reach the executor
+again in a new one. The gateway does not wait for the planner process to start (a restart
+replays its journal meanwhile), and while the planner is idle it computes the distance tables
+of the tasks that come into the pool (its own, and the scheduler's, which it sends back to
+the scheduler's cache), so the first planning calls find them ready; a table is a function of
+the grid and the cell only, so nothing depends on when one arrives. The engine ticks the run
+every monitor period (and when a planning call is due); robot reports reach the executor
 through the engine's robot sessions as in a one-shot run.
 
 The live task pool is :attr:`LifelongRun.tasks` (``Engine.tasks``): a task API reads it and
@@ -28,6 +33,8 @@ import asyncio
 import logging
 import math
 import time
+from array import array
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -50,7 +57,7 @@ from gateway.runtime.journal import ShiftRecord, new_run_id
 from gateway.runtime.mapstore import MapNotFound, resolve
 from gateway.server.config import GatewayConfig
 from gateway.server.items import OwnerCall
-from gateway.server.planner_process import PlannerDied, PlannerProcess
+from gateway.server.planner_process import PlannerDied, PlannerFailed, PlannerProcess, Warm
 from gateway.server.shift_journal import JournaledLifelong
 from protocol import Pose
 from protocol.messages import HEADINGS, GatewayStatus
@@ -116,13 +123,16 @@ class LifelongRun:
             threshold_ms=s.threshold_ms, record=engine.feed.record)
         self.turning = shift.headings is not None
         self.planner = PlannerProcess(grid, len(shift.starts), self.turning, s.seed)
-        try:
-            self.planner.start()  # the first window must not wait for it
+        try:  # not waiting for it: a restart replays its journal while the worker starts
+            self.planner.start(wait=False)
         except PlannerDied as exc:
             raise ValueError(f"lifelong mode: {exc}") from None
         self.planner_ms: list[float] = []
         """Wall (real clock) or charged (virtual clock) ms of each planner call."""
         self._solving: asyncio.Task[None] | None = None
+        self._warm = _WarmQueue(distances)
+        self._warming: asyncio.Task[None] | None = None
+        engine.before_commit.append(self._warm_tasks)
         self.started: ShiftRecord | None = None
         """The shift's start (its run id, wall time and speed of time 0), once started."""
         self.after_adopt: Callable[[], None] | None = None
@@ -204,9 +214,37 @@ class LifelongRun:
     def cancel(self) -> None:
         """Cancel a running planner call and end the planner process (the gateway is
         closing)."""
-        if self._solving is not None:
-            self._solving.cancel()
+        for task in (self._solving, self._warming):
+            if task is not None:
+                task.cancel()
         self.planner.close()
+
+    # ------------------------------------------------------------------ warming
+    def _warm_tasks(self) -> None:
+        """Before each commit: have the planner process compute the distance tables of tasks
+        new in the pool (its own, and the scheduler's, sent back) while it is idle, so that
+        neither the first planning calls nor the event loop build them. A table not there
+        in time is computed where it is needed, as before, and a table is a function of the
+        grid and the cell only: nothing planned depends on when one arrives."""
+        if self._warm.add(self.tasks) and self._warming is None and not self.planner.closed:
+            self._warming = asyncio.get_running_loop().create_task(self._warm_loop(),
+                                                                   name="lifelong-warm")
+
+    async def _warm_loop(self) -> None:
+        try:
+            while (req := self._warm.take()) is not None:
+                try:
+                    tables = await asyncio.to_thread(self.planner.warm, req)
+                except PlannerDied as exc:
+                    self._planner_died(exc, None)
+                    return
+                except PlannerFailed as exc:
+                    log.error("lifelong planner failed", extra={"call": None,
+                                                                "error": str(exc)})
+                    return
+                self._warm.done(tables)
+        finally:
+            self._warming = None
 
     # ------------------------------------------------------------------ routing
     def route(self) -> None:
@@ -229,15 +267,19 @@ class LifelongRun:
                 segment, charged = await e.clock.run_measured(partial(self.planner.call, req))
                 self.planner_ms.append(charged)
             except PlannerDied as exc:
-                if not self.planner.closed:
-                    log.error("lifelong planner process died", extra={
-                        "call": req.call, "error": str(exc)})
+                self._planner_died(exc, req.call)
             except Exception as exc:  # a planner bug: one line, the next period plans again
                 log.error("lifelong planner failed", extra={"call": req.call,
                                                             "error": repr(exc)[:300]})
             e.queue.put_nowait(OwnerCall(partial(self._answered, req, segment)))
 
         self._solving = asyncio.get_running_loop().create_task(run(), name="lifelong-plan")
+
+    def _planner_died(self, exc: PlannerDied, call: int | None) -> None:
+        """One error line (none while the gateway closes); the next call starts a new one."""
+        if not self.planner.closed:
+            log.error("lifelong planner process died", extra={"call": call,
+                                                              "error": str(exc)})
 
     def _answered(self, req: PlanRequest, segment: Segment | None) -> None:
         """The planner answered ``req`` (None: it failed); runs in the owner task."""
@@ -258,6 +300,63 @@ class LifelongRun:
         self.route()
         if segment is not None and self.after_adopt is not None:
             self.after_adopt()
+
+
+class _WarmQueue:
+    """The cells whose tables the planner process is to compute, in small requests: the
+    scheduler's first (first errands and the starts of the legs of
+    :meth:`~gateway.execution.tasks.TaskPool.length`: they are cheap, and the first planning
+    call on the event loop needs them all), then the planner's (every errand); first errands
+    first (every task's, then the later ones)."""
+
+    CHUNK = 64
+    """Cells per request (a planner call waits for one: ~0.1 s)."""
+
+    def __init__(self, distances: TaskDistances) -> None:
+        self._distances = distances
+        self._next_id = 0  # tasks before this id were looked at
+        self._goals: deque[int] = deque()  # planner tables to ask for, in order
+        self._tables: deque[int] = deque()  # scheduler tables to ask for, in order
+        self._queued: tuple[set[int], set[int]] = (set(), set())  # ever queued (cells: bounded)
+
+    def add(self, pool: TaskPool) -> bool:
+        """Queue the tables of the tasks submitted or revealed since the last call; True if
+        anything is queued."""
+        if pool.next_id > self._next_id:
+            new = [t.errands for i in range(self._next_id, pool.next_id)
+                   if (t := pool.book.get(i)) is not None]
+            self._next_id = pool.next_id
+            goals, tables = self._queued
+            for cells, queue, seen in (([e[0] for e in new], self._goals, goals),
+                                       ([e[0] for e in new], self._tables, tables),
+                                       ([c for e in new for c in e[1:]], self._goals, goals),
+                                       ([c for e in new for c in e[1:-1]], self._tables,
+                                        tables)):
+                for c in cells:
+                    if c not in seen:
+                        seen.add(c)
+                        queue.append(c)
+        return bool(self._goals or self._tables)
+
+    def take(self) -> Warm | None:
+        """The next request (None: nothing left to ask for)."""
+        tables = _pop(self._tables, self.CHUNK, self._distances.space.cached)
+        goals = _pop(self._goals, self.CHUNK // 2) if not tables else []  # 4 states a cell
+        return Warm(tuple(goals), tuple(tables)) if goals or tables else None
+
+    def done(self, tables: dict[int, array[int]]) -> None:
+        """A request's scheduler tables arrived: into the scheduler's cache."""
+        self._distances.space.offer(tables)
+
+
+def _pop(queue: deque[int], n: int, skip: Callable[[int], bool] | None = None) -> list[int]:
+    """Take up to ``n`` cells from the front of ``queue``, leaving out those ``skip`` says."""
+    out: list[int] = []
+    while queue and len(out) < n:
+        cell = queue.popleft()
+        if skip is None or not skip(cell):
+            out.append(cell)
+    return out
 
 
 def throughput_per_min(finished: int, elapsed_ms: float) -> float:

@@ -7,7 +7,11 @@ worker builds the :class:`~gateway.execution.lifelong.WindowPlanner` once (the g
 space, its cached distance tables and PIBT's priorities live there) and then answers one
 :class:`~gateway.execution.lifelong.PlanRequest` at a time over a pair of pipes with its
 :class:`~gateway.execution.lifelong.Segment` and the CPU time the call took (what a virtual
-clock charges). Only the request and the segment cross the pipes.
+clock charges). Only the request and the segment cross the pipes. Between calls the gateway
+has it compute distance tables ahead (:class:`Warm`: the planner's own for the cells of
+submitted tasks, and the scheduler's, sent back), so that neither the first planning calls
+nor the gateway's event loop build them. The gateway does not wait for a new worker to be
+ready (``start(wait=False)``): its first request does.
 
 If the worker dies (killed, out of memory), :meth:`PlannerProcess.call` raises
 :class:`PlannerDied` with one line saying so, and the next call starts a new worker (its
@@ -26,10 +30,13 @@ import subprocess
 import sys
 import threading
 import time
+from array import array
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
 from gateway.execution.lifelong import PlanRequest, Segment, WindowPlanner
 from gateway.planning.grid import Grid
+from gateway.planning.pibt import goal_tables
 
 START_TIMEOUT_S = 120.0
 """How long a new worker may take to import and build its planner (a loaded machine)."""
@@ -62,11 +69,28 @@ def serve(requests: Connection, answers: Connection) -> None:
             return
         t0 = time.thread_time()
         try:
-            segment = planner(req)
+            answer: Segment | dict[int, array[int]] = (
+                warm(planner, req) if isinstance(req, Warm) else planner(req))
         except Exception as exc:  # a planner bug: one line back, the worker lives on
             answers.send(("error", f"{type(exc).__name__}: {exc}"[:300], 0.0))
             continue
-        answers.send(("ok", segment, (time.thread_time() - t0) * 1000.0))
+        answers.send(("ok", answer, (time.thread_time() - t0) * 1000.0))
+
+
+@dataclass(frozen=True)
+class Warm:
+    """Tables to compute before they are asked for: the planner's own tables of the cells
+    ``goals`` (kept in the worker), and the scheduler's (``omni``) tables of the cells
+    ``tables`` (sent back: :meth:`~gateway.planning.pibt.StateSpace.offer`)."""
+
+    goals: tuple[int, ...]
+    tables: tuple[int, ...]
+
+
+def warm(planner: WindowPlanner, req: Warm) -> dict[int, array[int]]:
+    """Carry out ``req`` in the worker: the scheduler's tables, by cell."""
+    planner.space.prefetch(req.goals)
+    return goal_tables(planner.space.grid, False, req.tables)
 
 
 class PlannerProcess:
@@ -90,12 +114,15 @@ class PlannerProcess:
         proc = self._proc
         return proc.pid if proc is not None and proc.poll() is None else None
 
-    def start(self) -> None:
+    def start(self, wait: bool = True) -> None:
         """Start the worker and wait until it has built its planner (PlannerDied, one line,
-        if it cannot)."""
+        if it cannot); with ``wait`` False, do not wait: the first call does (a restarted
+        gateway replays its journal meanwhile)."""
         with self._lock:
             try:
-                self._handshake(*self._ensure())
+                send, recv = self._ensure()
+                if wait:
+                    self._handshake(send, recv)
             except (EOFError, OSError, PlannerDied) as exc:
                 raise PlannerDied(self._died(exc)) from None
 
@@ -132,6 +159,18 @@ class PlannerProcess:
 
     def call(self, req: PlanRequest) -> tuple[Segment, float]:
         """The segment for ``req`` and the worker's CPU ms for it (blocks until answered)."""
+        segment, cpu_ms = self._ask(req)
+        assert isinstance(segment, Segment)
+        return segment, cpu_ms
+
+    def warm(self, req: Warm) -> dict[int, array[int]]:
+        """Have the worker compute the tables ``req`` names (blocks until done): the
+        scheduler's, by cell (a planner call waits for this one: keep them small)."""
+        tables, _ = self._ask(req)
+        assert isinstance(tables, dict)
+        return tables
+
+    def _ask(self, req: PlanRequest | Warm) -> tuple[object, float]:
         with self._lock:
             send, recv = self._ensure()
             try:
@@ -142,7 +181,6 @@ class PlannerProcess:
                 raise PlannerDied(self._died(exc)) from None
             if kind == "error":
                 raise PlannerFailed(str(payload))
-            assert isinstance(payload, Segment)
             return payload, cpu_ms
 
     def _died(self, exc: BaseException) -> str:
@@ -204,4 +242,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # this module by its name, not as __main__: its classes are the ones the gateway pickles
+    from gateway.server.planner_process import main as worker_main
+
+    sys.exit(worker_main())
