@@ -43,7 +43,7 @@ from gateway.execution.lifelong import LifelongExecutor, LifelongMode, PlanReque
 from gateway.execution.live_adg import LiveAction
 from gateway.execution.tasks import NewTask, Task, TaskEvent, TaskPool, TaskState
 
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2
 """The layout of :class:`ShiftState` (a snapshot of another version is refused)."""
 
 ActionRow = tuple[int, int, int, int, int, int]
@@ -76,6 +76,7 @@ class TaskColumns:
     cancelled_at: list[float]
     listed: list[bool]
     announced: list[int]
+    batch: list[int]
 
 
 @dataclass(frozen=True)

@@ -88,6 +88,8 @@ class Task:
     listed: bool = False
     """Made from the task list (else submitted)."""
     announced: int = -1  # the robot the last event named
+    batch: int = -1
+    """The id of the first task of its submission (-1: made from the task list)."""
 
     @property
     def urgency(self) -> tuple[int, float]:
@@ -292,9 +294,10 @@ class TaskPool:
                 raise TaskError(f"task {i} of the submission has no errands")
         self.settle(now)
         ids = []
+        batch = self.next_id
         for t in request:
             task = Task(self.next_id, tuple(t.errands), int(now), priority=t.priority,
-                        deadline=t.deadline, key=key, submitted=now)
+                        deadline=t.deadline, key=key, submitted=now, batch=batch)
             self.next_id += 1
             self.book[task.id] = task
             ids.append(task.id)
@@ -393,7 +396,7 @@ class TaskPool:
 
     # ------------------------------------------------------------------ rebuilding
     def restore(self, event: TaskEvent, new: NewTask | None = None, key: str | None = None,
-                listed: bool = False) -> None:
+                listed: bool = False, batch: int = -1) -> None:
         """Apply one journaled event (a restart rebuilds the book from them, in order);
         ``new`` says what the task is if the book does not know it yet. Events the pool made
         itself already (the task list's first reveal) only set the state again."""
@@ -403,7 +406,8 @@ class TaskPool:
                 raise ValueError(f"event {event.seq} is about task {event.task}, which no "
                                  f"event made")
             task = Task(event.task, new.errands, int(event.t), priority=new.priority,
-                        deadline=new.deadline, key=key, submitted=event.t, listed=listed)
+                        deadline=new.deadline, key=key, submitted=event.t, listed=listed,
+                        batch=batch)
             self.book[task.id] = task
             self.next_id = max(self.next_id, task.id + 1)
             self._listed += listed

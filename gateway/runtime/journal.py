@@ -179,6 +179,10 @@ class TaskRecord(_Record):
     deadline_ms: float | None = None
     key: str | None = None
     listed: bool = False
+    batch: int | None = None
+    """On a submitted task's ``queued`` records: the id of the first task of its submission
+    (journals written before it had none; a run of new tasks with the same time and key then
+    counts as one submission)."""
 
 
 class ShiftRecord(_Record):

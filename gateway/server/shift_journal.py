@@ -234,7 +234,7 @@ def _task_change(pool: TaskPool, records: Sequence[JournalRecord], i: int) -> in
             if not (isinstance(nxt, TaskRecord) and nxt.state == "queued"
                     and nxt.errands is not None and nxt.task == rec.task + len(new)
                     and nxt.key == rec.key and nxt.t_ms == rec.t_ms and not nxt.listed
-                    and nxt.seq == rec.seq + len(new)):
+                    and nxt.seq == rec.seq + len(new) and nxt.batch == rec.batch):
                 break
             new.append(NewTask(tuple(nxt.errands), nxt.priority, nxt.deadline_ms))
             end += 1

@@ -64,7 +64,8 @@ class TaskJournal:
                     rec = TaskRecord(seq=e.seq, task=e.task, state=e.state, robot=e.robot,
                                      done=e.done, t_ms=e.t, errands=list(task.errands),
                                      priority=task.priority, deadline_ms=task.deadline,
-                                     key=task.key, listed=task.listed)
+                                     key=task.key, listed=task.listed,
+                                     batch=task.batch if task.batch >= 0 else None)
             self.journal.append(rec)
         self.after = pool.event_seq
 
@@ -78,7 +79,7 @@ def restore_tasks(pool: TaskPool, records: Iterable[JournalRecord], now: float) 
         new = None if rec.errands is None else NewTask(tuple(rec.errands), rec.priority,
                                                         rec.deadline_ms)
         pool.restore(TaskEvent(rec.seq, rec.task, rec.state, rec.robot, rec.done, rec.t_ms),
-                     new, rec.key, rec.listed)
+                     new, rec.key, rec.listed, -1 if rec.batch is None else rec.batch)
         n = rec.seq
     pool.restored(now)
     return n

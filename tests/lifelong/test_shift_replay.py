@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pydantic import TypeAdapter
 
@@ -129,6 +129,8 @@ def _api(rng: random.Random, rate: float) -> Callable[[LifelongExecutor, float],
 
 
 @settings(max_examples=6, deadline=None)
+# two keyless submissions at the same time were replayed as one (the backlog's order differed)
+@example(seed=2201, lookahead=2, latency=1694.87, turning=False, rate=0.01275, keep=60)
 @given(seed=st.integers(0, 10_000), lookahead=st.integers(0, 2),
        latency=st.floats(0.0, 2000.0), turning=st.booleans(), rate=st.floats(0.0, 0.05),
        keep=st.sampled_from([60, KEEP]))
@@ -188,15 +190,10 @@ def test_replaying_the_journal_rebuilds_the_shift_field_by_field(
         return shift_state(fresh)
 
     for n, want in [*checkpoints, (len(records), end)]:
-        if keep == KEEP:  # see below
-            _equal(replayed(records[:n]), want, n)
+        _equal(replayed(records[:n]), want, n)
     for (n, compacted), (_, want) in zip(snapshots, checkpoints, strict=True):
         _equal(replayed(compacted), want, ("restored", n))
-        # a pool that dropped tasks, events and keys (``keep`` 60) is restored exactly from
-        # its snapshot and history, but replaying task records after such drops is not
-        # exact yet (the backlog's heap order can differ): records are compared at ``KEEP``
-        if keep == KEEP:
-            _equal(replayed([*compacted, *records[n:]]), end, ("restored and replayed", n))
+        _equal(replayed([*compacted, *records[n:]]), end, ("restored and replayed", n))
 
 
 def _json(rec: JournalRecord) -> JournalRecord:
