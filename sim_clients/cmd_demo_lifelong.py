@@ -5,8 +5,9 @@ the simulated robots connect on loopback like remote ones, and the shift starts 
 online. Tasks stream in from the problem's task list (the LoRR Start-Kit's reveal rule); the
 terminal shows a live status line (tasks finished, tasks per minute, robots, queue) until
 Ctrl-C or SIGTERM (or ``--seconds`` of plan time; on a pipe or in a log the status is a line
-every few seconds), then the shift stops: robots finish what they were
-dispatched and a summary line (or ``--json``) is printed.
+every few seconds), then the shift stops: robots finish what they were dispatched and a
+summary line (or ``--json``) is printed. After ``--seconds`` the GUI stays up until Ctrl-C
+unless ``--headless``, as after a one-plan demo's run.
 """
 
 from __future__ import annotations
@@ -110,6 +111,9 @@ async def _shift(config: GatewayConfig, args: argparse.Namespace, status: Status
                          f"{result['plan_s']:.1f} s ({result['tasks_per_min']:.1f}/min), "
                          f"{stats.dispatched} actions, {stats.lost} lost, {stats.duplicated} "
                          f"duplicated, {stats.collisions} collisions")
+        if not (args.headless or stop.is_set()):  # --seconds ended it: the GUI stays up
+            status.print("serving the GUI until Ctrl-C")
+            await stop.wait()
     return EXIT_OK
 
 
@@ -174,4 +178,4 @@ def add_lifelong_arguments(p: argparse.ArgumentParser) -> None:
                         "generated warehouse")
     p.add_argument("--seconds", metavar="S", type=float,
                    help="--lifelong: stop the shift after S seconds of plan time (default: "
-                        "at Ctrl-C)")
+                        "at Ctrl-C); the GUI stays up until Ctrl-C unless --headless")

@@ -4,13 +4,14 @@ answers bodiless GETs): the task API's routes are taken off the websocket server
 :func:`routing_connection` makes the websocket server's connection class read each new
 connection's request head first. A request for a path of :data:`API_PREFIXES` is an
 :class:`ApiRequest` for the API's handler: head, then a body of at most ``MAX_BODY_BYTES``
-(``Content-Length`` only), within the handshake timeout; anything else goes on to the
-websocket server unchanged (the upgrade, the GUI's files, probes) if it is a bodiless GET, else
-it is refused here (405, or 400 for a body): the websocket server would drop it unanswered. One
-request per connection (``Connection: close``); a handler answers with a complete
-:class:`ApiResponse` or a stream of chunks (server-sent events) that ends when the client goes
-or the gateway stops. ``Expect: 100-continue`` is answered before the body is read. Over TLS
-the same applies: the head is read after the TLS handshake.
+(``Content-Length``, or ``Transfer-Encoding: chunked``), within the handshake timeout;
+anything else goes on to the websocket server unchanged (the upgrade, the GUI's files,
+probes) if it is a bodiless GET, else it is refused here (405, or 400 for a body): the
+websocket server would drop it unanswered. One request per connection
+(``Connection: close``); a handler answers with a complete :class:`ApiResponse` or a stream
+of chunks (server-sent events) that ends when the client goes or the gateway stops.
+``Expect: 100-continue`` is answered before the body is read. Over TLS the same applies: the
+head is read after the TLS handshake.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ API_PREFIXES = ("/tasks",)
 MAX_HEAD_BYTES = 16 * 1024
 """A request head longer than this goes to the websocket server, which refuses it."""
 MAX_HEADERS = 64
+CHUNKED = -2
+"""The body's length when it comes in chunks (``Transfer-Encoding: chunked``)."""
+HEX_DIGITS = b"0123456789abcdefABCDEF"
 
 
 class HttpError(Exception):
@@ -116,6 +120,37 @@ def _parse_head(head: bytes) -> tuple[str, str, str, Headers]:
         raise HttpError(400, f"more than {MAX_HEADERS} headers")
     url = urlsplit(target)
     return method, url.path, url.query, headers
+
+
+def _dechunked(data: bytearray) -> bytes | None:
+    """The body a chunked transfer coding at the start of ``data`` carries once it is
+    complete (None: more to come); HttpError if it is malformed or over MAX_BODY_BYTES."""
+    body = bytearray()
+    pos = 0
+    while True:
+        eol = data.find(b"\r\n", pos)
+        if eol < 0:
+            if len(data) - pos > 100:
+                raise HttpError(400, "malformed chunk size line")
+            return None
+        size_field = bytes(data[pos:eol]).split(b";", 1)[0].strip()
+        if not size_field or len(size_field) > 8 or size_field.strip(HEX_DIGITS):
+            raise HttpError(400, "malformed chunk size line")
+        size = int(size_field, 16)
+        if len(body) + size > MAX_BODY_BYTES:
+            raise HttpError(413, f"the body has more than {MAX_BODY_BYTES} bytes")
+        if size == 0:  # the last chunk, then trailers (ignored) up to an empty line
+            end = data.find(b"\r\n\r\n", eol)
+            if end < 0 and len(data) - eol > MAX_HEAD_BYTES:
+                raise HttpError(400, "chunked trailers too long")
+            return None if end < 0 else bytes(body)
+        start = eol + 2
+        if len(data) < start + size + 2:
+            return None
+        if data[start + size:start + size + 2] != b"\r\n":
+            raise HttpError(400, "a chunk does not end with CRLF")
+        body += data[start:start + size]
+        pos = start + size + 2
 
 
 def _continue_expected(headers: Headers) -> bool:
@@ -202,23 +237,30 @@ class RoutingConnection(ServerConnection):
             try:
                 self._head = _parse_head(head)
                 self._body_needed = self._body_length(self._head[3])
-                if _continue_expected(self._head[3]) and len(self._buffer) < self._body_needed:
+                if _continue_expected(self._head[3]) and self._body() is None:
                     self._write(b"HTTP/1.1 100 Continue\r\n\r\n")
             except HttpError as exc:
                 self._refuse(exc)
                 return
-        if self._mode == "api" and self._head is not None and self._task is None \
-                and len(self._buffer) >= self._body_needed:
+        if self._mode == "api" and self._head is not None and self._task is None:
+            try:
+                body = self._body()
+            except HttpError as exc:
+                self._refuse(exc)
+                return
+            if body is None:
+                return
             self._cancel_timer()
             method, path, query, headers = self._head
-            body = bytes(self._buffer[:self._body_needed])
             request = ApiRequest(method, path, query, headers, body, self.tls)
             self._task = self.loop.create_task(self._serve(request))
 
     def eof_received(self) -> bool | None:  # type: ignore[override]
         if self._mode == "ws":
             return super().eof_received()
-        return True  # a half-closed client still gets its answer
+        # a half-closed client still gets its answer (TLS has no half-close: asyncio would
+        # warn on every request that True has no effect)
+        return None if self.tls else True
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._cancel_timer()
@@ -251,11 +293,24 @@ class RoutingConnection(ServerConnection):
         elif self._task is None:
             self._refuse(HttpError(408, f"no complete request within {self.timeout_s} s"))
 
+    def _body(self) -> bytes | None:
+        """The request's body once it is all there (None: more to come); HttpError."""
+        if self._body_needed == CHUNKED:
+            return _dechunked(self._buffer)
+        return bytes(self._buffer[:self._body_needed]) \
+            if len(self._buffer) >= self._body_needed else None
+
     @staticmethod
     def _body_length(headers: Headers) -> int:
-        if "Transfer-Encoding" in headers:
-            raise HttpError(501, "chunked request bodies are not supported: send "
-                                 "Content-Length")
+        """The body's length from the head (or :data:`CHUNKED`); HttpError."""
+        codings = headers.get_all("Transfer-Encoding")
+        if codings:
+            if [c.strip().lower() for c in codings] != ["chunked"]:
+                raise HttpError(501, f"Transfer-Encoding {', '.join(codings)[:60]}: only "
+                                     "chunked is supported")
+            if "Content-Length" in headers:
+                raise HttpError(400, "Transfer-Encoding and Content-Length both given")
+            return CHUNKED
         lengths = headers.get_all("Content-Length")
         if not lengths:
             return 0

@@ -5,7 +5,9 @@ the event stream of a shift of simulated robots over websockets."""
 from __future__ import annotations
 
 import asyncio
+import http.client
 import json
+import logging
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -23,6 +25,7 @@ from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import start_shift, stop_shift
 from tests.server.task_client import Reply, call, sse
+from tests.server.tls_certs import make_certs
 
 ROBOTS = 6
 
@@ -286,3 +289,39 @@ def test_docs_tasks_md_is_up_to_date() -> None:
     doc = Path(__file__).resolve().parents[2] / "docs" / "tasks.md"
     assert doc.read_text() == markdown(), \
         "docs/tasks.md is stale: python -m gateway.server.openapi > docs/tasks.md"
+
+
+def test_the_task_api_over_tls(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Submit, read and stream over HTTPS with the gateway's CA; nothing is logged for it
+    (asyncio warned on every request that TLS has no half-close)."""
+    certs = make_certs(tmp_path)
+    context = certs.client()
+
+    def request(port: int, method: str, path: str, body: Any = None) -> tuple[int, bytes]:
+        conn = http.client.HTTPSConnection("127.0.0.1", port, context=context, timeout=10)
+        try:
+            conn.request(method, path, None if body is None else json.dumps(body),
+                         {"Authorization": "Bearer demo-operator",
+                          "Content-Type": "application/json"})
+            reply = conn.getresponse()
+            stream = reply.getheader("Content-Type") == "text/event-stream"
+            return reply.status, reply.read(60) if stream else reply.read()
+        finally:
+            conn.close()
+
+    async def main() -> list[tuple[int, bytes]]:
+        async with Gateway(lifelong_config(tls=certs.tls())) as gw:
+            port = await gw.listen()
+            (cell,) = cells(gw, 1)
+            out = []
+            for args in (("POST", "/tasks", {"errands": [cell]}), ("GET", "/tasks/0"),
+                         ("GET", "/tasks/events?after=0"), ("POST", "/healthz", {})):
+                out.append(await asyncio.to_thread(request, port, *args))
+            return out
+
+    with caplog.at_level(logging.WARNING):
+        made, got, events, plain = asyncio.run(main())
+    assert made[0] == 201 and got[0] == 200 and json.loads(got[1])["id"] == 0
+    assert events[0] == 200 and b"id: 1\nevent: task\n" in events[1]
+    assert plain == (405, b'{"error": "POST /healthz: only GET is served here"}')
+    assert [r.getMessage() for r in caplog.records] == []

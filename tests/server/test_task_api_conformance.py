@@ -15,9 +15,11 @@ read, nor the gateway's log, holds the operator's token.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import secrets
 import socket
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -373,3 +375,53 @@ def test_the_event_stream_is_as_described(served: Served) -> None:
         validator.validate(ev.data)
     check_described(served.spec, "/tasks/events", "GET", bad)
     assert bad.status == 400 and "Last-Event-ID" in bad.json()["error"]
+
+
+def _exchange(port: int, pieces: list[bytes]) -> bytes:
+    """Send a request in pieces (each its own segment, most likely) and read the answer."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+        for piece in pieces:
+            sock.sendall(piece)
+            time.sleep(0.005)
+        answer = b""
+        while chunk := sock.recv(65536):
+            answer += chunk
+        return answer
+
+
+CHUNKED_HEAD = (f"POST /tasks HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {TOKEN}\r\n"
+                f"Content-Type: application/json\r\n").encode()
+
+
+@settings(max_examples=20, deadline=None)
+@given(cuts=st.lists(st.integers(0, 80), max_size=5), split=st.integers(0, 400))
+def test_a_chunked_body_is_read_as_a_whole(served: Served, cuts: list[int], split: int) -> None:
+    """``Transfer-Encoding: chunked`` (Node's and .NET's streamed bodies): a body cut into
+    any chunks, sent in two pieces cut anywhere, is the same submission."""
+    body = json.dumps({"errands": [FREE[11], FREE[12]], "priority": 2}).encode()
+    bounds = sorted({min(c, len(body)) for c in cuts} | {0, len(body)})
+    wire = CHUNKED_HEAD + b"Transfer-Encoding: chunked\r\n\r\n" + b"".join(
+        f"{b - a:x};ext=1\r\n".encode() + body[a:b] + b"\r\n"
+        for a, b in itertools.pairwise(bounds)) + b"0\r\nX-Trailer: t\r\n\r\n"
+    answer = _exchange(served.port, [wire[:split], wire[split:]])
+    assert answer.startswith(b"HTTP/1.1 201 Created\r\n"), answer[:300]
+    made = json.loads(answer.split(b"\r\n\r\n", 1)[1])["tasks"]
+    assert [(t["errands"], t["priority"]) for t in made] == [([FREE[11], FREE[12]], 2)]
+    served.errands[made[0]["id"]] = made[0]["errands"]
+
+
+@pytest.mark.parametrize(("coding", "body", "status", "error"), [
+    ("chunked", b"zz\r\n{}\r\n0\r\n\r\n", 400, "malformed chunk size line"),
+    ("chunked", b"2\r\n{}}\r\n0\r\n\r\n", 400, "a chunk does not end with CRLF"),
+    ("chunked", b"80000\r\n", 413, "the body has more than 262144 bytes"),
+    ("gzip, chunked", b"0\r\n\r\n", 501, "Transfer-Encoding gzip, chunked: only chunked is "
+                                         "supported"),
+    ("chunked\r\nContent-Length: 2", b"{}", 400, "Transfer-Encoding and Content-Length both "
+                                                  "given"),
+])
+def test_a_bad_transfer_coding_is_refused_precisely(served: Served, coding: str, body: bytes,
+                                                     status: int, error: str) -> None:
+    answer = _exchange(served.port, [CHUNKED_HEAD + f"Transfer-Encoding: {coding}\r\n\r\n"
+                                     .encode() + body])
+    assert answer.startswith(f"HTTP/1.1 {status} ".encode()), answer[:200]
+    assert json.loads(answer.split(b"\r\n\r\n", 1)[1]) == {"error": error}
