@@ -118,7 +118,8 @@ def _paths() -> dict[str, Any]:
                 "description": "Each event is `event: task`, `id: <seq>` and `data:` a "
                                "TaskEventView. Resume with the Last-Event-ID header (or "
                                "?after=seq); an `event: reset` says events were dropped "
-                               "meanwhile: read GET /tasks again.",
+                               "meanwhile, or the id is one this gateway never gave (another "
+                               "shift's): read GET /tasks again.",
                 "operationId": "taskEvents",
                 "parameters": [
                     {"name": "Last-Event-ID", "in": "header", "required": False,

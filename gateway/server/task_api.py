@@ -13,7 +13,8 @@ Routes (models: :mod:`gateway.server.task_models`; the document: ``GET /openapi.
   while paused) and lets it go again;
 * ``GET /tasks/events``: server-sent events, one per change of a task (``id`` is its sequence
   number); ``Last-Event-ID`` (or ``?after=``) resumes after a reconnect; a ``reset`` event
-  says events were dropped meanwhile (re-read ``GET /tasks``).
+  says events were dropped meanwhile, or the id is one this gateway never gave (another
+  shift's): re-read ``GET /tasks``.
 
 Changes run in the engine's owner task (an :class:`~gateway.server.items.OwnerCall`: the single
 writer), are journaled there (:mod:`gateway.server.task_journal`) and are answered only after
@@ -75,6 +76,11 @@ def _first_error(exc: ValidationError) -> str:
     err = exc.errors(include_url=False)[0]
     where = ".".join(str(p) for p in err["loc"] if not str(p).startswith("function-"))
     return f"{where}: {err['msg']}" if where else str(err["msg"])
+
+
+def _reset(first: int) -> bytes:
+    """The ``reset`` event: the stream goes on with event ``first``; re-read the tasks."""
+    return f"event: reset\ndata: {json.dumps({'first': first})}\n\n".encode()
 
 
 class TaskApi:
@@ -326,10 +332,12 @@ class TaskApi:
                 pool = self._engine.tasks
                 if pool is None:
                     return
+                if after > pool.event_seq:  # an id this gateway never gave (another shift's)
+                    yield _reset(pool.event_seq + 1)
+                    after = pool.event_seq
                 events, complete = pool.events_after(after)
                 if not complete:
-                    first = events[0].seq if events else pool.event_seq + 1
-                    yield f"event: reset\ndata: {json.dumps({'first': first})}\n\n".encode()
+                    yield _reset(events[0].seq if events else pool.event_seq + 1)
                 if events:
                     idle = 0.0
                     chunk = "".join(
