@@ -33,6 +33,7 @@ from urllib.parse import parse_qs
 
 from pydantic import ValidationError
 
+from gateway.execution.lifelong import LifelongMode
 from gateway.execution.tasks import (
     TASK_STATES,
     NewTask,
@@ -103,6 +104,9 @@ class TaskApi:
         if pool is None:
             raise HttpError(503, "no task pool: the gateway is not in lifelong mode")
         grid = self._grid()
+        if req.method == "POST" and (req.path == "/tasks" or req.path.endswith("/resume")) \
+                and self._ended():
+            raise HttpError(409, "the shift has ended: no new task would run")
         if req.path == "/tasks":
             if req.method == "POST":
                 return await self._submit(req, grid)
@@ -142,6 +146,12 @@ class TaskApi:
         run = self._engine.lifelong
         assert run is not None
         return run.shift.grid
+
+    def _ended(self) -> bool:
+        """Whether the shift is stopping or over (robots take no new task)."""
+        run = self._engine.lifelong
+        assert run is not None
+        return run.executor.mode in (LifelongMode.STOPPING, LifelongMode.DONE)
 
     def _authorize(self, req: ApiRequest) -> None:
         """An operator's token, or the GUI's login (same origin for changes); HttpError."""
