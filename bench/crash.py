@@ -387,7 +387,7 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
             finished_at_kill = (await asyncio.to_thread(
                 _http, gw.port, "GET", "/tasks?limit=1"))[1]["counts"]["finished"]
             gw.kill()
-            from_snapshot += gw.journal_starts_with() == "shift_snapshot"
+            from_snapshot += gw.journal_starts_with() in ("shift_history", "shift_snapshot")
             before_last_kill = set(completed)
             await asyncio.sleep(rng.uniform(0.0, 0.3))  # down for a while
             await asyncio.to_thread(gw.start)

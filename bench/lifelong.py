@@ -21,7 +21,10 @@ gateway's journaled executor into two real journals: one never compacted (as bef
 compaction existed), one compacted into a snapshot every ``--every`` segments as the gateway
 does. Each is then read back and replayed into a fresh executor (what a restart does before
 it serves), which must equal the live shift. Prints one line: records, bytes and replay CPU
-seconds of both, and ``replay_ratio`` (compacted / uncompacted replay time).
+seconds of both, ``replay_ratio`` (compacted / uncompacted replay time), and the wall time of
+a compaction (median and longest: the first one writes the task history kept so far, the
+later ones only what is new). ``--kept N`` starts the task book with N ended tasks and their
+events, as after hours of a shift (the pool keeps 100,000 of each).
 
     .venv/bin/python bench/lifelong.py --journal --robots 100 --seconds 3600 --json
 """
@@ -40,11 +43,18 @@ from pathlib import Path
 from typing import Any
 
 from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.shift_state import snapshot_shift
+from gateway.execution.shift_state import HistoryLog, snapshot_shift
+from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
 from gateway.planning.lorr import LorrProblem, read_problem, warehouse_problem
 from gateway.planning.movingai import format_map
-from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord, ShiftSnapshotRecord
-from gateway.server.shift_journal import JournaledLifelong, compaction_due, replay_shift
+from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord
+from gateway.server.gc_tuning import restore_defaults, tune_for_run
+from gateway.server.shift_journal import (
+    JournaledLifelong,
+    compact_journal,
+    compaction_due,
+    replay_shift,
+)
 from gateway.server.task_journal import TaskJournal
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
 from sim_clients.shift_des import drive_shift
@@ -110,23 +120,27 @@ class JournaledShift:
 
 def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
                     journals: Sequence[tuple[Journal, int]],
-                    each: Callable[[LifelongExecutor, float], None] | None = None
-                    ) -> JournaledShift:
+                    each: Callable[[LifelongExecutor, float], None] | None = None,
+                    kept: int = 0) -> JournaledShift:
     """Drive ``prob``'s shift for ``seconds`` of plan time (``each``: as in
-    :func:`~sim_clients.shift_des.drive_shift`), journaling its inputs (and task events) into
-    each journal; one with ``every`` > 0 is compacted every ``every`` adopted segments as the
-    gateway does (commit, then one snapshot replaces the records). Commits happen when plan
-    time moves on (the gateway commits before its owner task yields)."""
+    :func:`~sim_clients.shift_des.drive_shift`; the pool starts with ``kept`` ended tasks,
+    :func:`keep_ended`), journaling its inputs (and task events) into each journal; one with
+    ``every`` > 0 is compacted every ``every`` adopted segments as the gateway does (commit,
+    then one snapshot replaces the records). Commits happen when plan time moves on (the
+    gateway commits before its owner task yields)."""
     start = ShiftRecord(run_id="bench", wall_start_s=0.0, speed=1.0)
     made: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
     tasks: list[TaskJournal] = []
+    histories = [HistoryLog() for _ in journals]
     before: list[int] = []
     compact_ms: list[float] = []
 
     def executor(*args: Any, **kw: Any) -> LifelongExecutor:
+        keep_ended(args[3], kept)
         made.append((copy.deepcopy(args), {**kw, "record": None}))
         ex = JournaledLifelong(*args, **kw)
-        tasks.extend(TaskJournal(ex.pool, j) for j, _ in journals)
+        # the pool's events so far come with the configuration (a fresh copy has them)
+        tasks.extend(TaskJournal(ex.pool, j, ex.pool.event_seq) for j, _ in journals)
 
         def sink(rec: JournalRecord) -> None:
             for tj in tasks:
@@ -148,7 +162,7 @@ def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
         if ex.segments == last["segments"]:
             return
         last["segments"] = ex.segments
-        for tj, (journal, every) in zip(tasks, journals, strict=True):
+        for tj, history, (journal, every) in zip(tasks, histories, journals, strict=True):
             if compaction_due(ex, every):
                 tj.flush()
                 journal.commit()
@@ -156,9 +170,8 @@ def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
                 if first:
                     before.append(journal.count())
                 t0 = time.perf_counter()
-                journal.compact(ShiftSnapshotRecord(
-                    shift=start, speed=1.0, threshold_ms=0.0, replan_marks=[],
-                    trace_lines=0, state=snapshot_shift(ex)))
+                compact_journal(journal, history, ex, shift=start, speed=1.0,
+                                threshold_ms=0.0, replan_marks=[], trace_lines=0)
                 if first:
                     compact_ms.append((time.perf_counter() - t0) * 1000.0)
 
@@ -170,6 +183,16 @@ def journaled_shift(prob: LorrProblem, seed: int, seconds: float,
     args, kw = made[0]
     return JournaledShift(run.ex, lambda: JournaledLifelong(*copy.deepcopy(args), **kw),
                           before, compact_ms)
+
+
+def keep_ended(pool: TaskPool, n: int) -> None:
+    """Give ``pool`` ``n`` finished tasks with their events (at most its ``keep`` stay), as a
+    shift that ran for hours keeps for the task API. They change no scheduling (schedulers
+    look at open tasks only): only what the book holds and a snapshot carries."""
+    for k in range(n):
+        errands = tuple(pool.task_list[k % len(pool.task_list)])
+        pool.restore(TaskEvent(pool.event_seq + 1, pool.next_id, "finished", k % 8,
+                               len(errands), 0.0), NewTask(errands))
 
 
 def replayed(path: Path, fresh: JournaledLifelong) -> tuple[float, int]:
@@ -184,7 +207,8 @@ def replayed(path: Path, fresh: JournaledLifelong) -> tuple[float, int]:
     return time.process_time() - t0, len(records)
 
 
-def journal_run(robots: int, seconds: float, every: int, seed: int) -> dict[str, Any]:
+def journal_run(robots: int, seconds: float, every: int, seed: int,
+                kept: int = 0) -> dict[str, Any]:
     """The ``--journal`` measurement (see the module doc)."""
     prob = warehouse_problem(robots, seed, (4, 6) if robots <= 200 else (13, 25),
                              p_delay=0.0)
@@ -192,7 +216,12 @@ def journal_run(robots: int, seconds: float, every: int, seed: int) -> dict[str,
         paths = [Path(tmp) / "full.sqlite", Path(tmp) / "compacted.sqlite"]
         journals = [Journal(paths[1]), Journal(paths[0])]
         t0 = time.process_time()
-        shift = journaled_shift(prob, seed, seconds, [(journals[0], every), (journals[1], 0)])
+        tune_for_run()  # the garbage collector as the gateway runs a shift
+        try:
+            shift = journaled_shift(prob, seed, seconds,
+                                    [(journals[0], every), (journals[1], 0)], kept=kept)
+        finally:
+            restore_defaults()
         drive_s = time.process_time() - t0
         for j in journals:
             j.close()
@@ -208,7 +237,7 @@ def journal_run(robots: int, seconds: float, every: int, seed: int) -> dict[str,
     (full_n, full_s), (comp_n, comp_s) = result["full"], result["compacted"]
     return {"robots": robots, "plan_s": seconds, "every": every,
             "segments": shift.live.segments, "actions": sum(shift.live.adg.done),
-            "tasks_finished": shift.live.finished_tasks,
+            "tasks_finished": shift.live.finished_tasks - kept, "kept": kept,
             "full_records": full_n, "full_kb": sizes[0] // 1024, "full_replay_s": round(full_s, 3),
             "compacted_records": comp_n, "compacted_kb": sizes[1] // 1024,
             "compacted_max_records": max(shift.before_compaction, default=comp_n),
@@ -233,10 +262,13 @@ def main() -> None:
                     help="measure the shift journal's size and replay time, compacted or not")
     ap.add_argument("--every", type=int, default=60,
                     help="--journal: segments between snapshots of the compacted journal")
+    ap.add_argument("--kept", type=int, default=0,
+                    help="--journal: ended tasks (and events) the task book starts with, as "
+                         "after hours of a shift (at most 100,000 are kept)")
     ap.add_argument("--json", action="store_true", help="--journal: print one JSON line")
     args = ap.parse_args()
     if args.journal:
-        out = journal_run(args.robots, args.seconds, args.every, args.seed)
+        out = journal_run(args.robots, args.seconds, args.every, args.seed, args.kept)
         print(json.dumps(out) if args.json else
               f"lifelong journal: {out['robots']} robots x {out['plan_s']} s of plan time "
               f"({out['actions']} actions): uncompacted {out['full_records']} "

@@ -9,15 +9,21 @@ lists only (JSON-able: the journal validates and writes it with pydantic; no pic
 :func:`restore_shift` gives a fresh executor of the same configuration that state, field by
 field, so that it then behaves as the live one on the same inputs.
 
+What the task pool keeps for the task API that never changes once made (tasks that ended,
+events, idempotency keys: up to ``keep`` of each, so hours of a shift) is not in the snapshot:
+it goes to the journal in chunks (:class:`ShiftHistory`), each holding only what is new since
+the previous one (:class:`HistoryLog`), so a snapshot's size and cost follow the live state,
+not the shift's length; a restore replays the chunks the journal holds.
+
 What is state and what is configuration: the grid, the fleet's size, the scheduler, the
 durations, the planning period and window, the lookahead and the pool's task list, reveal and
 ``keep`` come from the configuration (the restoring executor is built with them); everything
 the inputs change is here: each robot's cell, heading and action counter, its dispatched and
 unfinished actions, the unfinished tail of the live ADG with its Type 2 dependencies and the
 cells' last leavers, the monitor's slack baseline (Δ0) and next check, the errand book's plan
-view and markers, every kept task with its state and times, the pool's queues, kept events and
-idempotency keys, and the counters (planner calls, segments, triggers, errands done, tasks
-finished, the outstanding planner call). The container's order is kept where behaviour or the
+view and markers, every task not ended with its state and times, the pool's queues, and the
+counters (planner calls, segments, triggers, errands done, tasks finished, the outstanding
+planner call). The container's order is kept where behaviour or the
 task API depends on it (dicts in insertion order, the backlog's heap as a list).
 
 :data:`SNAPSHOT_VERSION` is written into each snapshot; a restore refuses any other.
@@ -27,7 +33,10 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict, deque
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, fields
+from operator import attrgetter
+from typing import Any
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import LifelongExecutor, LifelongMode, PlanRequest
@@ -39,52 +48,74 @@ SNAPSHOT_VERSION = 1
 
 ActionRow = tuple[int, int, int, int, int, int]
 """A committed action: kind, cell, heading, dependency robot, dependency seq, append order."""
-EventRow = tuple[int, int, TaskState, int, int, float]
-"""A task event: seq, task, state, robot, errands done, time."""
 NewTaskRow = tuple[list[int], int, float | None]
 """One task of a submission: errands, priority, deadline."""
 
 
 @dataclass(frozen=True)
-class TaskSnapshot:
-    """One kept task (every field of :class:`~gateway.execution.tasks.Task`)."""
+class TaskColumns:
+    """Kept tasks column by column, in the book's order (task k is entry k of every list):
+    every field of :class:`~gateway.execution.tasks.Task`. A long shift keeps up to ``keep``
+    ended tasks; lists of plain values encode and validate several times faster than an
+    object per task."""
 
-    id: int
-    errands: list[int]
-    release_tick: int
-    robot: int
-    done: int
-    finish_tick: float
-    length: int
-    priority: int
-    deadline: float | None
-    key: str | None
-    state: TaskState
-    submitted: float
-    assigned_at: float
-    errand_at: list[float]
-    cancelled_at: float
-    listed: bool
-    announced: int
+    id: list[int]
+    errands: list[tuple[int, ...]]
+    release_tick: list[int]
+    robot: list[int]
+    done: list[int]
+    finish_tick: list[float]
+    length: list[int]
+    priority: list[int]
+    deadline: list[float | None]
+    key: list[str | None]
+    state: list[TaskState]
+    submitted: list[float]
+    assigned_at: list[float]
+    errand_at: list[list[float]]
+    cancelled_at: list[float]
+    listed: list[bool]
+    announced: list[int]
+
+
+@dataclass(frozen=True)
+class EventColumns:
+    """Kept task events column by column, oldest first (every field of
+    :class:`~gateway.execution.tasks.TaskEvent`)."""
+
+    seq: list[int]
+    task: list[int]
+    state: list[TaskState]
+    robot: list[int]
+    done: list[int]
+    t: list[float]
+
+
+@dataclass(frozen=True)
+class ShiftHistory:
+    """A chunk of what a task pool keeps that never changes once made: tasks that ended (in
+    the order they ended), events, and idempotency keys with their submission (in the order
+    they were used), each since the previous chunk (:class:`HistoryLog`). The pool keeps the
+    latest ``keep`` of each; a restore replays the chunks in order and keeps as many."""
+
+    ended: TaskColumns
+    events: EventColumns
+    keys: list[tuple[str, list[NewTaskRow], list[int]]]
 
 
 @dataclass(frozen=True)
 class PoolSnapshot:
-    """The task pool: its kept tasks (in the book's order) and, by id in their order, where
-    each waits; its events, keys and counters."""
+    """The task pool without its history (:class:`ShiftHistory`): its tasks not ended (in
+    the book's order) and, by id in their order, where each waits; its counters."""
 
-    book: list[TaskSnapshot]
+    live: TaskColumns
     tasks: list[int]
     open: list[int]
     waiting: list[int]
     paused: list[int]
-    ended: list[int]
     released: list[int]
     backlog: list[tuple[int, float | None, int]]
     """The backlog heap as a list: -priority, deadline (None: none), task id."""
-    keys: list[tuple[str, list[NewTaskRow], list[int]]]
-    """Idempotency keys (oldest first): the submission and the ids it made."""
-    events: list[EventRow]
     event_seq: int
     finished: int
     next_id: int
@@ -180,29 +211,119 @@ def snapshot_shift(ex: LifelongExecutor) -> ShiftState:
         pool=_pool_snapshot(ex.pool))
 
 
+_TASK_FIELDS = tuple(f.name for f in fields(Task))
+_EVENT_FIELDS = tuple(f.name for f in fields(TaskEvent))
+
+
+def _columns(items: Iterable[Any], names: Sequence[str]) -> dict[str, list[Any]]:
+    """``{field: [its value in each item]}``."""
+    rows = list(items)
+    return {name: list(map(attrgetter(name), rows)) for name in names}
+
+
+def _rows(columns: Any, names: Sequence[str]) -> Iterator[tuple[Any, ...]]:
+    """Each item's values in field order (the inverse of :func:`_columns`)."""
+    return zip(*(getattr(columns, name) for name in names), strict=True)
+
+
+def _task_columns(tasks: Iterable[Task]) -> TaskColumns:
+    cols = _columns(tasks, _TASK_FIELDS)
+    cols["errand_at"] = list(map(list, cols["errand_at"]))  # a live task appends to it
+    return TaskColumns(**cols)
+
+
+def _tasks(cols: TaskColumns) -> Iterator[Task]:
+    for row in _rows(cols, _TASK_FIELDS):
+        task = Task(*row)
+        task.errands, task.errand_at = tuple(task.errands), list(task.errand_at)
+        yield task
+
+
 def _pool_snapshot(pool: TaskPool) -> PoolSnapshot:
+    ended = pool._ended
     return PoolSnapshot(
-        book=[_task_snapshot(t) for t in pool.book.values()], tasks=list(pool.tasks),
-        open=list(pool.open), waiting=list(pool._waiting), paused=list(pool._paused),
-        ended=list(pool._ended), released=list(pool._released),
+        live=_task_columns(t for i, t in pool.book.items() if i not in ended),
+        tasks=list(pool.tasks), open=list(pool.open), waiting=list(pool._waiting),
+        paused=list(pool._paused), released=list(pool._released),
         backlog=[(-p, None if math.isinf(d) else d, i) for (p, d), i in pool._backlog],
-        keys=[(key, [(list(t.errands), t.priority, t.deadline) for t in new], list(ids))
-              for key, (new, ids) in pool._keys.items()],
-        events=[(e.seq, e.task, e.state, e.robot, e.done, e.t) for e in pool.events],
         event_seq=pool.event_seq, finished=pool.finished, next_id=pool.next_id,
         listed=pool._listed, now=pool.now)
 
 
-def _task_snapshot(t: Task) -> TaskSnapshot:
-    return TaskSnapshot(
-        t.id, list(t.errands), t.release_tick, t.robot, t.done, t.finish_tick, t.length,
-        t.priority, t.deadline, t.key, t.state, t.submitted, t.assigned_at, list(t.errand_at),
-        t.cancelled_at, t.listed, t.announced)
+class HistoryLog:
+    """The chunks of a task pool's history (:class:`ShiftHistory`) that a journal holds,
+    oldest first: :meth:`next` makes the chunk of what the pool kept since the last one and
+    says how many of the oldest chunks it no longer needs (the pool dropped every task, event
+    and key of theirs). ``chunks``: those the journal holds already (after a restart)."""
+
+    def __init__(self, chunks: Sequence[ShiftHistory] = ()) -> None:
+        self._last: list[tuple[int | None, int | None, str | None]] = []
+        # per chunk: its last event seq, ended task and key (None: it has none)
+        self._seq = 0  # the last event, ended task and key of any chunk
+        self._task: int | None = None
+        self._key: str | None = None
+        for chunk in chunks:
+            self._add(chunk)
+
+    def _add(self, chunk: ShiftHistory) -> None:
+        last = (chunk.events.seq[-1] if chunk.events.seq else None,
+                chunk.ended.id[-1] if chunk.ended.id else None,
+                chunk.keys[-1][0] if chunk.keys else None)
+        self._last.append(last)
+        seq, task, key = last
+        self._seq = self._seq if seq is None else seq
+        self._task = self._task if task is None else task
+        self._key = self._key if key is None else key
+
+    def next(self, pool: TaskPool) -> tuple[ShiftHistory | None, int]:
+        """The pool's history since the last chunk (None: nothing new), and how many of the
+        oldest chunks (this one excluded) are no longer needed."""
+        events = list(_newest(pool.events, lambda e: e.seq > self._seq))
+        ended = _after(pool._ended, self._task)
+        keys = _after(pool._keys, self._key)
+        chunk = None
+        if events or ended or keys:
+            chunk = ShiftHistory(
+                _task_columns(pool._ended[i] for i in ended),
+                EventColumns(**_columns(events, _EVENT_FIELDS)),
+                [(key, [(list(t.errands), t.priority, t.deadline) for t in pool._keys[key][0]],
+                  list(pool._keys[key][1])) for key in keys])
+            self._add(chunk)
+        first = pool.events[0].seq if pool.events else pool.event_seq + 1
+        drop = 0
+        for seq, task, key in self._last[:-1]:
+            if (seq is not None and seq >= first) or task in pool._ended \
+                    or key in pool._keys:
+                break
+            drop += 1
+        del self._last[:drop]
+        return chunk, drop
 
 
-def restore_shift(ex: LifelongExecutor, state: ShiftState) -> None:
+def _newest(items: Sequence[Any], new: Callable[[Any], bool]) -> Iterator[Any]:
+    """The items at the end of ``items`` for which ``new`` holds, in order."""
+    k = len(items)
+    while k > 0 and new(items[k - 1]):
+        k -= 1
+    return (items[i] for i in range(k, len(items)))
+
+
+def _after(kept: OrderedDict[Any, Any], last: Any) -> list[Any]:
+    """The keys of ``kept`` after ``last`` (all of them if ``last`` is not there)."""
+    out = []
+    for key in reversed(kept):
+        if key == last:
+            break
+        out.append(key)
+    out.reverse()
+    return out
+
+
+def restore_shift(ex: LifelongExecutor, state: ShiftState,
+                  history: Sequence[ShiftHistory] = ()) -> None:
     """Give ``ex`` (fresh: built with the shift's configuration, not started) the state
-    ``state``; ExecutionError (one line) if the snapshot does not fit it."""
+    ``state`` and its pool's ``history`` (every chunk since the shift's start that the pool
+    may still keep, in order); ExecutionError (one line) if the snapshot does not fit it."""
     if state.version != SNAPSHOT_VERSION:
         raise ExecutionError(f"a shift snapshot of version {state.version} cannot be restored "
                              f"(this gateway writes version {SNAPSHOT_VERSION})")
@@ -241,25 +362,37 @@ def restore_shift(ex: LifelongExecutor, state: ShiftState) -> None:
     book.markers = [deque((c, t) for c, t in m) for m in state.markers]
     if len(book.markers) != n:
         raise ExecutionError("the snapshot's errand book does not fit the fleet")
-    _restore_pool(ex.pool, state.pool)
+    _restore_pool(ex.pool, state.pool, history)
 
 
-def _restore_pool(pool: TaskPool, snap: PoolSnapshot) -> None:
-    book = {t.id: Task(
-        t.id, tuple(t.errands), t.release_tick, t.robot, t.done, t.finish_tick, t.length,
-        t.priority, t.deadline, t.key, t.state, t.submitted, t.assigned_at, list(t.errand_at),
-        t.cancelled_at, t.listed, t.announced) for t in snap.book}
-    pool.book = book
+def _restore_pool(pool: TaskPool, snap: PoolSnapshot,
+                  history: Sequence[ShiftHistory]) -> None:
+    keep = pool.keep
+    ended: OrderedDict[int, Task] = OrderedDict()
+    keys: OrderedDict[str, tuple[tuple[NewTask, ...], list[int]]] = OrderedDict()
+    events: deque[TaskEvent] = deque(maxlen=keep)
+    for chunk in history:  # made as the pool made them: the latest ``keep`` of each stay
+        for task in _tasks(chunk.ended):
+            ended[task.id] = task
+            if len(ended) > keep:
+                ended.popitem(last=False)
+        for key, new, ids in chunk.keys:
+            keys.pop(key, None)
+            keys[key] = (tuple(NewTask(tuple(e), p, d) for e, p, d in new), list(ids))
+            if len(keys) > keep:
+                keys.popitem(last=False)
+        events.extend(TaskEvent(*e) for e in _rows(chunk.events, _EVENT_FIELDS))
+    book = {t.id: t for t in _tasks(snap.live)}
+    book.update(ended)
+    pool.book = {i: book[i] for i in sorted(book)}  # the book is in id order
     pool.tasks = {i: book[i] for i in snap.tasks}
     pool.open = {i: book[i] for i in snap.open}
     pool._waiting = {i: book[i] for i in snap.waiting}
     pool._paused = {i: book[i] for i in snap.paused}
-    pool._ended = OrderedDict((i, book[i]) for i in snap.ended)
+    pool._ended = ended
     pool._released = dict.fromkeys(snap.released)
     pool._backlog = [((-p, math.inf if d is None else d), i) for p, d, i in snap.backlog]
-    pool._keys = OrderedDict(
-        (key, (tuple(NewTask(tuple(e), p, d) for e, p, d in new), list(ids)))
-        for key, new, ids in snap.keys)
-    pool.events = deque((TaskEvent(*e) for e in snap.events), maxlen=pool.keep)
+    pool._keys = keys
+    pool.events = events
     pool.event_seq, pool.finished, pool.next_id = snap.event_seq, snap.finished, snap.next_id
     pool._listed, pool.now = snap.listed, snap.now

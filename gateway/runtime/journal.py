@@ -51,7 +51,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
-from gateway.execution.shift_state import ShiftState
+from gateway.execution.shift_state import ShiftHistory, ShiftState
 
 Cell = tuple[int, int]
 
@@ -246,6 +246,15 @@ class SnapshotRecord(_Record):
     """Trace records the run wrote before this plan (its trace file starts with them)."""
 
 
+class ShiftHistoryRecord(_Record):
+    """A chunk of a lifelong shift's task history (ended tasks, events, idempotency keys new
+    since the previous chunk: :class:`~gateway.execution.shift_state.ShiftHistory`). A
+    compaction keeps the chunks the task book may still need, before its snapshot."""
+
+    kind: Literal["shift_history"] = "shift_history"
+    history: ShiftHistory
+
+
 class ShiftSnapshotRecord(_Record):
     """A lifelong shift's records so far, compacted: the shift's start, what its executor and
     task book are (:class:`~gateway.execution.shift_state.ShiftState`) and what the engine
@@ -267,7 +276,7 @@ class ShiftSnapshotRecord(_Record):
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
     | SpeedRecord | SnapshotRecord | ShadowRecord | TaskRecord | ShiftRecord | SegmentRecord
-    | ThresholdRecord | ShiftSnapshotRecord,
+    | ThresholdRecord | ShiftSnapshotRecord | ShiftHistoryRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 
@@ -401,19 +410,23 @@ class Journal:
         self.commits += 1
         self.commit_max_ms = max(self.commit_max_ms, (time.perf_counter() - t0) * 1000.0)
 
-    def _replace(self, record: _Record) -> None:
-        """Forget every record and write ``record`` instead (one transaction), then return
-        the free pages (a plan boundary: nobody waits for the fleet meanwhile)."""
+    def _replace(self, *records: _Record, keep: str = "", drop: int = 0) -> None:
+        """Forget every record but those of kind ``keep`` (less the ``drop`` oldest of
+        them) and write ``records`` after them (one transaction), then return the free pages
+        (a plan boundary: nobody waits for the fleet meanwhile)."""
         t0 = time.perf_counter()
         self._buffer.clear()
         db = self._db
         db.execute("BEGIN")
-        db.execute("DELETE FROM records")
-        db.execute("INSERT INTO records (kind, body) VALUES (?, ?)",
-                   (record.kind, record.model_dump_json()))  # type: ignore[attr-defined]
+        db.execute("DELETE FROM records WHERE kind != ?", (keep,))
+        if drop:
+            db.execute("DELETE FROM records WHERE seq IN (SELECT seq FROM records "
+                       "ORDER BY seq LIMIT ?)", (drop,))
+        db.executemany("INSERT INTO records (kind, body) VALUES (?, ?)",
+                       [(r.kind, r.model_dump_json()) for r in records])  # type: ignore[attr-defined]
         db.execute("COMMIT")
         db.execute("PRAGMA incremental_vacuum")
-        self.appended += 1
+        self.appended += len(records)
         self._after_write(t0)
 
     def begin_run(self, run: RunRecord) -> None:
@@ -421,10 +434,17 @@ class Journal:
         self._replace(run)
 
     def compact(self, snapshot: _Record) -> None:
-        """``snapshot`` (a :class:`SnapshotRecord` at a new plan, a
-        :class:`ShiftSnapshotRecord` in a shift) sums up every record so far and replaces
-        them."""
+        """``snapshot`` (a :class:`SnapshotRecord` at a new plan) sums up every record so far
+        and replaces them."""
         self._replace(snapshot)
+
+    def compact_shift(self, snapshot: ShiftSnapshotRecord, history: ShiftHistoryRecord | None,
+                      drop: int) -> None:
+        """A shift's ``snapshot`` sums up every record so far and replaces them, except the
+        chunks of its task history (:class:`ShiftHistoryRecord`), less the ``drop`` oldest;
+        the new chunk ``history`` (if any) is written before the snapshot."""
+        records = (snapshot,) if history is None else (history, snapshot)
+        self._replace(*records, keep="shift_history", drop=drop)
 
     def discard(self) -> None:
         """Forget the journaled run (starting fresh on purpose)."""

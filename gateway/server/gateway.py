@@ -161,12 +161,13 @@ class Gateway:
             except JournalError as exc:
                 raise ValueError(str(exc)) from None
         if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
-            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
+            run = self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
             if self.engine.journal is not None:
                 try:
                     self.resumed = journal_tasks(self.engine)
                 except JournalError as exc:
                     raise ValueError(str(exc)) from None
+            await run.planner_ready()  # its process started while the journal replayed
             self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
                                                                  name="owner")
             self.engine.operator.maybe_autostart()

@@ -11,13 +11,13 @@ the event loop's GIL; a thread waits for it in real time, its CPU time is charge
 virtual clock) while robots keep reporting, and its segment comes back through the owner's
 queue as an :class:`~gateway.server.items.OwnerCall` to be appended to the live ADG. Nobody
 stops for it. If the planner process dies, one error line says so and the next period plans
-again in a new one. The gateway does not wait for the planner process to start (a restart
-replays its journal meanwhile), and while the planner is idle it computes the distance tables
-of the tasks that come into the pool (its own, and the scheduler's, which it sends back to
-the scheduler's cache), so the first planning calls find them ready; a table is a function of
-the grid and the cell only, so nothing depends on when one arrives. The engine ticks the run
-every monitor period (and when a planning call is due); robot reports reach the executor
-through the engine's robot sessions as in a one-shot run.
+again in a new one. The planner process starts while the gateway replays its journal (a
+restart), and the gateway is ready once both are done. While the planner is idle it computes
+the distance tables of the tasks that come into the pool (its own, and the scheduler's, which
+it sends back to the scheduler's cache), so the first planning calls find them ready; a table
+is a function of the grid and the cell only, so nothing depends on when one arrives. The
+engine ticks the run every monitor period (and when a planning call is due); robot reports
+reach the executor through the engine's robot sessions as in a one-shot run.
 
 The live task pool is :attr:`LifelongRun.tasks` (``Engine.tasks``): a task API reads it and
 submits to it from the owner task.
@@ -123,7 +123,7 @@ class LifelongRun:
             threshold_ms=s.threshold_ms, record=engine.feed.record)
         self.turning = shift.headings is not None
         self.planner = PlannerProcess(grid, len(shift.starts), self.turning, s.seed)
-        try:  # not waiting for it: a restart replays its journal while the worker starts
+        try:  # waited for by :meth:`planner_ready`: a restart replays its journal meanwhile
             self.planner.start(wait=False)
         except PlannerDied as exc:
             raise ValueError(f"lifelong mode: {exc}") from None
@@ -137,6 +137,14 @@ class LifelongRun:
         """The shift's start (its run id, wall time and speed of time 0), once started."""
         self.after_adopt: Callable[[], None] | None = None
         """Called after each adopted segment is routed (the journal compacts here)."""
+
+    async def planner_ready(self) -> None:
+        """Wait, off the event loop, until the planner process has built its planner
+        (ValueError, one line, if it cannot): the shift's first call needs it."""
+        try:
+            await asyncio.to_thread(self.planner.start)
+        except PlannerDied as exc:
+            raise ValueError(f"lifelong mode: {exc}") from None
 
     # ------------------------------------------------------------------ state
     @property

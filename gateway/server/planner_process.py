@@ -10,8 +10,8 @@ space, its cached distance tables and PIBT's priorities live there) and then ans
 clock charges). Only the request and the segment cross the pipes. Between calls the gateway
 has it compute distance tables ahead (:class:`Warm`: the planner's own for the cells of
 submitted tasks, and the scheduler's, sent back), so that neither the first planning calls
-nor the gateway's event loop build them. The gateway does not wait for a new worker to be
-ready (``start(wait=False)``): its first request does.
+nor the gateway's event loop build them. ``start(wait=False)`` starts a worker without
+waiting for it to be ready (a restarting gateway replays its journal meanwhile).
 
 If the worker dies (killed, out of memory), :meth:`PlannerProcess.call` raises
 :class:`PlannerDied` with one line saying so, and the next call starts a new worker (its

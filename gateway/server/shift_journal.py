@@ -34,8 +34,8 @@ import json
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import (
@@ -45,15 +45,22 @@ from gateway.execution.lifelong import (
     PlanRequest,
     Segment,
 )
-from gateway.execution.shift_state import restore_shift, snapshot_shift
+from gateway.execution.shift_state import (
+    HistoryLog,
+    ShiftHistory,
+    restore_shift,
+    snapshot_shift,
+)
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
 from gateway.execution.trace_records import Record
 from gateway.runtime.journal import (
     ExecutorEvent,
+    Journal,
     JournalError,
     JournalRecord,
     ReportRecord,
     SegmentRecord,
+    ShiftHistoryRecord,
     ShiftRecord,
     ShiftSnapshotRecord,
     SpeedRecord,
@@ -115,6 +122,8 @@ class ShiftReplayed:
     """The slack threshold the operator set last (None: never in the journal)."""
     snapshot: ShiftSnapshotRecord | None = None
     """The snapshot the journal starts with, if it is compacted."""
+    history: list[ShiftHistory] = field(default_factory=list)
+    """The chunks of task history before the snapshot."""
     last_t_ms: float = 0.0
     records: int = 0
 
@@ -135,18 +144,23 @@ def replay_shift(records: Sequence[JournalRecord], ex: JournaledLifelong, *,
     out = ShiftReplayed()
     pool = ex.pool
     i = 0
-    if records and isinstance(records[0], ShiftSnapshotRecord):
-        snap = records[0]
-        i = out.records = 1
+    while i < len(records) and isinstance(chunk := records[i], ShiftHistoryRecord):
+        out.history.append(chunk.history)
+        i += 1
+    if i < len(records) and isinstance(snap := records[i], ShiftSnapshotRecord):
+        i += 1
         out.shift, out.speed, out.threshold_ms = snap.shift, snap.speed, snap.threshold_ms
         out.snapshot, out.last_t_ms = snap, snap.state.now_ms
         on_start(snap.shift)
         try:
-            restore_shift(ex, snap.state)
+            restore_shift(ex, snap.state, out.history)
         except ExecutionError as exc:
             raise JournalError(f"the journal's shift snapshot: {exc}") from None
         if on_snapshot is not None:
             on_snapshot(snap)
+    elif out.history:
+        raise JournalError("the journal holds a shift's task history but no snapshot after it")
+    out.records = i
     while i < len(records):
         rec = records[i]
         i += 1
@@ -316,7 +330,7 @@ def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftRepla
     return done
 
 
-def compact_shift(engine: Engine, every: int) -> None:
+def compact_shift(engine: Engine, history: HistoryLog, every: int) -> None:
     """After an adopted segment (between two owner-task items): every ``every`` segments
     (0: never) of a running shift, replace the journal's records by a snapshot of the shift.
     What is buffered is committed and the trace flushed first, then one transaction deletes
@@ -328,10 +342,19 @@ def compact_shift(engine: Engine, every: int) -> None:
         return
     engine.commit()
     feed = engine.feed
-    journal.compact(ShiftSnapshotRecord(
-        shift=run.started, speed=engine.clock.speed, threshold_ms=engine.threshold_ms,
-        replan_marks=feed.replan_marks, trace_lines=feed.trace_lines,
-        state=snapshot_shift(run.executor)))
+    compact_journal(journal, history, run.executor, shift=run.started,
+                    speed=engine.clock.speed, threshold_ms=engine.threshold_ms,
+                    replan_marks=feed.replan_marks, trace_lines=feed.trace_lines)
+
+
+def compact_journal(journal: Journal, history: HistoryLog, ex: LifelongExecutor,
+                    **carried: Any) -> None:
+    """Replace ``journal``'s records by a snapshot of ``ex`` (``carried``: the other fields
+    of :class:`~gateway.runtime.journal.ShiftSnapshotRecord`), in one transaction that keeps
+    the chunks of task history the pool may still need and writes the new chunk first."""
+    chunk, drop = history.next(ex.pool)
+    journal.compact_shift(ShiftSnapshotRecord(state=snapshot_shift(ex), **carried),
+                          None if chunk is None else ShiftHistoryRecord(history=chunk), drop)
 
 
 def compaction_due(ex: LifelongExecutor, every: int) -> bool:

@@ -18,10 +18,12 @@ from collections.abc import Iterable
 from functools import partial
 from typing import TYPE_CHECKING
 
+from gateway.execution.shift_state import HistoryLog
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
 from gateway.runtime.journal import (
     Journal,
     JournalRecord,
+    ShiftHistoryRecord,
     ShiftRecord,
     ShiftSnapshotRecord,
     TaskRecord,
@@ -92,14 +94,16 @@ def journal_tasks(engine: Engine) -> bool:
     pool, journal, run = engine.tasks, engine.journal, engine.lifelong
     assert pool is not None and journal is not None and run is not None
     records = list(journal.records())
-    if records and not isinstance(records[0], TaskRecord | ShiftRecord | ShiftSnapshotRecord):
+    if records and not isinstance(records[0], TaskRecord | ShiftRecord | ShiftSnapshotRecord
+                                                | ShiftHistoryRecord):
         journal.discard()
         log.warning("journaled one-shot run abandoned: the gateway is in lifelong mode",
                     extra={"journal": str(journal.path)})
         records = []
     last = 0
+    history = HistoryLog()
     if any(isinstance(rec, ShiftRecord | ShiftSnapshotRecord) for rec in records):
-        resume_shift(engine, records)
+        history = HistoryLog(resume_shift(engine, records).history)
         last = pool.event_seq
     elif records:
         last = restore_tasks(pool, records, pool.now)
@@ -115,5 +119,6 @@ def journal_tasks(engine: Engine) -> bool:
 
     run.executor.sink = sink
     assert engine.config.lifelong is not None
-    run.after_adopt = partial(compact_shift, engine, engine.config.lifelong.snapshot_segments)
+    run.after_adopt = partial(compact_shift, engine, history,
+                              engine.config.lifelong.snapshot_segments)
     return bool(records)

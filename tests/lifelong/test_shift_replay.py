@@ -34,14 +34,16 @@ from pydantic import TypeAdapter
 from bench.lifelong import journaled_shift
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.shift_state import snapshot_shift
-from gateway.execution.tasks import NewTask, TaskError
+from gateway.execution.shift_state import HistoryLog, snapshot_shift
+from gateway.execution.tasks import KEEP, NewTask, TaskError
 from gateway.runtime.journal import (
     Journal,
     JournalError,
     JournalRecord,
+    ShiftHistoryRecord,
     ShiftRecord,
     ShiftSnapshotRecord,
+    TimeRecord,
 )
 from gateway.server.shift_journal import JournaledLifelong, replay_shift
 from gateway.server.task_journal import TaskJournal
@@ -128,18 +130,24 @@ def _api(rng: random.Random, rate: float) -> Callable[[LifelongExecutor, float],
 
 @settings(max_examples=6, deadline=None)
 @given(seed=st.integers(0, 10_000), lookahead=st.integers(0, 2),
-       latency=st.floats(0.0, 2000.0), turning=st.booleans(), rate=st.floats(0.0, 0.05))
+       latency=st.floats(0.0, 2000.0), turning=st.booleans(), rate=st.floats(0.0, 0.05),
+       keep=st.sampled_from([60, KEEP]))
 def test_replaying_the_journal_rebuilds_the_shift_field_by_field(
-        seed: int, lookahead: int, latency: float, turning: bool, rate: float) -> None:
+        seed: int, lookahead: int, latency: float, turning: bool, rate: float,
+        keep: int) -> None:
     rng = random.Random(seed)
+    history = HistoryLog()
+    chunks: list[JournalRecord] = []  # the task history a compacted journal would hold
     with tempfile.TemporaryDirectory() as tmp:
         journal = Journal(Path(tmp) / "journal.sqlite")
         checkpoints: list[tuple[int, Any]] = []
-        snapshots: list[tuple[int, ShiftSnapshotRecord]] = []
+        snapshots: list[tuple[int, list[JournalRecord]]] = []
         made: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
         flush: list[Callable[[], None]] = []
 
         def executor(*args: Any, **kw: Any) -> LifelongExecutor:
+            pool = args[3]  # ``keep`` 60: the pool drops tasks, events and keys as it goes
+            pool.keep, pool.events = keep, deque(pool.events, maxlen=keep)
             made.append((copy.deepcopy(args), {**kw, "record": None}))  # a fresh pool too
             ex = _Shift(*args, **kw)
             tasks = TaskJournal(ex.pool, journal)
@@ -150,10 +158,13 @@ def test_replaying_the_journal_rebuilds_the_shift_field_by_field(
                 if rng.random() < 0.01:  # the state before this input: what is committed
                     journal.commit()
                     checkpoints.append((journal.count(), shift_state(ex)))
-                    snapshots.append((journal.count(), _ADAPTER.validate_json(
-                        ShiftSnapshotRecord(shift=_START, speed=1.0, threshold_ms=0.0,
-                                            replan_marks=[], trace_lines=0,
-                                            state=snapshot_shift(ex)).model_dump_json())))
+                    chunk, drop = history.next(ex.pool)
+                    del chunks[:drop]
+                    if chunk is not None:
+                        chunks.append(_json(ShiftHistoryRecord(history=chunk)))
+                    snapshots.append((journal.count(), [*chunks, _json(ShiftSnapshotRecord(
+                        shift=_START, speed=1.0, threshold_ms=0.0, replan_marks=[],
+                        trace_lines=0, state=snapshot_shift(ex)))]))
                 journal.append(rec)
 
             ex.sink = sink
@@ -177,10 +188,20 @@ def test_replaying_the_journal_rebuilds_the_shift_field_by_field(
         return shift_state(fresh)
 
     for n, want in [*checkpoints, (len(records), end)]:
-        _equal(replayed(records[:n]), want, n)
-    for (n, snap), (_, want) in zip(snapshots, checkpoints, strict=True):
-        _equal(replayed([snap]), want, ("restored", n))
-        _equal(replayed([snap, *records[n:]]), end, ("restored and replayed", n))
+        if keep == KEEP:  # see below
+            _equal(replayed(records[:n]), want, n)
+    for (n, compacted), (_, want) in zip(snapshots, checkpoints, strict=True):
+        _equal(replayed(compacted), want, ("restored", n))
+        # a pool that dropped tasks, events and keys (``keep`` 60) is restored exactly from
+        # its snapshot and history, but replaying task records after such drops is not
+        # exact yet (the backlog's heap order can differ): records are compared at ``KEEP``
+        if keep == KEEP:
+            _equal(replayed([*compacted, *records[n:]]), end, ("restored and replayed", n))
+
+
+def _json(rec: JournalRecord) -> JournalRecord:
+    """``rec`` written to JSON and read back, as the journal does."""
+    return _ADAPTER.validate_json(rec.model_dump_json())
 
 
 def _equal(got: Any, want: Any, where: Any) -> None:
@@ -205,7 +226,10 @@ def test_a_compacted_journal_stays_bounded_over_a_long_shift_and_resumes_exactly
     full.close()
     assert shift.live.segments >= 100
     assert len(shift.before_compaction) >= shift.live.segments // 5 - 1  # one per 5 segments
-    assert isinstance(records[0], ShiftSnapshotRecord)
+    kinds = [r.kind for r in records]
+    chunks = kinds.count("shift_history")  # the task history, a chunk per compaction at most
+    assert kinds[:chunks + 1] == ["shift_history"] * chunks + ["shift_snapshot"]
+    assert 0 < chunks <= len(shift.before_compaction)
     # bounded: about five seconds of records (~150) whenever it is looked at, against
     # the 3,000+ the uncompacted journal holds at the end
     assert max(shift.before_compaction) * 10 < written
@@ -230,27 +254,32 @@ class _KilledAtCommit:
             os.kill(os.getpid(), signal.SIGKILL)
         return self.db.execute(sql, *args)
 
+    def executemany(self, sql: str, rows: Any) -> sqlite3.Cursor:
+        """Run ``sql`` for each of ``rows``."""
+        return self.db.executemany(sql, rows)
+
 
 def _crash_at_compaction(path: Path, where: str, out: Path) -> None:
     """A child process: a journaled shift killed (SIGKILL) at its third compaction, ``where``
     is ``before`` the snapshot's transaction (its records committed), ``inside`` it (records
     deleted and the snapshot written, not committed) or ``after`` its commit. The snapshot
     it was writing goes to ``out`` first."""
-    compact, seen = Journal.compact, []
+    compact, seen = Journal.compact_shift, []
 
-    def crashing(journal: Journal, snapshot: Any) -> None:
+    def crashing(journal: Journal, snapshot: ShiftSnapshotRecord,
+                 history: ShiftHistoryRecord | None, drop: int) -> None:
         seen.append(snapshot)
         if len(seen) < 3:
-            compact(journal, snapshot)
+            compact(journal, snapshot, history, drop)
             return
         out.write_text(snapshot.model_dump_json())
         if where == "inside":
             journal._db = _KilledAtCommit(journal._db)  # type: ignore[assignment]
         if where != "before":
-            compact(journal, snapshot)
+            compact(journal, snapshot, history, drop)
         os.kill(os.getpid(), signal.SIGKILL)
 
-    Journal.compact = crashing  # type: ignore[method-assign]
+    Journal.compact_shift = crashing  # type: ignore[method-assign]
     journaled_shift(_PROBLEM, 5, 60.0, [(Journal(path), 3)], each=_api(random.Random(5), 0.02))
 
 
@@ -273,10 +302,14 @@ def test_a_crash_at_a_compaction_replays_to_the_shift_it_killed(tmp_path: Path,
     records = list(journal.records())
     journal.close()
     kinds = [r.kind for r in records]
-    # two compactions happened before: the journal starts with the second one's snapshot
-    # and its records, or (after the commit) is the killed one's snapshot alone
-    assert (kinds[0] == "shift_snapshot" and len(records) > 1) or where == "after"
-    assert (records == [killed]) == (where == "after")
+    # two compactions happened before: the journal holds the task history's chunks, then
+    # the second one's snapshot and the records after it, or (after the commit) the chunks
+    # and the killed one's snapshot
+    chunks = kinds.count("shift_history")
+    assert chunks >= 2 and kinds[:chunks] == ["shift_history"] * chunks
+    assert kinds[chunks] == "shift_snapshot"
+    assert (records[chunks:] == [killed]) == (where == "after")
+    assert (len(records) > chunks + 1) == (where != "after")
     configured = journaled_shift(_PROBLEM, 5, 1.0, [(Journal(tmp_path / "j2.sqlite"), 0)])
     fresh = configured.fresh()
     replay_shift(records, fresh, on_commands=lambda cs: None, on_report=lambda rec: None,
@@ -297,3 +330,27 @@ def test_a_snapshot_that_does_not_fit_is_a_one_line_journal_error(tmp_path: Path
         with pytest.raises(JournalError, match=says):
             replay_shift([bad], shift.fresh(), on_commands=lambda cs: None,
                          on_report=lambda rec: None, on_start=lambda rec: None)
+
+
+def test_a_shift_compaction_keeps_the_task_history_chunks_still_needed(tmp_path: Path) -> None:
+    """One transaction replaces every record but the task history's chunks by the snapshot,
+    drops the oldest chunks the pool no longer needs and writes the new chunk before the
+    snapshot; a compaction with nothing new keeps the chunks as they are."""
+    shift = journaled_shift(_PROBLEM, 5, 3.0, [(Journal(tmp_path / "j.sqlite"), 0)])
+    chunk = HistoryLog().next(shift.live.pool)[0]
+    assert chunk is not None
+    snap = ShiftSnapshotRecord(shift=_START, speed=1.0, threshold_ms=0.0, replan_marks=[],
+                               trace_lines=0, state=snapshot_shift(shift.live))
+    first, second = (ShiftHistoryRecord(history=dataclasses.replace(chunk, keys=[(k, [], [])]))
+                     for k in ("first", "second"))
+    journal = Journal(tmp_path / "journal.sqlite")
+    tick = TimeRecord(kind="tick", t_ms=1.0)
+    steps: list[tuple[ShiftHistoryRecord | None, int, list[JournalRecord]]] = [
+        (first, 0, [first, snap]), (second, 0, [first, second, snap]),
+        (None, 1, [second, snap]), (None, 0, [second, snap])]
+    for new, drop, want in steps:
+        journal.append(tick)
+        journal.commit()
+        journal.compact_shift(snap, new, drop)
+        assert list(journal.records()) == want
+    journal.close()

@@ -1,7 +1,8 @@
 """The lifelong gateway's planning schedule and its warm-up: planning calls keep their period
 (a call made late does not push the later ones back), the distance tables of submitted tasks
 are computed in the planner process before anyone asks for them (the same tables as computed
-in place), and the planner process starts without the gateway waiting for it."""
+in place), and a planner process started without waiting for it (a restarting gateway
+replays its journal meanwhile) answers and survives a kill."""
 
 from __future__ import annotations
 

@@ -46,6 +46,7 @@ def test_a_killed_planner_process_costs_one_error_line_and_the_shift_goes_on(
             assert run is not None
             first = out["first"] = run.planner.pid
             assert first is not None and first != os.getpid()
+            assert "gateway.server.planner_process" in _cmdline(first)
             port = await gw.listen()
             grid = run.shift.grid
             free = [grid.cell(c) for c in range(grid.size) if grid.free.ravel()[c]]
@@ -61,9 +62,6 @@ def test_a_killed_planner_process_costs_one_error_line_and_the_shift_goes_on(
             ex = run.executor
             while ex.segments < 5:
                 await asyncio.sleep(0.02)
-            # read once it answered (the gateway does not wait for it to start: just after
-            # the exec the kernel shows no command line yet)
-            assert "gateway.server.planner_process" in _cmdline(first)
             os.kill(first, signal.SIGKILL)
             before = ex.segments
             while run.planner.starts < 2 or ex.segments < before + 10:
