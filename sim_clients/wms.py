@@ -30,6 +30,10 @@ class WmsError(RuntimeError):
     """The gateway refused a request (the message has its status and error line)."""
 
 
+class ShiftEnded(WmsError):
+    """The gateway's shift has ended: it takes no more tasks (409), so the WMS stops."""
+
+
 @dataclass
 class WmsStats:
     """What the WMS did: submissions, ends seen, POST round trips, the tightest lead."""
@@ -140,6 +144,8 @@ class Wms:
                     raise WmsError(f"POST /tasks failed 3 times: {exc!r}") from None
                 self.stats.retries += 1
                 continue
+            if status == 409 and str(answer.get("error")).startswith("the shift has ended"):
+                raise ShiftEnded(f"POST /tasks: {status} {answer}")
             if status not in (200, 201):
                 raise WmsError(f"POST /tasks: {status} {answer}")
             self.stats.post_ms.append((time.perf_counter() - t0) * 1000.0)
@@ -151,11 +157,11 @@ class Wms:
 
     async def run(self) -> None:
         """Fill, then follow the event stream: each time tasks end, top up. Returns when the
-        gateway is gone (its stream closed and a new one is refused)."""
-        await self.fill()
+        gateway is gone (its stream closed and a new one is refused) or its shift ended."""
         after = 0
         while True:
             try:
+                await self.fill()
                 async for kind, data in events(self.port, self.token, after, self.host):
                     if kind == "reset":
                         raise WmsError("the task event stream dropped events (the WMS fell "
@@ -170,5 +176,5 @@ class Wms:
                         self.stats.min_lead = lead if self.stats.min_lead is None \
                             else min(self.stats.min_lead, lead)
                         await self.fill()
-            except OSError:
+            except (OSError, ShiftEnded):
                 return

@@ -84,9 +84,10 @@ class LifelongSettings(BaseModel):
     """A LoRR problem (JSON: map, robots' starts, task list); None: ``map``, else a generated
     warehouse."""
     map: str | None = None
-    """A MovingAI map (a name or a ``.map`` path, as the one-plan ``map``) instead of the
-    generated warehouse: ``robots`` start on free cells drawn with ``seed``; its task list
-    (``task_list``) is four two-errand tasks per robot between free cells."""
+    """A MovingAI map (a name or a ``.map`` path; a ``map`` at the top level is taken as this
+    one) instead of the generated warehouse: ``robots`` start on free cells drawn with
+    ``seed``; its task list (``task_list``) is four two-errand tasks per robot between free
+    cells."""
     robots: int = Field(default=20, ge=1)
     """Robots of the generated warehouse or of ``map`` (a problem brings its own)."""
     warehouse: tuple[int, int] = (4, 6)
@@ -219,6 +220,14 @@ class GatewayConfig(BaseSettings):
     """Append logs here instead of writing them on stderr."""
 
     @property
+    def shift_map(self) -> str | None:
+        """The map of a lifelong shift: ``lifelong.map``, else a ``map`` given at the top level
+        (None: the problem's, or the generated warehouse)."""
+        if self.lifelong is None or self.lifelong.map is not None:
+            return None if self.lifelong is None else self.lifelong.map
+        return self.map if "map" in self.model_fields_set else None
+
+    @property
     def loopback(self) -> bool:
         """True if the gateway listens on a loopback address only."""
         return _is_loopback(self.host)
@@ -243,10 +252,13 @@ class GatewayConfig(BaseSettings):
 
     @model_validator(mode="after")
     def _map_needs_agents(self) -> GatewayConfig:
-        if self.lifelong is not None:  # the shift has its own map
-            if "map" in self.model_fields_set and self.map is not None:
-                raise ValueError(f"map = {self.map!r} is the one-plan mode's: in lifelong mode "
-                                 "set lifelong.map (or lifelong.problem)")
+        s = self.lifelong
+        if s is not None:  # a map given at the top level is the shift's (shift_map)
+            if "map" in self.model_fields_set and self.map is not None and (
+                    s.map is not None or s.problem is not None):
+                other = "map" if s.map is not None else "problem"
+                raise ValueError(f"map = {self.map!r} and lifelong.{other} both give the "
+                                 "shift's map: keep one")
             return self
         if "map" in self.model_fields_set and self.map is not None and self.instance is None \
                 and self.scen is None and self.agents is None:

@@ -87,9 +87,9 @@ def shift_from(config: GatewayConfig) -> Shift:
     assert s is not None
     if s.problem is not None:
         prob = read_problem(s.problem)
-    elif s.map is not None:
+    elif config.shift_map is not None:
         try:
-            prob = random_problem(read_map(resolve(s.map, "map")), s.robots, s.seed)
+            prob = random_problem(read_map(resolve(config.shift_map, "map")), s.robots, s.seed)
         except (MapNotFound, OSError) as exc:
             raise ValueError(f"lifelong.map: {exc}") from None
     else:

@@ -41,7 +41,8 @@ def _json(model: type[BaseModel], description: str) -> dict[str, Any]:
 def _errors(*codes: int) -> dict[str, Any]:
     """The refusals an operation names, each and any other (``default``) an ApiError."""
     words = {400: "malformed request", 401: "no credentials", 403: "refused credentials",
-             404: "no such task", 409: "conflict with the task's state or an idempotency key",
+             404: "no such task", 409: "conflict with the task's state, an idempotency key, or a "
+                                     "shift that has ended",
              413: "body too large", 414: "query too long", 415: "body not JSON",
              422: "not a free cell of the map",
              503: "not in lifelong mode, or too many event streams"}
@@ -118,7 +119,8 @@ def _paths() -> dict[str, Any]:
                 "description": "Each event is `event: task`, `id: <seq>` and `data:` a "
                                "TaskEventView. Resume with the Last-Event-ID header (or "
                                "?after=seq); an `event: reset` says events were dropped "
-                               "meanwhile: read GET /tasks again.",
+                               "meanwhile, or the id is one this gateway never gave (another "
+                               "shift's): read GET /tasks again.",
                 "operationId": "taskEvents",
                 "parameters": [
                     {"name": "Last-Event-ID", "in": "header", "required": False,

@@ -13,7 +13,8 @@ Routes (models: :mod:`gateway.server.task_models`; the document: ``GET /openapi.
   while paused) and lets it go again;
 * ``GET /tasks/events``: server-sent events, one per change of a task (``id`` is its sequence
   number); ``Last-Event-ID`` (or ``?after=``) resumes after a reconnect; a ``reset`` event
-  says events were dropped meanwhile (re-read ``GET /tasks``).
+  says events were dropped meanwhile, or the id is one this gateway never gave (another
+  shift's): re-read ``GET /tasks``.
 
 Changes run in the engine's owner task (an :class:`~gateway.server.items.OwnerCall`: the single
 writer), are journaled there (:mod:`gateway.server.task_journal`) and are answered only after
@@ -32,6 +33,7 @@ from urllib.parse import parse_qs
 
 from pydantic import ValidationError
 
+from gateway.execution.lifelong import LifelongMode
 from gateway.execution.tasks import (
     TASK_STATES,
     NewTask,
@@ -77,6 +79,11 @@ def _first_error(exc: ValidationError) -> str:
     return f"{where}: {err['msg']}" if where else str(err["msg"])
 
 
+def _reset(first: int) -> bytes:
+    """The ``reset`` event: the stream goes on with event ``first``; re-read the tasks."""
+    return f"event: reset\ndata: {json.dumps({'first': first})}\n\n".encode()
+
+
 class TaskApi:
     """Answers the task API's requests for one gateway (see the module doc)."""
 
@@ -97,6 +104,9 @@ class TaskApi:
         if pool is None:
             raise HttpError(503, "no task pool: the gateway is not in lifelong mode")
         grid = self._grid()
+        if req.method == "POST" and (req.path == "/tasks" or req.path.endswith("/resume")) \
+                and self._ended():
+            raise HttpError(409, "the shift has ended: no new task would run")
         if req.path == "/tasks":
             if req.method == "POST":
                 return await self._submit(req, grid)
@@ -136,6 +146,12 @@ class TaskApi:
         run = self._engine.lifelong
         assert run is not None
         return run.shift.grid
+
+    def _ended(self) -> bool:
+        """Whether the shift is stopping or over (robots take no new task)."""
+        run = self._engine.lifelong
+        assert run is not None
+        return run.executor.mode in (LifelongMode.STOPPING, LifelongMode.DONE)
 
     def _authorize(self, req: ApiRequest) -> None:
         """An operator's token, or the GUI's login (same origin for changes); HttpError."""
@@ -326,10 +342,12 @@ class TaskApi:
                 pool = self._engine.tasks
                 if pool is None:
                     return
+                if after > pool.event_seq:  # an id this gateway never gave (another shift's)
+                    yield _reset(pool.event_seq + 1)
+                    after = pool.event_seq
                 events, complete = pool.events_after(after)
                 if not complete:
-                    first = events[0].seq if events else pool.event_seq + 1
-                    yield f"event: reset\ndata: {json.dumps({'first': first})}\n\n".encode()
+                    yield _reset(events[0].seq if events else pool.event_seq + 1)
                 if events:
                     idle = 0.0
                     chunk = "".join(

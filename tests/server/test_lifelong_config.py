@@ -31,6 +31,10 @@ def test_the_example_configures_every_key_of_a_shift() -> None:
     for name in ("horizon", "window"):  # the horizon's two names
         other = load_config(None, lifelong={name: 5}).lifelong
         assert other is not None and other.window == 5
+    top = load_config(None, map="warehouse-small", lifelong={"robots": 3})
+    assert top.shift_map == "warehouse-small"  # a top-level map is the shift's
+    assert shift_from(top).grid.width == read_map(resolve("warehouse-small", "map")).width
+    assert load_config(None, lifelong={"robots": 3}).shift_map is None  # not the default lab
     shift = shift_from(cfg)
     grid = read_map(resolve("warehouse-small", "map"))
     assert (shift.grid.width, shift.grid.height) == (grid.width, grid.height)
@@ -50,8 +54,10 @@ def test_the_example_configures_every_key_of_a_shift() -> None:
                                       "name), not both"),
     ({"map": "warehouse-small", "problem": "p.json"}, {},
      "lifelong: give lifelong.problem (its own map) or lifelong.map, not both"),
-    ({}, {"map": "lab"}, "map = 'lab' is the one-plan mode's: in lifelong mode set "
-                         "lifelong.map (or lifelong.problem)"),
+    ({"map": "lab"}, {"map": "lab"}, "map = 'lab' and lifelong.map both give the shift's "
+                                     "map: keep one"),
+    ({"problem": "p.json"}, {"map": "lab"}, "map = 'lab' and lifelong.problem both give the "
+                                            "shift's map: keep one"),
 ])
 def test_a_bad_shift_configuration_is_one_precise_line(
         lifelong: dict[str, object], top: dict[str, object], message: str) -> None:

@@ -255,6 +255,8 @@ def test_tasks_finish_once_and_the_stream_tells_every_change(tmp_path: Path) -> 
                         break
             out["stats"] = await stop_shift(gw, fleet)
             await fleet.stop()
+            # the shift is over: a new task would never run, so none is taken
+            out["late"] = await call(port, "POST", "/tasks", {"tasks": tasks[:1]})
             out.update(events=events, resumed=resumed, cut=cut, ids=ids,
                        refused=refused_started)
 
@@ -277,6 +279,8 @@ def test_tasks_finish_once_and_the_stream_tells_every_change(tmp_path: Path) -> 
             assert s in allowed[prev], (task, states)
             prev = s
     assert "is started" in out["refused"] and "cannot be cancelled" in out["refused"]
+    assert (out["late"].status, out["late"].json()) == (
+        409, {"error": "the shift has ended: no new task would run"})
     stats = out["stats"]
     assert stats.finished_tasks == len(ids)
     assert stats.lost == 0 and stats.duplicated == 0 and stats.collisions == 0

@@ -425,3 +425,24 @@ def test_a_bad_transfer_coding_is_refused_precisely(served: Served, coding: str,
                                      .encode() + body])
     assert answer.startswith(f"HTTP/1.1 {status} ".encode()), answer[:200]
     assert json.loads(answer.split(b"\r\n\r\n", 1)[1]) == {"error": error}
+
+
+def test_an_event_id_the_gateway_never_gave_resets_the_stream(served: Served) -> None:
+    """A WMS that kept a Last-Event-ID from another shift (a fresh journal) is told to re-read
+    the tasks, then gets the events from now on: none is skipped silently."""
+    async def main() -> tuple[list[Sse], int]:
+        last = (await call(served.port, "GET", "/tasks?limit=1", headers=AUTH)).json()
+        got: list[Sse] = []
+        async with asyncio.timeout(30):
+            async for ev in sse(served.port, headers={**AUTH, "Last-Event-ID": "999999999"}):
+                got.append(ev)
+                if len(got) == 1:
+                    assert (await call(served.port, "POST", "/tasks", {"errands": [FREE[4]]},
+                                       AUTH)).status == 201
+                else:
+                    break
+        return got, last["last_event"]
+
+    (reset, first), last = asyncio.run(main())
+    assert (reset.event, reset.data) == ("reset", {"first": last + 1})
+    assert first.event == "task" and first.id == last + 1 and first.data["state"] == "queued"
