@@ -41,6 +41,17 @@ async def start_shift(gateway: Gateway, fleet: SimFleet, timeout_s: float = 60.0
         await asyncio.sleep(0.01)
 
 
+async def run_shift(gateway: Gateway, fleet: SimFleet, plan_ms: float) -> ShiftStats:
+    """Start the shift (:func:`start_shift`), let it run until ``plan_ms`` of plan time, end
+    it (:func:`stop_shift`) and stop the fleet; what the run did."""
+    await start_shift(gateway, fleet)
+    while gateway.engine.now_ms() < plan_ms:
+        await asyncio.sleep(0.05)
+    stats = await stop_shift(gateway, fleet)
+    await fleet.stop()
+    return stats
+
+
 async def stop_shift(gateway: Gateway, fleet: SimFleet, timeout_s: float = 60.0
                      ) -> ShiftStats:
     """End the shift (robots finish what they were dispatched), then count, from both ends,

@@ -11,7 +11,7 @@ from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
-from sim_clients.shift import ShiftStats, start_shift, stop_shift
+from sim_clients.shift import ShiftStats, run_shift
 from tracecheck import check_trace, read_trace
 
 ROBOTS = 10
@@ -29,12 +29,8 @@ def _shift(tmp_path: Path, plan_ms: float, **lifelong: Any) -> tuple[ShiftStats,
             port = await gw.listen()
             fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(ROBOTS),
                              clock=gw.clock, send_state=False, duration_jitter=0.2)
-            await start_shift(gw, fleet)
-            while gw.engine.now_ms() < plan_ms:
-                await asyncio.sleep(0.05)
-            out["stats"] = await stop_shift(gw, fleet)
+            out["stats"] = await run_shift(gw, fleet, plan_ms)
             out["errors"] = list(fleet.stats.errors)
-            await fleet.stop()
             out["gw"] = gw
 
     asyncio.run(main())

@@ -26,7 +26,7 @@ from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.server.planner_process import PlannerDied, PlannerProcess, Warm
 from sim_clients.fleet import SimFleet
-from sim_clients.shift import start_shift, stop_shift
+from sim_clients.shift import run_shift
 from tests.server.task_client import call
 from tracecheck import check_trace, read_trace
 
@@ -76,11 +76,7 @@ def test_the_gateway_calls_the_planner_at_its_period_off_the_tick_grid(
                                    threshold_ms=None))
         async with Gateway(config, clock=VirtualClock(solver_time=120.0)) as gw:
             fleet = SimFleet(gw.connect, range(6), clock=gw.clock, send_state=False)
-            await start_shift(gw, fleet)
-            while gw.engine.now_ms() < 12_000.0:
-                await asyncio.sleep(0.1)
-            stats = await stop_shift(gw, fleet)
-            await fleet.stop()
+            stats = await run_shift(gw, fleet, 12_000.0)
             assert stats.lost == stats.duplicated == stats.collisions == 0
 
     run_virtual(main())

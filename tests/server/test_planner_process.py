@@ -21,7 +21,7 @@ from gateway.server.gateway import Gateway
 from gateway.server.planner_process import PlannerDied, PlannerProcess
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
-from sim_clients.shift import ShiftStats, start_shift, stop_shift
+from sim_clients.shift import ShiftStats, run_shift, start_shift, stop_shift
 from sim_clients.wms import Wms
 from tracecheck import check_trace, read_trace
 
@@ -139,11 +139,7 @@ def test_under_virtual_time_the_planner_process_is_charged_as_told(
             run = gw.engine.lifelong
             assert run is not None and run.planner.pid is not None
             fleet = SimFleet(gw.connect, range(6), clock=gw.clock, send_state=False)
-            await start_shift(gw, fleet)
-            while gw.engine.now_ms() < 30_000.0:
-                await asyncio.sleep(0.1)
-            stats = await stop_shift(gw, fleet)
-            await fleet.stop()
+            stats = await run_shift(gw, fleet, 30_000.0)
             return list(run.planner_ms), run.executor.segments, stats
 
     charged, segments, stats = run_virtual(main())
