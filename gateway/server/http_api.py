@@ -122,35 +122,42 @@ def _parse_head(head: bytes) -> tuple[str, str, str, Headers]:
     return method, url.path, url.query, headers
 
 
-def _dechunked(data: bytearray) -> bytes | None:
-    """The body a chunked transfer coding at the start of ``data`` carries once it is
-    complete (None: more to come); HttpError if it is malformed or over MAX_BODY_BYTES."""
-    body = bytearray()
-    pos = 0
-    while True:
-        eol = data.find(b"\r\n", pos)
-        if eol < 0:
-            if len(data) - pos > 100:
+class _Dechunker:
+    """Decodes a chunked request body (``Transfer-Encoding: chunked``) as it arrives: each
+    call takes the complete chunks at the start of the buffer out of it, so every byte is
+    parsed once however the client splits its body (parsing the whole buffer again on every
+    read cost a body of one-byte chunks minutes of event-loop CPU)."""
+
+    def __init__(self) -> None:
+        self._body = bytearray()
+
+    def __call__(self, data: bytearray) -> bytes | None:
+        """The body once its last chunk and trailers are in ``data`` (None: more to come);
+        HttpError if it is malformed or over MAX_BODY_BYTES."""
+        while True:
+            eol = data.find(b"\r\n")
+            if eol < 0:
+                if len(data) > 100:
+                    raise HttpError(400, "malformed chunk size line")
+                return None
+            size_field = bytes(data[:eol]).split(b";", 1)[0].strip()
+            if not size_field or len(size_field) > 8 or size_field.strip(HEX_DIGITS):
                 raise HttpError(400, "malformed chunk size line")
-            return None
-        size_field = bytes(data[pos:eol]).split(b";", 1)[0].strip()
-        if not size_field or len(size_field) > 8 or size_field.strip(HEX_DIGITS):
-            raise HttpError(400, "malformed chunk size line")
-        size = int(size_field, 16)
-        if len(body) + size > MAX_BODY_BYTES:
-            raise HttpError(413, f"the body has more than {MAX_BODY_BYTES} bytes")
-        if size == 0:  # the last chunk, then trailers (ignored) up to an empty line
-            end = data.find(b"\r\n\r\n", eol)
-            if end < 0 and len(data) - eol > MAX_HEAD_BYTES:
-                raise HttpError(400, "chunked trailers too long")
-            return None if end < 0 else bytes(body)
-        start = eol + 2
-        if len(data) < start + size + 2:
-            return None
-        if data[start + size:start + size + 2] != b"\r\n":
-            raise HttpError(400, "a chunk does not end with CRLF")
-        body += data[start:start + size]
-        pos = start + size + 2
+            size = int(size_field, 16)
+            if len(self._body) + size > MAX_BODY_BYTES:
+                raise HttpError(413, f"the body has more than {MAX_BODY_BYTES} bytes")
+            if size == 0:  # the last chunk, then trailers (ignored) up to an empty line
+                end = data.find(b"\r\n\r\n", eol)
+                if end < 0 and len(data) - eol > MAX_HEAD_BYTES:
+                    raise HttpError(400, "chunked trailers too long")
+                return None if end < 0 else bytes(self._body)
+            start = eol + 2
+            if len(data) < start + size + 2:
+                return None
+            if data[start + size:start + size + 2] != b"\r\n":
+                raise HttpError(400, "a chunk does not end with CRLF")
+            self._body += data[start:start + size]
+            del data[:start + size + 2]
 
 
 def _continue_expected(headers: Headers) -> bool:
@@ -204,6 +211,7 @@ class RoutingConnection(ServerConnection):
         self._mode = "sniff"
         self._buffer = bytearray()
         self._body_needed = -1
+        self._dechunk = _Dechunker()
         self._head: tuple[str, str, str, Headers] | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._task: asyncio.Task[None] | None = None
@@ -296,7 +304,7 @@ class RoutingConnection(ServerConnection):
     def _body(self) -> bytes | None:
         """The request's body once it is all there (None: more to come); HttpError."""
         if self._body_needed == CHUNKED:
-            return _dechunked(self._buffer)
+            return self._dechunk(self._buffer)
         return bytes(self._buffer[:self._body_needed]) \
             if len(self._buffer) >= self._body_needed else None
 

@@ -34,6 +34,7 @@ from openapi_spec_validator import validate as validate_spec
 
 from bench.crash import GatewayProcess, free_port
 from gateway.planning.lorr import warehouse_problem
+from gateway.server.http_api import _Dechunker
 from gateway.web import __file__ as web_init
 from tests.server.task_client import Reply, Sse, call, sse
 
@@ -408,6 +409,19 @@ def test_a_chunked_body_is_read_as_a_whole(served: Served, cuts: list[int], spli
     made = json.loads(answer.split(b"\r\n\r\n", 1)[1])["tasks"]
     assert [(t["errands"], t["priority"]) for t in made] == [([FREE[11], FREE[12]], 2)]
     served.errands[made[0]["id"]] = made[0]["errands"]
+
+
+def test_a_body_of_tiny_chunks_is_parsed_once_as_it_arrives() -> None:
+    """A stranger's body of 50,000 one-byte chunks trickled in small reads: each read takes
+    the complete chunks out of the buffer (what is left is at most the read and one chunk),
+    so no byte is parsed twice (parsing the whole buffer on every read was quadratic)."""
+    wire = b"1\r\nX\r\n" * 50_000 + b"0\r\n\r\n"
+    buffer, dechunk, body = bytearray(), _Dechunker(), None
+    for i in range(0, len(wire), 100):
+        buffer += wire[i:i + 100]
+        body = dechunk(buffer)
+        assert len(buffer) < 100 + 6, (i, len(buffer))
+    assert body == b"X" * 50_000
 
 
 @pytest.mark.parametrize(("coding", "body", "status", "error"), [
