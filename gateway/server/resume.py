@@ -60,6 +60,11 @@ class JournaledReports:
     applies it."""
 
     sink: Sink | None = None
+    _record: Callable[[Record], None] | None
+
+    def set_record(self, record: Callable[[Record], None] | None) -> None:
+        """Where trace records go from now on (a resumed run's trace)."""
+        self._record = record
 
     def _report(self, event: ExecutorEvent, robot: int, plan: int, action: int,
                 now_ms: float, reason: str = "") -> None:
@@ -146,10 +151,6 @@ class JournaledExecutor(JournaledReports, Executor):
     def __init__(self, plan: Plan, *, sink: Sink | None = None, **kwargs: Any) -> None:
         super().__init__(plan, **kwargs)
         self.sink = sink
-
-    def set_record(self, record: Callable[[Record], None] | None) -> None:
-        """Where trace records go from now on (a resumed run's trace)."""
-        self._record = record
 
     def _log(self, record: Any) -> None:
         if self.sink is not None:

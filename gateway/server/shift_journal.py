@@ -52,7 +52,6 @@ from gateway.execution.shift_state import (
     snapshot_shift,
 )
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
-from gateway.execution.trace_records import Record
 from gateway.runtime.journal import (
     ExecutorEvent,
     Journal,
@@ -79,10 +78,6 @@ log = logging.getLogger("fleetgate.lifelong")
 class JournaledLifelong(JournaledReports, LifelongExecutor):
     """A :class:`LifelongExecutor` that hands every input to :attr:`sink` before applying it
     (None: not journaled, e.g. while it is being replayed)."""
-
-    def set_record(self, record: Callable[[Record], None] | None) -> None:
-        """Where trace records go from now on."""
-        self._record = record
 
     def stop(self, now_ms: float) -> None:
         self._time("stop", now_ms)
