@@ -97,7 +97,9 @@ def test_the_units_command_serves_tls_and_runs_a_fleet(tmp_path: Path) -> None:
         assert port, "the gateway did not start"
         assert _https(port, "/readyz", tls / "ca.pem") == (200, {"ready": True})
         status, health = _https(port, "/healthz", tls / "ca.pem")
-        assert status == 200 and health["gateway"] == "loaded"
+        # ready to serve; its configured instance is being planned or is loaded (under load
+        # the plan can still be running when the probe answers)
+        assert status == 200 and health["gateway"] in ("planning", "loaded")
         # robot 0's token with robot 1's certificate: refused at the handshake
         context = ssl.create_default_context(cafile=str(tls / "ca.pem"))
         context.load_cert_chain(tls / "robot-1.pem", tls / "robot-1.key")
