@@ -33,7 +33,6 @@ from pydantic_settings import (
 from gateway.execution.params import PAPER
 from gateway.execution.policies import PolicyName
 
-
 PLACEHOLDER = "CHANGE-ME"
 """What the example configs' tokens contain: refused on a non-loopback host."""
 
