@@ -187,7 +187,7 @@ class BatteryState(VdaModel):
 
 
 class ErrorReference(VdaModel):
-    """What an error refers to, e.g. ``orderId`` or ``actionId`` and its value."""
+    """What an error or information entry refers to, e.g. ``orderId`` and its value."""
 
     reference_key: str
     reference_value: str
@@ -203,19 +203,12 @@ class VdaError(VdaModel):
     error_hint: str | None = None
 
 
-class InfoReference(VdaModel):
-    """What an information entry refers to."""
-
-    reference_key: str
-    reference_value: str
-
-
 class Info(VdaModel):
     """Information for visualisation or debugging (never for logic)."""
 
     info_type: str
     info_level: Literal["DEBUG", "INFO"]
-    info_references: list[InfoReference] | None = None
+    info_references: list[ErrorReference] | None = None
     info_description: str | None = None
 
 
