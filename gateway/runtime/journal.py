@@ -309,6 +309,9 @@ robots are given actions from. A transaction with any of them syncs the records 
 Reports and ticks are committed with ``NORMAL`` (a power cut may lose the last of them: the
 robots' ``hello`` carries what they reported again)."""
 
+_CREATE_RECORDS = ("CREATE TABLE records (seq INTEGER PRIMARY KEY, kind TEXT NOT NULL, "
+                   "body TEXT NOT NULL, chain TEXT NOT NULL)")
+
 GENESIS = ""
 """The chain value before a journal's first record."""
 
@@ -436,8 +439,7 @@ class Journal:
             self._db.execute("PRAGMA wal_autocheckpoint=0")  # the checkpointer's job
             page = int(self._db.execute("PRAGMA page_size").fetchone()[0])
             self._db.execute(f"PRAGMA journal_size_limit={wal_bound_pages * page}")
-            self._db.execute("CREATE TABLE IF NOT EXISTS records (seq INTEGER PRIMARY KEY, "
-                             "kind TEXT NOT NULL, body TEXT NOT NULL, chain TEXT NOT NULL)")
+            self._db.execute(_CREATE_RECORDS.replace("TABLE", "TABLE IF NOT EXISTS"))
             self._db.execute("CREATE TABLE IF NOT EXISTS meta ("
                              "key TEXT PRIMARY KEY, value TEXT NOT NULL)")
             columns = [row[1] for row in self._db.execute("PRAGMA table_info(records)")]
@@ -591,29 +593,13 @@ class Journal:
     def discard(self) -> None:
         """Forget the journaled run and its configuration (starting fresh on purpose); a
         journal of an earlier format is made anew. Synced before it returns."""
-        self._check_writable()
-        db = self._db
-        try:
-            db.execute("PRAGMA synchronous=FULL")
-            db.execute("BEGIN")
-            if self._legacy:
-                db.execute("DROP TABLE records")
-                db.execute("CREATE TABLE records (seq INTEGER PRIMARY KEY, kind TEXT NOT NULL,"
-                           " body TEXT NOT NULL, chain TEXT NOT NULL)")
-            else:
-                db.execute("DELETE FROM records")
-            db.execute("DELETE FROM meta")
-            db.execute("COMMIT")
-            db.execute("PRAGMA synchronous=NORMAL")
-        except sqlite3.Error as exc:
-            with contextlib.suppress(sqlite3.Error):
-                db.execute("ROLLBACK")
-            self.failed = str(exc)
-            raise JournalWriteError(f"cannot write the journal {self.path}: {exc}") from None
+        fresh = [("DROP TABLE records", ()), (_CREATE_RECORDS, ())] if self._legacy \
+            else [("DELETE FROM records", ())]
+        self._write([*fresh, ("DELETE FROM meta", ())], [], GENESIS, full=True)
         self._legacy = False
-        self._buffer, self._durable, self._chain = [], False, GENESIS
+        self._buffer, self._durable = [], False
         with contextlib.suppress(sqlite3.Error):
-            db.execute("PRAGMA incremental_vacuum")
+            self._db.execute("PRAGMA incremental_vacuum")
 
     @property
     def legacy(self) -> bool:

@@ -197,6 +197,10 @@ class Gateway:
         """A start that failed: end the planner process, close the journal, release it."""
         if self.engine.lifelong is not None:
             self.engine.lifelong.cancel()
+        self._close_journal()
+
+    def _close_journal(self) -> None:
+        """Close the journal (committing what is buffered) and give its lock up."""
         if self.engine.journal is not None:
             self.engine.journal.close()
             self.engine.journal = None
@@ -222,12 +226,7 @@ class Gateway:
                 await self._owner
             self._owner = None
         await self.engine.aclose()
-        if self.engine.journal is not None:
-            self.engine.journal.close()
-            self.engine.journal = None
-        if self._lock is not None:
-            self._lock.release()
-            self._lock = None
+        self._close_journal()
 
     async def __aenter__(self) -> Gateway:
         await self.start()

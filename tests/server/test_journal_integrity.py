@@ -202,3 +202,17 @@ def test_a_task_record_is_synced_before_its_commit_returns_and_a_tick_is_not(
     ticks = _wal_syncs(tmp_path, "tick")
     assert ticks <= 3
     assert _wal_syncs(tmp_path, "task") >= ticks + 5
+
+
+def test_a_journal_without_checksums_is_refused_and_fresh_makes_it_anew(tmp_path: Path) -> None:
+    path = tmp_path / "j.sqlite"
+    _edit(path, "CREATE TABLE records (seq INTEGER PRIMARY KEY, kind TEXT NOT NULL, "
+                "body TEXT NOT NULL)")
+    _edit(path, """INSERT INTO records (kind, body) VALUES ('tick', '{"kind":"tick","t_ms":1}')""")
+    with pytest.raises(JournalError, match="earlier fleetgate"):
+        open_journal(_config(path), fresh=False)
+    journal, lock = open_journal(_config(path), fresh=True)
+    _ticks(journal, 2)
+    journal.close()
+    lock.release()
+    assert len(list(Journal(path).records())) == 2
