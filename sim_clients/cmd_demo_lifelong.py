@@ -38,9 +38,11 @@ def shift_status(engine: Engine) -> str:
     run = engine.lifelong
     if run is None:
         return f"gateway {engine.status}"
+    from gateway.server.lifelong_run import throughput_per_min
+
     ex = run.executor
     t = engine.now_ms() if ex.mode.value != "new" else 0.0
-    rate = ex.finished_tasks * 60_000.0 / t if t > 0 else 0.0
+    rate = throughput_per_min(ex.finished_tasks, t)  # the GUI's figure too (its snapshot)
     return (f"t {t / 1000:.1f} s | tasks {ex.finished_tasks} ({rate:.1f}/min) | robots "
             f"{engine.connected_robots()}/{run.robots} | queue {len(run.tasks.open)} | "
             f"{engine.status}")

@@ -165,6 +165,13 @@ class LifelongRun:
         return self.executor.n
 
     @property
+    def period_ms(self) -> float:
+        """Plan time between planning calls."""
+        s = self._engine.config.lifelong
+        assert s is not None
+        return s.period_ms
+
+    @property
     def ticking(self) -> bool:
         """Whether the engine must tick the run (started and not done)."""
         return self.executor.mode in (LifelongMode.RUNNING, LifelongMode.STOPPING)

@@ -142,6 +142,14 @@ class TaskApi:
         task = await self._change(lambda p, now: p.cancel(task_id, now))  # DELETE
         return json_answer(200, task_view(task, grid).model_dump(mode="json"))
 
+    def now_ms(self) -> float:
+        """The one clock of the task API: plan ms since the shift started, 0 before it (a
+        task submitted before the start is submitted at 0)."""
+        run = self._engine.lifelong
+        if run is None or run.executor.mode is LifelongMode.NEW:
+            return 0.0
+        return self._engine.now_ms()
+
     def _grid(self) -> Grid:
         run = self._engine.lifelong
         assert run is not None
@@ -193,7 +201,7 @@ class TaskApi:
             try:
                 if pool is None:
                     raise HttpError(503, "the task pool is gone")
-                done.set_result(fn(pool, engine.now_ms()))
+                done.set_result(fn(pool, self.now_ms()))
             except Exception as exc:  # refusals, and bugs (logged by the HTTP layer)
                 done.set_exception(exc)
 
@@ -290,7 +298,7 @@ class TaskApi:
                 more = True
                 break
             page.append(task)
-        answer = TaskList(now_ms=self._engine.now_ms(),
+        answer = TaskList(now_ms=self.now_ms(),
                           tasks=[task_view(t, grid) for t in page],
                           next_after=page[-1].id if more else None, counts=pool.counts(),
                           last_event=pool.event_seq)
