@@ -92,7 +92,7 @@ def plan_key(action_id: str) -> str:
 class _Model(BaseModel):
     """Strict base of every nested structure."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def _require_version(schema: dict[str, Any]) -> None:
@@ -105,7 +105,8 @@ def _require_version(schema: dict[str, Any]) -> None:
 class Envelope(_Model):
     """Fields common to every message; ``v`` and ``type`` must be present on the wire."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_require_version)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False,
+                              json_schema_extra=_require_version)
 
     v: ProtocolVersion = PROTOCOL_VERSION
     msg_id: MsgId
@@ -538,6 +539,13 @@ class Snapshot(Envelope):
     """A lifelong shift: ``paths`` are the robots' committed steps from where they stand."""
     path_offsets: list[int] = Field(default_factory=list)
     """Lifelong: the action number of each path's first step (empty: all 0)."""
+    worlds: int = 0
+    """World connections (a simulator): without one, ``place_intruder`` is refused."""
+    tasks_per_min: float | None = None
+    """Lifelong: tasks finished per minute of the shift's plan time so far (the figure the
+    terminal shows)."""
+    period_ms: float | None = None
+    """Lifelong: plan time between the planner's calls (a window each)."""
 
 
 EventKind = Literal[
