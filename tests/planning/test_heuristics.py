@@ -16,17 +16,18 @@ from tests.planning.test_cbs_low_level import bfs
 grids = arrays(bool, st.tuples(st.integers(1, 9), st.integers(1, 9)), elements=st.booleans())
 
 
-def _grid(free: np.ndarray) -> Grid:
+def _grid(free: np.ndarray) -> tuple[Grid, list[int]]:
+    """The grid (one free cell at least) and its free cells' flat ids."""
     if not free.any():
         free[0, 0] = True
-    return Grid(free)
+    grid = Grid(free)
+    return grid, np.flatnonzero(grid.free.ravel()).tolist()
 
 
 @settings(max_examples=60, deadline=None)
 @given(grids, st.data())
 def test_compact_rows_equal_breadth_first_search(free: np.ndarray, data: st.DataObject) -> None:
-    grid = _grid(free)
-    cells = np.flatnonzero(grid.free.ravel()).tolist()
+    grid, cells = _grid(free)
     goals = data.draw(st.lists(st.sampled_from(cells), min_size=1, max_size=8))
     rows = cell_distance_rows(grid, goals)
     index = free_index(grid)
@@ -40,8 +41,7 @@ def test_compact_rows_equal_breadth_first_search(free: np.ndarray, data: st.Data
 @given(grids, st.data())
 def test_cell_tables_never_exceed_the_turning_cost(free: np.ndarray,
                                                    data: st.DataObject) -> None:
-    grid = _grid(free)
-    cells = np.flatnonzero(grid.free.ravel()).tolist()
+    grid, cells = _grid(free)
     goal = data.draw(st.sampled_from(cells))
     exact = goal_tables(grid, True, [goal])[goal]
     lower = goal_tables(grid, False, [goal])[goal]
@@ -60,12 +60,10 @@ def test_cell_tables_never_exceed_the_turning_cost(free: np.ndarray,
 @given(grids, st.data())
 def test_each_option_is_weighed_by_its_cell_or_state(free: np.ndarray,
                                                      data: st.DataObject) -> None:
-    grid = _grid(free)
-    cells = np.flatnonzero(grid.free.ravel()).tolist()
+    grid, cells = _grid(free)
     c = data.draw(st.sampled_from(cells))
     h = data.draw(st.integers(0, 3))
-    exact = StateSpace(grid, True, exact=True)
-    lower = StateSpace(grid, True, exact=False)
+    exact, lower = StateSpace(grid, True, exact=True), StateSpace(grid, True, exact=False)
     assert exact.exact and not lower.exact
     index = free_index(grid)
     pairs = zip(exact.options[4 * c + h], lower.options[4 * c + h], strict=True)
