@@ -37,12 +37,17 @@ def test_compact_rows_equal_breadth_first_search(free: np.ndarray, data: st.Data
         assert row.tolist() == [want[c] for c in cells]
 
 
+@st.composite
+def grid_and_cell(draw: st.DrawFn) -> tuple[Grid, list[int], int]:
+    """A drawn grid, its free cells and one of them."""
+    grid, cells = _grid(draw(grids))
+    return grid, cells, draw(st.sampled_from(cells))
+
+
 @settings(max_examples=60, deadline=None)
-@given(grids, st.data())
-def test_cell_tables_never_exceed_the_turning_cost(free: np.ndarray,
-                                                   data: st.DataObject) -> None:
-    grid, cells = _grid(free)
-    goal = data.draw(st.sampled_from(cells))
+@given(grid_and_cell())
+def test_cell_tables_never_exceed_the_turning_cost(case: tuple[Grid, list[int], int]) -> None:
+    grid, cells, goal = case
     exact = goal_tables(grid, True, [goal])[goal]
     lower = goal_tables(grid, False, [goal])[goal]
     assert list(exact) == np.where(
@@ -57,12 +62,10 @@ def test_cell_tables_never_exceed_the_turning_cost(free: np.ndarray,
 
 
 @settings(max_examples=30, deadline=None)
-@given(grids, st.data())
-def test_each_option_is_weighed_by_its_cell_or_state(free: np.ndarray,
-                                                     data: st.DataObject) -> None:
-    grid, cells = _grid(free)
-    c = data.draw(st.sampled_from(cells))
-    h = data.draw(st.integers(0, 3))
+@given(grid_and_cell(), st.integers(0, 3))
+def test_each_option_is_weighed_by_its_cell_or_state(case: tuple[Grid, list[int], int],
+                                                     h: int) -> None:
+    grid, _, c = case
     exact, lower = StateSpace(grid, True, exact=True), StateSpace(grid, True, exact=False)
     assert exact.exact and not lower.exact
     index = free_index(grid)
