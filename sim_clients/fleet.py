@@ -68,7 +68,7 @@ from protocol.robot_session import (
     Send,
     Welcomed,
 )
-from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
+from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target_at
 from sim_clients.robot import RECHECK_MS, RobotEvent, RobotState, SimRobot
 from sim_clients.summary import RunSummary
 from sim_clients.world import World
@@ -587,12 +587,14 @@ class SimFleet:
             if intr.state is IntruderState.ABSENT:
                 if self._oracle is None or not self._oracle.running:
                     continue  # the run has not started: T_a is counted from its start
-                self._report(intr.appear(now, self._auto_target(now)))
+                target = self._auto_target(now)
+                self._report(intr.appear(now, None if target is None else target[:2],
+                                         None if target is None else target[2]))
             else:
                 self._report(intr.wake(now))
         self._intruders = [i for i in self._intruders if i.state is not IntruderState.GONE]
 
-    def _auto_target(self, now: float) -> tuple[int, Cell] | None:
+    def _auto_target(self, now: float) -> tuple[int, Cell, float] | None:
         oracle = self._oracle
         assert oracle is not None
         plan_id = oracle.plan_id
@@ -603,7 +605,8 @@ class SimFleet:
                 next_action[k] = robot.next_action
         config = self._intruder_config
         visit = oracle.start_ms if config.reading == "start" else oracle.completion_ms
-        return pick_target(self._rng, oracle.paths(), next_action, visit, now + config.lead_ms)
+        return pick_target_at(self._rng, oracle.paths(), next_action, visit,
+                              now + config.lead_ms)
 
     async def _poll_loop(self) -> None:
         """Poll the intruders at every multiple of ``recheck_ms`` (when no driver does it)."""
@@ -689,9 +692,12 @@ def fleet_for(gateway: Gateway, robots: int, connect: Connect, *, seed: int = 0,
     return fleet
 
 
-async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) -> RunSummary:
-    """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, start, and wait
-    for the end of the execution. The fleet keeps running afterwards (the caller stops it)."""
+async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet,
+                         before_start: Callable[[], Awaitable[None]] | None = None
+                         ) -> RunSummary:
+    """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, wait for
+    ``before_start`` (if given), start, and wait for the end of the execution. The fleet keeps
+    running afterwards (the caller stops it)."""
     plan = problem.plan
     if plan is None:
         raise ValueError("the problem has no plan to execute")
@@ -707,6 +713,8 @@ async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) ->
         engine.load(problem)
         await fleet.start()
         await fleet.wait_connected()
+        if before_start is not None:
+            await before_start()
         error, detail = await gateway.command(Start(msg_id="run-start", seq=0))
         if error is not None:
             raise RuntimeError(f"the gateway refused to start: {detail}")
