@@ -39,7 +39,7 @@ def test_a_full_disk_stops_the_gateway_and_loses_nothing_acknowledged(tmp_path: 
     async def main() -> None:
         gw.start(file_limit=600_000)
         n = 0
-        for n in range(200):  # noqa: B007 (the failing one is used below)
+        for n in range(200):
             try:
                 reply = await asyncio.wait_for(call(port, "POST", "/tasks", batch(n)), 10)
             except (OSError, asyncio.IncompleteReadError, TimeoutError):

@@ -16,11 +16,8 @@ from typing import Any
 import pytest
 
 from gateway.runtime.journal import DURABLE_KINDS
-from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
-from sim_clients.connect import websocket_connector
-from sim_clients.fleet import SimFleet
-from tests.server.test_journal import workload
+from tests.server.test_journal import running, workload
 from tracecheck import check_trace, read_trace
 
 
@@ -46,19 +43,9 @@ def test_a_power_cut_resumes_with_must_only_robots(tmp_path: Path, k: int, seed:
     done: dict[str, Any] = {}
 
     async def main() -> None:
-        config = GatewayConfig(port=0, map=None, policy="none", journal=journal, trace=trace,
-                               speed=20.0, autostart=True)
-        gw = Gateway(config)
-        await gw.start()
-        port = await gw.listen()
-        fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(6),
-                         clock=gw.clock, send_state=False, reconnect_delay_s=0.05,
-                         must_only=True)
-        fleet.on_event = lambda kind, p, r, i: executed.update(
-            [(p, r, i)] if kind == "execute" else [])
-        gw.engine.load(problem)
-        await fleet.start()
-        await fleet.wait_connected()
+        config, gw, port, fleet = await running(
+            journal, trace, problem, must_only=True, on_event=lambda kind, p, r, i: executed.update(
+                [(p, r, i)] if kind == "execute" else []))
         await asyncio.sleep(stop_s)
         await gw.stop()
         assert gw.engine.status == "running"
