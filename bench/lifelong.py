@@ -42,6 +42,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from lifelong_scale import ARCHIVE_ENV, INSTANCES, archive_dir, scale_line, scale_one, scale_runs
+
 from gateway.execution.lifelong import LifelongExecutor
 from gateway.execution.shift_state import HistoryLog, snapshot_shift
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
@@ -265,8 +267,27 @@ def main() -> None:
     ap.add_argument("--kept", type=int, default=0,
                     help="--journal: ended tasks (and events) the task book starts with, as "
                          "after hours of a shift (at most 100,000 are kept)")
-    ap.add_argument("--json", action="store_true", help="--journal: print one JSON line")
+    ap.add_argument("--json", action="store_true",
+                    help="--journal, --scale: print one JSON line")
+    ap.add_argument("--scale", action="store_true",
+                    help="the LoRR archive's warehouse_large (10,000) and brc202d (6,500) "
+                         "under the 2026 rules (bench/lifelong_scale.py)")
+    ap.add_argument("--archive", type=Path, default=None,
+                    help=f"--scale: a copy of MAPF-Competition/Benchmark-Archive (default "
+                         f"${ARCHIVE_ENV} or ~/.cache/fleetgate/lorr-archive)")
+    ap.add_argument("--reassign", type=int, default=LifelongConfig.reassign,
+                    help="--scale: planning calls between reassignments of unstarted tasks "
+                         "(0: never)")
+    ap.add_argument("--scale-one", choices=sorted(INSTANCES), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.scale_one:
+        print(json.dumps(scale_one(args.scale_one, archive_dir(args.archive), args.ticks,
+                                   args.reassign)))
+        return
+    if args.scale:
+        scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign)
+        print(json.dumps(scaled) if args.json else scale_line(scaled))
+        return
     if args.journal:
         out = journal_run(args.robots, args.seconds, args.every, args.seed, args.kept)
         print(json.dumps(out) if args.json else
