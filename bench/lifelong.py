@@ -27,6 +27,12 @@ later ones only what is new). ``--kept N`` starts the task book with N ended tas
 events, as after hours of a shift (the pool keeps 100,000 of each).
 
     .venv/bin/python bench/lifelong.py --journal --robots 100 --seconds 3600 --json
+
+``--scale`` (instead): the LoRR archive's warehouse_large (10,000 robots) and brc202d (6,500)
+under the 2026 rules, ``--ticks`` ticks each (skipped when the archive
+copy is absent; :mod:`sim_clients.lifelong_scale`).
+
+    .venv/bin/python bench/lifelong.py --scale --archive DIR --ticks 600
 """
 
 from __future__ import annotations
@@ -36,13 +42,12 @@ import copy
 import dataclasses
 import json
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
-
-from lifelong_scale import ARCHIVE_ENV, INSTANCES, archive_dir, scale_line, scale_one, scale_runs
 
 from gateway.execution.lifelong import LifelongExecutor
 from gateway.execution.shift_state import HistoryLog, snapshot_shift
@@ -59,6 +64,14 @@ from gateway.server.shift_journal import (
 )
 from gateway.server.task_journal import TaskJournal
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from sim_clients.lifelong_scale import (
+    ARCHIVE_ENV,
+    INSTANCES,
+    archive_dir,
+    scale_line,
+    scale_one,
+    scale_runs,
+)
 from sim_clients.shift_des import drive_shift
 from tracecheck.lorr import check_output, read_free
 
@@ -271,7 +284,7 @@ def main() -> None:
                     help="--journal, --scale: print one JSON line")
     ap.add_argument("--scale", action="store_true",
                     help="the LoRR archive's warehouse_large (10,000) and brc202d (6,500) "
-                         "under the 2026 rules (bench/lifelong_scale.py)")
+                         "under the 2026 rules (sim_clients/lifelong_scale.py)")
     ap.add_argument("--archive", type=Path, default=None,
                     help=f"--scale: a copy of MAPF-Competition/Benchmark-Archive (default "
                          f"${ARCHIVE_ENV} or ~/.cache/fleetgate/lorr-archive)")
@@ -285,7 +298,8 @@ def main() -> None:
                                    args.reassign)))
         return
     if args.scale:
-        scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign)
+        scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign,
+                            [sys.executable, __file__])
         print(json.dumps(scaled) if args.json else scale_line(scaled))
         return
     if args.journal:

@@ -1,4 +1,4 @@
-"""``bench/lifelong.py --scale``: the competition's large instances under the 2026 rules.
+"""The competition's large instances under the 2026 rules (``bench/lifelong.py --scale``).
 
 LoRR 2024 main-round instances warehouse_large (10,000 agents, WAREHOUSE.json) and brc202d
 (6,500 agents, GAME.json), read from a copy of the public MAPF-Competition/Benchmark-Archive
@@ -19,7 +19,7 @@ import math
 import os
 import resource
 import subprocess
-import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -103,17 +103,19 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, 
     return out
 
 
-def scale_runs(archive: Path, ticks: int, reassign: int) -> list[dict[str, Any]]:
-    """Each instance whose files are there, in its own process (its own peak RSS); an
-    instance that is absent gives ``{"instance": name, "skipped": reason}``."""
+def scale_runs(archive: Path, ticks: int, reassign: int,
+               command: Sequence[str]) -> list[dict[str, Any]]:
+    """Each instance whose files are there, in its own process (its own peak RSS:
+    ``command`` followed by ``--scale-one NAME --archive --ticks --reassign`` prints
+    :func:`scale_one` as one JSON line); an instance that is absent gives
+    ``{"instance": name, "skipped": reason}``."""
     out: list[dict[str, Any]] = []
-    bench = Path(__file__).resolve().parent / "lifelong.py"
     for name, inst in INSTANCES.items():
         if not (archive / inst.path).is_file():
             out.append({"instance": name, "skipped": f"{inst.path} not under {archive}"})
             continue
         proc = subprocess.run(
-            [sys.executable, str(bench), "--scale-one", name, "--archive", str(archive),
+            [*command, "--scale-one", name, "--archive", str(archive),
              "--ticks", str(ticks), "--reassign", str(reassign)],
             capture_output=True, text=True, check=False)
         if proc.returncode:
