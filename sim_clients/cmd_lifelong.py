@@ -9,7 +9,8 @@ import sys
 from gateway.runtime.exits import EXIT_OK, UsageError
 
 SCHEDULER_CHOICES = ("greedy", "mincost", "shortest")
-"""``gateway.execution.tasks.SCHEDULERS`` (a test checks), named here so --help stays light."""
+"""``gateway.execution.lifelong.tasks.SCHEDULERS`` (a test checks), named here so --help stays
+light."""
 
 
 def _planner_time(text: str) -> str | float:

@@ -4,9 +4,9 @@ The simulation advances in execution ticks. A forward move or a turn takes ``age
 ticks (the problem's ``agentCounter``); a robot in a delay (the problem's ``delayConfig``,
 drawn per tick by :class:`DelayModel`) makes no progress. The planner runs periodically, every
 ``period`` ticks at the earliest (LoRR's ``planCommTimeLimit`` / ``actionMoveTimeLimit``): it
-assigns tasks to robots that have none (:mod:`gateway.execution.tasks`), plans a window of
+assigns tasks to robots that have none (:mod:`gateway.execution.lifelong.tasks`), plans a window of
 ``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`),
-and its result is appended to the live ADG (:mod:`gateway.execution.live_adg`) when it
+and its result is appended to the live ADG (:mod:`gateway.execution.lifelong.live_adg`) when it
 arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
 measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
 exactly reproducible). Meanwhile robots keep executing what is committed, so they never stop
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from gateway.execution.errands import ErrandBook, TaskDistances
-from gateway.execution.live_adg import CCW, CW, FORWARD, LiveADG
-from gateway.execution.tasks import SCHEDULERS, TaskPool
+from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
+from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
+from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
 from gateway.planning.pibt import StateSpace, WindowedPIBT
 

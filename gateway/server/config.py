@@ -28,8 +28,8 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from gateway.execution.oneshot.policies import PolicyName
 from gateway.execution.params import PAPER
-from gateway.execution.policies import PolicyName
 
 
 class TokensConfig(BaseModel):

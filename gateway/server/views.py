@@ -14,9 +14,9 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.execution.executor import Executor
-from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.tasks import Task
+from gateway.execution.lifelong.executor import LifelongExecutor
+from gateway.execution.lifelong.tasks import Task
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
 from gateway.server.planner import Problem

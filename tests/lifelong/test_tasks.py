@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
-from gateway.execution.tasks import TaskPool, greedy_nearest, min_cost, shortest_first
+from gateway.execution.lifelong.tasks import TaskPool, greedy_nearest, min_cost, shortest_first
 
 
 def line(cells: Sequence[int], targets: Sequence[int]) -> np.ndarray:
