@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import Completed, Dispatch, Trigger
+from gateway.execution.core import check_robot, check_start, check_time
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.live_adg import LiveAction, LiveADG
@@ -243,10 +244,7 @@ class LifelongExecutor:
     # ------------------------------------------------------------------ lifecycle
     def start(self, now_ms: float) -> None:
         """Begin the shift: the first planning call is due now."""
-        if self.mode is not LifelongMode.NEW:
-            raise ExecutionError("start() was already called")
-        if not (math.isfinite(now_ms) and now_ms >= 0):
-            raise ExecutionError(f"start time must be a finite number >= 0, got {now_ms}")
+        check_start(now_ms, self.mode is not LifelongMode.NEW)
         self.mode = LifelongMode.RUNNING
         self._now = self._next_call = self._next_check = now_ms
         if self._record is not None:
@@ -463,20 +461,13 @@ class LifelongExecutor:
 
     # ------------------------------------------------------------------ robot events
     def _check_time(self, now_ms: float) -> None:
-        if self.mode is LifelongMode.NEW:
-            raise ExecutionError("the lifelong run has not started: call start() first")
-        if not now_ms >= self._now:  # also rejects NaN
-            raise ExecutionError(f"time went backwards: {now_ms} ms < last input at "
-                                 f"{self._now} ms")
-        if math.isinf(now_ms):
-            raise ExecutionError(f"time must be finite, got {now_ms}")
+        check_time(now_ms, self._now, self.mode is not LifelongMode.NEW, "the lifelong run")
 
     def _event(self, kind: str, robot: int, plan: int, action: int, now_ms: float) -> int:
         """Check a report about ``action`` of ``robot`` (segment ``plan``); return its
         position in the robot's dispatched actions."""
         self._check_time(now_ms)
-        if not 0 <= robot < self.n:
-            raise ExecutionError(f"unknown robot {robot} (the fleet has {self.n})")
+        check_robot(robot, self.n)
         pos = action - self.adg.done[robot]
         if pos < 0:
             raise ExecutionError(f"{kind} of robot {robot} action {action}: that action is "

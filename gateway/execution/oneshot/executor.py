@@ -64,6 +64,7 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
+from gateway.execution.core import check_robot, check_start, check_time
 from gateway.execution.errors import ExecutionError
 from gateway.execution.oneshot.adg import ADG
 from gateway.execution.oneshot.blocks import BlockTracker
@@ -248,16 +249,10 @@ class Executor:
 
     # ------------------------------------------------------------------ checks
     def _check_time(self, now_ms: float) -> None:
-        if self.mode is Mode.NEW:
-            raise ExecutionError("execution has not started: call start() first")
-        if not now_ms >= self._now:  # also rejects NaN
-            raise ExecutionError(f"time went backwards: {now_ms} ms < last input at {self._now} ms")
-        if math.isinf(now_ms):
-            raise ExecutionError(f"time must be finite, got {now_ms}")
+        check_time(now_ms, self._now, self.mode is not Mode.NEW, "execution")
 
     def _check_robot(self, robot: int) -> None:
-        if not 0 <= robot < self.adg.n_robots:
-            raise ExecutionError(f"unknown robot {robot} (the fleet has {self.adg.n_robots})")
+        check_robot(robot, self.adg.n_robots)
 
     def _event_vertex(self, kind: str, robot: int, plan: int, action: int, now_ms: float) -> int:
         """Validate the common part of a robot event; return the action's vertex."""
@@ -289,10 +284,7 @@ class Executor:
     # ------------------------------------------------------------------ robot events
     def start(self, now_ms: float) -> None:
         """Begin execution: emit ``PlanAdopted(0, plan)`` and the first dispatches."""
-        if self.mode is not Mode.NEW:
-            raise ExecutionError("start() was already called")
-        if not (math.isfinite(now_ms) and now_ms >= 0):
-            raise ExecutionError(f"start time must be a finite number >= 0, got {now_ms}")
+        check_start(now_ms, self.mode is not Mode.NEW)
         self.mode = Mode.RUNNING
         self._now = now_ms  # kept as given (trace t_ms)
         if now_ms != 0.0:
