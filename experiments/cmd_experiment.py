@@ -16,6 +16,7 @@ from gateway.execution.params import PAPER as PAPER_PARAMS
 from gateway.planning.motion import MOTIONS
 from gateway.runtime.exits import EXIT_OK, UsageError
 from gateway.runtime.mapstore import MapNotFound, resolve
+from sim_clients.stays import STAY_HELP, stay_option
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -62,6 +63,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the intruder takes the first cell its robot is estimated to START "
                    "moving into (default, the paper's 2 s are the intruder's time to get there "
                    "first) or to ARRIVE on, at or after T_a + 2 s")
+    p.add_argument("--intruder-stay", metavar="SPEC|FILE", help=STAY_HELP)
     p.add_argument("--seed", type=int, default=0, help="seed of instance generation")
     p.add_argument("--motion", choices=MOTIONS, default="omni",
                    help="motion model of the plans (default omni); turning robots start "
@@ -447,9 +449,11 @@ def run(args: argparse.Namespace) -> int:
     if args.block_memory < 1:
         raise UsageError(f"--block-memory must be positive, got {args.block_memory}")
     history = args.block_history
+    stay = stay_option(args.intruder_stay)
     sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
                       replan_time_limit_s=args.replan_time_limit,
                       intruder_reading=args.intruder_reading,
+                      intruder_stay=None if stay is None else stay.text,
                       block_history_ms=history if isinstance(history, tuple) else (),
                       learned_blocks=args.block_memory if history == "learned" else 0)
     files = _map_files(groups, args.maps_dir)
