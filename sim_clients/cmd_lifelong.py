@@ -30,10 +30,10 @@ def _planner_time(text: str) -> str | float:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from gateway.execution.lifelong.tasks import wait_percentiles
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
+    from gateway.execution.lifelong.tasks import wait_percentiles
     from gateway.planning.lorr import LorrFormatError, read_problem
     from sim_clients.lifelong import (
         LifelongConfig,

@@ -19,8 +19,8 @@ from gateway.execution.lifelong.tasks import Task
 from gateway.execution.oneshot.executor import Executor
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
-from gateway.server.runs.lifelong import throughput_per_min
 from gateway.server.planner import Problem
+from gateway.server.runs.lifelong import throughput_per_min
 from protocol import ActionCounts, Pose, ReplanMark, RobotView, WaitEdge
 from protocol.gateway_session import GatewaySession
 from protocol.messages import HEADINGS, GatewayStatus, Heading, PolicyName

@@ -77,8 +77,8 @@ class ErrandBook:
 
     def release_unstarted(self, now: float) -> None:
         """Tasks whose first errand is not planned yet go back to the pool's open tasks,
-        except overdue ones (:meth:`~gateway.execution.lifelong.tasks.TaskPool.overdue`): their robot
-        keeps them, so they are not handed from robot to robot while they wait."""
+        except overdue ones (:meth:`~gateway.execution.lifelong.tasks.TaskPool.overdue`): their
+        robot keeps them, so they are not handed from robot to robot while they wait."""
         pool = self.pool
         pool.now = max(pool.now, now)
         for r, task_id in enumerate(self.plan_task):
