@@ -165,7 +165,7 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
-    space = StateSpace(grid, cfg.turning)
+    space = StateSpace(grid, cfg.turning, robots=n)
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)

@@ -164,6 +164,7 @@ class Engine:
         self.before_commit: list[Callable[[], None]] = []
         """Called before each commit (the task journal appends the task events here)."""
         self._tick_failing = False  # the last monitor tick raised (logged once per streak)
+        self._flushing: set[int] = set()  # robots whose session's effects are being carried out
 
     # -------------------------------------------------------------------------- status
     @property
@@ -396,7 +397,9 @@ class Engine:
             self._online.discard(r)
             self.metrics.connected_robots.dec()
         now = self.now_ms()
-        gs.hello(msg, now)
+        running = self._core() is not None
+        gs.hello(msg, now, run=self.run_id if running else None,
+                 plan=self.executor.plan_id if self.executor is not None else None)
         self.flush(gs, session)  # catch-ups; what they unlock is held for the resend
         resent = gs.welcome(session, version=session.version, start=self._start_pose(r),
                             plan=self.executor.plan_id if self.executor else None,
@@ -439,7 +442,18 @@ class Engine:
 
     def flush(self, gs: GatewaySession, sender: Session | None = None) -> None:
         """Carry out a robot session's effects: messages to its connection, refusals to the
-        ``sender`` of the message being handled, reports to the executor."""
+        ``sender`` of the message being handled, reports to the executor. A flush of the same
+        session nested in this one (an effect's dispatch) leaves the rest to this loop, so the
+        session's effects are carried out in the order it queued them."""
+        if gs.robot_id in self._flushing:
+            return
+        self._flushing.add(gs.robot_id)
+        try:
+            self._flush(gs, sender)
+        finally:
+            self._flushing.discard(gs.robot_id)
+
+    def _flush(self, gs: GatewaySession, sender: Session | None) -> None:
         while effects := gs.drain():
             for e in effects:
                 if isinstance(e, ToRobot):
@@ -462,8 +476,8 @@ class Engine:
             "stopped": ex.stopped, "unblocked": ex.unblocked, "cancelled": ex.cancelled,
             "refused": partial(ex.refused, reason=r.reason)}
         apply = handlers[r.kind]
-        try:
-            apply(r.robot, r.plan, r.index, r.t_ms)
+        try:  # (a catch-up applied after later inputs takes effect at the latest of them)
+            apply(r.robot, r.plan, r.index, max(r.t_ms, ex.now_ms))
         except ExecutionError as exc:
             if r.ref is None:
                 log.warning("hello: cannot apply %s of %s: %s", r.kind, r.action_id, exc)

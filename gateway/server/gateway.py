@@ -36,12 +36,14 @@ import logging
 import resource
 import time
 import weakref
+from collections.abc import Callable
 from types import TracebackType
 from urllib.parse import urlsplit
 
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
+from gateway.runtime.exits import EXIT_JOURNAL, EXIT_SOFTWARE, fatal
 from gateway.runtime.journal import JournalError, JournalLock
 from gateway.server import gc_tuning
 from gateway.server.clock import Clock, RealClock
@@ -141,6 +143,9 @@ class Gateway:
         """The bound port once :meth:`listen` returned."""
         self._fresh = fresh
         self._lock: JournalLock | None = None
+        self.fatal: Callable[[str, int], None] = fatal
+        """How the gateway ends the process when it cannot go on (a journal write failed, the
+        owner task died): :func:`gateway.runtime.exits.fatal`."""
         self.resumed = False
         """Whether :meth:`start` resumed a journaled run."""
 
@@ -160,8 +165,7 @@ class Gateway:
             raise
         if (run := self.engine.lifelong) is not None:
             await run.planner_ready()  # its process started while the journal replayed
-            self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
-                                                                 name="owner")
+            self._start_owner()
             self.engine.operator.maybe_autostart()
             return
         configured = cfg.instance is not None or (
@@ -173,7 +177,26 @@ class Gateway:
             except InstanceError as exc:
                 raise ValueError(f"cannot load the configured instance: {exc}") from None
             self.engine.load(problem)
+        self._start_owner()
+
+    def _start_owner(self) -> None:
+        """Start the owner task; if it ever ends but by :meth:`stop`, the process ends too (one
+        line, a non-zero exit for the supervisor): never a gateway that listens and does
+        nothing."""
         self._owner = asyncio.get_running_loop().create_task(self.engine.run(), name="owner")
+        self._owner.add_done_callback(self._owner_done)
+
+    def _owner_done(self, task: asyncio.Task[None]) -> None:
+        if task.cancelled() or task is not self._owner:
+            return
+        exc = task.exception()
+        self.fatal(f"the gateway's owner task ended: {type(exc).__name__}: {exc}"
+                   if exc is not None else "the gateway's owner task ended", EXIT_SOFTWARE)
+
+    def _journal_failed(self, message: str) -> None:
+        """A journal write or sync failed: stop before anything it would acknowledge leaves."""
+        self.fatal(f"journal write failed, stopping (nothing more is acknowledged): {message}",
+                   EXIT_JOURNAL)
 
     def _resume(self) -> bool:
         """Open the journal (locked, checked against the configuration) and rebuild the run
@@ -183,6 +206,7 @@ class Gateway:
             return False
         try:
             engine.journal, self._lock = open_journal(cfg, self._fresh)
+            engine.journal.on_failure = self._journal_failed
             if engine.lifelong is not None:
                 return journal_tasks(engine)
             return engine.resume() and engine.status != "done"

@@ -88,8 +88,8 @@ def test_the_gateway_calls_the_planner_at_its_period_off_the_tick_grid(
 
 
 def _oracle(grid: Any, cell: int) -> list[int]:
-    """Moves to ``cell`` from every cell by the plain search, capped as the tables are."""
-    row = distance_tables(grid, [grid.cell(cell)])[0]
+    """Moves to ``cell`` from every free cell by the plain search, capped as the tables are."""
+    row = distance_tables(grid, [grid.cell(cell)])[0][grid.free.ravel()]
     return np.where(row < 0, UNREACHABLE, np.minimum(row, UNREACHABLE)).tolist()
 
 

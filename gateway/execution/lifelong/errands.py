@@ -28,7 +28,7 @@ class TaskDistances:
     ``charge`` moves for a robot standing on a cell of :attr:`charged` (e.g. one in a delay),
     so tasks go to robots that can go."""
 
-    def __init__(self, grid: Grid, charge: int = 0, budget_bytes: int = 256 << 20) -> None:
+    def __init__(self, grid: Grid, charge: int = 0, budget_bytes: int = 1 << 30) -> None:
         self.space = StateSpace(grid, turning=False, budget_bytes=budget_bytes)
         self.charge = charge
         self.charged: set[int] = set()
@@ -36,23 +36,29 @@ class TaskDistances:
 
     def leg(self, a: int, b: int) -> int:
         """Moves from cell ``a`` to cell ``b``."""
-        return int(self.space.distances(a)[b])
+        return int(self.space.distances(a)[self.space.index[b]])
 
-    def __call__(self, cells: Sequence[int], targets: Sequence[int]) -> npt.NDArray[np.int64]:
+    def __call__(self, cells: Sequence[int], targets: Sequence[int]) -> npt.NDArray[np.int32]:
         """``out[i, j]``: moves from ``cells[i]`` to ``targets[j]`` (-1: unreachable), plus
-        the charge (a :data:`~gateway.execution.lifelong.tasks.DistanceFrom`)."""
+        the charge (a :data:`~gateway.execution.lifelong.tasks.DistanceFrom`). One table per
+        distinct target, taken in blocks that fit the cache (thousands of targets at a call)."""
         space = self.space
-        space.prefetch(targets)
-        src = np.asarray(cells, dtype=np.int64)
-        out = np.empty((len(cells), len(targets)), dtype=np.int64)
-        for j, g in enumerate(targets):
-            out[:, j] = np.frombuffer(space.distances(g), dtype=np.int16)[src]
-        out[out >= UNREACHABLE] = -1
+        unique, inverse = np.unique(np.asarray(targets, dtype=np.int64), return_inverse=True)
+        src = space.index[np.asarray(cells, dtype=np.int64)]
+        cols = np.empty((len(cells), unique.size), dtype=np.int32)
+        block = max(1, space.capacity // 2)
+        for i in range(0, unique.size, block):
+            part = unique[i : i + block].tolist()
+            space.prefetch(part)
+            for j, g in enumerate(part, i):
+                cols[:, j] = np.frombuffer(space.distances(g), dtype=np.int16)[src]
+        cols[cols >= UNREACHABLE] = -1
         if self.charged:
-            for i, c in enumerate(cells):
-                if c in self.charged:
-                    out[i, out[i] >= 0] += self.charge
-        return out
+            rows = [i for i, c in enumerate(cells) if c in self.charged]
+            charged = cols[rows]
+            charged[charged >= 0] += self.charge
+            cols[rows] = charged
+        return cols[:, inverse.ravel()]
 
 
 class ErrandBook:

@@ -649,7 +649,7 @@ class WindowPlanner:
     between calls)."""
 
     def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0) -> None:
-        self.space = StateSpace(grid, turning)
+        self.space = StateSpace(grid, turning, robots=n_robots)
         self.pibt = WindowedPIBT(self.space, n_robots, seed=seed)
 
     def __call__(self, req: PlanRequest) -> Segment:

@@ -234,6 +234,8 @@ def main() -> int:
     try:
         serve(Connection(int(sys.argv[1]), writable=False),
               Connection(int(sys.argv[2]), readable=False))
+    except (BrokenPipeError, EOFError):  # the gateway is gone (it exited, or was killed)
+        return 0
     except Exception as exc:  # one line, never a traceback
         print(f"fleetgate planner process: {type(exc).__name__}: {exc}"[:300],
               file=sys.stderr)
