@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from gateway.execution import tasks
+from gateway.execution.lifelong import tasks
 from gateway.execution.lifelong.tasks import _greedy_pairs
 
 
