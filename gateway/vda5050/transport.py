@@ -17,8 +17,8 @@ import time
 from types import TracebackType
 from typing import TYPE_CHECKING
 
-from gateway.server.auth import Peer
-from gateway.server.transport import MemoryClient, memory_pair
+from gateway.server.wire.auth import Peer
+from gateway.server.wire.transport import MemoryClient, memory_pair
 from gateway.vda5050.config import Vda5050Config
 from gateway.vda5050.driver import MasterClient
 from protocol.codec import ProtocolError, decode, encode
