@@ -45,9 +45,7 @@ can go (room-64-64-16, 10-30 tick delays, 8 delay seeds: mean 111 tasks without,
 113-114 with about 2x, 9x or an infinite charge; random-64-64-10's 1-4 tick delays: neutral)."""
 MAX_WAIT_TICKS = 450
 """Default fairness bound (:attr:`~gateway.execution.tasks.TaskPool.max_wait`): 45 s at
-100 ms a tick. The gateway's is 30 s (a 600 s demo shift: max wait 56 s, more tasks than
-without); a 600-tick LoRR run ends before most tasks forced after 300 ticks finish (maze,
-room, random: 3-10% fewer tasks), at 450 ticks it finishes as many as without a bound."""
+100 ms a tick, as the gateway's ``lifelong.max_wait_ms``."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
