@@ -32,6 +32,7 @@ from pydantic_settings import (
 
 from gateway.execution.oneshot.policies import PolicyName
 from gateway.execution.params import PAPER
+from gateway.vda5050.config import Vda5050Config
 
 PLACEHOLDER = "CHANGE-ME"
 """What the example configs' tokens contain: refused on a non-loopback host."""
@@ -152,6 +153,8 @@ class GatewayConfig(BaseSettings):
     tokens: TokensConfig = TokensConfig()
     allow_demo_tokens: bool = False
     tls: TlsConfig | None = None
+    vda5050: Vda5050Config | None = None
+    """VDA 5050 vehicles driven over MQTT beside the websocket robots (docs/vda5050.md)."""
     allow_plaintext: bool = False
     """Serve plain ws:// and http:// on a non-loopback host (only behind a proxy that
     terminates TLS; without it such a host needs ``[tls]``)."""
