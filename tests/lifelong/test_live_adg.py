@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.execution.errors import ExecutionError
-from gateway.execution.live_adg import FORWARD, LiveADG
+from gateway.execution.lifelong.live_adg import FORWARD, LiveADG
 from gateway.planning.grid import Grid
 from gateway.planning.pibt import StateSpace, WindowedPIBT
 from tests.lifelong.support import small_problem

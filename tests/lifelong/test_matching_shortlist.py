@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from gateway.execution import tasks
-from gateway.execution.tasks import _greedy_pairs
+from gateway.execution.lifelong import tasks
+from gateway.execution.lifelong.tasks import _greedy_pairs
 
 
 def all_pairs_greedy(cost: np.ndarray) -> dict[int, int]:

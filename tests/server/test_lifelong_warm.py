@@ -15,16 +15,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from gateway.execution.errands import TaskDistances
-from gateway.execution.lifelong import LifelongExecutor, PlanRequest, WindowPlanner
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.lifelong.executor import LifelongExecutor, PlanRequest, WindowPlanner
+from gateway.execution.lifelong.tasks import TaskPool
 from gateway.planning.distance import distance_tables
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.pibt import UNREACHABLE
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
-from gateway.server.planner_process import PlannerDied, PlannerProcess, Warm
+from gateway.server.runs.planner_process import PlannerDied, PlannerProcess, Warm
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import run_shift
 from tests.server.task_client import call
