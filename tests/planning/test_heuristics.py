@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from gateway.execution.errands import TaskDistances
+from gateway.execution.lifelong.errands import TaskDistances
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
 from gateway.planning.pibt import UNREACHABLE, StateSpace, goal_tables
