@@ -42,20 +42,20 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.shift_state import HistoryLog, snapshot_shift
-from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
+from gateway.execution.lifelong.executor import LifelongExecutor
+from gateway.execution.lifelong.shift_state import HistoryLog, snapshot_shift
+from gateway.execution.lifelong.tasks import NewTask, TaskEvent, TaskPool
 from gateway.planning.lorr import LorrProblem, read_problem, warehouse_problem
 from gateway.planning.movingai import format_map
 from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord
 from gateway.server.gc_tuning import restore_defaults, tune_for_run
-from gateway.server.shift_journal import (
+from gateway.server.runs.shift_journal import (
     JournaledLifelong,
     compact_journal,
     compaction_due,
     replay_shift,
 )
-from gateway.server.task_journal import TaskJournal
+from gateway.server.runs.task_journal import TaskJournal
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
 from sim_clients.shift_des import drive_shift
 from tracecheck.lorr import check_output, read_free

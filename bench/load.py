@@ -83,7 +83,7 @@ from typing import Any
 
 import numpy as np
 
-from gateway.execution.adg import ADG
+from gateway.execution.oneshot.adg import ADG
 from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
 from gateway.planning.lorr import LorrProblem, warehouse_blocks, warehouse_problem

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 
 from gateway.execution.commands import Dispatch
-from gateway.execution.executor import Executor
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.instance import load_instance
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve

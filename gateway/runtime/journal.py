@@ -5,7 +5,7 @@ owner task). The records are the inputs of the current run's executor, in order:
 itself (its plan and every parameter the executor was built with), every robot report the
 executor was given, every monitor tick, pause, resume, replan request, adopted or abandoned
 plan, policy change, and every intruder report. Replaying them through a fresh executor
-(:func:`gateway.server.resume.replay`) rebuilds it, its monitor included, exactly: the executor
+(:func:`gateway.server.runs.resume.replay`) rebuilds it, its monitor included, exactly: the executor
 is deterministic and reads no clock.
 
 :meth:`Journal.append` buffers; :meth:`Journal.commit` writes the buffer in one transaction.
@@ -35,7 +35,7 @@ In lifelong mode the journal holds the shift instead: the task book's changes
 (:class:`TaskRecord`), the shift's start (:class:`ShiftRecord`), and the inputs of its executor
 (reports, ticks, pause, resume, stop, "plan now", adopted segments (:class:`SegmentRecord`),
 failed planner calls), from which a restarted gateway replays the shift
-(:mod:`gateway.server.shift_journal`). Every few segments :meth:`Journal.compact` replaces
+(:mod:`gateway.server.runs.shift_journal`). Every few segments :meth:`Journal.compact` replaces
 them by one :class:`ShiftSnapshotRecord` of the shift's state.
 """
 
@@ -56,7 +56,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
-from gateway.execution.shift_state import ShiftHistory, ShiftState
+from gateway.execution.lifelong.shift_state import ShiftHistory, ShiftState
 
 Cell = tuple[int, int]
 
@@ -203,7 +203,7 @@ class ShiftRecord(_Record):
 
 class SegmentRecord(_Record):
     """The planner's window for call ``call`` adopted at ``t_ms`` by a lifelong shift
-    (the :class:`~gateway.execution.lifelong.Segment`: planner states step by step, and the
+    (the :class:`~gateway.execution.lifelong.executor.Segment`: planner states step by step, and the
     steps at which each robot reaches its goals)."""
 
     kind: Literal["segment"] = "segment"
@@ -257,7 +257,7 @@ class SnapshotRecord(_Record):
 
 class ShiftHistoryRecord(_Record):
     """A chunk of a lifelong shift's task history (ended tasks, events, idempotency keys new
-    since the previous chunk: :class:`~gateway.execution.shift_state.ShiftHistory`). A
+    since the previous chunk: :class:`~gateway.execution.lifelong.shift_state.ShiftHistory`). A
     compaction keeps the chunks the task book may still need, before its snapshot."""
 
     kind: Literal["shift_history"] = "shift_history"
@@ -266,7 +266,7 @@ class ShiftHistoryRecord(_Record):
 
 class ShiftSnapshotRecord(_Record):
     """A lifelong shift's records so far, compacted: the shift's start, what its executor and
-    task book are (:class:`~gateway.execution.shift_state.ShiftState`) and what the engine
+    task book are (:class:`~gateway.execution.lifelong.shift_state.ShiftState`) and what the engine
     keeps besides; replaying it gives what replaying those records gave."""
 
     kind: Literal["shift_snapshot"] = "shift_snapshot"

@@ -30,8 +30,8 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from gateway.execution.oneshot.policies import PolicyName
 from gateway.execution.params import PAPER
-from gateway.execution.policies import PolicyName
 
 PLACEHOLDER = "CHANGE-ME"
 """What the example configs' tokens contain: refused on a non-loopback host."""

@@ -9,11 +9,11 @@ time); the executor's commands back to the sessions (dispatch, cancel), to the p
 the operator feed; operator commands to :class:`~gateway.server.operator_commands.OperatorCommands`
 (which checks them and drives the run's lifecycle: load, start, pause, settings). It also ticks
 the executor every ``MONITOR_PERIOD_MS`` while running. The planner runs off-loop in
-:class:`~gateway.server.solver_tasks.SolverTasks` while events keep queueing; its result comes
+:class:`~gateway.server.runs.solver_tasks.SolverTasks` while events keep queueing; its result comes
 back as a queue item.
 
 The journal (:mod:`gateway.runtime.journal`, optional): the executor is a
-:class:`~gateway.server.resume.JournaledExecutor` that journals each of its inputs before
+:class:`~gateway.server.runs.resume.JournaledExecutor` that journals each of its inputs before
 applying it; the run's start, intruder reports and speed changes are journaled too, and the
 engine commits the journal (then flushes the trace) every time the owner task is about to
 yield to the event loop, so no message it queued leaves the process before its cause is
@@ -46,9 +46,9 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
-from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.executor import LifelongExecutor
+from gateway.execution.lifelong.tasks import TaskPool
+from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
 from gateway.execution.trace_records import summary_record
 from gateway.planning.instance import Instance
 from gateway.planning.movingai import parse_map
@@ -72,12 +72,12 @@ from gateway.server.items import (
     OwnerCall,
     SolverDone,
 )
-from gateway.server.lifelong_run import LifelongRun
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import OperatorCommands
 from gateway.server.operator_feed import OperatorFeed
 from gateway.server.planner import Problem
-from gateway.server.resume import (
+from gateway.server.runs.lifelong import LifelongRun
+from gateway.server.runs.resume import (
     Carried,
     JournaledExecutor,
     Replayed,
@@ -85,9 +85,9 @@ from gateway.server.resume import (
     replay,
     snapshot_of,
 )
-from gateway.server.session import Session
-from gateway.server.solver_tasks import SolverTasks
+from gateway.server.runs.solver_tasks import SolverTasks
 from gateway.server.views import FleetView, ShiftView, snapshot_fields
+from gateway.server.wire.session import Session
 from protocol import (
     Ack,
     ActionRefused,

@@ -21,7 +21,7 @@ exception escapes a handler: an unexpected one is logged as one line and the con
 closed with 1011 (:class:`protocol.CloseCode`).
 
 Transport defences of the websocket server: TLS and mutual TLS (``config.tls``), credentials and
-``Origin`` checked at the upgrade (:mod:`gateway.server.auth`; bad requests get 400/401/403,
+``Origin`` checked at the upgrade (:mod:`gateway.server.wire.auth`; bad requests get 400/401/403,
 never 500), handshake, hello and idle timeouts, frames of at most ``HARD_MAX_BYTES`` (1009),
 text frames only, at most ``max_connections`` connections (503) and the soft limit of open
 files raised to the hard one.
@@ -46,23 +46,23 @@ from websockets.http11 import Request, Response
 from gateway.runtime.exits import EXIT_JOURNAL, EXIT_SOFTWARE, fatal
 from gateway.runtime.journal import JournalError, JournalLock
 from gateway.server import gc_tuning
-from gateway.server.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
-from gateway.server.http import HttpRoutes, json_response, response
-from gateway.server.http_api import RoutingConnection, close_all, routing_connection
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.journal_open import open_journal
-from gateway.server.lifelong_run import LifelongRun, shift_from
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
-from gateway.server.session import Session
-from gateway.server.task_api import TaskApi
-from gateway.server.task_journal import journal_tasks
-from gateway.server.tls import server_context
-from gateway.server.transport import (
+from gateway.server.runs.lifelong import LifelongRun, shift_from
+from gateway.server.runs.task_journal import journal_tasks
+from gateway.server.task_api.api import TaskApi
+from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
+from gateway.server.wire.http import HttpRoutes, json_response, response
+from gateway.server.wire.http_api import RoutingConnection, close_all, routing_connection
+from gateway.server.wire.session import Session
+from gateway.server.wire.tls import server_context
+from gateway.server.wire.transport import (
     HARD_MAX_BYTES,
     Link,
     LinkClosed,

@@ -24,7 +24,7 @@ from typing import IO, Any, get_args
 
 from gateway.execution.trace_records import intruder_record
 from gateway.planning.grid import Cell
-from gateway.server.session import Session
+from gateway.server.wire.session import Session
 from protocol import Event
 from protocol.messages import EventKind
 

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.execution.tasks import (
+from gateway.execution.lifelong.tasks import (
     SCHEDULERS,
     NewTask,
     TaskPool,

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from pydantic import TypeAdapter
 
-from gateway.execution.executor import Mode
-from gateway.execution.policies import POLICY_NAMES, PolicyName, make_policy
+from gateway.execution.oneshot.executor import Mode
+from gateway.execution.oneshot.policies import POLICY_NAMES, PolicyName, make_policy
 from gateway.planning.instance import Instance
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan

@@ -15,7 +15,7 @@ import pytest
 from gateway.planning.movingai import read_map
 from gateway.runtime.mapstore import resolve
 from gateway.server.config import ConfigError, load_config
-from gateway.server.lifelong_run import shift_from
+from gateway.server.runs.lifelong import shift_from
 from tests.server.task_client import call
 
 EXAMPLE = Path(__file__).parents[2] / "deploy" / "gateway.lifelong.example.toml"
