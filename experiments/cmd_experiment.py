@@ -11,6 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fleetgate.userio.files import write_text
 from gateway.execution.params import INTRUDER_READINGS
 from gateway.execution.params import PAPER as PAPER_PARAMS
 from gateway.planning.motion import MOTIONS
@@ -516,7 +517,7 @@ def run(args: argparse.Namespace) -> int:
             groups_not_sampled=[f"{m}/{n}" for m, n in PAPER_GROUPS
                                 if not any((r.map, r.agents) == (m, n) for r in oracle.rows)])
         pictures.append(plot_oracle(judge(exps, oracle.rows), args.out))
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_text(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     out = Console()
     out.width = max(out.width, TABLE_WIDTH)  # never truncate numbers on a narrow terminal
     if args.json:

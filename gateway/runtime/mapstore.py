@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Literal
 
 import gateway.planning
+from fleetgate.userio.files import make_folder, write_bytes
 
 Kind = Literal["map", "scen"]
 KINDS: tuple[Kind, ...] = ("map", "scen")
@@ -176,8 +177,8 @@ def store_members(members: list[tuple[str, bytes]], dest: Path) -> list[Path]:
     written: list[Path] = []
     for base, content in members:
         folder = dest / "scen" if base.endswith(".scen") else dest
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / base).write_bytes(content)
+        make_folder(folder)
+        write_bytes(folder / base, content)
         written.append(folder / base)
     return written
 
