@@ -40,6 +40,10 @@ per minute of plan time against an undisturbed shift of the same fleet (the down
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import asyncio
 import contextlib
@@ -59,6 +63,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import run_main
 from gateway.planning.grid import Grid
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
@@ -513,4 +518,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/crash.py", main)

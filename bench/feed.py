@@ -16,6 +16,10 @@ about 1,500 a second at 500 robots).
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import json
 import random
@@ -23,6 +27,7 @@ import statistics
 import time
 from typing import Any
 
+from fleetgate.userio.exits import run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.errands import TaskDistances
 from gateway.execution.executor import Executor
@@ -136,4 +141,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main("bench/feed.py", main)

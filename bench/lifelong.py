@@ -31,6 +31,10 @@ events, as after hours of a shift (the pool keeps 100,000 of each).
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import copy
 import dataclasses
@@ -42,6 +46,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import run_main
 from gateway.execution.lifelong import LifelongExecutor
 from gateway.execution.shift_state import HistoryLog, snapshot_shift
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
@@ -293,4 +298,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/lifelong.py", main)

@@ -61,6 +61,10 @@ loop thread (CPU time of that thread).
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import asyncio
 import contextlib
@@ -83,6 +87,7 @@ from typing import Any
 
 import numpy as np
 
+from fleetgate.userio.exits import run_main
 from gateway.execution.adg import ADG
 from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
@@ -239,7 +244,8 @@ def cpu_pressure() -> float | None:
 
 
 _SLEEPER = """
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the benchmark ends it
 late = []
 end = time.perf_counter() + float(sys.argv[1])
 while time.perf_counter() < end:
@@ -683,4 +689,4 @@ def _print_profile(profile: Path | None) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/load.py", main)

@@ -18,6 +18,10 @@ and propagates to their descendants).
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import heapq
 import random
@@ -25,6 +29,7 @@ import statistics
 import sys
 import time
 
+from fleetgate.userio.exits import run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.executor import MONITOR_PERIOD_MS, Executor
 from gateway.execution.monitor import algorithm1
@@ -123,4 +128,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/monitor.py", main)

@@ -16,6 +16,10 @@ also runs the omni planner in the same process so that the result line shows bot
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import statistics
 import sys
@@ -25,6 +29,7 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from fleetgate.userio.exits import run_main
 from gateway.planning.cbs import CBSOptions, solve_cbs
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
 from gateway.planning.motion import MOTIONS, Motion
@@ -159,4 +164,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/planner.py", main)

@@ -9,12 +9,17 @@ intruder or monitor ticks). Prints one result line.
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import heapq
 import statistics
 import time
 from collections.abc import Callable
 
+from fleetgate.userio.exits import run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.executor import Executor
 from gateway.planning.instance import load_instance
@@ -78,4 +83,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/sim_speed.py", main)

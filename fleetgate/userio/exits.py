@@ -15,7 +15,7 @@ every ``bench/`` script):
 141    the reader of standard output went away (``... | head``): stops quietly
 =====  ====================================================================================
 
-:func:`run` wraps a command's ``main``; :func:`guard` (first thing in a script) covers the
+:func:`run_main` wraps a command's ``main``; :func:`guard` (first thing in a script) covers the
 moment before it, while the script is still importing.
 """
 
@@ -24,8 +24,10 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import signal
 import sys
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from typing import Any, NoReturn
 
 EXIT_OK = 0
@@ -100,19 +102,67 @@ def _flush_stdout(prog: str) -> int | None:
     return None
 
 
+GRACE_S = 5.0
+"""After Ctrl-C a command has this long to stop cleanly; then it ends at once with 130 (a
+KeyboardInterrupt can be swallowed where Python cannot raise it, e.g. in a gc callback, or
+wait behind a long computation)."""
+
+
+def _give_up(prog: str) -> None:
+    _say(prog, f"interrupted (did not stop within {GRACE_S:g} s)")
+    os._exit(EXIT_INTERRUPTED)
+
+
+@contextlib.contextmanager
+def _bounded_interrupts(prog: str) -> Iterator[None]:
+    """Ctrl-C raises KeyboardInterrupt as usual and starts :data:`GRACE_S` of grace (only
+    where Python's own handler is in place, in the main thread). A KeyboardInterrupt that
+    Python swallows (raised inside a gc callback or a finaliser: "Exception ignored") is not
+    printed; the signal is sent again a moment later, outside it."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield
+        return
+    started: list[threading.Timer] = []
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        if not started:
+            started.append(threading.Timer(GRACE_S, _give_up, args=(prog,)))
+            started[0].daemon = True
+            started[0].start()
+        signal.default_int_handler(signum, frame)
+
+    def unraisable(info: Any) -> None:
+        if not isinstance(info.exc_value, KeyboardInterrupt):
+            sys.__unraisablehook__(info)
+            return
+        again = threading.Timer(0.05, signal.raise_signal, args=(signal.SIGINT,))
+        again.daemon = True
+        again.start()
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
+
+
 def call(prog: str, main: Callable[..., int | None], *args: Any) -> int:
     """Run ``main(*args)`` and return the process's exit code: its own (None is 0), or the
     documented one for Ctrl-C, a closed pipe, an OSError or a :class:`UsageError`, after one
     line on stderr. Standard output is flushed here, so that a full device is reported too."""
     try:
-        code = main(*args) or EXIT_OK
+        with _bounded_interrupts(prog):
+            code = main(*args) or EXIT_OK
     except (UsageError, KeyboardInterrupt, OSError) as exc:
         code = _ending(prog, exc)
     flushed = _flush_stdout(prog)
     return code if flushed is None else flushed
 
 
-def run(prog: str, main: Callable[..., int | None], *args: Any) -> NoReturn:
+def run_main(prog: str, main: Callable[..., int | None], *args: Any) -> NoReturn:
     """``sys.exit(call(prog, main, *args))``: the last line of a script."""
     guard(prog)
     sys.exit(call(prog, main, *args))
@@ -120,7 +170,7 @@ def run(prog: str, main: Callable[..., int | None], *args: Any) -> NoReturn:
 
 def guard(prog: str) -> None:
     """From now on an exception that escapes to the top (e.g. Ctrl-C while a script still
-    imports, before :func:`run`) ends the process with its documented code and one line;
+    imports, before :func:`run_main`) ends the process with its documented code and one line;
     others keep their traceback."""
 
     def last_words(kind: type[BaseException], exc: BaseException, tb: Any) -> None:
