@@ -44,7 +44,6 @@ import itertools
 import json
 import logging
 import random
-import sys
 import tempfile
 import time
 import types
