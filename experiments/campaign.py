@@ -49,6 +49,7 @@ from gateway.planning.solver import solve
 from gateway.runtime.deadline import WallDeadline
 from sim_clients.des import SimConfig, SimResult, parse_solver_time, run_simulation
 from sim_clients.intruder import IntruderConfig
+from sim_clients.stays import parse_stay
 
 VARIANTS: tuple[str, ...] = ("lower_bound", "intruder", "random", "slack")
 """The four simulations of one experiment (the paper's)."""
@@ -161,6 +162,10 @@ class SimSettings:
     replan_time_limit_s: float = 10.0
     intruder_reading: IntruderReading = "start"
     """:attr:`~sim_clients.intruder.IntruderConfig.reading`."""
+    intruder_stay: str | None = None
+    """The intruder's stay after its robot needs the cell (:mod:`sim_clients.stays`, its
+    canonical text), drawn per experiment from the experiment's seed; None: the paper's fixed
+    ``intruder_leave_ms``."""
     block_history_ms: tuple[float, ...] = ()
     """How long the blocks the fleets saw before each run lasted (a warm start of the block
     estimates of ``informed`` and ``shadow``; empty: every run starts cold)."""
@@ -373,7 +378,8 @@ def variant_config(grid: Grid, plan: Plan, seed: int, variant: str,
         solver_time_limit_s=sim.replan_time_limit_s, block_history=history,
         intruder_config=IntruderConfig(appear_ms=sim.intruder_appear_ms,
                                        leave_ms=sim.intruder_leave_ms,
-                                       reading=sim.intruder_reading))
+                                       reading=sim.intruder_reading),
+        intruder_stay=None if sim.intruder_stay is None else parse_stay(sim.intruder_stay))
 
 
 def simulate_variant(grid: Grid, plan: Plan, seed: int, variant: str,

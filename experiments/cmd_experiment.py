@@ -17,6 +17,7 @@ from gateway.execution.params import PAPER as PAPER_PARAMS
 from gateway.planning.motion import MOTIONS
 from gateway.runtime.exits import EXIT_OK, UsageError
 from gateway.runtime.mapstore import MapNotFound, resolve
+from sim_clients.stays import STAY_HELP, stay_option
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -63,6 +64,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the intruder takes the first cell its robot is estimated to START "
                    "moving into (default, the paper's 2 s are the intruder's time to get there "
                    "first) or to ARRIVE on, at or after T_a + 2 s")
+    p.add_argument("--intruder-stay", metavar="SPEC|FILE", help=STAY_HELP)
     p.add_argument("--seed", type=int, default=0, help="seed of instance generation")
     p.add_argument("--motion", choices=MOTIONS, default="omni",
                    help="motion model of the plans (default omni); turning robots start "
@@ -106,6 +108,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="also sweep the oracle (one forced replan every --oracle-step-ms of each "
                    "run, the best kept) and report how much of its saving each policy captures "
                    "(OUT/oracle.csv, OUT/oracle.png)")
+    p.add_argument("--clairvoyant", action="store_true",
+                   help="also sweep the clairvoyant (one forced replan every --oracle-step-ms "
+                   "from the intruder's appearance while it is there, each an informed solve "
+                   "that knows its cell and true leave time; the best kept) and report each "
+                   "policy's capture of its saving and per-experiment outcomes "
+                   "(OUT/clairvoyant.csv)")
     p.add_argument("--oracle-sample", type=int, metavar="N",
                    help="sweep the oracle of N experiments drawn (seeded) from the campaign "
                    "instead of all of them")
@@ -359,6 +367,41 @@ def oracle_table(o: JsonDict) -> Table:
     return table
 
 
+def clairvoyant_table(c: JsonDict) -> Table:
+    """Each policy against the clairvoyant, and its per-experiment outcomes."""
+    from rich.table import Table
+    from rich.text import Text
+
+    me = c["clairvoyant"]
+    table = Table(title=f"clairvoyant: {c['experiments']} experiments; it saves in "
+                  f"{_value_ci(me['saves'])} of them, "
+                  f"{me['saving_ms']['value'] or 0:.0f} ms on average; value [95% interval]",
+                  title_justify="left")
+    table.add_column("statistic", no_wrap=True)
+    policies = c["policies"]
+    for name in policies:
+        table.add_column(name, justify="right", no_wrap=True)
+
+    def row(label: str, cells: list[str]) -> None:
+        table.add_row(Text(label), *(Text(x) for x in cells))
+
+    row("capture, pooled share of its saving", [_value_ci(p["capture"]) for p in
+                                                 policies.values()])
+    row("capture, median per experiment", [_value_ci(p["capture_median"]) for p in
+                                            policies.values()])
+    row("worse than not replanning", [_value_ci(p["worse_than_none"]) for p in
+                                       policies.values()])
+    row("  upper 95% bound (Clopper-Pearson)",
+        ["-" if (u := p["worse_than_none"]["upper95"]) is None else f"{100 * u:.1f}%"
+         for p in policies.values()])
+    row("  cost when worse, median / max ms",
+        ["-" if not (w := p["worse_than_none"]["cost"])["n"]
+         else f"{w['median_ms']:.0f} / {w['max_ms']:.0f}" for p in policies.values()])
+    row("saving, mean ms", [_value_ci(p["saving_ms"], 1.0, ".0f", "") for p in
+                            policies.values()])
+    return table
+
+
 def oracle_line(o: JsonDict) -> str:
     """The oracle's own numbers."""
     me = o["oracle"]
@@ -429,6 +472,7 @@ def run(args: argparse.Namespace) -> int:
         open_executor,
         run_campaign,
     )
+    from experiments.clairvoyant_stats import summarize_clairvoyant
     from experiments.oracle import run_oracle
     from experiments.oracle_stats import extrapolate_cpu_s, judge, summarize_oracle
     from experiments.plots import plot_all, plot_oracle
@@ -443,14 +487,16 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--oracle-step-ms must be positive, got {args.oracle_step_ms:g}")
     if args.oracle_sample is not None and args.oracle_sample < 1:
         raise UsageError(f"--oracle-sample must be positive, got {args.oracle_sample}")
-    if args.oracle_sample is not None and not args.oracle:
-        raise UsageError("--oracle-sample needs --oracle")
+    if args.oracle_sample is not None and not (args.oracle or args.clairvoyant):
+        raise UsageError("--oracle-sample needs --oracle or --clairvoyant")
     if args.block_memory < 1:
         raise UsageError(f"--block-memory must be positive, got {args.block_memory}")
     history = args.block_history
+    stay = stay_option(args.intruder_stay)
     sim = SimSettings(solver_time=_solver_time(args.solver_time), threshold_ms=args.threshold_ms,
                       replan_time_limit_s=args.replan_time_limit,
                       intruder_reading=args.intruder_reading,
+                      intruder_stay=None if stay is None else stay.text,
                       block_history_ms=history if isinstance(history, tuple) else (),
                       learned_blocks=args.block_memory if history == "learned" else 0)
     files = _map_files(groups, args.maps_dir)
@@ -477,7 +523,8 @@ def run(args: argparse.Namespace) -> int:
     began = time.perf_counter()
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, disable=args.no_progress) as bar:
-        phases = ("instances", "experiments", *(("oracle",) if args.oracle else ()))
+        phases = ("instances", "experiments", *(("oracle",) if args.oracle else ()),
+                  *(("clairvoyant",) if args.clairvoyant else ()))
         ids = {phase: bar.add_task(phase, total=None) for phase in phases}
 
         def progress(phase: str, done: int, total: int) -> None:
@@ -492,6 +539,10 @@ def run(args: argparse.Namespace) -> int:
                     spec, args.out, map_paths, result.records, executor=executor,
                     workers=workers, step_ms=args.oracle_step_ms, sample=args.oracle_sample,
                     progress=progress)
+                clair = None if not args.clairvoyant else run_oracle(
+                    spec, args.out, map_paths, result.records, executor=executor,
+                    workers=workers, step_ms=args.oracle_step_ms, sample=args.oracle_sample,
+                    progress=progress, clairvoyant=True)
         except CampaignError as exc:
             raise UsageError(str(exc)) from None
     wall = time.perf_counter() - began
@@ -517,6 +568,14 @@ def run(args: argparse.Namespace) -> int:
             groups_not_sampled=[f"{m}/{n}" for m, n in PAPER_GROUPS
                                 if not any((r.map, r.agents) == (m, n) for r in oracle.rows)])
         pictures.append(plot_oracle(judge(exps, oracle.rows), args.out))
+    if clair is not None:
+        summary["clairvoyant"] = summarize_clairvoyant(
+            exps, clair.rows, [] if oracle is None else oracle.rows, seed=args.seed,
+            resamples=args.resamples)
+        summary["clairvoyant"]["cost"] = {
+            "cpu_s_total": round(sum(r.cpu_s for r in clair.rows), 3),
+            "running_s": clair.running_s, "swept_now": clair.ran,
+            "failures": [asdict(f) for f in clair.failures]}
     write_text(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     out = Console()
     out.width = max(out.width, TABLE_WIDTH)  # never truncate numbers on a narrow terminal
@@ -536,6 +595,8 @@ def run(args: argparse.Namespace) -> int:
             out.print(f"caveat: {caveat}", highlight=False)
         cost = summary["oracle"]["cost"]
         out.print(oracle_cost_line(cost, workers_hint=args.workers), highlight=False)
+    if clair is not None:
+        out.print(clairvoyant_table(summary["clairvoyant"]))
     state = "complete" if result.complete else "INCOMPLETE (rerun the same command to resume)"
     if result.failures:
         state += (f"; {len(result.failures)} simulations FAILED (see "

@@ -18,11 +18,19 @@ Two memos make the sweep cheap, both exact:
 
 A test checks that the memoised, forking sweep gives exactly what one fresh simulation per
 replan time gives.
+
+The clairvoyant (``clairvoyant=True``, ``fleetgate experiment --clairvoyant``) sweeps the same
+way, but knows the intruder's cell and leave time from the moment it appears: its forced
+replans start at ``T_a`` and are informed solves that keep every robot off the intruder's cell
+until it truly leaves; the sweep ends when the intruder is gone (a later replan is the
+oracle's, uninformed). It is the yardstick of what replanning could save with perfect
+knowledge of the block (:mod:`experiments.clairvoyant_stats`).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import time
 from collections.abc import Iterable, Sequence
 from concurrent.futures import Executor
@@ -50,6 +58,7 @@ from gateway.execution.params import PAPER
 from gateway.planning.plan import Plan
 from gateway.planning.seeds import derive_seed
 from sim_clients.des import SimConfig, Simulation
+from sim_clients.intruder import IntruderState
 
 DEFAULT_STEP_MS = PAPER.oracle_step_ms
 """The sweep's step in virtual ms (the executor ticks every 100 ms)."""
@@ -135,6 +144,19 @@ class _OracleSimulation(Simulation):
         return got
 
 
+class _ClairvoyantSimulation(_OracleSimulation):
+    """An oracle simulation whose replans know the intruder's cell and leave time."""
+
+    def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
+        intr = self.intruder
+        if (intr is not None and intr.cell is not None and not request.shadow
+                and intr.state in (IntruderState.WAITING, IntruderState.PRESENT)
+                and intr.cell not in request.starts):
+            request = dataclasses.replace(request, obstacles=((intr.cell, intr.leave_ms),),
+                                          start_ms=None)
+        return super().plan_for(request, now)
+
+
 @dataclass(frozen=True)
 class Sweep:
     """One experiment's oracle sweep (times in virtual ms)."""
@@ -159,28 +181,32 @@ class Sweep:
         return soc, at
 
 
-def sweep(config: SimConfig, step_ms: float = DEFAULT_STEP_MS) -> Sweep:
+def sweep(config: SimConfig, step_ms: float = DEFAULT_STEP_MS, *,
+          clairvoyant: bool = False) -> Sweep:
     """Sweep one forced replan every ``step_ms`` over the run of ``config`` (which must have no
-    replanning policy of its own and a replan budget)."""
+    replanning policy of its own and a replan budget); ``clairvoyant``: from ``T_a`` while the
+    intruder is there, each replan knowing its cell and leave time."""
     if not step_ms > 0:
         raise ValueError(f"the sweep's step must be positive, got {step_ms}")
     if config.policy != "none" or config.max_replans < 1:
         raise ValueError("the oracle forces its own replans: give policy 'none' and "
                          "max_replans >= 1")
     memo = _Memo()
-    base = _OracleSimulation(config, memo)
+    base = (_ClairvoyantSimulation if clairvoyant else _OracleSimulation)(config, memo)
     base.start()
     curve = []
-    t = 0.0
+    t = config.intruder_config.appear_ms if clairvoyant else 0.0
     while True:
         base.run_until(t)
-        if base.finished():
+        if base.finished() or (clairvoyant and (
+                base.intruder is None or base.intruder.state is IntruderState.GONE)):
             break
         fork = base.fork(share=(memo,))
         fork.replan_now(t)
         fork.run_until(None)
         curve.append((t, fork.outcome()[0]))
         t += step_ms
+    base.run_until(None)
     assert base.completed is not None
     return Sweep(base.completed.soc_ms, tuple(curve), len(memo.solves), len(memo.outcomes))
 
@@ -282,6 +308,7 @@ class OracleTask:
     seed: int
     sim: SimSettings
     step_ms: float
+    clairvoyant: bool = False
 
 
 def run_oracle_task(task: OracleTask) -> OracleRow | Failure:
@@ -290,9 +317,10 @@ def run_oracle_task(task: OracleTask) -> OracleRow | Failure:
     config = variant_config(load_grid(task.map_path), rec.plan, task.seed, "intruder", task.sim)
     began = time.process_time()
     try:
-        got = sweep(config, task.step_ms)
+        got = sweep(config, task.step_ms, clairvoyant=task.clairvoyant)
     except Exception as exc:  # one bad run must not sink a long sweep
-        return Failure(rec.map, rec.agents, rec.index, task.seed, "oracle",
+        return Failure(rec.map, rec.agents, rec.index, task.seed,
+                       "clairvoyant" if task.clairvoyant else "oracle",
                        f"{type(exc).__name__}: {exc}")
     return OracleRow.of((rec.map, rec.agents, rec.index, task.seed), task.step_ms, got,
                         task.sim.intruder_appear_ms, time.process_time() - began)
@@ -331,23 +359,25 @@ class OracleRun:
 def run_oracle(spec: CampaignSpec, out: Path, map_paths: dict[str, str],
                records: dict[tuple[str, int, int], InstanceRecord], *, executor: Executor,
                workers: int = 1, step_ms: float = DEFAULT_STEP_MS, sample: int | None = None,
-               progress: Progress | None = None) -> OracleRun:
+               progress: Progress | None = None, clairvoyant: bool = False) -> OracleRun:
     """Sweep the oracle of the campaign's experiments (or a seeded sample of ``sample`` of
-    them) into ``OUT/oracle.csv``; rows already there with the same step are reused."""
+    them) into ``OUT/oracle.csv`` (the clairvoyant: ``OUT/clairvoyant.csv``, progress phase
+    ``clairvoyant``); rows already there with the same step are reused."""
     keys = [(m, n, i, s) for m, n, i in spec.slots() for s in spec.experiment_seeds(m, n, i)]
     chosen = sample_experiments(keys, sample, spec.seed)
-    path = out / "oracle.csv"
+    phase = "clairvoyant" if clairvoyant else "oracle"
+    path = out / f"{phase}.csv"
     try:
         old = {r.key: r for r in read_oracle_rows(path) if r.step_ms == step_ms}
     except ValueError as exc:
         raise CampaignError(str(exc)) from None
     write_oracle_rows(path, old.values(), append=False)
-    tasks = [OracleTask(map_paths[m], records[(m, n, i)], s, spec.sim, step_ms)
+    tasks = [OracleTask(map_paths[m], records[(m, n, i)], s, spec.sim, step_ms, clairvoyant)
              for m, n, i, s in chosen if (m, n, i, s) not in old]
     tasks.sort(key=lambda t: -t.record.agents)  # the longest first
     report = progress or (lambda _phase, _done, _total: None)
     done = len(chosen) - len(tasks)
-    report("oracle", done, len(chosen))
+    report(phase, done, len(chosen))
     failures: list[Failure] = []
     began = time.perf_counter()
     size = max(1, min(4, len(tasks) // (workers * 8)))
@@ -357,7 +387,7 @@ def run_oracle(spec: CampaignSpec, out: Path, map_paths: dict[str, str],
         write_oracle_rows(path, rows, append=True)
         old.update((r.key, r) for r in rows)
         done += len(got)
-        report("oracle", done, len(chosen))
+        report(phase, done, len(chosen))
     mine = [old[k] for k in chosen if k in old]
     write_oracle_rows(path, mine, append=False)
     return OracleRun(mine, len(tasks), failures, round(time.perf_counter() - began, 3))

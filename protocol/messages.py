@@ -92,7 +92,7 @@ def plan_key(action_id: str) -> str:
 class _Model(BaseModel):
     """Strict base of every nested structure."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def _require_version(schema: dict[str, Any]) -> None:
@@ -105,7 +105,8 @@ def _require_version(schema: dict[str, Any]) -> None:
 class Envelope(_Model):
     """Fields common to every message; ``v`` and ``type`` must be present on the wire."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_require_version)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False,
+                              json_schema_extra=_require_version)
 
     v: ProtocolVersion = PROTOCOL_VERSION
     msg_id: MsgId

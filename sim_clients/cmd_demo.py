@@ -32,6 +32,7 @@ from gateway.execution.params import PAPER
 from gateway.execution.policies import POLICY_NAMES
 from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, UsageError
 from sim_clients.cmd_demo_lifelong import add_lifelong_arguments, run_lifelong_demo
+from sim_clients.stays import STAY_HELP, stay_option
 
 if TYPE_CHECKING:
 
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
     from gateway.server.gateway import Gateway
     from gateway.server.planner import Problem
     from sim_clients.fleet import SimFleet
+    from sim_clients.intruder import IntruderConfig
 
 DEFAULT_MAP, DEFAULT_SCEN, DEFAULT_AGENTS = "lab", "lab-random-4", 10
 """The zero-setup demo: 10 robots on the shipped lab map. Its seed-0 intruder blocks a robot
@@ -113,6 +115,15 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
     engine.status_listeners.append(on_status)
 
 
+def demo_intruder(args: argparse.Namespace) -> IntruderConfig:
+    """The demo's automatic intruder: the paper's, or with ``--intruder-stay`` a stay drawn
+    from the run's seed."""
+    from sim_clients.intruder import IntruderConfig
+
+    stay = stay_option(args.intruder_stay)
+    return IntruderConfig(stay_ms=None if stay is None else stay.draw_ms(args.seed))
+
+
 async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace,
                 status: StatusLine) -> int:
     import asyncio
@@ -132,8 +143,9 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
                      f"(robots and world on ws://{host}:{port}/ws)")
         fleet = fleet_for(gateway, problem.instance.num_agents,
                           websocket_connector(f"ws://{host}:{port}/ws"),
-                          seed=args.seed,
-                          intruder=args.intruder, poll_at_ticks=False, send_state=True)
+                          seed=args.seed, intruder=args.intruder,
+                          intruder_config=demo_intruder(args), poll_at_ticks=False,
+                          send_state=True)
         run = asyncio.ensure_future(run_in_process(gateway, problem, fleet))
         stopped = asyncio.ensure_future(stop.wait())
         live = asyncio.ensure_future(show_status(gateway.engine, status))
@@ -178,6 +190,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.max_replans < 0:
         raise UsageError(f"--max-replans must be >= 0, got {args.max_replans}")
     check_planning_arguments(args)
+    stay_option(args.intruder_stay)  # bad input before planning
     instance = instance_from_args(args)
     status = StatusLine()
     try:
@@ -240,6 +253,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
                    help=f"the intruder appears at {PAPER.intruder_appear_ms:g} ms and leaves at "
                    f"{PAPER.intruder_leave_ms:g} ms (default: on)")
+    p.add_argument("--intruder-stay", metavar="SPEC|FILE", help=STAY_HELP)
     p.add_argument("--policy", choices=POLICY_NAMES, default="slack",
                    help="replanning policy (default slack)")
     p.add_argument("--threshold-ms", metavar="MS", type=float, default=PAPER.threshold_ms,

@@ -18,6 +18,7 @@ from gateway.commands.solving import (
 from gateway.execution.params import INTRUDER_READINGS, PAPER
 from gateway.execution.policies import AUTONOMOUS_POLICIES
 from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from sim_clients.stays import STAY_HELP
 
 if TYPE_CHECKING:
     from sim_clients.des import SolverTime
@@ -37,9 +38,11 @@ def _run(args: argparse.Namespace) -> int:
     from gateway.runtime.trace import JsonlWriter
     from sim_clients.des import SimConfig, run_simulation
     from sim_clients.intruder import IntruderConfig
+    from sim_clients.stays import stay_option
 
     if args.threshold_ms < 0:
         raise UsageError(f"--threshold-ms must be >= 0, got {args.threshold_ms:g}")
+    stay_option(args.intruder_stay)  # bad input before planning
     check_planning_arguments(args)
     instance = instance_from_args(args)
     starts = starts_from_args(args, instance)
@@ -51,11 +54,13 @@ def _run(args: argparse.Namespace) -> int:
         print(f"fleetgate: {why}", file=sys.stderr)
         return EXIT_NO_SOLUTION
     writer = JsonlWriter(args.trace) if args.trace else None
+    stay = stay_option(args.intruder_stay)
     config = SimConfig(instance.grid, solution.plan, seed=args.seed, intruder=args.intruder,
                        policy=args.policy, threshold_ms=args.threshold_ms,
                        solver_time=args.solver_time, solver_time_limit_s=args.time_limit,
                        trace=writer, informed=args.informed,
-                       intruder_config=IntruderConfig(reading=args.intruder_reading))
+                       intruder_config=IntruderConfig(reading=args.intruder_reading),
+                       intruder_stay=stay)
     try:
         with ticking(status, lambda s: f"simulating {instance.num_agents} robots ... {s:.0f} s"):
             result = run_simulation(config)
@@ -98,6 +103,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the intruder takes the first cell its robot is estimated to START "
                    "moving into (default, the paper's 2 s are the intruder's time to get there "
                    "first) or to ARRIVE on, at or after T_a + 2 s")
+    p.add_argument("--intruder-stay", metavar="SPEC|FILE", help=STAY_HELP)
     p.add_argument("--informed", action="store_true",
                    help="informed replanning: the replan keeps robots off the cells they "
                    "reported blocked until each block's estimated end")

@@ -13,6 +13,7 @@ seed, except for the solver's CPU time when ``solver_time="measured"``.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import heapq
 import random
 from collections.abc import Callable, Sequence
@@ -39,8 +40,9 @@ from gateway.planning.seeds import run_seed
 from gateway.planning.solver import Place, solve
 from gateway.runtime.deadline import WallDeadline
 from gateway.runtime.solver_time import SolverTime, run_charged
-from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
+from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target_at
 from sim_clients.robot import RobotEvent, RobotState, SimRobot
+from sim_clients.stays import StaySpec
 from sim_clients.summary import RunSummary
 from sim_clients.world import INTRUDER, World
 
@@ -86,6 +88,9 @@ class SimConfig:
     solver_time_limit_s: float = 30.0
     trace: TraceSink | None = None
     intruder_config: IntruderConfig = field(default_factory=IntruderConfig)
+    intruder_stay: StaySpec | None = None
+    """The intruder's stay after its robot needs the cell, drawn from the run's seed (None:
+    ``intruder_config`` says when it leaves, by default the paper's ``T_d``)."""
     action_ms: float = PAPER.action_ms
     durations: ActionDurations | None = None
     """Duration of each action kind (move, turn, wait); by default each takes ``action_ms``.
@@ -155,6 +160,14 @@ def policy_for(config: SimConfig) -> ReplanPolicy:
                        intruder_appear_ms=config.intruder_config.appear_ms)
 
 
+def intruder_config(config: SimConfig) -> IntruderConfig:
+    """The intruder of ``config``, its stay drawn from the run's seed if it has one."""
+    if config.intruder_stay is None:
+        return config.intruder_config
+    return dataclasses.replace(config.intruder_config,
+                               stay_ms=config.intruder_stay.draw_ms(config.seed))
+
+
 def run_simulation(config: SimConfig) -> SimResult:
     """Execute ``config.plan`` in virtual time and return the measurements."""
     return Simulation(config).run()
@@ -178,7 +191,8 @@ class Simulation:
                                  record=config.trace, lookahead=config.lookahead,
                                  durations=config.durations, informed=config.informed,
                                  block_history=config.block_history)
-        self.intruder = Intruder(self.world, config.intruder_config) if config.intruder else None
+        self.intruder = Intruder(self.world, intruder_config(config)) if config.intruder \
+            else None
         self.rng = random.Random(run_seed(config.seed, "intruder"))
         self.heap: list[tuple[float, int, int, int]] = []
         self.seq = 0
@@ -425,9 +439,10 @@ class Simulation:
             ex = self.executor
             visit = ex.monitor.start_ms if intr.config.reading == "start" else \
                 ex.monitor.completion_ms
-            target = pick_target(self.rng, ex.plan.paths, self.next_action, visit,
-                                 now + intr.config.lead_ms)
-            events = intr.appear(now, target)
+            target = pick_target_at(self.rng, ex.plan.paths, self.next_action, visit,
+                                    now + intr.config.lead_ms)
+            events = intr.appear(now, None if target is None else target[:2],
+                                 None if target is None else target[2])
         else:
             events = intr.wake(now)
         if self.cfg.trace is not None:

@@ -69,7 +69,7 @@ from protocol.robot_session import (
     Send,
     Welcomed,
 )
-from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target
+from sim_clients.intruder import Intruder, IntruderConfig, IntruderState, pick_target_at
 from sim_clients.robot import RECHECK_MS, RobotEvent, RobotState, SimRobot
 from sim_clients.summary import RunSummary
 from sim_clients.world import World
@@ -604,12 +604,14 @@ class SimFleet:
             if intr.state is IntruderState.ABSENT:
                 if self._oracle is None or not self._oracle.running:
                     continue  # the run has not started: T_a is counted from its start
-                self._report(intr.appear(now, self._auto_target(now)))
+                target = self._auto_target(now)
+                self._report(intr.appear(now, None if target is None else target[:2],
+                                         None if target is None else target[2]))
             else:
                 self._report(intr.wake(now))
         self._intruders = [i for i in self._intruders if i.state is not IntruderState.GONE]
 
-    def _auto_target(self, now: float) -> tuple[int, Cell] | None:
+    def _auto_target(self, now: float) -> tuple[int, Cell, float] | None:
         oracle = self._oracle
         assert oracle is not None
         plan_id = oracle.plan_id
@@ -620,7 +622,8 @@ class SimFleet:
                 next_action[k] = robot.next_action
         config = self._intruder_config
         visit = oracle.start_ms if config.reading == "start" else oracle.completion_ms
-        return pick_target(self._rng, oracle.paths(), next_action, visit, now + config.lead_ms)
+        return pick_target_at(self._rng, oracle.paths(), next_action, visit,
+                              now + config.lead_ms)
 
     async def _poll_loop(self) -> None:
         """Poll the intruders at every multiple of ``recheck_ms`` (when no driver does it)."""

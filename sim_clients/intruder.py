@@ -33,6 +33,10 @@ class IntruderConfig:
     leave_ms: float = PAPER.intruder_leave_ms
     lead_ms: float = PAPER.intruder_lead_ms
     recheck_ms: float = PAPER.recheck_ms
+    stay_ms: float | None = None
+    """How long the intruder stays after its robot is estimated to need the cell (then it
+    leaves at that time plus ``stay_ms`` instead of ``leave_ms``; None: the paper's fixed
+    ``leave_ms``)."""
     reading: IntruderReading = "start"
     """How the paper's "scheduled to visit the vertex in T_a + 2 s" is read: the robot's move
     into the cell is estimated to START then (the default: the 2 s are the intruder's time to
@@ -46,6 +50,8 @@ class IntruderConfig:
         if not 0 <= self.appear_ms < self.leave_ms:
             raise ValueError(f"need 0 <= appear_ms < leave_ms, got {self.appear_ms} and "
                              f"{self.leave_ms}")
+        if self.stay_ms is not None and not 0 < self.stay_ms < float("inf"):
+            raise ValueError(f"stay_ms must be a positive number, got {self.stay_ms}")
         if self.lead_ms < 0 or self.recheck_ms <= 0:
             raise ValueError("lead_ms must be >= 0 and recheck_ms > 0")
 
@@ -61,7 +67,17 @@ class IntruderEvent:
 
 def pick_target(rng: random.Random, paths: Sequence[Path], next_action: Sequence[int],
                 start_ms: StartEstimate, not_before_ms: float) -> tuple[int, Cell] | None:
-    """The robot and cell the intruder goes for, or None if no robot has a move ahead.
+    """The robot and cell the intruder goes for, or None if no robot has a move ahead
+    (:func:`pick_target_at` without the time)."""
+    got = pick_target_at(rng, paths, next_action, start_ms, not_before_ms)
+    return None if got is None else got[:2]
+
+
+def pick_target_at(rng: random.Random, paths: Sequence[Path], next_action: Sequence[int],
+                   start_ms: StartEstimate,
+                   not_before_ms: float) -> tuple[int, Cell, float] | None:
+    """The robot and cell the intruder goes for and when the robot is estimated to need it
+    (``start_ms`` of the move), or None if no robot has a move ahead.
 
     ``next_action[k]`` is the index of robot k's first action that has not started. A move
     is an action whose two cells differ. The robot is drawn uniformly from those with a move
@@ -76,9 +92,9 @@ def pick_target(rng: random.Random, paths: Sequence[Path], next_action: Sequence
     path = paths[robot]
     moves = [i for i in range(next_action[robot], len(path) - 1) if path[i] != path[i + 1]]
     for i in moves:
-        if start_ms(robot, i) >= not_before_ms:
-            return robot, path[i + 1]
-    return robot, path[moves[-1] + 1]
+        if (need := start_ms(robot, i)) >= not_before_ms:
+            return robot, path[i + 1], need
+    return robot, path[moves[-1] + 1], start_ms(robot, moves[-1])
 
 
 class IntruderState(Enum):
@@ -105,14 +121,19 @@ class Intruder:
         """The robot it went for (None if it never picked one)."""
         self.cell: Cell | None = None
         self.entered_ms: float | None = None
+        self.leave_ms = self.config.leave_ms
+        """When it leaves (with a stay: set when it appears)."""
         self._wake: float | None = self.config.appear_ms
 
     def next_wakeup_ms(self) -> float | None:
         """When :meth:`appear` or :meth:`wake` is due next; None once gone."""
         return self._wake
 
-    def appear(self, now_ms: float, target: tuple[int, Cell] | None) -> list[IntruderEvent]:
-        """Arrive at ``now_ms`` going for ``target`` (``(robot, cell)``; None: stay away)."""
+    def appear(self, now_ms: float, target: tuple[int, Cell] | None,
+               need_ms: float | None = None) -> list[IntruderEvent]:
+        """Arrive at ``now_ms`` going for ``target`` (``(robot, cell)``; None: stay away);
+        with a stay, leave ``stay_ms`` after ``need_ms`` (when the robot is estimated to need
+        the cell; default now)."""
         if self.state is not IntruderState.ABSENT:
             raise ValueError(f"the intruder already appeared (it is {self.state.value})")
         if target is None:
@@ -120,6 +141,9 @@ class Intruder:
             self._wake = None
             return []
         self.robot, self.cell = target
+        if self.config.stay_ms is not None:
+            self.leave_ms = max(now_ms, now_ms if need_ms is None else need_ms) \
+                + self.config.stay_ms
         self.state = IntruderState.WAITING
         return self._try_enter(now_ms)
 
@@ -129,7 +153,7 @@ class Intruder:
             return []
         cell = self.cell
         assert cell is not None
-        if now_ms >= self.config.leave_ms:
+        if now_ms >= self.leave_ms:
             was_present = self.state is IntruderState.PRESENT
             self.state = IntruderState.GONE
             self._wake = None
@@ -146,7 +170,7 @@ class Intruder:
             self.world.occupy(cell, INTRUDER, now_ms)
             self.state = IntruderState.PRESENT
             self.entered_ms = now_ms
-            self._wake = self.config.leave_ms
+            self._wake = self.leave_ms
             return [IntruderEvent(now_ms, cell, "on")]
-        self._wake = min(now_ms + self.config.recheck_ms, self.config.leave_ms)
+        self._wake = min(now_ms + self.config.recheck_ms, self.leave_ms)
         return []

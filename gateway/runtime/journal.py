@@ -41,6 +41,11 @@ them by one :class:`ShiftSnapshotRecord` of the shift's state.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
+import json
+import os
 import secrets
 import sqlite3
 import threading
@@ -57,7 +62,7 @@ Cell = tuple[int, int]
 
 
 class _Record(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RunRecord(_Record):
@@ -289,6 +294,68 @@ class JournalError(Exception):
     """The journal cannot be opened or read; the message says why."""
 
 
+class JournalWriteError(JournalError):
+    """A write or sync of the journal failed: nothing of the failed transaction is on disk, and
+    the journal takes no more writes (what was acknowledged before stays; a retry could not be
+    trusted, as PostgreSQL's PANIC on an ``fsync`` failure)."""
+
+
+DURABLE_KINDS = frozenset({"run", "task", "shift", "policy", "threshold", "speed", "pause",
+                           "resume", "replan", "stop", "abandon", "adopt", "segment",
+                           "intruder", "shadow"})
+"""Record kinds committed with ``synchronous=FULL`` (the WAL is synced before the commit
+returns): what a WMS, an operator or a robot is told was accepted and cannot re-send, and what
+robots are given actions from. A transaction with any of them syncs the records before it too.
+Reports and ticks are committed with ``NORMAL`` (a power cut may lose the last of them: the
+robots' ``hello`` carries what they reported again)."""
+
+_CREATE_RECORDS = ("CREATE TABLE records (seq INTEGER PRIMARY KEY, kind TEXT NOT NULL, "
+                   "body TEXT NOT NULL, chain TEXT NOT NULL)")
+
+GENESIS = ""
+"""The chain value before a journal's first record."""
+
+
+def chain_next(prev: str, kind: str, body: str) -> str:
+    """The hash chain's value after a record: SHA-256 over the previous value, the record's
+    kind and its JSON (the first 32 hex digits). Replay recomputes it: an edited, reordered or
+    deleted record (but the last ones: a lost tail) breaks the chain."""
+    h = hashlib.sha256(prev.encode())
+    h.update(b"\0" + kind.encode() + b"\0" + body.encode())
+    return h.hexdigest()[:32]
+
+
+class JournalLock:
+    """One writer per journal: an exclusive ``flock`` on ``<journal>.lock`` naming the holder's
+    pid. The kernel releases it with its holder's last file descriptor, so a ``kill -9``
+    never leaves a stale lock; a second gateway gets a one-line :class:`JournalError`."""
+
+    def __init__(self, journal: Path) -> None:
+        self.path = journal.with_name(journal.name + ".lock")
+        try:
+            journal.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o600)
+        except OSError as exc:
+            raise JournalError(f"cannot open the journal's lock {self.path}: "
+                               f"{exc.strerror}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise JournalError(f"the journal {journal} is in use by process {holder} "
+                               f"(one gateway per journal)") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd: int | None = fd
+
+    def release(self) -> None:
+        """Give the lock up (closing the descriptor)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
 def new_run_id() -> str:
     """A run id that does not repeat (8 random lower-case hex digits)."""
     return secrets.token_hex(4)
@@ -351,7 +418,12 @@ class Checkpointer:
 
 class Journal:
     """The SQLite journal at ``path`` (created with its directory if missing). Its first
-    write starts a :class:`Checkpointer` (a journal only read never does)."""
+    write starts a :class:`Checkpointer` (a journal only read never does).
+
+    Every row carries the hash chain's value after it (:func:`chain_next`), checked by
+    :meth:`records`; every record is read back before it is buffered (it must round-trip:
+    finite numbers only); a failed commit is rolled back, keeps its records buffered and
+    makes the journal refuse every later write (:class:`JournalWriteError`)."""
 
     def __init__(self, path: Path, *, checkpoint_period_s: float = CHECKPOINT_PERIOD_S,
                  wal_bound_pages: int = WAL_BOUND_PAGES) -> None:
@@ -367,37 +439,98 @@ class Journal:
             self._db.execute("PRAGMA wal_autocheckpoint=0")  # the checkpointer's job
             page = int(self._db.execute("PRAGMA page_size").fetchone()[0])
             self._db.execute(f"PRAGMA journal_size_limit={wal_bound_pages * page}")
-            self._db.execute("CREATE TABLE IF NOT EXISTS records ("
-                             "seq INTEGER PRIMARY KEY, kind TEXT NOT NULL, body TEXT NOT NULL)")
+            self._db.execute(_CREATE_RECORDS.replace("TABLE", "TABLE IF NOT EXISTS"))
+            self._db.execute("CREATE TABLE IF NOT EXISTS meta ("
+                             "key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+            columns = [row[1] for row in self._db.execute("PRAGMA table_info(records)")]
+            last = self._db.execute(
+                "SELECT chain FROM records ORDER BY seq DESC LIMIT 1").fetchone() \
+                if "chain" in columns else None
         except (OSError, sqlite3.Error) as exc:
             raise JournalError(f"cannot open the journal {path}: {exc}") from None
         if mode != "wal":
             raise JournalError(f"the journal {path} cannot use WAL mode (got {mode})")
+        self._legacy = "chain" not in columns
+        """Written by a fleetgate without checksums: read as damaged, replaced by a new run."""
+        self._chain = GENESIS if last is None else str(last[0])
         self._buffer: list[tuple[str, str]] = []
+        self._durable = False  # the buffer holds a kind of DURABLE_KINDS
+        self.failed: str | None = None
+        """Why a write failed (then every later write is refused)."""
         self.checkpointer: Checkpointer | None = None
         self.appended = 0
         """Records written since the journal was opened."""
         self.commits = 0
+        self.synced_commits = 0
+        """Commits made with ``synchronous=FULL`` (:data:`DURABLE_KINDS`)."""
         self.commit_max_ms = 0.0
         """The longest commit (wall time), a checkpoint catch-up included."""
         self.restarts = 0
         """Times the writer caught up the WAL so that it starts over."""
 
+    @staticmethod
+    def encode(record: _Record) -> str:
+        """``record``'s JSON, read back first: a record that does not round-trip (a number
+        that is not finite, a value its model refuses) is refused with a :class:`ValueError`
+        before it can reach the journal."""
+        body = record.model_dump_json()
+        try:
+            again = _ADAPTER.validate_json(body)
+        except ValidationError as exc:
+            raise ValueError(f"a {record.kind} record does not round-trip: "  # type: ignore[attr-defined]
+                             f"{exc.errors(include_url=False)[0]['msg']}") from None
+        if again != record:
+            raise ValueError(f"a {record.kind} record does not round-trip")  # type: ignore[attr-defined]
+        return body
+
     def append(self, record: _Record) -> None:
         """Buffer one record (written by the next :meth:`commit`)."""
-        self._buffer.append((record.kind, record.model_dump_json()))  # type: ignore[attr-defined]
+        kind: str = record.kind  # type: ignore[attr-defined]
+        self._buffer.append((kind, self.encode(record)))
+        if kind in DURABLE_KINDS:
+            self._durable = True
+
+    def _check_writable(self) -> None:
+        if self.failed is not None:
+            raise JournalWriteError(f"the journal {self.path} failed earlier: {self.failed}")
+
+    def _write(self, statements: list[tuple[str, tuple[object, ...]]],
+               rows: list[tuple[str, str]], chain: str, *, full: bool) -> None:
+        """One transaction: ``statements``, then ``rows`` chained from ``chain``; on any error
+        it is rolled back and the journal fails (:class:`JournalWriteError`)."""
+        self._check_writable()
+        db = self._db
+        chained = []
+        for kind, body in rows:
+            chain = chain_next(chain, kind, body)
+            chained.append((kind, body, chain))
+        try:
+            if full:
+                db.execute("PRAGMA synchronous=FULL")
+            db.execute("BEGIN")
+            for sql, args in statements:
+                db.execute(sql, args)
+            db.executemany("INSERT INTO records (kind, body, chain) VALUES (?, ?, ?)", chained)
+            db.execute("COMMIT")
+            if full:
+                db.execute("PRAGMA synchronous=NORMAL")
+        except sqlite3.Error as exc:
+            with contextlib.suppress(sqlite3.Error):
+                db.execute("ROLLBACK")
+            self.failed = str(exc)
+            raise JournalWriteError(f"cannot write the journal {self.path}: {exc}") from None
+        self._chain = chain
+        self.appended += len(rows)
+        self.synced_commits += full
 
     def commit(self) -> None:
-        """Write the buffered records in one transaction."""
+        """Write the buffered records in one transaction (synced if one of them is of
+        :data:`DURABLE_KINDS`). On failure they stay buffered and nothing of them is written."""
         if not self._buffer:
             return
         t0 = time.perf_counter()
-        rows, self._buffer = self._buffer, []
-        db = self._db
-        db.execute("BEGIN")
-        db.executemany("INSERT INTO records (kind, body) VALUES (?, ?)", rows)
-        db.execute("COMMIT")
-        self.appended += len(rows)
+        self._write([], self._buffer, self._chain, full=self._durable)
+        self._buffer, self._durable = [], False
         self._after_write(t0)
 
     def _after_write(self, t0: float) -> None:
@@ -407,7 +540,12 @@ class Journal:
             self.checkpointer = Checkpointer(self.path, self._period_s, self._bound_pages)
         elif cp.restart_due:
             # the frames since the checkpointer's last pass: few, and nobody waits for a lock
-            busy = self._db.execute("PRAGMA wal_checkpoint(RESTART)").fetchone()[0]
+            try:
+                busy = self._db.execute("PRAGMA wal_checkpoint(RESTART)").fetchone()[0]
+            except sqlite3.Error as exc:
+                self.failed = str(exc)
+                raise JournalWriteError(f"cannot checkpoint the journal {self.path}: "
+                                        f"{exc}") from None
             if not busy:  # else the checkpointer was in a pass: ask again after the next
                 cp.restart_due = False
                 self.restarts += 1
@@ -416,21 +554,23 @@ class Journal:
 
     def _replace(self, *records: _Record, keep: str = "", drop: int = 0) -> None:
         """Forget every record but those of kind ``keep`` (less the ``drop`` oldest of
-        them) and write ``records`` after them (one transaction), then return the free pages
-        (a plan boundary: nobody waits for the fleet meanwhile)."""
+        them) and write ``records`` after them (one synced transaction: the kept rows are
+        chained again from the start), then return the free pages (a plan boundary: nobody
+        waits for the fleet meanwhile)."""
         t0 = time.perf_counter()
-        self._buffer.clear()
-        db = self._db
-        db.execute("BEGIN")
-        db.execute("DELETE FROM records WHERE kind != ?", (keep,))
-        if drop:
-            db.execute("DELETE FROM records WHERE seq IN (SELECT seq FROM records "
-                       "ORDER BY seq LIMIT ?)", (drop,))
-        db.executemany("INSERT INTO records (kind, body) VALUES (?, ?)",
-                       [(r.kind, r.model_dump_json()) for r in records])  # type: ignore[attr-defined]
-        db.execute("COMMIT")
-        db.execute("PRAGMA incremental_vacuum")
-        self.appended += len(records)
+        self._check_writable()
+        rows = [(r.kind, self.encode(r)) for r in records]  # type: ignore[attr-defined]
+        try:
+            kept = [(k, b) for k, b in self._db.execute(
+                "SELECT kind, body FROM records WHERE kind = ? ORDER BY seq", (keep,))][drop:]
+        except sqlite3.Error as exc:
+            self.failed = str(exc)
+            raise JournalWriteError(f"cannot read the journal {self.path}: {exc}") from None
+        self._buffer, self._durable = [], False
+        self._write([("DELETE FROM records", ())], kept + rows, GENESIS, full=True)
+        self.appended -= len(kept)
+        with contextlib.suppress(sqlite3.Error):  # returning free pages is an optimisation
+            self._db.execute("PRAGMA incremental_vacuum")
         self._after_write(t0)
 
     def begin_run(self, run: RunRecord) -> None:
@@ -451,23 +591,70 @@ class Journal:
         self._replace(*records, keep="shift_history", drop=drop)
 
     def discard(self) -> None:
-        """Forget the journaled run (starting fresh on purpose)."""
-        self._buffer.clear()
-        self._db.execute("DELETE FROM records")
-        self._db.execute("PRAGMA incremental_vacuum")
+        """Forget the journaled run and its configuration (starting fresh on purpose); a
+        journal of an earlier format is made anew. Synced before it returns."""
+        fresh = [("DROP TABLE records", ()), (_CREATE_RECORDS, ())] if self._legacy \
+            else [("DELETE FROM records", ())]
+        self._write([*fresh, ("DELETE FROM meta", ())], [], GENESIS, full=True)
+        self._legacy = False
+        self._buffer, self._durable = [], False
+        with contextlib.suppress(sqlite3.Error):
+            self._db.execute("PRAGMA incremental_vacuum")
 
-    def records(self) -> Iterator[JournalRecord]:
-        """The journaled run's records in order (none if there is no run)."""
+    @property
+    def legacy(self) -> bool:
+        """Written by a fleetgate without checksums (its records are refused; ``--fresh``
+        makes it anew)."""
+        return self._legacy
+
+    def fingerprint(self) -> dict[str, str] | None:
+        """The configuration the journaled run was started with (None: none was recorded)."""
         try:
-            rows = self._db.execute("SELECT body FROM records ORDER BY seq").fetchall()
+            row = self._db.execute("SELECT value FROM meta WHERE key = 'config'").fetchone()
+            if row is None:
+                return None
+            value = json.loads(row[0])
         except sqlite3.Error as exc:
             raise JournalError(f"cannot read the journal {self.path}: {exc}") from None
-        for seq, (body,) in enumerate(rows, 1):
+        except ValueError:
+            raise JournalError(f"the journal {self.path}'s configuration fingerprint is "
+                               f"damaged") from None
+        return {str(k): str(v) for k, v in value.items()}
+
+    def set_fingerprint(self, fields: dict[str, str]) -> None:
+        """Record the configuration the journal's runs are made with (synced)."""
+        self._write([("INSERT OR REPLACE INTO meta (key, value) VALUES ('config', ?)",
+                      (json.dumps(fields, sort_keys=True),))], [], self._chain, full=True)
+
+    def records(self) -> Iterator[JournalRecord]:
+        """The journaled run's records in order (none if there is no run), each checked against
+        the hash chain and its model: a damaged journal is a :class:`JournalError` naming the
+        first bad record."""
+        if self._legacy:
+            raise JournalError(f"the journal {self.path} was written by an earlier fleetgate "
+                               f"(records without checksums): start with --fresh to abandon "
+                               f"its run")
+        try:
+            rows = self._db.execute(
+                "SELECT kind, body, chain FROM records ORDER BY seq").fetchall()
+        except sqlite3.Error as exc:
+            raise JournalError(f"cannot read the journal {self.path}: {exc}") from None
+        chain = GENESIS
+        for seq, (kind, body, stored) in enumerate(rows, 1):
+            chain = chain_next(chain, kind, body)
+            if chain != stored:
+                raise JournalError(f"record {seq} of the journal {self.path} is damaged "
+                                   f"(its checksum does not match): start with --fresh to "
+                                   f"abandon the run")
             try:
-                yield _ADAPTER.validate_json(body)
+                rec = _ADAPTER.validate_json(body)
             except ValidationError as exc:
                 raise JournalError(f"record {seq} of the journal {self.path} is not valid: "
                                    f"{exc.errors(include_url=False)[0]['msg']}") from None
+            if rec.kind != kind:
+                raise JournalError(f"record {seq} of the journal {self.path} is not valid: "
+                                   f"kind {kind} holds a {rec.kind} record")
+            yield rec
 
     def count(self) -> int:
         """How many records are committed."""
@@ -479,9 +666,13 @@ class Journal:
         return wal.stat().st_size if wal.exists() else 0
 
     def close(self) -> None:
-        """Commit what is buffered, stop the checkpointer and close the database."""
-        self.commit()
-        if self.checkpointer is not None:
-            self.checkpointer.stop()
-            self.checkpointer = None
-        self._db.close()
+        """Commit what is buffered (unless the journal failed), stop the checkpointer and
+        close the database."""
+        try:
+            if self.failed is None:
+                self.commit()
+        finally:
+            if self.checkpointer is not None:
+                self.checkpointer.stop()
+                self.checkpointer = None
+            self._db.close()

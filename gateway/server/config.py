@@ -35,7 +35,7 @@ from gateway.execution.policies import PolicyName
 class TokensConfig(BaseModel):
     """Who may connect: bearer token -> role (and robot id for robots)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     robots: dict[str, int] = Field(default_factory=dict,
                                    description="token -> robot id (agent index)")
@@ -54,7 +54,7 @@ class TlsConfig(BaseModel):
     still open the GUI unless ``require_client_cert`` refuses them at the TLS handshake.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     cert: Path = Field(description="PEM certificate chain of the gateway")
     key: Path = Field(description="PEM private key of the gateway")
@@ -66,7 +66,7 @@ class TlsConfig(BaseModel):
 class RobotModel(BaseModel):
     """Expected duration ``t_x`` of each action kind for one kind of robot (ms)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     move_ms: float = Field(default=PAPER.action_ms, gt=0)
     turn_ms: float = Field(default=PAPER.action_ms, gt=0)
@@ -78,7 +78,7 @@ class LifelongSettings(BaseModel):
     period appended to a live ADG while the robots move) instead of one plan. The motion
     model is the gateway's ``motion``; t_x of every action is ``action_ms``."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     problem: Path | None = None
     """A LoRR problem (JSON: map, robots' starts, task list); None: ``map``, else a generated
@@ -136,7 +136,7 @@ class GatewayConfig(BaseSettings):
     """Everything ``fleetgate serve`` can be told."""
 
     model_config = SettingsConfigDict(env_prefix="FLEETGATE_", env_nested_delimiter="__",
-                                      extra="forbid")
+                                      extra="forbid", allow_inf_nan=False)
 
     host: str = "127.0.0.1"
     port: int = Field(default=8080, ge=0, le=65535)

@@ -42,7 +42,7 @@ from urllib.parse import urlsplit
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
-from gateway.runtime.journal import Journal, JournalError
+from gateway.runtime.journal import JournalError, JournalLock
 from gateway.server import gc_tuning
 from gateway.server.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.clock import Clock, RealClock
@@ -51,6 +51,7 @@ from gateway.server.engine import Engine
 from gateway.server.http import HttpRoutes, json_response, response
 from gateway.server.http_api import RoutingConnection, close_all, routing_connection
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
+from gateway.server.journal_open import open_journal
 from gateway.server.lifelong_run import LifelongRun, shift_from
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
@@ -139,6 +140,7 @@ class Gateway:
         self.port: int | None = None
         """The bound port once :meth:`listen` returned."""
         self._fresh = fresh
+        self._lock: JournalLock | None = None
         self.resumed = False
         """Whether :meth:`start` resumed a journaled run."""
 
@@ -149,24 +151,14 @@ class Gateway:
             return
         self.clock.reset()
         cfg = self.config
-        if cfg.journal is not None:
-            try:
-                journal = self.engine.journal = Journal(cfg.journal)
-                if self._fresh:
-                    journal.discard()
-                    log.warning("journaled run abandoned: starting fresh",
-                                extra={"journal": str(cfg.journal)})
-                if cfg.lifelong is None:
-                    self.resumed = self.engine.resume() and self.engine.status != "done"
-            except JournalError as exc:
-                raise ValueError(str(exc)) from None
         if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
-            run = self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
-            if self.engine.journal is not None:
-                try:
-                    self.resumed = journal_tasks(self.engine)
-                except JournalError as exc:
-                    raise ValueError(str(exc)) from None
+            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
+        try:
+            self.resumed = self._resume()
+        except BaseException:
+            self._abort_start()
+            raise
+        if (run := self.engine.lifelong) is not None:
             await run.planner_ready()  # its process started while the journal replayed
             self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
                                                                  name="owner")
@@ -182,6 +174,39 @@ class Gateway:
                 raise ValueError(f"cannot load the configured instance: {exc}") from None
             self.engine.load(problem)
         self._owner = asyncio.get_running_loop().create_task(self.engine.run(), name="owner")
+
+    def _resume(self) -> bool:
+        """Open the journal (locked, checked against the configuration) and rebuild the run
+        or shift it holds; True if one goes on. ValueError (one line) if it cannot."""
+        cfg, engine = self.config, self.engine
+        if cfg.journal is None:
+            return False
+        try:
+            engine.journal, self._lock = open_journal(cfg, self._fresh)
+            if engine.lifelong is not None:
+                return journal_tasks(engine)
+            return engine.resume() and engine.status != "done"
+        except JournalError as exc:
+            raise ValueError(str(exc)) from None
+        except Exception as exc:  # a replay the journal's checks let through, yet failed
+            log.debug("replay failed", exc_info=True)
+            raise ValueError(f"cannot resume the journal {cfg.journal}: "
+                             f"{type(exc).__name__}: {exc}") from None
+
+    def _abort_start(self) -> None:
+        """A start that failed: end the planner process, close the journal, release it."""
+        if self.engine.lifelong is not None:
+            self.engine.lifelong.cancel()
+        self._close_journal()
+
+    def _close_journal(self) -> None:
+        """Close the journal (committing what is buffered) and give its lock up."""
+        if self.engine.journal is not None:
+            self.engine.journal.close()
+            self.engine.journal = None
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     async def stop(self) -> None:
         """Close every connection and stop the owner task."""
@@ -201,9 +226,7 @@ class Gateway:
                 await self._owner
             self._owner = None
         await self.engine.aclose()
-        if self.engine.journal is not None:
-            self.engine.journal.close()
-            self.engine.journal = None
+        self._close_journal()
 
     async def __aenter__(self) -> Gateway:
         await self.start()

@@ -22,6 +22,7 @@ from gateway.execution.shift_state import HistoryLog
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
 from gateway.runtime.journal import (
     Journal,
+    JournalError,
     JournalRecord,
     ShiftHistoryRecord,
     ShiftRecord,
@@ -90,17 +91,15 @@ def journal_tasks(engine: Engine) -> bool:
     rebuilding it from the journal (True if there was something to rebuild): a journaled
     shift is replayed and goes on (:func:`~gateway.server.shift_journal.resume_shift`); task
     records alone (tasks submitted before a shift started, or a journal of a gateway that
-    journaled only its tasks) rebuild the book. A journaled one-shot run is abandoned: the
-    gateway is in lifelong mode now."""
+    journaled only its tasks) rebuild the book. A journaled one-shot run is a
+    :class:`JournalError` (``--fresh`` abandons it)."""
     pool, journal, run = engine.tasks, engine.journal, engine.lifelong
     assert pool is not None and journal is not None and run is not None
     records = list(journal.records())
     if records and not isinstance(records[0], TaskRecord | ShiftRecord | ShiftSnapshotRecord
                                                 | ShiftHistoryRecord):
-        journal.discard()
-        log.warning("journaled one-shot run abandoned: the gateway is in lifelong mode",
-                    extra={"journal": str(journal.path)})
-        records = []
+        raise JournalError(f"the journal {journal.path} holds a one-shot run and the gateway "
+                           f"is in lifelong mode: start with --fresh to abandon it")
     last = 0
     history = HistoryLog()
     if any(isinstance(rec, ShiftRecord | ShiftSnapshotRecord) for rec in records):

@@ -29,6 +29,9 @@ LAB_RECIPE = ["warehouse", "lab", "--blocks-x", "3", "--blocks-y", "2", "--shelf
 WAREHOUSE_RECIPE = ["warehouse", "warehouse-small", "--blocks-x", "3", "--blocks-y", "3",
                     "--shelf-length", "5", "--shelf-depth", "2", "--aisle", "2", "--border",
                     "2", "--scenarios", "5", "--agents", "30"]
+AISLES_RECIPE = ["warehouse", "warehouse-aisles", "--blocks-x", "4", "--blocks-y", "3",
+                 "--shelf-length", "4", "--shelf-depth", "2", "--aisle", "1", "--border", "1",
+                 "--scenarios", "5", "--agents", "20"]
 FAST = settings(max_examples=40, deadline=None)
 
 
@@ -145,7 +148,8 @@ def test_lab_map_matches_its_description() -> None:
     assert (lab.width, lab.height, int(lab.free.sum())) == (14, 10, 116)
 
 
-@pytest.mark.parametrize("recipe", [LAB_RECIPE, WAREHOUSE_RECIPE], ids=["lab", "warehouse"])
+@pytest.mark.parametrize("recipe", [LAB_RECIPE, WAREHOUSE_RECIPE, AISLES_RECIPE],
+                         ids=["lab", "warehouse", "aisles"])
 def test_shipped_maps_are_what_maps_generate_writes(tmp_path: Path, recipe: list[str]) -> None:
     """The recipes in gateway/planning/maps/README.md give the shipped files byte for byte."""
     done = call("maps", "generate", *recipe, "--out", str(tmp_path))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import random
+import sqlite3
 import time
 from array import array
 from collections import deque
@@ -92,10 +93,15 @@ def workload(robots: int = 8, steps: int = 12, seed: int = 3) -> Problem:
 
 
 async def assert_rebuilt(live: Engine, config: GatewayConfig) -> None:
-    """A second gateway on ``live``'s journal (and no trace file) rebuilds its executor,
-    monitor, robot sessions, policy, intruders and replan marks, field by field."""
-    assert live.executor is not None
-    async with Gateway(config.model_copy(update={"port": 0, "trace": None}),
+    """A second gateway on a copy of ``live``'s journal (one writer per journal; and no trace
+    file) rebuilds its executor, monitor, robot sessions, policy, intruders and replan marks,
+    field by field."""
+    assert live.executor is not None and config.journal is not None
+    copy = config.journal.with_name("copy.sqlite")
+    copy.unlink(missing_ok=True)
+    with sqlite3.connect(config.journal) as src, sqlite3.connect(copy) as dst:
+        src.backup(dst)
+    async with Gateway(config.model_copy(update={"port": 0, "trace": None, "journal": copy}),
                        clock=VirtualClock()) as other:
         again = other.engine
         assert other.resumed or live.executor.mode is Mode.DONE
@@ -113,7 +119,6 @@ async def assert_rebuilt(live: Engine, config: GatewayConfig) -> None:
         assert (again.policy_name, again.threshold_ms) == (live.policy_name, live.threshold_ms)
         assert again.solvers.solver_ms == live.solvers.solver_ms
         assert again.paused == live.paused
-        other.engine.journal = None  # the live gateway keeps writing it
 
 
 def lanes(robots: int, width: int) -> Problem:
