@@ -10,6 +10,10 @@ cells), or on a LoRR/MovingAI map given with ``--map``, with both searches in th
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import time
 from collections.abc import Callable, Sequence
@@ -18,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from fleetgate.userio.exits import run_main
 from gateway.planning.distance import (
     _multi_bfs,
     neighbour_table,
@@ -99,4 +104,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/distance.py", main)

@@ -201,7 +201,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"fleetgate: {why}", file=sys.stderr)
         return EXIT_NO_SOLUTION
     if args.trace:
-        check_writable(args.trace)  # the gateway moves an earlier trace aside, never over it
+        check_writable(args.trace, "the trace")  # an earlier one is moved aside, not lost
     try:
         config = load_config(None, host=args.host, port=args.port, map=None, speed=args.speed,
                              policy=args.policy, threshold_ms=args.threshold_ms,

@@ -138,7 +138,7 @@ def run_lifelong_demo(args: argparse.Namespace) -> int:
     if problem is not None and not problem.is_file():
         raise UsageError(f"LoRR problem not found: {problem}")
     if args.trace:
-        check_writable(args.trace)  # the gateway moves an earlier trace aside, never over it
+        check_writable(args.trace, "the trace")  # an earlier one is moved aside, not lost
     status = StatusLine()
     try:
         config = load_config(

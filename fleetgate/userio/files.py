@@ -21,10 +21,12 @@ from fleetgate.userio.exits import UsageError
 
 
 class CannotWrite(UsageError):
-    """A file a user asked for cannot be written: ``cannot write PATH: reason`` (exit 2)."""
+    """A file a user asked for cannot be written: ``cannot write [WHAT] PATH: reason`` (exit
+    2; ``what`` says which output, e.g. "the trace")."""
 
-    def __init__(self, path: str | os.PathLike[str], exc: OSError) -> None:
-        super().__init__(f"cannot write {os.fspath(path)}: {describe(exc)}")
+    def __init__(self, path: str | os.PathLike[str], exc: OSError, what: str = "") -> None:
+        super().__init__(f"cannot write {what + ' ' if what else ''}{os.fspath(path)}: "
+                         f"{describe(exc)}")
 
 
 def describe(exc: OSError) -> str:
@@ -43,11 +45,12 @@ def _special(path: Path) -> bool:
 
 @contextlib.contextmanager
 def atomic_open(path: str | os.PathLike[str], mode: Literal["w", "wb"] = "w",
-                newline: str | None = None) -> Iterator[IO[Any]]:
+                newline: str | None = None, what: str = "") -> Iterator[IO[Any]]:
     """Open ``path`` for writing; it is replaced only when the block ends without an exception.
 
     Raises :class:`CannotWrite` for any OSError (a missing folder, a file where a folder is
-    expected, no space, no permission), whether opening, writing or renaming.
+    expected, no space, no permission), whether opening, writing or renaming; ``what`` names
+    the output in its message.
     """
     target = Path(path)
     encoding = None if "b" in mode else "utf-8"
@@ -56,12 +59,12 @@ def atomic_open(path: str | os.PathLike[str], mode: Literal["w", "wb"] = "w",
             with open(target, mode, encoding=encoding, newline=newline) as direct:
                 yield direct
         except OSError as exc:
-            raise CannotWrite(target, exc) from None
+            raise CannotWrite(target, exc, what) from None
         return
     try:
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
     except OSError as exc:
-        raise CannotWrite(target, exc) from None
+        raise CannotWrite(target, exc, what) from None
     try:
         with os.fdopen(fd, mode, encoding=encoding, newline=newline) as f:
             yield f
@@ -71,7 +74,7 @@ def atomic_open(path: str | os.PathLike[str], mode: Literal["w", "wb"] = "w",
         os.replace(tmp, target)
     except OSError as exc:
         _discard(tmp)
-        raise CannotWrite(target, exc) from None
+        raise CannotWrite(target, exc, what) from None
     except BaseException:
         _discard(tmp)
         raise
@@ -100,19 +103,19 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
         f.write(data)
 
 
-def check_writable(path: str | os.PathLike[str]) -> None:
+def check_writable(path: str | os.PathLike[str], what: str = "") -> None:
     """CannotWrite now if ``path`` could not be written later (a missing folder, a file
     where a folder is expected, no permission), without touching a file already there: a
     command checks its outputs before a long run, and writes them atomically after it."""
     target = Path(path)
     if target.is_dir():
-        raise UsageError(f"cannot write {target}: it is a folder")
+        raise UsageError(f"cannot write {what + ' ' if what else ''}{target}: it is a folder")
     if _special(target):
         return
     try:
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
     except OSError as exc:
-        raise CannotWrite(target, exc) from None
+        raise CannotWrite(target, exc, what) from None
     os.close(fd)
     _discard(tmp)
 

@@ -27,7 +27,7 @@ class JsonlWriter:
     def __init__(self, target: str | Path | IO[str]) -> None:
         self._owned: AbstractContextManager[IO[str]] | None = None
         if isinstance(target, (str, Path)):
-            self._owned = atomic_open(target)
+            self._owned = atomic_open(target, what="the trace")
             self._file: IO[str] = self._owned.__enter__()
         else:
             self._file = target
