@@ -44,7 +44,6 @@ import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is o
 
 # isort: split
 
-import argparse
 import asyncio
 import contextlib
 import itertools
@@ -63,7 +62,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from fleetgate.userio.exits import run_main
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.grid import Grid
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
@@ -478,7 +477,7 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
 
 def main() -> int:
     """Parse arguments and run."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = CommandParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--kills", type=int, default=10)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--robots", type=int, default=10)

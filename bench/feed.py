@@ -20,14 +20,13 @@ import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is o
 
 # isort: split
 
-import argparse
 import json
 import random
 import statistics
 import time
 from typing import Any
 
-from fleetgate.userio.exits import run_main
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.errands import TaskDistances
 from gateway.execution.executor import Executor
@@ -119,7 +118,7 @@ def event_us(repeat: int) -> float:
 
 def main() -> int:
     """Run the benchmark and print its result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=500)
     ap.add_argument("--windows", type=int, default=5)
     ap.add_argument("--repeat", type=int, default=15)

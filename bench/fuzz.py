@@ -37,7 +37,6 @@ import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is o
 
 # isort: split
 
-import argparse
 import asyncio
 import contextlib
 import itertools
@@ -62,7 +61,7 @@ from pydantic import BaseModel
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
-from fleetgate.userio.exits import run_main
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.instance import load_instance
 from gateway.planning.solver import solve
 from gateway.runtime import mapstore
@@ -463,7 +462,7 @@ async def run_fuzz(n_frames: int, *, seed: int = 0, concurrency: int = 8,
 
 def main() -> int:
     """Command line: see the module doc."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = CommandParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=100_000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--concurrency", type=int, default=8, help="fuzz connections at once")

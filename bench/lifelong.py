@@ -35,7 +35,6 @@ import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is o
 
 # isort: split
 
-import argparse
 import copy
 import dataclasses
 import json
@@ -46,7 +45,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from fleetgate.userio.exits import run_main
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.lifelong import LifelongExecutor
 from gateway.execution.shift_state import HistoryLog, snapshot_shift
 from gateway.execution.tasks import NewTask, TaskEvent, TaskPool
@@ -256,7 +255,7 @@ def journal_run(robots: int, seconds: float, every: int, seed: int,
 
 def main() -> None:
     """Run both parts (or the ``--journal`` measurement) and print one result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ticks", type=int, default=600, help="ticks per LoRR problem")
     ap.add_argument("--robots", type=int, default=1000, help="robots in the speed run")
     ap.add_argument("--seconds", type=int, default=600, help="simulated seconds (speed run)")

@@ -22,14 +22,13 @@ import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is o
 
 # isort: split
 
-import argparse
 import heapq
 import random
 import statistics
 import sys
 import time
 
-from fleetgate.userio.exits import run_main
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.executor import MONITOR_PERIOD_MS, Executor
 from gateway.execution.monitor import algorithm1
@@ -40,7 +39,7 @@ from gateway.planning.validate import plan_violations
 
 def main() -> int:
     """Run the benchmark and print its result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=500)
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--steps", type=int, default=28,

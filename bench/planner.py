@@ -20,7 +20,6 @@ import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is o
 
 # isort: split
 
-import argparse
 import statistics
 import sys
 import time
@@ -29,7 +28,7 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
-from fleetgate.userio.exits import run_main
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.cbs import CBSOptions, solve_cbs
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
 from gateway.planning.motion import MOTIONS, Motion
@@ -98,7 +97,7 @@ def p99(xs: list[float]) -> float:
 
 def main() -> None:
     """Run the benchmark and print the table and the result line."""
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = CommandParser(description=__doc__)
     ap.add_argument("--maps-dir", type=Path, default=DEFAULT_MAPS)
     ap.add_argument("--cap", type=float, default=10.0, help="per-instance limit, CPU seconds")
     ap.add_argument("--baseline-cap", type=float, default=2.0,

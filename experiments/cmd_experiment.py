@@ -577,7 +577,11 @@ def run(args: argparse.Namespace) -> int:
             "running_s": clair.running_s, "swept_now": clair.ran,
             "failures": [asdict(f) for f in clair.failures]}
     write_text(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    out = Console()
+    class Out(Console):
+        def on_broken_pipe(self) -> None:
+            raise BrokenPipeError  # rich would exit 1; every command ends with 141 here
+
+    out = Out()
     out.width = max(out.width, TABLE_WIDTH)  # never truncate numbers on a narrow terminal
     if args.json:
         print(json.dumps(summary, indent=2))

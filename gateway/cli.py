@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import Any
 
-from fleetgate.userio.exits import EPILOG, call
+from fleetgate.userio.exits import CommandParser, call
 
 GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.plan",
@@ -30,14 +30,13 @@ GATEWAY_COMMANDS: tuple[str, ...] = (
 )
 """Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
 
-class StrictParser(argparse.ArgumentParser):
+class StrictParser(CommandParser):
     """A parser that rejects unknown arguments itself, so a mistyped option of a subcommand
     gets that subcommand's usage line, not the top-level one. Options are never abbreviated
     (a typo that happens to be a prefix of an option must not run the command)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("allow_abbrev", False)
-        kwargs.setdefault("epilog", EPILOG)
         super().__init__(*args, **kwargs)
 
     def parse_known_args(  # type: ignore[override]

@@ -6,12 +6,16 @@ a file or device that cannot be opened (named).
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing cv2 is one line)
+
+# isort: split
+
 import argparse
 import asyncio
 import logging
 import sys
 
-from fleetgate.userio.exits import UsageError, call, guard
+from fleetgate.userio.exits import UsageError, call
 from fleetgate.userio.files import describe
 from fleetgate.userio.signals import StopSignals
 from robot_client.client import build_client
@@ -40,6 +44,8 @@ def _main(argv: list[str] | None) -> int:
                                         settings.camera_height_px)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
+    except BrokenPipeError:
+        raise  # --help into a closed pipe
     except OSError as exc:
         raise UsageError(f"{exc.filename}: {describe(exc)}" if exc.filename else str(exc)
                          ) from None
@@ -64,5 +70,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    guard("fleetgate-robot")
     sys.exit(main())

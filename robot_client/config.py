@@ -7,7 +7,6 @@ variables (``FLEETGATE_ROBOT_ROBOT_ID=3``), a TOML file (``--config robot.toml``
 
 from __future__ import annotations
 
-import argparse
 import os
 import ssl
 from pathlib import Path
@@ -22,7 +21,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from fleetgate.userio.exits import EPILOG
+from fleetgate.userio.exits import CommandParser
 from protocol.messages import Heading
 from protocol.tls import client_context
 from robot_client.apriltag_localiser import DownwardCamera
@@ -146,7 +145,7 @@ def load_settings(argv: list[str] | None = None, config_file: str | Path | None 
     try:
         cli: dict[str, Any] = {"_cli_parse_args": False}
         if argv is not None:
-            parser = argparse.ArgumentParser(prog="fleetgate-robot", epilog=EPILOG,
+            parser = CommandParser(prog="fleetgate-robot",
                                              description=__doc__.splitlines()[0])
             cli = {"_cli_settings_source": _Cli(_WithFile, cli_parse_args=argv,
                                                 root_parser=parser)}

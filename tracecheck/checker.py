@@ -35,7 +35,6 @@ in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from bisect import bisect_right
@@ -44,7 +43,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from fleetgate.userio.exits import EPILOG, UsageError, call
+from fleetgate.userio.exits import EPILOG, CommandParser, UsageError, call
 from tracecheck.reader import read_trace
 
 Pos = tuple[int, int]
@@ -627,7 +626,7 @@ def _is_lorr_output(records: Sequence[Mapping[str, Any]]) -> bool:
 
 
 def _check(argv: Sequence[str] | None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="python -m tracecheck", description=__doc__.splitlines()[0] if __doc__ else None,
         epilog=f"LoRR output JSON (fleetgate lifelong --output): python -m tracecheck.lorr. "
                f"{EPILOG}")

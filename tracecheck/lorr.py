@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from fleetgate.userio.exits import EPILOG, UsageError, call, guard
+from fleetgate.userio.exits import CommandParser, UsageError, call, guard
 
 _WINDOW = re.compile(r"\[\((\d+),(\d+),(\d+),(\d+),(\d+)\):\(([^)]*)\)\]")
 _STEP = {0: (0, 1), 1: (1, 0), 2: (0, -1), 3: (-1, 0)}  # heading -> (drow, dcol)
@@ -126,8 +126,8 @@ def _map_file(args: argparse.Namespace) -> Path:
 
 
 def _check(argv: Sequence[str] | None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m tracecheck.lorr", epilog=EPILOG,
+    parser = CommandParser(
+        prog="python -m tracecheck.lorr",
         description="Replay a LoRR output JSON (fleetgate lifelong --output) under LoRR's "
                     "rules and check it: robots on free cells, snapshots matching the replay, "
                     "no two robots on one cell at a tick. Exit 1 on a violation.")

@@ -21,6 +21,7 @@ moment before it, while the script is still importing.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import errno
 import os
@@ -48,6 +49,20 @@ _NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 class UsageError(Exception):
     """Bad input: the command prints ``PROG: <message>`` and exits with code 2."""
+
+
+class CommandParser(argparse.ArgumentParser):
+    """An argument parser whose ``--help`` ends with the exit codes (:data:`EPILOG`) and
+    whose own output (``--help``, ``--version``, usage) fails like any other: argparse
+    drops an OSError there, so ``--help > /dev/full`` would say nothing and exit 0."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("epilog", EPILOG)
+        super().__init__(*args, **kwargs)
+
+    def _print_message(self, message: str, file: Any = None) -> None:
+        if message:
+            (file or sys.stderr).write(message)
 
 
 def _quiet_stdout() -> None:
@@ -158,6 +173,10 @@ def call(prog: str, main: Callable[..., int | None], *args: Any) -> int:
             code = main(*args) or EXIT_OK
     except (UsageError, KeyboardInterrupt, OSError) as exc:
         code = _ending(prog, exc)
+    except SystemExit as exc:  # argparse's --help, --version and usage errors
+        if exc.code is not None and not isinstance(exc.code, int):
+            _say(prog, str(exc.code))
+        code = exc.code if isinstance(exc.code, int) else EXIT_OK if exc.code is None else 1
     flushed = _flush_stdout(prog)
     return code if flushed is None else flushed
 

@@ -19,6 +19,7 @@ from typing import Literal
 
 import gateway.planning
 from fleetgate.userio.files import make_folder, write_bytes
+from gateway.runtime.exits import UsageError
 
 Kind = Literal["map", "scen"]
 KINDS: tuple[Kind, ...] = ("map", "scen")
@@ -62,7 +63,10 @@ def cache_dir() -> Path:
 
 def search_dirs(maps_dir: str | Path | None = None,
                 environ: Mapping[str, str] | None = None) -> list[MapDir]:
-    """The folders names resolve in, first match wins."""
+    """The folders names resolve in, first match wins. UsageError if ``maps_dir`` (a user's
+    ``--maps-dir``) is no folder: a typo there would silently fall through to the others."""
+    if maps_dir and not Path(maps_dir).is_dir():
+        raise UsageError(f"--maps-dir {maps_dir} is no folder")
     env = os.environ if environ is None else environ
     dirs = [MapDir("--maps-dir", Path(maps_dir))] if maps_dir else []
     dirs += [MapDir(f"${ENV_MAPS}", Path(p)) for p in env.get(ENV_MAPS, "").split(os.pathsep)
