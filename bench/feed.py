@@ -75,7 +75,7 @@ def lifelong_view(robots: int, windows: int, seed: int) -> FleetView:
         ex.adopt(planner(req), 10.0 + 1000.0 * k)
         ex.tick(1000.0 * (k + 1))
     _hold(sessions, ex.drain())
-    return _view(sessions, shift=ShiftView(prob.name or "warehouse", ex))
+    return _view(sessions, shift=ShiftView(prob.name or "warehouse", ex, 1000.0))
 
 
 def oneshot_view(robots: int, seed: int) -> FleetView:

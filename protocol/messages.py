@@ -539,6 +539,13 @@ class Snapshot(Envelope):
     """A lifelong shift: ``paths`` are the robots' committed steps from where they stand."""
     path_offsets: list[int] = Field(default_factory=list)
     """Lifelong: the action number of each path's first step (empty: all 0)."""
+    worlds: int = 0
+    """World connections (a simulator): without one, ``place_intruder`` is refused."""
+    tasks_per_min: float | None = None
+    """Lifelong: tasks finished per minute of the shift's plan time so far (the figure the
+    terminal shows)."""
+    period_ms: float | None = None
+    """Lifelong: plan time between the planner's calls (a window each)."""
 
 
 EventKind = Literal[

@@ -3,8 +3,10 @@
 Everything talks over real websockets on loopback in real time: the gateway listens on
 ``--host:--port`` (GUI at ``http://H:P/``), the simulated robots and the world connect to it
 like remote ones would. Actions last ``1000 / speed`` ms of wall time; every reported time is
-plan time (wall time x speed). The first run starts by itself; without ``--headless`` the
-gateway keeps serving the GUI afterwards (load, start, pause, intruders...) until Ctrl-C.
+plan time (wall time x speed). The first run starts when the GUI is first opened (an operator
+connects; ``--start now`` or ``--headless``: at once), so whoever opens it sees the intruder
+and the replan; without ``--headless`` the gateway keeps serving the GUI afterwards (load,
+start, pause, intruders...) until Ctrl-C.
 
 The operator token is random for each run and printed once, in the GUI's login URL
 (``/login#token=...``: the fragment never reaches a server or a log).
@@ -16,6 +18,7 @@ import argparse
 import json
 import secrets
 import sys
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -115,6 +118,14 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
     engine.status_listeners.append(on_status)
 
 
+async def first_operator(engine: Engine) -> None:
+    """Until an operator is connected (the GUI was opened and logged in)."""
+    import asyncio
+
+    while not engine.feed.operators:
+        await asyncio.sleep(0.05)
+
+
 def demo_intruder(args: argparse.Namespace) -> IntruderConfig:
     """The demo's automatic intruder: the paper's, or with ``--intruder-stay`` a stay drawn
     from the run's seed."""
@@ -146,7 +157,13 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
                           seed=args.seed, intruder=args.intruder,
                           intruder_config=demo_intruder(args), poll_at_ticks=False,
                           send_state=True)
-        run = asyncio.ensure_future(run_in_process(gateway, problem, fleet))
+        watched = not args.headless and args.start == "login"
+        if watched:
+            status.print("fleetgate demo: the run starts when you open the GUI "
+                         "(--start now: at once)")
+        run = asyncio.ensure_future(run_in_process(
+            gateway, problem, fleet, partial(first_operator, gateway.engine) if watched
+            else None))
         stopped = asyncio.ensure_future(stop.wait())
         live = asyncio.ensure_future(show_status(gateway.engine, status))
         try:
@@ -217,7 +234,9 @@ def _run(args: argparse.Namespace) -> int:
         configure_logging(config.log_level, config.log_format, config.log_file, status.stream)
     except OSError as exc:
         raise UsageError(f"cannot write the log file {args.log_file}: {exc.strerror}") from None
-    problem = Problem(instance, instance.name or str(args.map), plan)
+    # the names the GUI's Instance form shows and loads again: the map's, the scenario's
+    problem = Problem(instance, Path(args.map).stem if args.map else instance.name, plan,
+                      scen_name=Path(args.scen).stem if args.scen else "")
     try:
         return asyncio.run(_demo(config, problem, args, status))
     except OSError as exc:
@@ -238,7 +257,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--host", default="127.0.0.1", help="address (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free)")
     p.add_argument("--headless", action="store_true",
-                   help="exit when the first run is complete instead of serving the GUI")
+                   help="start at once, exit when the first run is complete instead of "
+                        "serving the GUI")
+    p.add_argument("--start", choices=["login", "now"], default="login",
+                   help="when the first run starts: when the GUI is first opened (default, "
+                        "so you see the intruder and the replan), or at once")
     p.add_argument("--json", action="store_true",
                    help='print the run like "fleetgate simulate --json": {"soc_ms", '
                         '"makespan_ms", "plan_soc", "replans", "replan_at_ms", "solver_ms", '

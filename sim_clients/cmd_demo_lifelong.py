@@ -39,9 +39,11 @@ def shift_status(engine: Engine) -> str:
     run = engine.lifelong
     if run is None:
         return f"gateway {engine.status}"
+    from gateway.server.lifelong_run import throughput_per_min
+
     ex = run.executor
     t = engine.now_ms() if ex.mode.value != "new" else 0.0
-    rate = ex.finished_tasks * 60_000.0 / t if t > 0 else 0.0
+    rate = throughput_per_min(ex.finished_tasks, t)  # the GUI's figure too (its snapshot)
     return (f"t {t / 1000:.1f} s | tasks {ex.finished_tasks} ({rate:.1f}/min) | robots "
             f"{engine.connected_robots()}/{run.robots} | queue {len(run.tasks.open)} | "
             f"{engine.status}")
@@ -101,17 +103,20 @@ async def _shift(config: GatewayConfig, args: argparse.Namespace, status: Status
             await asyncio.gather(live, return_exceptions=True)
             await fleet.stop()
         minutes = stats.elapsed_ms / 60_000.0
+        wait = run.wait_percentiles_s()
         result = {"tasks_finished": stats.finished_tasks, "plan_s": stats.elapsed_ms / 1000.0,
                   "tasks_per_min": stats.finished_tasks / minutes if minutes else 0.0,
                   "robots": run.robots, "dispatched": stats.dispatched, "lost": stats.lost,
-                  "duplicated": stats.duplicated, "collisions": stats.collisions}
+                  "duplicated": stats.duplicated, "collisions": stats.collisions,
+                  "assignment_wait_s": wait}
         if args.json:
             print(json.dumps(result), flush=True)
         else:
             status.print(f"shift stopped: {stats.finished_tasks} tasks in "
                          f"{result['plan_s']:.1f} s ({result['tasks_per_min']:.1f}/min), "
                          f"{stats.dispatched} actions, {stats.lost} lost, {stats.duplicated} "
-                         f"duplicated, {stats.collisions} collisions")
+                         f"duplicated, {stats.collisions} collisions; assignment wait p50 "
+                         f"{wait['p50']:.1f} s, max {wait['max']:.1f} s")
         if not (args.headless or stop.event.is_set()):  # --seconds ended it: the GUI stays up
             status.print("serving the GUI until Ctrl-C")
             await stop.wait()

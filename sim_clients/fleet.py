@@ -709,9 +709,12 @@ def fleet_for(gateway: Gateway, robots: int, connect: Connect, *, seed: int = 0,
     return fleet
 
 
-async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) -> RunSummary:
-    """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, start, and wait
-    for the end of the execution. The fleet keeps running afterwards (the caller stops it)."""
+async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet,
+                         before_start: Callable[[], Awaitable[None]] | None = None
+                         ) -> RunSummary:
+    """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, wait for
+    ``before_start`` (if given), start, and wait for the end of the execution. The fleet keeps
+    running afterwards (the caller stops it)."""
     plan = problem.plan
     if plan is None:
         raise ValueError("the problem has no plan to execute")
@@ -727,6 +730,8 @@ async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) ->
         engine.load(problem)
         await fleet.start()
         await fleet.wait_connected()
+        if before_start is not None:
+            await before_start()
         error, detail = await gateway.command(Start(msg_id="run-start", seq=0))
         if error is not None:
             raise RuntimeError(f"the gateway refused to start: {detail}")

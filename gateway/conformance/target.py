@@ -42,6 +42,30 @@ from protocol import (
 Cell = tuple[int, int]
 
 OPEN_TIMEOUT_S = 5.0
+BUSY = ("planning", "running", "paused", "replanning")
+"""Gateway statuses of a fleet at work."""
+
+
+def read_health(url: str, context: ssl.SSLContext | None) -> dict[str, Any] | None:
+    """The JSON object ``url`` answers (any status), or None if there is none."""
+    import json
+    import urllib.error
+    import urllib.request
+
+    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}),
+                                         urllib.request.HTTPSHandler(context=context))
+    try:
+        with opener.open(url, timeout=OPEN_TIMEOUT_S) as resp:
+            body = resp.read(65536)
+    except urllib.error.HTTPError as exc:  # 503 while the engine is down: still its state
+        body = exc.read(65536)
+    except (OSError, ValueError):
+        return None
+    try:
+        data = json.loads(body)
+    except ValueError:
+        return None
+    return data if isinstance(data, dict) else None
 
 
 @dataclass
@@ -293,7 +317,9 @@ class Target:
 
     # ------------------------------------------------------------------ setup
     async def probe(self) -> None:
-        """Connect once with the robot token: unreachable or refused is a usage problem."""
+        """Refuse a busy gateway before any robot id is used (:meth:`not_busy`), then connect
+        once with the robot token: unreachable or refused is a usage problem."""
+        await self.not_busy()
         try:
             conn = await self.open(self.options.robot_token(self.options.robot_id))
         except InvalidStatus as exc:
@@ -306,6 +332,26 @@ class Target:
         except Exception as exc:  # e.g. not a websocket server at all
             raise UsageProblem(f"cannot open a websocket to {self.options.url}: {exc}") from None
         await conn.close()
+
+    def health_url(self) -> str:
+        """The gateway's ``/healthz`` beside its websocket URL (http or https)."""
+        parts = urlsplit(self.options.url)
+        scheme = "https" if parts.scheme == "wss" else "http"
+        return urlunsplit((scheme, parts.netloc, "/healthz", "", ""))
+
+    async def not_busy(self) -> None:
+        """UsageProblem if the gateway's ``/healthz`` says it runs a fleet (a run or shift
+        under way, or robots connected): the checker plays robots by id and would kick the
+        real ones off. A gateway without a readable ``/healthz`` is taken as idle."""
+        health = await asyncio.to_thread(read_health, self.health_url(), self.ssl_context())
+        if health is None:
+            return
+        status, robots = health.get("gateway"), health.get("robots")
+        connected = robots if isinstance(robots, int) else 0
+        if status in BUSY or connected > 0:
+            raise UsageProblem(f"the gateway is busy ({status}, {connected} robot(s) "
+                               "connected): the checker plays robots and would disturb them; "
+                               "run it on an idle gateway")
 
     async def setup(self) -> None:
         """Open the operator channel, choose the plan layout, switch replanning off (runs

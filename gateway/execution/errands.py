@@ -76,10 +76,14 @@ class ErrandBook:
                 self.plan_task[task.robot], self.plan_idx[task.robot] = task.id, task.done
 
     def release_unstarted(self, now: float) -> None:
-        """Tasks whose first errand is not planned yet go back to the pool's open tasks."""
+        """Tasks whose first errand is not planned yet go back to the pool's open tasks,
+        except overdue ones (:meth:`~gateway.execution.tasks.TaskPool.overdue`): their robot
+        keeps them, so they are not handed from robot to robot while they wait."""
+        pool = self.pool
+        pool.now = max(pool.now, now)
         for r, task_id in enumerate(self.plan_task):
-            if task_id >= 0 and self.plan_idx[r] == 0:
-                self.pool.release(task_id, now)
+            if task_id >= 0 and self.plan_idx[r] == 0 and not pool.overdue(pool.tasks[task_id]):
+                pool.release(task_id, now)
                 self.plan_task[r] = -1
 
     def forget_gone(self) -> None:
@@ -94,6 +98,7 @@ class ErrandBook:
         """Give open tasks to the robots without one (standing at ``end_cells``, where their
         committed plan ends) at ``now``; returns the new ``(robot, task id)`` pairs."""
         free = [(r, end_cells[r]) for r, t in enumerate(self.plan_task) if t < 0]
+        self.pool.now = max(self.pool.now, now)  # what is overdue is judged at ``now``
         pairs = list(scheduler(free, self.pool, distances).items())
         for r, task_id in pairs:
             self.pool.assign(task_id, r, now)

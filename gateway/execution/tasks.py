@@ -19,6 +19,11 @@ operator: never assigned while paused), ``assigned`` (to a robot, no errand done
 can be cancelled or paused; either takes it from its robot, which finds it gone from
 :attr:`TaskPool.tasks` (its plan view drops it; an errand it still reaches is ignored).
 
+Fairness: with a bound ``max_wait``, an open task that has waited that long since it was
+submitted goes before every task of its priority that has not (:meth:`TaskPool.rank`), so a far
+or long task is not passed over forever by nearer, shorter ones; :meth:`TaskPool.waits` and
+:func:`wait_percentiles` measure how long tasks wait for a robot.
+
 Every change of state is an event (:class:`TaskEvent`: sequence number, task, state, robot,
 errands done, time) in :attr:`TaskPool.events`, the ordered stream an API serves; a task
 released and given back to the same robot in one scheduling round (reassignment) makes no
@@ -133,6 +138,10 @@ class TaskPool:
     next_id: int = 0
     keep: int = KEEP
     """How many events, ended tasks and idempotency keys are kept."""
+    max_wait: float | None = None
+    """The fairness bound (pool time units): an open task that has waited this long since it
+    was submitted goes before every task of its priority that has not (:meth:`rank`; None: no
+    bound, a far or long task may wait as long as nearer ones keep coming)."""
     book: dict[int, Task] = field(default_factory=dict)
     """Every kept task by id (in id order): queued, paused, under way and ended."""
     events: deque[TaskEvent] = field(init=False)
@@ -210,6 +219,34 @@ class TaskPool:
             task.length = sum(self.leg(a, b) for a, b in pairwise(task.errands)) \
                 if self.leg is not None else 0
         return task.length
+
+    def overdue(self, task: Task) -> bool:
+        """Whether the task has waited :attr:`max_wait` or longer since it was submitted."""
+        return self.max_wait is not None and self.now - task.submitted >= self.max_wait
+
+    def rank(self, task: Task) -> tuple[int, int, float]:
+        """The schedulers' order of open tasks: higher priority first; within a priority the
+        overdue ones (:meth:`overdue`) first, the longest waiting first, then the others by
+        earlier deadline. So with robots coming free a task waits at most about
+        ``max_wait`` plus the time to serve the overdue tasks of its priority before it."""
+        if self.overdue(task):
+            return -task.priority, 0, task.submitted
+        return -task.priority, 1, task.urgency[1]
+
+    def waits(self, now: float) -> list[float]:
+        """Assignment waits of the kept tasks (pool time units): from submission to the
+        assignment that holds (the latest one; a task released and given to another robot
+        counts from its submission to that robot), and for a task still queued or paused
+        how long it has waited until ``now``. Cancelled tasks are left out."""
+        out = []
+        for task in self.book.values():
+            if task.state == "cancelled":
+                continue
+            if task.state in ("queued", "paused"):
+                out.append(max(0.0, now - task.submitted))
+            elif task.assigned_at >= 0:
+                out.append(task.assigned_at - task.submitted)
+        return out
 
     def assign(self, task_id: int, robot: int, now: float | None = None) -> Task:
         """Give an open task to ``robot`` (at ``now``, default: the pool's latest time)."""
@@ -485,6 +522,18 @@ class TaskPool:
         return next((t for t in self.tasks.values() if t.robot == robot), None)
 
 
+def wait_percentiles(waits: Sequence[float]) -> dict[str, float]:
+    """``p50``, ``p90``, ``p99`` and ``max`` of :meth:`TaskPool.waits` (nearest rank; all 0
+    for none)."""
+    if not waits:
+        return dict.fromkeys(("p50", "p90", "p99", "max"), 0.0)
+    ordered = sorted(waits)
+    n = len(ordered)
+    out = {f"p{q}": float(ordered[max(0, math.ceil(q * n / 100) - 1)]) for q in (50, 90, 99)}
+    out["max"] = float(ordered[-1])
+    return out
+
+
 def _ids(ids: Sequence[int]) -> str:
     return ", ".join(map(str, ids[:10])) + (", ..." if len(ids) > 10 else "")
 
@@ -496,7 +545,7 @@ any charge the caller puts on a robot (e.g. one in a delay)."""
 
 class Scheduler(Protocol):
     """Chooses tasks for free robots: ``{robot: task id}`` among ``pool.open``, the most urgent
-    first (priority, then deadline: :attr:`Task.urgency`)."""
+    first (priority, then overdue, then deadline: :meth:`TaskPool.rank`)."""
 
     def __call__(self, free: Sequence[tuple[int, int]], pool: TaskPool,
                  distance_from: DistanceFrom) -> dict[int, int]:
@@ -509,9 +558,9 @@ _CLASS = 1 << 32
 
 
 def _urgency_rank(pool: TaskPool, ids: npt.NDArray[np.int64]) -> npt.NDArray[np.int64] | None:
-    """Each open task's urgency class (0: most urgent), or None if all are alike (the
-    schedulers then weigh distance alone, as without priorities)."""
-    keys = [pool.open[int(i)].urgency for i in ids]
+    """Each open task's class in :meth:`TaskPool.rank` order (0: first), or None if all are
+    alike (the schedulers then weigh distance alone, as without priorities)."""
+    keys = [pool.rank(pool.open[int(i)]) for i in ids]
     first = keys[0]
     if all(k == first for k in keys):
         return None

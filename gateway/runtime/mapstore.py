@@ -41,7 +41,12 @@ _SCEN_NAME = re.compile(r"^(?P<map>.+)-(?P<kind>random|even)-\d+$")
 
 
 class MapNotFound(LookupError):
-    """A map or scenario name resolves nowhere (the message says where it looked)."""
+    """A map or scenario name resolves nowhere (the message says where it looked;
+    ``public`` says the same without the folders, for a browser)."""
+
+    def __init__(self, message: str, public: str | None = None) -> None:
+        super().__init__(message)
+        self.public = public or message
 
 
 class DownloadError(RuntimeError):
@@ -102,7 +107,8 @@ def resolve(name: str | Path, kind: Kind, maps_dir: str | Path | None = None,
         raise MapNotFound(f"{kind} file {text!r} does not exist")
     where = ", ".join(f"{d.path} ({d.origin})" for d in dirs)
     hint = "; try 'fleetgate maps download NAME'" if kind == "map" else ""
-    raise MapNotFound(f"no {kind} named {text!r} in {where}{hint}")
+    raise MapNotFound(f"no {kind} named {text!r} in {where}{hint}",
+                      f"no {kind} named {text!r} on the gateway")
 
 
 @dataclass(frozen=True)

@@ -695,9 +695,9 @@ class Engine:
             threshold_ms=self.threshold_ms,
             policy=self.policy_name, speed=self.clock.speed, slack_series=feed.slack_series,
             intruders=feed.intruders, replan_marks=feed.replan_marks, problem=self.problem,
-            executor=self.executor, robots=self.robots,
+            executor=self.executor, robots=self.robots, worlds=len(self.worlds),
             shift=None if self.lifelong is None else ShiftView(
-                self.lifelong.shift.name, self.lifelong.executor))
+                self.lifelong.shift.name, self.lifelong.executor, self.lifelong.period_ms))
 
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""

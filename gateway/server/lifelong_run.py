@@ -49,7 +49,7 @@ from gateway.execution.lifelong import (
     PlanRequest,
     Segment,
 )
-from gateway.execution.tasks import TaskPool
+from gateway.execution.tasks import TaskPool, wait_percentiles
 from gateway.planning.grid import Grid
 from gateway.planning.lorr import random_problem, read_problem, warehouse_problem
 from gateway.planning.movingai import read_map
@@ -113,7 +113,8 @@ class LifelongRun:
         grid = shift.grid
         distances = TaskDistances(grid)
         try:
-            pool = TaskPool(shift.tasks, shift.reveal, leg=distances.leg)
+            pool = TaskPool(shift.tasks, shift.reveal, leg=distances.leg,
+                            max_wait=s.max_wait_ms)
         except ValueError as exc:
             raise ValueError(f"lifelong mode: {exc}") from None
         self.executor = JournaledLifelong(
@@ -121,6 +122,7 @@ class LifelongRun:
             distances=distances, period_ms=s.period_ms, window=s.window,
             durations=ActionDurations.uniform(cfg.action_ms), lookahead=cfg.dispatch_lookahead,
             threshold_ms=s.threshold_ms, record=engine.feed.record)
+        engine.metrics.waits = self.wait_percentiles_s
         self.turning = shift.headings is not None
         self.planner = PlannerProcess(grid, len(shift.starts), self.turning, s.seed)
         try:  # waited for by :meth:`planner_ready`: a restart replays its journal meanwhile
@@ -152,10 +154,22 @@ class LifelongRun:
         """The live task pool."""
         return self.executor.pool
 
+    def wait_percentiles_s(self) -> dict[str, float]:
+        """The tasks' assignment waits so far (s): ``p50``, ``p90``, ``p99``, ``max``."""
+        waits = self.tasks.waits(self._engine.now_ms())
+        return {k: v / 1000.0 for k, v in wait_percentiles(waits).items()}
+
     @property
     def robots(self) -> int:
         """The fleet's size."""
         return self.executor.n
+
+    @property
+    def period_ms(self) -> float:
+        """Plan time between planning calls."""
+        s = self._engine.config.lifelong
+        assert s is not None
+        return s.period_ms
 
     @property
     def ticking(self) -> bool:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 
 LATENCY_BUCKETS = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
@@ -35,7 +37,19 @@ class Metrics:
         self.handler_failures = Counter(
             "fleetgate_handler_failures", "Connections closed 1011 by an unexpected error",
             registry=r)
+        self.assignment_wait = Gauge(
+            "fleetgate_task_assignment_wait_seconds",
+            "Lifelong mode: tasks' wait from submission to a robot, over the kept tasks (a "
+            "task still queued counts as waiting until now); quantile 1 is the longest",
+            ["quantile"], registry=r)
+        self.waits: Callable[[], dict[str, float]] | None = None
+        """Lifelong mode: the assignment waits' ``p50``, ``p90``, ``p99`` and ``max`` (s),
+        read at each :meth:`render`."""
 
     def render(self) -> bytes:
         """The Prometheus text exposition of every metric."""
+        if self.waits is not None:
+            for key, value in self.waits().items():
+                q = "1" if key == "max" else str(int(key[1:]) / 100)
+                self.assignment_wait.labels(q).set(value)
         return generate_latest(self.registry)

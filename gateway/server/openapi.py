@@ -12,6 +12,7 @@ from pydantic.json_schema import models_json_schema
 
 from gateway.execution.tasks import TASK_STATES
 from gateway.server.task_models import (
+    CLOCK,
     KEY_PATTERN,
     MAX_KEY_CHARS,
     MAX_LIST,
@@ -144,7 +145,7 @@ def openapi_document() -> dict[str, Any]:
         "openapi": "3.1.0",
         "info": {"title": "fleetgate task API", "version": "1",
                  "description": "Tasks for a warehouse shift in lifelong mode. Cells are "
-                                "[x, y]; times are ms of the gateway's clock. States: "
+                                f"[x, y]. One clock: {CLOCK}. States: "
                                 + ", ".join(TASK_STATES) + "."},
         "paths": _paths(),
         "components": {

@@ -25,6 +25,7 @@ from gateway.server.planner import (
     Problem,
     problem_from_paths,
     resolve_instance,
+    without_paths,
 )
 from gateway.server.resume import executor_for
 from gateway.server.session import Session
@@ -64,7 +65,7 @@ def reply_to(reply: Reply, ref: str | None, code: ErrorCode | None, detail: str)
         if code is None:
             reply.send(Ok, ref=ref or "", detail=detail)
         else:
-            reply.error(code, ref, detail)
+            reply.error(code, ref, without_paths(detail))
     elif reply is not None and not reply.done():
         reply.set_result((code, detail))
 
@@ -104,7 +105,7 @@ class OperatorCommands:
                 try:
                     problem = resolve_instance(msg.map, msg.scen, msg.agents, seed)
                 except InstanceError as exc:
-                    raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
+                    raise CommandError(ErrorCode.BAD_REQUEST, exc.public) from None
                 self.load(problem, reply, msg.msg_id)
                 return None
             case LoadPlan():
@@ -112,7 +113,7 @@ class OperatorCommands:
                 try:
                     problem = problem_from_paths(msg.map, msg.paths, msg.headings)
                 except InstanceError as exc:
-                    raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
+                    raise CommandError(ErrorCode.BAD_REQUEST, exc.public) from None
                 e.executor = None
                 e.problem = problem
                 self._loaded()

@@ -54,7 +54,9 @@ from gateway.server.task_models import (
     SubmitResponse,
     TaskAction,
     TaskList,
+    TaskView,
     event_view,
+    iso_utc,
     task_view,
 )
 from protocol.codec import ProtocolError, check_text
@@ -134,13 +136,32 @@ class TaskApi:
             act: Literal["pause", "resume"] = "pause" if action == "/pause" else "resume"
             task = await self._change(lambda p, now: (p.pause if act == "pause"
                                                       else p.resume)(task_id, now))
-            return json_answer(200, TaskAction(action=act, task=task_view(task, grid))
+            return json_answer(200, TaskAction(action=act, task=self._view(task, grid))
                                .model_dump(mode="json"))
         if req.method == "GET":
-            return json_answer(200, task_view(self._found(pool, task_id), grid)
+            return json_answer(200, self._view(self._found(pool, task_id), grid)
                                .model_dump(mode="json"))
         task = await self._change(lambda p, now: p.cancel(task_id, now))  # DELETE
-        return json_answer(200, task_view(task, grid).model_dump(mode="json"))
+        return json_answer(200, self._view(task, grid).model_dump(mode="json"))
+
+    def now_ms(self) -> float:
+        """The one clock of the task API: plan ms since the shift started, 0 before it (a
+        task submitted before the start is submitted at 0)."""
+        run = self._engine.lifelong
+        if run is None or run.executor.mode is LifelongMode.NEW:
+            return 0.0
+        return self._engine.now_ms()
+
+    def wall_time(self, t_ms: float) -> str | None:
+        """The wall-clock time (ISO 8601, UTC) of shift time ``t_ms``: the shift's start plus
+        the ms at its speed; None while it has not started."""
+        run = self._engine.lifelong
+        start = None if run is None else run.started
+        return None if start is None else iso_utc(start.wall_start_s
+                                                  + t_ms / 1000.0 / start.speed)
+
+    def _view(self, task: Task, grid: Grid) -> TaskView:
+        return task_view(task, grid, self.wall_time)
 
     def _grid(self) -> Grid:
         run = self._engine.lifelong
@@ -193,7 +214,7 @@ class TaskApi:
             try:
                 if pool is None:
                     raise HttpError(503, "the task pool is gone")
-                done.set_result(fn(pool, engine.now_ms()))
+                done.set_result(fn(pool, self.now_ms()))
             except Exception as exc:  # refusals, and bugs (logged by the HTTP layer)
                 done.set_exception(exc)
 
@@ -239,7 +260,7 @@ class TaskApi:
             return [pool.task(i) for i in ids], created
 
         tasks, created = await self._change(submit)
-        answer = SubmitResponse(created=created, tasks=[task_view(t, grid) for t in tasks])
+        answer = SubmitResponse(created=created, tasks=[self._view(t, grid) for t in tasks])
         return json_answer(201 if created else 200, answer.model_dump(mode="json"))
 
     @staticmethod
@@ -290,8 +311,9 @@ class TaskApi:
                 more = True
                 break
             page.append(task)
-        answer = TaskList(now_ms=self._engine.now_ms(),
-                          tasks=[task_view(t, grid) for t in page],
+        now = self.now_ms()
+        answer = TaskList(now_ms=now, now_at=self.wall_time(now),
+                          tasks=[self._view(t, grid) for t in page],
                           next_after=page[-1].id if more else None, counts=pool.counts(),
                           last_event=pool.event_seq)
         return json_answer(200, answer.model_dump(mode="json"))
@@ -352,7 +374,8 @@ class TaskApi:
                     idle = 0.0
                     chunk = "".join(
                         f"id: {e.seq}\nevent: task\ndata: "
-                        f"{event_view(e).model_dump_json()}\n\n" for e in events)
+                        f"{event_view(e, self.wall_time).model_dump_json()}\n\n"
+                        for e in events)
                     after = events[-1].seq
                     yield chunk.encode()
                 elif idle >= KEEPALIVE_S:

@@ -1,12 +1,16 @@
 """The task API's messages (pydantic): what a warehouse system sends and what it is shown.
 
-Cells are ``[x, y]`` (column, row) as everywhere in fleetgate; times are the gateway's plan
-clock in ms (``now_ms`` in every list says where it stands), deadlines too. Every limit a
-stranger could abuse is bounded here: batch size, errands per task, key length, numbers.
+Cells are ``[x, y]`` (column, row) as everywhere in fleetgate. Every time is on one clock,
+:data:`CLOCK`: ms of the shift (``now_ms`` in every list says where it stands), deadlines too;
+each ``*_ms`` has an ``*_at`` beside it, the same instant as a wall-clock time (ISO 8601, UTC).
+Every limit a stranger could abuse is bounded here: batch size, errands per task, key length,
+numbers.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from datetime import UTC, datetime
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -25,6 +29,21 @@ MAX_LIST = 1000
 """Tasks in one page of ``GET /tasks``."""
 MAX_BODY_BYTES = 256 * 1024
 """Bytes of a request body."""
+CLOCK = ("every *_ms is ms of the shift's clock: 0 is the shift's start, and what happens "
+         "before it (a task submitted before the robots are there) happens at 0; deadline_ms "
+         "too. Each *_at is the same instant on the wall clock (ISO 8601, UTC: the shift's "
+         "start plus the ms at the shift's speed, 1 outside demos), null while the shift has "
+         "not started")
+"""The task API's one clock, as its document says it."""
+
+WallTime = Callable[[float], str | None]
+"""Shift ms -> the wall-clock time of that instant (ISO 8601, UTC), None before the start."""
+
+
+def iso_utc(wall_s: float) -> str:
+    """A wall-clock time (POSIX seconds) as ISO 8601 in UTC, to the millisecond."""
+    return datetime.fromtimestamp(wall_s, UTC).isoformat(timespec="milliseconds") \
+        .replace("+00:00", "Z")
 
 Coordinate = Annotated[int, Field(ge=0, le=1_000_000)]
 Cell = tuple[Coordinate, Coordinate]
@@ -62,7 +81,8 @@ class SubmitBatch(_Model):
 
 
 class TaskView(_Model):
-    """A task as the API shows it (times in ms of the gateway's clock; null: not yet)."""
+    """A task as the API shows it (times: ms of the shift's clock, and the same instants on
+    the wall clock; null: not yet)."""
 
     id: int
     state: TaskState
@@ -72,14 +92,21 @@ class TaskView(_Model):
     errands_done: int
     priority: int
     deadline_ms: float | None
+    deadline_at: str | None
     idempotency_key: str | None
     submitted_ms: float
+    """When it was submitted (0: before the shift started)."""
+    submitted_at: str | None
     assigned_ms: float | None
     """When it was last given to a robot."""
+    assigned_at: str | None
     errand_ms: list[float]
     """When each errand done so far was done."""
+    errand_at: list[str | None]
     finished_ms: float | None
+    finished_at: str | None
     cancelled_ms: float | None
+    cancelled_at: str | None
 
 
 class SubmitResponse(_Model):
@@ -94,6 +121,8 @@ class TaskList(_Model):
     """A page of ``GET /tasks`` in id order; ``next_after`` continues it (null: the end)."""
 
     now_ms: float
+    """The shift's clock now (0 before its start)."""
+    now_at: str | None
     tasks: list[TaskView]
     next_after: int | None
     counts: dict[TaskState, int]
@@ -112,6 +141,7 @@ class TaskEventView(_Model):
     robot: int | None
     errands_done: int
     t_ms: float
+    at: str | None
 
 
 class ApiError(_Model):
@@ -127,21 +157,29 @@ class TaskAction(_Model):
     task: TaskView
 
 
-def task_view(task: PoolTask, grid: Grid) -> TaskView:
-    """What the API shows of a task of the pool (flat cells turned into ``[x, y]``)."""
+def task_view(task: PoolTask, grid: Grid, wall: WallTime) -> TaskView:
+    """What the API shows of a task of the pool (flat cells turned into ``[x, y]``, each time
+    also as ``wall`` tells it)."""
+    assigned = task.assigned_at if task.assigned_at >= 0 else None
+    finished = task.finish_tick if task.state == "finished" else None
+    cancelled = task.cancelled_at if task.state == "cancelled" else None
+
+    def at(t: float | None) -> str | None:
+        return None if t is None else wall(t)
+
     return TaskView(
         id=task.id, state=task.state, robot=task.robot if task.robot >= 0 else None,
         errands=[grid.cell(c) for c in task.errands], errands_done=task.done,
-        priority=task.priority, deadline_ms=task.deadline, idempotency_key=task.key,
-        submitted_ms=task.submitted,
-        assigned_ms=task.assigned_at if task.assigned_at >= 0 else None,
-        errand_ms=list(task.errand_at),
-        finished_ms=task.finish_tick if task.state == "finished" else None,
-        cancelled_ms=task.cancelled_at if task.state == "cancelled" else None)
+        priority=task.priority, deadline_ms=task.deadline, deadline_at=at(task.deadline),
+        idempotency_key=task.key, submitted_ms=task.submitted,
+        submitted_at=wall(task.submitted), assigned_ms=assigned, assigned_at=at(assigned),
+        errand_ms=list(task.errand_at), errand_at=[wall(t) for t in task.errand_at],
+        finished_ms=finished, finished_at=at(finished), cancelled_ms=cancelled,
+        cancelled_at=at(cancelled))
 
 
-def event_view(event: TaskEvent) -> TaskEventView:
+def event_view(event: TaskEvent, wall: WallTime) -> TaskEventView:
     """What the API shows of an event of the pool."""
     return TaskEventView(seq=event.seq, task=event.task, state=event.state,
                          robot=event.robot if event.robot >= 0 else None,
-                         errands_done=event.done, t_ms=event.t)
+                         errands_done=event.done, t_ms=event.t, at=wall(event.t))
