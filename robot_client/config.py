@@ -114,6 +114,10 @@ class _Cli(CliSettingsSource[Any]):
         text = super()._metavar_format(obj)
         return _METAVARS.get(text, text)
 
+    def _help_format(self, *args: Any, **kwargs: Any) -> str:
+        text: str = super()._help_format(*args, **kwargs)
+        return text.replace(f"(default: {self.cli_parse_none_str})", "(default: none)")
+
 
 class ConfigError(ValueError):
     """The settings are incomplete or wrong (one-line reason)."""
