@@ -49,6 +49,8 @@ import contextlib
 import itertools
 import json
 import random
+import resource
+import signal
 import socket
 import sqlite3
 import statistics
@@ -59,6 +61,7 @@ import time
 import urllib.error
 import urllib.request
 from collections import Counter
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +78,13 @@ from sim_clients.fleet import SimFleet
 from tracecheck import check_trace, read_trace
 
 OPERATOR = "demo-operator"
+
+
+def limit_files(size: int) -> None:
+    """In a child before ``exec``: files it writes cannot grow beyond ``size`` bytes (the write
+    fails with ``EFBIG``; ``SIGXFSZ``, which would kill it instead, is ignored)."""
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
 
 
 def free_port() -> int:
@@ -105,9 +115,13 @@ class GatewayProcess:
         """Wall time from each kill to the restarted gateway's readiness."""
         self._killed_at: float | None = None
 
-    def start(self) -> None:
-        """Start the process and wait until it answers ``/readyz``."""
-        self.proc = subprocess.Popen(self.cmd, stdout=self.log, stderr=self.log)
+    def start(self, file_limit: int | None = None) -> None:
+        """Start the process and wait until it answers ``/readyz``; ``file_limit``: no file it
+        writes may grow beyond that many bytes (``RLIMIT_FSIZE``: a write beyond fails with
+        ``EFBIG``, as a full disk fails with ``ENOSPC``)."""
+        self.proc = subprocess.Popen(self.cmd, stdout=self.log, stderr=self.log,
+                                     preexec_fn=None if file_limit is None
+                                     else partial(limit_files, file_limit))
         self.starts += 1
         deadline = time.monotonic() + 60.0
         while time.monotonic() < deadline:

@@ -28,10 +28,10 @@ from typing import Any
 
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
-from gateway.execution.errands import TaskDistances
-from gateway.execution.executor import Executor
-from gateway.execution.lifelong import LifelongExecutor, PlanRequest, WindowPlanner
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.lifelong.executor import LifelongExecutor, PlanRequest, WindowPlanner
+from gateway.execution.lifelong.tasks import TaskPool
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.instance import Instance
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.plan import Plan

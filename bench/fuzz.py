@@ -70,7 +70,7 @@ from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
-from gateway.server.transport import HARD_MAX_BYTES
+from gateway.server.wire.transport import HARD_MAX_BYTES
 from protocol import (
     MAX_MESSAGE_BYTES,
     OPERATOR_TYPES,

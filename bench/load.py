@@ -89,7 +89,7 @@ import numpy as np
 
 from fleetgate.userio.exits import CommandParser, run_main
 from fleetgate.userio.files import check_writable
-from gateway.execution.adg import ADG
+from gateway.execution.oneshot.adg import ADG
 from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
 from gateway.planning.lorr import LorrProblem, warehouse_blocks, warehouse_problem

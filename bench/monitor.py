@@ -30,8 +30,8 @@ import time
 
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
-from gateway.execution.executor import MONITOR_PERIOD_MS, Executor
-from gateway.execution.monitor import algorithm1
+from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, Executor
+from gateway.execution.oneshot.monitor import algorithm1
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_walks
 from gateway.planning.validate import plan_violations

@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
-from gateway.execution.executor import Executor
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.instance import load_instance
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve

@@ -36,8 +36,8 @@ from typing import Any, TypeVar
 import numpy as np
 
 from fleetgate.userio.files import atomic_open, make_folder, write_text
+from gateway.execution.oneshot.policies import PolicyName
 from gateway.execution.params import PAPER, IntruderReading
-from gateway.execution.policies import PolicyName
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.motion import Motion
@@ -61,7 +61,7 @@ ALL_VARIANTS = VARIANTS + EXTRA_VARIANTS
 """Every variant, in the order rows are sorted."""
 HISTORY_VARIANTS: frozenset[str] = frozenset({"informed", "shadow", "reschedule",
                                               "reschedule+slack", "reschedule+informed"})
-"""The variants whose runs use the block estimates (:mod:`gateway.execution.blocks`), so
+"""The variants whose runs use the block estimates (:mod:`gateway.execution.oneshot.blocks`), so
 their rows depend on the block history they start from; the others never read it."""
 
 COLUMNS: tuple[str, ...] = ("map", "agents", "instance", "seed", "variant", "soc_ms",

@@ -31,8 +31,8 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.execution.oneshot.policies import POLICY_NAMES
 from gateway.execution.params import PAPER
-from gateway.execution.policies import POLICY_NAMES
 from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, UsageError
 from sim_clients.cmd_demo_lifelong import add_lifelong_arguments, run_lifelong_demo
 from sim_clients.stays import STAY_HELP, stay_option

@@ -11,7 +11,8 @@ from fleetgate.userio.files import check_writable, write_text
 from gateway.runtime.exits import EXIT_OK, UsageError
 
 SCHEDULER_CHOICES = ("greedy", "mincost", "shortest")
-"""``gateway.execution.tasks.SCHEDULERS`` (a test checks), named here so --help stays light."""
+"""``gateway.execution.lifelong.tasks.SCHEDULERS`` (a test checks), named here so --help stays
+light."""
 MAX_WAIT_TICKS = 450
 """``sim_clients.lifelong.MAX_WAIT_TICKS`` (a test checks), named here for the same reason."""
 
@@ -33,7 +34,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    from gateway.execution.tasks import wait_percentiles
+    from gateway.execution.lifelong.tasks import wait_percentiles
     from gateway.planning.lorr import LorrFormatError, read_problem
     from sim_clients.lifelong import (
         LifelongConfig,

@@ -15,8 +15,8 @@ from gateway.commands.solving import (
     no_solution_message,
     solve_instance,
 )
+from gateway.execution.oneshot.policies import AUTONOMOUS_POLICIES
 from gateway.execution.params import INTRUDER_READINGS, PAPER
-from gateway.execution.policies import AUTONOMOUS_POLICIES
 from gateway.runtime.exits import EXIT_NO_SOLUTION, EXIT_OK, UsageError
 from sim_clients.stays import STAY_HELP
 

@@ -152,7 +152,7 @@ class FleetRobot:
         self.fleet = fleet
         self.robot_id = robot_id
         self.sim: SimRobot | None = None
-        self.session = RobotSession(robot_id)
+        self.session = RobotSession(robot_id, repeat_finished=not fleet.must_only)
         self.connected = asyncio.Event()
         self.plan = -1
         """Plan of the latest started action (with :attr:`next_action`: first not started)."""
@@ -433,7 +433,7 @@ class SimFleet:
                  intruder_config: IntruderConfig | None = None,
                  recheck_ms: float = RECHECK_MS, reconnect_delay_s: float = 0.2,
                  send_state: bool = True, external_poll: bool = False,
-                 duration_jitter: float = 0.0) -> None:
+                 duration_jitter: float = 0.0, must_only: bool = False) -> None:
         if not 0.0 <= duration_jitter < 1.0:
             raise ValueError(f"duration_jitter must be in [0, 1), got {duration_jitter}")
         self.connect = connect
@@ -447,6 +447,9 @@ class SimFleet:
         self.recheck_ms = recheck_ms
         self.reconnect_delay_s = reconnect_delay_s
         self.send_state = send_state
+        self.must_only = must_only
+        """Robots that implement only the protocol's MUST rules (no repeated ``finished`` for a
+        duplicate of a finished action: a MAY of DUP-1)."""
         self.stats = FleetStats()
         self.on_event: Callable[[str, int, int, int], None] | None = None
         """Called with (kind, plan, robot, index) when a robot takes an action to execute it

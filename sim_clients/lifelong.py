@@ -4,9 +4,9 @@ The simulation advances in execution ticks. A forward move or a turn takes ``age
 ticks (the problem's ``agentCounter``); a robot in a delay (the problem's ``delayConfig``,
 drawn per tick by :class:`DelayModel`) makes no progress. The planner runs periodically, every
 ``period`` ticks at the earliest (LoRR's ``planCommTimeLimit`` / ``actionMoveTimeLimit``): it
-assigns tasks to robots that have none (:mod:`gateway.execution.tasks`), plans a window of
+assigns tasks to robots that have none (:mod:`gateway.execution.lifelong.tasks`), plans a window of
 ``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`),
-and its result is appended to the live ADG (:mod:`gateway.execution.live_adg`) when it
+and its result is appended to the live ADG (:mod:`gateway.execution.lifelong.live_adg`) when it
 arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
 measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
 exactly reproducible). Meanwhile robots keep executing what is committed, so they never stop
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from gateway.execution.errands import ErrandBook, TaskDistances
-from gateway.execution.live_adg import CCW, CW, FORWARD, LiveADG
-from gateway.execution.tasks import SCHEDULERS, TaskPool, wait_percentiles
+from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
+from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
+from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
 from gateway.planning.pibt import StateSpace, WindowedPIBT
 
@@ -44,10 +44,8 @@ on top of its distance when the scheduler weighs it for a task, so tasks go to r
 can go (room-64-64-16, 10-30 tick delays, 8 delay seeds: mean 111 tasks without, 117 with 4x,
 113-114 with about 2x, 9x or an infinite charge; random-64-64-10's 1-4 tick delays: neutral)."""
 MAX_WAIT_TICKS = 450
-"""Default fairness bound (:attr:`~gateway.execution.tasks.TaskPool.max_wait`): 45 s at
-100 ms a tick. The gateway's is 30 s (a 600 s demo shift: max wait 56 s, more tasks than
-without); a 600-tick LoRR run ends before most tasks forced after 300 ticks finish (maze,
-room, random: 3-10% fewer tasks), at 450 ticks it finishes as many as without a bound."""
+"""Default fairness bound (:attr:`~gateway.execution.lifelong.tasks.TaskPool.max_wait`): 45 s
+at 100 ms a tick, as the gateway's ``lifelong.max_wait_ms``."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -119,7 +117,7 @@ class LifelongConfig:
 @dataclass
 class LifelongResult:
     """What a run did: finished tasks, per-tick actions, events, planner times (s), and the
-    tasks' assignment waits (ticks, :meth:`~gateway.execution.tasks.TaskPool.waits`)."""
+    tasks' assignment waits (ticks, :meth:`~gateway.execution.lifelong.tasks.TaskPool.waits`)."""
 
     ticks: int
     finished: int
@@ -165,7 +163,7 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
-    space = StateSpace(grid, cfg.turning)
+    space = StateSpace(grid, cfg.turning, robots=n)
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)

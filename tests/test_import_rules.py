@@ -15,7 +15,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT = ("gateway", "protocol", "robot_client", "sim_clients", "experiments", "tracecheck",
-           "fleetgate", "tests", "bench")
+           "conformance", "fleetgate", "tests", "bench")
 PURE_FORBIDDEN = ("gateway.server", "gateway.runtime", "gateway.commands", "gateway.cli",
                   "asyncio", "websockets", "pydantic", "time", "datetime", "sim_clients",
                   "experiments", "tracecheck", "protocol")
@@ -145,3 +145,31 @@ def test_tracecheck_imports_nothing_of_the_project() -> None:
 
 def test_benchmarks_do_not_import_tests() -> None:
     assert _violations(_modules("bench"), ("tests",)) == []
+
+
+def test_planning_never_imports_execution() -> None:
+    assert _violations(_modules("gateway/planning"), ("gateway.execution",)) == []
+
+
+def test_the_two_execution_modes_do_not_import_each_other() -> None:
+    oneshot, lifelong = "gateway.execution.oneshot", "gateway.execution.lifelong"
+    assert _violations(_modules(oneshot), (lifelong,)) == []
+    assert _violations(_modules(lifelong), (oneshot,)) == []
+
+
+def test_the_shared_execution_modules_import_neither_mode() -> None:
+    shared = [f for f in _modules("gateway/execution") if f.parent.name == "execution"]
+    modes = ("gateway.execution.oneshot", "gateway.execution.lifelong")
+    assert _violations(shared, modes) == []
+
+
+def test_conformance_kit_imports_only_protocol() -> None:
+    others = tuple(p for p in PROJECT if p not in ("protocol", "conformance"))
+    assert _violations(_modules("conformance"), others) == []
+
+
+def test_the_wire_knows_no_engine_run_or_execution() -> None:
+    above = ("gateway.server.engine", "gateway.server.runs", "gateway.server.operator_commands",
+             "gateway.server.gateway", "gateway.execution")
+    assert _violations(_modules("gateway/server/wire"), above) == []
+

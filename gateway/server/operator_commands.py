@@ -15,7 +15,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from gateway.execution.actions import ActionDurations
-from gateway.execution.executor import ExecutionError
+from gateway.execution.oneshot.executor import ExecutionError
 from gateway.planning.movingai import format_map
 from gateway.planning.plan import Plan
 from gateway.runtime.journal import PolicyRecord, RunRecord, SpeedRecord, new_run_id
@@ -27,8 +27,8 @@ from gateway.server.planner import (
     resolve_instance,
     without_paths,
 )
-from gateway.server.resume import executor_for
-from gateway.server.session import Session
+from gateway.server.runs.resume import executor_for
+from gateway.server.wire.session import Session
 from protocol import (
     ErrorCode,
     GetSnapshot,

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.execution.adg import ADG
 from gateway.execution.errors import ExecutionError
+from gateway.execution.oneshot.adg import ADG
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir

@@ -14,13 +14,13 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.execution.executor import Executor
-from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.tasks import Task
+from gateway.execution.lifelong.executor import LifelongExecutor
+from gateway.execution.lifelong.tasks import Task
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
-from gateway.server.lifelong_run import throughput_per_min
 from gateway.server.planner import Problem
+from gateway.server.runs.lifelong import throughput_per_min
 from protocol import ActionCounts, Pose, ReplanMark, RobotView, WaitEdge
 from protocol.gateway_session import GatewaySession
 from protocol.messages import HEADINGS, GatewayStatus, Heading, PolicyName

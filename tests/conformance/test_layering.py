@@ -8,7 +8,7 @@ import ast
 import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[2] / "gateway" / "conformance"
+PACKAGE = Path(__file__).resolve().parents[2] / "conformance"
 
 
 def test_conformance_imports_only_protocol_websockets_and_stdlib() -> None:
@@ -23,7 +23,7 @@ def test_conformance_imports_only_protocol_websockets_and_stdlib() -> None:
             for name in names:
                 top = name.split(".")[0]
                 ok = (top in ("protocol", "websockets") or top in sys.stdlib_module_names
-                      or name.startswith(("gateway.conformance", "fleetgate.userio")))
+                      or name.startswith(("conformance", "fleetgate.userio")))
                 if not ok:
                     bad.append((f.name, name))
     assert bad == []

@@ -104,7 +104,7 @@ def test_compress_path_runs_and_windows() -> None:
 
 
 def test_cli_offers_the_schedulers() -> None:
-    from gateway.execution.tasks import SCHEDULERS
+    from gateway.execution.lifelong.tasks import SCHEDULERS
     from sim_clients.cmd_lifelong import SCHEDULER_CHOICES
 
     assert sorted(SCHEDULER_CHOICES) == sorted(SCHEDULERS)

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from gateway.cli import main
-from gateway.server.auth import Authenticator, AuthError, Peer, request_token
 from gateway.server.config import ConfigError, load_config
 from gateway.server.logs import JsonFormatter
+from gateway.server.wire.auth import Authenticator, AuthError, Peer, request_token
 
 FLEETGATE = str(Path(sys.executable).parent / "fleetgate")
 

@@ -12,12 +12,12 @@ from typing import Any
 
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid
-from gateway.server.auth import Peer
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
-from gateway.server.transport import MemoryClient, MemoryLink, memory_pair
+from gateway.server.wire.auth import Peer
+from gateway.server.wire.transport import MemoryClient, MemoryLink, memory_pair
 from protocol import (
     Ack,
     Action,
