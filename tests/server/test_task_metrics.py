@@ -115,3 +115,43 @@ def test_shift_metrics_agree_with_the_task_api_and_the_dashboard_reads_them(
                    "fleetgate_planner_call_seconds_bucket",
                    "fleetgate_journal_commit_seconds_bucket"):
         assert any(metric in q for q in queries), f"no panel shows {metric}"
+
+
+def test_a_restarted_gateway_does_not_count_finishes_again(tmp_path: Path) -> None:
+    """The finishes a restarted gateway replays from its journal were counted by the process
+    before it: the new one's counter starts at 0 (a Prometheus counter reset), not at them."""
+    out: dict[str, Any] = {}
+    config = lifelong_config(journal=tmp_path / "journal.sqlite")
+
+    async def first() -> None:
+        async with Gateway(config) as gw:
+            port = await gw.listen()
+            run = gw.engine.lifelong
+            assert run is not None
+            free = list(grid_of(gw).free_cells())
+            await call(port, "POST", "/tasks", {"tasks": [
+                {"errands": [list(free[3 * k]), list(free[-3 * k - 1])]} for k in range(4)]})
+            fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(ROBOTS),
+                             clock=gw.clock, send_state=False)
+            await start_shift(gw, fleet)
+            async with asyncio.timeout(120):
+                while run.tasks.finished < 2:
+                    await asyncio.sleep(0.05)
+            out["first"] = samples((await call(port, "GET", "/metrics")).body.decode())
+            await fleet.stop()
+
+    async def second() -> None:
+        async with Gateway(config) as gw:
+            port = await gw.listen()
+            run = gw.engine.lifelong
+            assert run is not None
+            out["replayed"] = run.tasks.finished
+            await asyncio.sleep(0.3)  # a few owner steps and commits
+            out["second"] = samples((await call(port, "GET", "/metrics")).body.decode())
+
+    asyncio.run(first())
+    asyncio.run(second())
+    assert out["first"]["fleetgate_tasks_finished_total"] >= 2
+    assert out["replayed"] >= 2
+    assert out["second"]["fleetgate_tasks_finished_total"] == 0
+    assert out["second"]["fleetgate_task_completion_seconds_count"] == 0

@@ -159,13 +159,25 @@ class LifelongRun:
 
     def wait_percentiles_s(self) -> dict[str, float]:
         """The tasks' assignment waits so far (s): ``p50``, ``p90``, ``p99``, ``max``."""
-        waits = self.tasks.waits(self._engine.now_ms())
+        waits = self.tasks.waits(self.now_ms())
         return {k: v / 1000.0 for k, v in wait_percentiles(waits).items()}
 
     @property
     def robots(self) -> int:
         """The fleet's size."""
         return self.executor.n
+
+    def now_ms(self) -> float:
+        """The shift's clock: plan ms since the shift started, 0 before it (the task API's
+        one clock: a task submitted before the start is submitted at 0)."""
+        if self.executor.mode is LifelongMode.NEW:
+            return 0.0
+        return self._engine.now_ms()
+
+    def counted_until(self, seq: int) -> None:
+        """Task events up to ``seq`` are not counted in the metrics (a restarted gateway's
+        replayed ones were counted by the process before it)."""
+        self._counted = seq
 
     @property
     def period_ms(self) -> float:
