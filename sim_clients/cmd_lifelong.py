@@ -12,7 +12,7 @@ from gateway.runtime.exits import EXIT_OK, UsageError
 SCHEDULER_CHOICES = ("greedy", "mincost", "shortest")
 """``gateway.execution.lifelong.tasks.SCHEDULERS`` (a test checks), named here so --help stays
 light."""
-MAX_WAIT_TICKS = 450
+MAX_WAIT_TICKS = 600
 """``sim_clients.lifelong.MAX_WAIT_TICKS`` (a test checks), named here for the same reason."""
 
 
