@@ -40,7 +40,10 @@ per minute of plan time against an undisturbed shift of the same fleet (the down
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import asyncio
 import contextlib
 import itertools
@@ -62,6 +65,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.grid import Grid
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
@@ -489,7 +493,7 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
 
 def main() -> int:
     """Parse arguments and run."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = CommandParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--kills", type=int, default=10)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--robots", type=int, default=10)
@@ -529,4 +533,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/crash.py", main)
