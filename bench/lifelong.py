@@ -43,7 +43,10 @@ copy is absent; :mod:`sim_clients.lifelong_scale`).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import copy
 import dataclasses
 import json
@@ -55,6 +58,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.lifelong.executor import LifelongExecutor
 from gateway.execution.lifelong.shift_state import HistoryLog, snapshot_shift
 from gateway.execution.lifelong.tasks import (
@@ -312,7 +316,7 @@ def journal_run(robots: int, seconds: float, every: int, seed: int,
 
 def main() -> None:
     """Run both parts (or the ``--journal`` measurement) and print one result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ticks", type=int, default=600, help="ticks per LoRR problem")
     ap.add_argument("--robots", type=int, default=1000, help="robots in the speed run")
     ap.add_argument("--seconds", type=int, default=600, help="simulated seconds (speed run)")
@@ -397,4 +401,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/lifelong.py", main)
