@@ -25,12 +25,18 @@ async def _serve(config: GatewayConfig, fresh: bool) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError):
             loop.add_signal_handler(sig, stop.set)
-    async with Gateway(config, fresh=fresh) as gateway:
+    async with Gateway(config, fresh=fresh) as gateway, contextlib.AsyncExitStack() as vda:
         port = await gateway.listen()
         s = "s" if config.tls is not None else ""
         print(f"fleetgate gateway on ws{s}://{config.host}:{port}/ws "
               f"(GUI http{s}://{config.host}:{port}/, metrics /metrics, probes /healthz "
               f"/readyz)", file=sys.stderr, flush=True)
+        if config.vda5050 is not None:
+            from gateway.vda5050.transport import VdaTransport
+
+            await vda.enter_async_context(VdaTransport(gateway, config.vda5050))
+            print(f"VDA 5050 master control on {config.vda5050.broker.url} "
+                  f"({len(config.vda5050.vehicles)} vehicles)", file=sys.stderr, flush=True)
         await stop.wait()
 
 
@@ -60,7 +66,7 @@ def _run(args: argparse.Namespace) -> int:
                          ) from None
     try:
         asyncio.run(_serve(config, args.fresh))
-    except ValueError as exc:  # the configured instance cannot be loaded
+    except ValueError as exc:  # the configured instance cannot be loaded, no MQTT broker
         raise UsageError(str(exc)) from None
     except OSError as exc:
         raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
