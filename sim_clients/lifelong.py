@@ -44,10 +44,8 @@ on top of its distance when the scheduler weighs it for a task, so tasks go to r
 can go (room-64-64-16, 10-30 tick delays, 8 delay seeds: mean 111 tasks without, 117 with 4x,
 113-114 with about 2x, 9x or an infinite charge; random-64-64-10's 1-4 tick delays: neutral)."""
 MAX_WAIT_TICKS = 450
-"""Default fairness bound (:attr:`~gateway.execution.lifelong.tasks.TaskPool.max_wait`): 45 s at
-100 ms a tick. The gateway's is 30 s (a 600 s demo shift: max wait 56 s, more tasks than
-without); a 600-tick LoRR run ends before most tasks forced after 300 ticks finish (maze,
-room, random: 3-10% fewer tasks), at 450 ticks it finishes as many as without a bound."""
+"""Default fairness bound (:attr:`~gateway.execution.lifelong.tasks.TaskPool.max_wait`): 45 s
+at 100 ms a tick, as the gateway's ``lifelong.max_wait_ms``."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 

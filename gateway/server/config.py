@@ -101,10 +101,10 @@ class LifelongSettings(BaseModel):
     seed: int = 0
     """Seed of the generated warehouse and of the planner's tie-breaks."""
     scheduler: Literal["greedy", "mincost", "shortest"] = "shortest"
-    max_wait_ms: float | None = Field(default=30_000.0, gt=0)
+    max_wait_ms: float | None = Field(default=45_000.0, gt=0)
     """Fairness bound: a task that has waited this long for a robot goes before the tasks of
-    its priority that have not (None: no bound; then a far or long task can wait a whole
-    shift while nearer ones keep coming)."""
+    its priority that have not, and waiting tasks age towards it (None: no bound; then a far
+    or long task can wait a whole shift while nearer ones keep coming)."""
     planner: Literal["pibt"] = "pibt"
     """The windowed planner: 1-robust PIBT (gateway/planning/pibt.py)."""
     period_ms: float = Field(default=1000.0, gt=0)

@@ -111,6 +111,7 @@ def journal_tasks(engine: Engine) -> bool:
         log.info("task book rebuilt from the journal", extra={
             "records": len(records), "tasks": len(pool.book), "finished": pool.finished})
     tasks = TaskJournal(pool, journal, last)
+    run.counted_until(last)
     engine.before_commit.append(tasks.flush)
 
     def sink(rec: JournalRecord) -> None:
