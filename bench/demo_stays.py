@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 from typing import cast
 
-from gateway.execution.policies import AUTONOMOUS_POLICIES, PolicyName
+from gateway.execution.oneshot.policies import AUTONOMOUS_POLICIES, PolicyName
 from gateway.planning.instance import Instance, load_instance
 from gateway.planning.plan import Plan
 from gateway.planning.solver import solve

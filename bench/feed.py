@@ -16,18 +16,22 @@ about 1,500 a second at 500 robots).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import json
 import random
 import statistics
 import time
 from typing import Any
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
-from gateway.execution.errands import TaskDistances
-from gateway.execution.executor import Executor
-from gateway.execution.lifelong import LifelongExecutor, PlanRequest, WindowPlanner
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.lifelong.executor import LifelongExecutor, PlanRequest, WindowPlanner
+from gateway.execution.lifelong.tasks import TaskPool
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.instance import Instance
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.plan import Plan
@@ -71,7 +75,7 @@ def lifelong_view(robots: int, windows: int, seed: int) -> FleetView:
         ex.adopt(planner(req), 10.0 + 1000.0 * k)
         ex.tick(1000.0 * (k + 1))
     _hold(sessions, ex.drain())
-    return _view(sessions, shift=ShiftView(prob.name or "warehouse", ex))
+    return _view(sessions, shift=ShiftView(prob.name or "warehouse", ex, 1000.0))
 
 
 def oneshot_view(robots: int, seed: int) -> FleetView:
@@ -114,7 +118,7 @@ def event_us(repeat: int) -> float:
 
 def main() -> int:
     """Run the benchmark and print its result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=500)
     ap.add_argument("--windows", type=int, default=5)
     ap.add_argument("--repeat", type=int, default=15)
@@ -136,4 +140,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main("bench/feed.py", main)

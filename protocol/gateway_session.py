@@ -70,6 +70,8 @@ ExecutorEvent = Literal["started", "finished", "blocked", "stopped", "unblocked"
                         "refused"]
 """What the executor is told: a v2 robot's ``blocked`` of a move under way is ``stopped``."""
 Phase = Literal["dispatched", "running", "blocked"]
+Pending = Literal["held", "running", "finished"]
+"""What a robot said of an action the gateway has not dispatched (yet)."""
 APPLIED_KEEP = 512
 """Applied actions a session remembers per robot (the latest): twice what one ``hello`` can
 list as finished, so a reconnecting robot's catch-up and any late repeat of a recent report
@@ -153,7 +155,13 @@ class GatewaySession:
     next_index: int = 0
     """Actions of the current plan finished."""
     disowned: set[str] = field(default_factory=set)
-    """Actions the robot said it holds that the gateway never dispatched: cancelled."""
+    """Actions the robot said it holds that the gateway does not stand behind (of another run
+    or plan): the welcome's ``drop`` (the robot MUST NOT start them), then cancelled."""
+    pending: dict[str, tuple[Pending, float]] = field(default_factory=dict)
+    """Actions of the run the robot said it holds, runs or finished (and when) that the
+    gateway has not dispatched: its journal lost their dispatch. Taken as acknowledged, and
+    their start and finish applied, when the executor dispatches them again; reports about them
+    meanwhile are kept, not refused (a robot need not repeat a ``finished``: DUP-1)."""
     owed: set[str] = field(default_factory=set)
     """Actions taken back with a refusal of an earlier one before the robot answered them:
     it will refuse them too, and that refusal is about the old dispatch even if it arrives
@@ -179,6 +187,7 @@ class GatewaySession:
         self.held.clear()
         self.applied.clear()
         self.disowned.clear()
+        self.pending.clear()
         self.owed.clear()
         self.next_index = 0
 
@@ -188,10 +197,15 @@ class GatewaySession:
         return out
 
     # ------------------------------------------------------------------ connections
-    def hello(self, msg: Hello, t_ms: float) -> None:
+    def hello(self, msg: Hello, t_ms: float, *, run: str | None = None,
+              plan: int | None = None) -> None:
         """The robot said hello (on a new connection): queue the catch-up reports. The driver
         applies them, routes what the executor dispatches (:meth:`dispatch`, held for the
-        resend), then calls :meth:`welcome` with the connection."""
+        resend), then calls :meth:`welcome` with the connection. ``run`` is the run being
+        executed (None: none) and ``plan`` its plan (None: any plan of the run, a lifelong
+        shift's segments): an action of theirs that the robot holds or finished but that the
+        gateway has not dispatched (a journal that lost its last records) is :attr:`pending`,
+        any other one it holds is :attr:`disowned` (the welcome's ``drop``)."""
         self.link = None
         self.version = msg.v
         self.owed.clear()  # what was in flight on the old connection is gone
@@ -214,8 +228,18 @@ class GatewaySession:
             elif current.state == "blocked" and h.phase == "dispatched":
                 self._report("blocked", current.action_id, t_ms, None)
         finished = set(msg.finished)
-        self.disowned = {aid for aid in holds
-                         if aid not in self.held and aid not in self.applied}
+        running = current.action_id if current is not None and current.state == "running" \
+            else None
+        self.pending, self.disowned = {}, set()
+        for aid in [*msg.finished, *sorted(holds)]:
+            if aid in self.held or aid in self.applied:
+                continue
+            if self._ours(aid, run, plan):
+                state: Pending = "finished" if aid in finished else (
+                    "running" if aid == running else "held")
+                self.pending[aid] = (state, t_ms)
+            elif aid in holds:
+                self.disowned.add(aid)
         for aid, h in self.held.items():
             if aid in finished:
                 continue
@@ -226,6 +250,16 @@ class GatewaySession:
             else:
                 h.acked = False  # resent: it was never received, or was lost
 
+    def _ours(self, aid: str, run: str | None, plan: int | None) -> bool:
+        """Whether ``aid`` is an action of this robot in ``run`` (and ``plan``, if given)."""
+        if run is None:
+            return False
+        try:
+            p, robot, _ = parse_action_id(aid)
+            return action_run(aid) == run and robot == self.robot_id and plan in (None, p)
+        except ValueError:
+            return False
+
     def welcome(self, link: object, *, version: ProtocolVersion, start: Pose | None,
                 plan: int | None, state_period_ms: float, paused: bool) -> int:
         """Welcome the robot on ``link`` (speaking ``version``): resend what it does not hold,
@@ -234,7 +268,7 @@ class GatewaySession:
         resend = [Action(v=version, msg_id=f"resend-{aid}", seq=0, **h.fields)
                   for aid, h in self.held.items() if not h.acked and not h.cancel]
         self._send(Welcome, robot_id=self.robot_id, start=start, plan=plan, resend=resend,
-                   state_period_ms=state_period_ms, paused=paused)
+                   drop=sorted(self.disowned), state_period_ms=state_period_ms, paused=paused)
         for aid, h in self.held.items():
             if h.cancel:
                 self._send(CancelAction, action_id=aid)
@@ -258,7 +292,7 @@ class GatewaySession:
         h = self.held.get(aid)
         if h is not None:
             h.acked = True
-        elif aid not in self.applied:
+        elif aid not in self.applied and aid not in self.pending:
             self._refuse(ErrorCode.UNKNOWN_ACTION, ref,
                          f"action {aid} was never dispatched to robot {self.robot_id}")
 
@@ -275,6 +309,10 @@ class GatewaySession:
             return  # taken back already (a refusal of an earlier action covered it)
         if kind == "cancelled" and aid in self.disowned:
             self.disowned.discard(aid)  # the robot dropped what the gateway disowned
+            return
+        if aid in self.pending:  # kept until the executor dispatches it again
+            if kind in ("started", "finished"):
+                self.pending[aid] = ("running" if kind == "started" else "finished", t_ms)
             return
         if aid in self.applied:
             self._refuse(ErrorCode.DUPLICATE, ref,
@@ -337,9 +375,18 @@ class GatewaySession:
     def dispatch(self, fields: dict[str, Any]) -> None:
         """The executor released an action (``fields`` of an ``action`` message); it is sent
         now if the robot is online, else in the next welcome."""
-        self.held[fields["action_id"]] = Held(fields)
-        self.applied.pop(fields["action_id"], None)  # dispatched again (an abandoned replan)
-        if self.link is not None:
+        aid = fields["action_id"]
+        h = self.held[aid] = Held(fields)
+        self.applied.pop(aid, None)  # dispatched again (an abandoned replan)
+        said = self.pending.pop(aid, None)
+        if said is not None:  # the robot has it already (a dispatch the journal lost)
+            state, t_ms = said
+            h.acked = True
+            if state != "held":
+                self._report("started", aid, t_ms, None)
+            if state == "finished":
+                self._report("finished", aid, t_ms, None)
+        elif self.link is not None:
             self._send(Action, **fields)
 
     def cancel(self, aid: str) -> None:
@@ -365,6 +412,7 @@ class GatewaySession:
         an unknown action): a session remembers one plan, as a compacted journal does."""
         self.next_index = 0
         self.applied.clear()
+        self.pending.clear()
 
     # ------------------------------------------------------------------ helpers
     def _linked(self, link: object, ref: str) -> bool:

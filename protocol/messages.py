@@ -260,8 +260,10 @@ class Welcome(Envelope):
 
     ``resend`` holds, in order, every dispatched action the gateway has no ``finished`` for and
     that the ``hello`` did not report held (``acked``, ``current``), each with ``msg_id``
-    ``"resend-<action_id>"`` and ``seq`` 0; a robot drops any it holds already. Cancels still
-    owed follow as ``cancel`` messages.
+    ``"resend-<action_id>"`` and ``seq`` 0; a robot drops any it holds already. ``drop`` lists
+    the actions the robot said it holds that the gateway does not stand behind (of another run
+    or plan): the robot MUST NOT start them (it drops them before it starts anything, as for a
+    ``cancel``). Cancels still owed follow as ``cancel`` messages.
     """
 
     type: Literal["welcome"] = "welcome"
@@ -269,6 +271,8 @@ class Welcome(Envelope):
     start: Pose | None = None
     plan: Annotated[int, Field(ge=0)] | None = None
     resend: list[Action] = Field(default_factory=list)
+    drop: list[ActionId] = Field(default_factory=list, max_length=257)
+    """At most what a ``hello`` can list as held (``acked`` and ``current``)."""
     state_period_ms: Annotated[float, Field(gt=0)] = 5000.0
     paused: bool = False
 
@@ -539,6 +543,13 @@ class Snapshot(Envelope):
     """A lifelong shift: ``paths`` are the robots' committed steps from where they stand."""
     path_offsets: list[int] = Field(default_factory=list)
     """Lifelong: the action number of each path's first step (empty: all 0)."""
+    worlds: int = 0
+    """World connections (a simulator): without one, ``place_intruder`` is refused."""
+    tasks_per_min: float | None = None
+    """Lifelong: tasks finished per minute of the shift's plan time so far (the figure the
+    terminal shows)."""
+    period_ms: float | None = None
+    """Lifelong: plan time between the planner's calls (a window each)."""
 
 
 EventKind = Literal[

@@ -143,8 +143,12 @@ class RobotSession:
     """
 
     def __init__(self, robot_id: int, *, msg_prefix: str | None = None,
-                 check: Callable[[Action], None] | None = None) -> None:
+                 check: Callable[[Action], None] | None = None,
+                 repeat_finished: bool = True) -> None:
         self.robot_id = robot_id
+        self.repeat_finished = repeat_finished
+        """Send ``finished`` again for a duplicate of a finished action (a MAY of DUP-1; a robot
+        that implements only the MUST rules does not)."""
         self.pose: Pose | None = None
         """The latest pose the driver gave (sent in messages that need one)."""
         self.link_up = False
@@ -228,6 +232,8 @@ class RobotSession:
             self.paused = msg.paused
             self.state_period_ms = msg.state_period_ms
             self._out.append(Welcomed(msg))
+            for aid in msg.drop:  # before anything can start: the gateway disowns them
+                self._cancel(aid)
             for action in msg.resend:
                 self._action(action)
         elif isinstance(msg, Pause):
@@ -243,7 +249,7 @@ class RobotSession:
             self.duplicates += 1
             self._out.append(Received(msg, True))
             self._send(Ack, action_id=aid)
-            if aid in self._finished:
+            if aid in self._finished and self.repeat_finished:
                 self._send(Finished, action_id=aid, pose=self.pose)
             return
         refusal = self._refusal(msg)

@@ -7,11 +7,16 @@ python3 -m venv .venv
 . .venv/bin/activate
 python -m pip install -q --upgrade pip
 python -m pip install -q -e '.[test]'
-# Headless Chromium for the GUI tests (Debian packages; Playwright drives /usr/bin/chromium).
-if [ ! -x /usr/bin/chromium ]; then
+# Headless Chromium for the GUI tests and Eclipse Mosquitto for the VDA 5050 tests (a real
+# MQTT broker, started by the test fixtures on a free loopback port): Debian packages.
+PKGS=""
+[ -x /usr/bin/chromium ] || PKGS="$PKGS chromium chromium-driver"
+[ -x /usr/sbin/mosquitto ] || PKGS="$PKGS mosquitto"
+if [ -n "$PKGS" ]; then
   if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
   $SUDO apt-get update -q >/dev/null
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q chromium chromium-driver >/dev/null
+  # shellcheck disable=SC2086
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q $PKGS >/dev/null
 fi
 ruff check .
 mypy

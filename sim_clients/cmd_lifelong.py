@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
+from fleetgate.userio.files import check_writable, write_text
 from gateway.runtime.exits import EXIT_OK, UsageError
 
 SCHEDULER_CHOICES = ("greedy", "mincost", "shortest")
-"""``gateway.execution.tasks.SCHEDULERS`` (a test checks), named here so --help stays light."""
+"""``gateway.execution.lifelong.tasks.SCHEDULERS`` (a test checks), named here so --help stays
+light."""
+MAX_WAIT_TICKS = 600
+"""``sim_clients.lifelong.MAX_WAIT_TICKS`` (a test checks), named here for the same reason."""
 
 
 def _planner_time(text: str) -> str | float:
@@ -29,6 +34,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
+    from gateway.execution.lifelong.tasks import wait_percentiles
     from gateway.planning.lorr import LorrFormatError, read_problem
     from sim_clients.lifelong import (
         LifelongConfig,
@@ -41,22 +47,23 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("ticks", "period"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name} must be positive, got {getattr(args, name)}")
-    for name in ("window", "reassign"):
+    for name in ("window", "reassign", "max_wait"):
         if getattr(args, name) < 0:
-            raise UsageError(f"--{name} must be >= 0, got {getattr(args, name)}")
+            raise UsageError(f"--{name.replace('_', '-')} must be >= 0, "
+                             f"got {getattr(args, name)}")
     try:
         problem = read_problem(args.problem)
     except LorrFormatError as exc:
         raise UsageError(str(exc)) from None
-    out = None
+    if args.delay_seed is not None:
+        problem = dataclasses.replace(problem, delay=dataclasses.replace(problem.delay,
+                                                                         seed=args.delay_seed))
     if args.output:
-        try:
-            out = open(args.output, "w", encoding="utf-8")  # noqa: SIM115 (closed below)
-        except OSError as exc:
-            raise UsageError(f"cannot write {args.output}: {exc.strerror}") from None
+        check_writable(args.output)  # before the run, not after it
     cfg = LifelongConfig(problem=problem, ticks=args.ticks, turning=args.motion == "turning",
                          period=args.period, window=args.window,
                          planner_time=args.planner_time, scheduler=args.scheduler,
+                         max_wait=args.max_wait or None,
                          reassign=args.reassign, seed=args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("ticks, {task.fields[done]} tasks"),
@@ -64,14 +71,15 @@ def _run(args: argparse.Namespace) -> int:
                   console=Console(stderr=True)) as bar:
         task = bar.add_task(problem.name, total=args.ticks, done=0)
         result = run_lifelong(cfg, lambda t, done: bar.update(task, completed=t, done=done))
-    if out is not None:
-        with out:
-            json.dump(lorr_output(cfg, result), out)
+    if args.output:
+        write_text(args.output, json.dumps(lorr_output(cfg, result)))
     times = result.planner_times
+    wait = wait_percentiles(result.waits)
     print(f"{problem.name}: {problem.team_size} robots, {args.ticks} ticks: "
           f"{result.finished} tasks finished, {tasks_per_tick(result):.3f} per tick; "
           f"planner {1000 * mean(times):.1f} ms per call (max {1000 * max(times, default=0):.1f}, "
-          f"{len(times)} calls)")
+          f"{len(times)} calls); assignment wait p50 {wait['p50']:g} p90 {wait['p90']:g} "
+          f"p99 {wait['p99']:g} max {wait['max']:g} ticks")
     return EXIT_OK
 
 
@@ -98,10 +106,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--scheduler", choices=SCHEDULER_CHOICES, default="shortest",
                    help="task assignment (default shortest: cheapest robot-task pairs by "
                         "distance to the first errand plus the task's length)")
+    p.add_argument("--max-wait", type=int, default=MAX_WAIT_TICKS, metavar="TICKS",
+                   help="fairness bound: a task that waited this many ticks for a robot goes "
+                        "before the tasks of its priority that did not (default "
+                        f"{MAX_WAIT_TICKS}; 0: no bound)")
     p.add_argument("--reassign", type=int, default=1, metavar="CALLS",
                    help="planning calls between reassignments of tasks not started yet "
                         "(default 1: every call; 0: never)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
+    p.add_argument("--delay-seed", type=int, default=None, metavar="SEED",
+                   help="seed of the delay model (default: the problem's delayConfig seed)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction,
                    default=sys.stderr.isatty(), help="progress bar (default: on a terminal)")
     p.set_defaults(func=_run)

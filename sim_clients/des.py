@@ -1,6 +1,6 @@
 """Driver 3 of DESIGN section 1: a discrete-event simulation in virtual time.
 
-:func:`run_simulation` executes one plan with the real :class:`~gateway.execution.executor.
+:func:`run_simulation` executes one plan with the real :class:`~gateway.execution.oneshot.executor.
 Executor`, simulated robots (:mod:`sim_clients.robot`) on a :class:`~sim_clients.world.World`
 and optionally the intruder (:mod:`sim_clients.intruder`). Time jumps from event to event on a
 heap; the executor is ticked at every multiple of ``MONITOR_PERIOD_MS``. Events at one instant
@@ -30,9 +30,14 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.executor import MONITOR_PERIOD_MS, Executor
+from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, Executor
+from gateway.execution.oneshot.policies import (
+    AUTONOMOUS_POLICIES,
+    PolicyName,
+    ReplanPolicy,
+    make_policy,
+)
 from gateway.execution.params import PAPER
-from gateway.execution.policies import AUTONOMOUS_POLICIES, PolicyName, ReplanPolicy, make_policy
 from gateway.execution.trace_records import TraceSink, intruder_record, summary_record
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import NoSolution, Plan
@@ -101,10 +106,10 @@ class SimConfig:
     """Actions the executor may queue on a robot beyond its current one (see Executor)."""
     informed: bool = False
     """Informed replanning: a replan keeps the robots off the cells the fleet reported blocked
-    until each block's estimated end (:mod:`gateway.execution.blocks`)."""
+    until each block's estimated end (:mod:`gateway.execution.oneshot.blocks`)."""
     block_history: tuple[float, ...] = ()
     """How long the blocks the fleet saw before this run lasted (ms): what the block
-    estimates start from (:mod:`gateway.execution.blocks`)."""
+    estimates start from (:mod:`gateway.execution.oneshot.blocks`)."""
     stall_ms: float = 600_000.0
     """Give up (SimulationError) this long after the last robot finished or started an action."""
 

@@ -24,6 +24,7 @@ import contextlib
 import itertools
 import logging
 import random
+import ssl
 import time
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -151,7 +152,7 @@ class FleetRobot:
         self.fleet = fleet
         self.robot_id = robot_id
         self.sim: SimRobot | None = None
-        self.session = RobotSession(robot_id)
+        self.session = RobotSession(robot_id, repeat_finished=not fleet.must_only)
         self.connected = asyncio.Event()
         self.plan = -1
         """Plan of the latest started action (with :attr:`next_action`: first not started)."""
@@ -202,8 +203,12 @@ class FleetRobot:
         while not fleet.stopping:
             try:
                 conn = await fleet.connect(fleet.token(self.robot_id))
+            except ssl.SSLError as exc:  # verification failed: retrying will not help
+                fleet.fail(f"robot {self.robot_id}: TLS: {exc.reason or exc}")
+                return
             except (OSError, ConnectionClosed) as exc:
                 log.info("robot %d cannot connect: %s", self.robot_id, exc)
+                fleet.unreachable(exc)
                 await asyncio.sleep(fleet.reconnect_delay_s)
                 continue
             except Exception as exc:  # e.g. handshake refused: retrying will not help
@@ -428,7 +433,7 @@ class SimFleet:
                  intruder_config: IntruderConfig | None = None,
                  recheck_ms: float = RECHECK_MS, reconnect_delay_s: float = 0.2,
                  send_state: bool = True, external_poll: bool = False,
-                 duration_jitter: float = 0.0) -> None:
+                 duration_jitter: float = 0.0, must_only: bool = False) -> None:
         if not 0.0 <= duration_jitter < 1.0:
             raise ValueError(f"duration_jitter must be in [0, 1), got {duration_jitter}")
         self.connect = connect
@@ -442,6 +447,9 @@ class SimFleet:
         self.recheck_ms = recheck_ms
         self.reconnect_delay_s = reconnect_delay_s
         self.send_state = send_state
+        self.must_only = must_only
+        """Robots that implement only the protocol's MUST rules (no repeated ``finished`` for a
+        duplicate of a finished action: a MAY of DUP-1)."""
         self.stats = FleetStats()
         self.on_event: Callable[[str, int, int, int], None] | None = None
         """Called with (kind, plan, robot, index) when a robot takes an action to execute it
@@ -465,6 +473,9 @@ class SimFleet:
         self._welcomed: set[int] = set()  # robots that got a welcome at least once
         self._failure: str | None = None
         self._ids = list(robots)
+        self.connect_error: str | None = None
+        """Why the first connection attempt that found nobody failed (see :meth:`unreachable`)."""
+        self.gateway_absent = asyncio.Event()
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
@@ -507,10 +518,18 @@ class SimFleet:
             self._all_connected.set()
 
     def fail(self, reason: str) -> None:
-        """Stop waiting: a robot cannot run at all."""
+        """Stop waiting: a robot (or the world connection) cannot run at all."""
         self._failure = reason
         log.error(reason)
         self._all_connected.set()
+        self._world_ready.set()
+
+    def unreachable(self, exc: BaseException) -> None:
+        """A connection attempt found nobody there (it is retried): the first reason is kept
+        in :attr:`connect_error` and :attr:`gateway_absent` is set."""
+        if self.connect_error is None:
+            self.connect_error = str(exc) or type(exc).__name__
+        self.gateway_absent.set()
 
     async def stop(self) -> None:
         """Stop every robot and close the connections."""
@@ -542,7 +561,11 @@ class SimFleet:
         while not self.stopping:
             try:
                 conn = await self.connect(self._world_token)
-            except (OSError, ConnectionClosed):
+            except ssl.SSLError as exc:
+                self.fail(f"the world connection: TLS: {exc.reason or exc}")
+                return
+            except (OSError, ConnectionClosed) as exc:
+                self.unreachable(exc)
                 await asyncio.sleep(self.reconnect_delay_s)
                 continue
             self._world_conn = conn
@@ -689,9 +712,12 @@ def fleet_for(gateway: Gateway, robots: int, connect: Connect, *, seed: int = 0,
     return fleet
 
 
-async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) -> RunSummary:
-    """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, start, and wait
-    for the end of the execution. The fleet keeps running afterwards (the caller stops it)."""
+async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet,
+                         before_start: Callable[[], Awaitable[None]] | None = None
+                         ) -> RunSummary:
+    """Load ``problem`` (with its plan) on ``gateway``, connect ``fleet``, wait for
+    ``before_start`` (if given), start, and wait for the end of the execution. The fleet keeps
+    running afterwards (the caller stops it)."""
     plan = problem.plan
     if plan is None:
         raise ValueError("the problem has no plan to execute")
@@ -707,6 +733,8 @@ async def run_in_process(gateway: Gateway, problem: Problem, fleet: SimFleet) ->
         engine.load(problem)
         await fleet.start()
         await fleet.wait_connected()
+        if before_start is not None:
+            await before_start()
         error, detail = await gateway.command(Start(msg_id="run-start", seq=0))
         if error is not None:
             raise RuntimeError(f"the gateway refused to start: {detail}")

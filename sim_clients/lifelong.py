@@ -4,9 +4,9 @@ The simulation advances in execution ticks. A forward move or a turn takes ``age
 ticks (the problem's ``agentCounter``); a robot in a delay (the problem's ``delayConfig``,
 drawn per tick by :class:`DelayModel`) makes no progress. The planner runs periodically, every
 ``period`` ticks at the earliest (LoRR's ``planCommTimeLimit`` / ``actionMoveTimeLimit``): it
-assigns tasks to robots that have none (:mod:`gateway.execution.tasks`), plans a window of
+assigns tasks to robots that have none (:mod:`gateway.execution.lifelong.tasks`), plans a window of
 ``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`),
-and its result is appended to the live ADG (:mod:`gateway.execution.live_adg`) when it
+and its result is appended to the live ADG (:mod:`gateway.execution.lifelong.live_adg`) when it
 arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
 measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
 exactly reproducible). Meanwhile robots keep executing what is committed, so they never stop
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from gateway.execution.errands import ErrandBook, TaskDistances
-from gateway.execution.live_adg import CCW, CW, FORWARD, LiveADG
-from gateway.execution.tasks import SCHEDULERS, TaskPool
+from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
+from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
+from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
 from gateway.planning.pibt import StateSpace, WindowedPIBT
 
@@ -43,6 +43,12 @@ DELAY_CHARGE = 4.0
 on top of its distance when the scheduler weighs it for a task, so tasks go to robots that
 can go (room-64-64-16, 10-30 tick delays, 8 delay seeds: mean 111 tasks without, 117 with 4x,
 113-114 with about 2x, 9x or an infinite charge; random-64-64-10's 1-4 tick delays: neutral)."""
+MAX_WAIT_TICKS = 600
+"""Default fairness bound (:attr:`~gateway.execution.lifelong.tasks.TaskPool.max_wait`): 60 s
+at 100 ms a tick (the gateway's ``lifelong.max_wait_ms`` is 45 s). On the 600-tick shared LoRR
+runs (maze, room, random, 3 delay seeds, planner time zero) 600 finishes as many tasks as no
+bound (235, 342, 1410 summed, against 241, 330, 1411), 450 costs 4-7% (225, 317, 1349): aging
+from half the bound then reaches tasks the short run would not have finished anyway."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -105,6 +111,7 @@ class LifelongConfig:
     planner_time: str | float = "measured"  # "measured", "zero" or ms per call
     tick_ms: float = TICK_MS
     scheduler: str = "shortest"
+    max_wait: int | None = MAX_WAIT_TICKS  # fairness bound (ticks; None: none), TaskPool.max_wait
     reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
     seed: int = 0
     output_window: int = 1000
@@ -112,7 +119,8 @@ class LifelongConfig:
 
 @dataclass
 class LifelongResult:
-    """What a run did: finished tasks, per-tick actions, events, planner times (s)."""
+    """What a run did: finished tasks, per-tick actions, events, planner times (s), and the
+    tasks' assignment waits (ticks, :meth:`~gateway.execution.lifelong.tasks.TaskPool.waits`)."""
 
     ticks: int
     finished: int
@@ -126,6 +134,7 @@ class LifelongResult:
     sum_of_cost: int
     max_pending: int = 0
     calls: int = 0
+    waits: list[float] = field(default_factory=list)
     extra: dict[str, float] = field(default_factory=dict)
 
 
@@ -157,7 +166,7 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
-    space = StateSpace(grid, cfg.turning)
+    space = StateSpace(grid, cfg.turning, robots=n)
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
@@ -167,7 +176,8 @@ def run_lifelong(cfg: LifelongConfig,
     # charge, so tasks go to robots that can go
     distances = TaskDistances(grid, charge=round(DELAY_CHARGE * prob.delay.mean_duration
                                                  / counter))
-    pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg)
+    pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
+                    max_wait=cfg.max_wait)
     book = ErrandBook(pool, n)
 
     cell = list(prob.starts)
@@ -279,7 +289,7 @@ def run_lifelong(cfg: LifelongConfig,
         ticks=cfg.ticks, finished=pool.finished, letters=letters, snapshots=snapshots,
         events=events, tasks=released, planner_times=planner_times,
         delay_intervals=delays.intervals, starts=starts_out, sum_of_cost=sum_of_cost,
-        max_pending=max_pending, calls=len(planner_times),
+        max_pending=max_pending, calls=len(planner_times), waits=pool.waits(cfg.ticks),
         extra={"delayed": idle[0] / (n * cfg.ticks), "waiting": idle[1] / (n * cfg.ticks),
                "no_work": idle[2] / (n * cfg.ticks)})
 
@@ -308,6 +318,7 @@ def lorr_output(cfg: LifelongConfig, res: LifelongResult) -> dict[str, object]:
         "tasks": [[tid, rel, [v for loc in errands for v in divmod(loc, width)]]
                   for tid, rel, errands in res.tasks],
         "delayIntervals": [[list(i) for i in per] for per in res.delay_intervals],
+        "assignmentWait": wait_percentiles(res.waits),
         "numPlannerErrors": 0,
         "numScheduleErrors": 0,
         "numEntryTimeouts": 0,

@@ -1,5 +1,5 @@
 """A lifelong shift in virtual time: the sans-I/O
-:class:`~gateway.execution.lifelong.LifelongExecutor` driven by a small discrete-event loop
+:class:`~gateway.execution.lifelong.executor.LifelongExecutor` driven by a small discrete-event loop
 (robots run what they are dispatched with jittered durations and random stops, the windowed
 planner answers after a random latency, so segments arrive while robots move). The lifelong
 tests drive their shifts with it, and ``bench/lifelong.py --journal`` a long journaled one.
@@ -15,9 +15,9 @@ from collections.abc import Callable
 from typing import Any
 
 from gateway.execution.commands import Completed, Dispatch, Trigger
-from gateway.execution.errands import TaskDistances
-from gateway.execution.lifelong import LifelongExecutor, PlanRequest, WindowPlanner
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.lifelong.executor import LifelongExecutor, PlanRequest, WindowPlanner
+from gateway.execution.lifelong.tasks import TaskPool
 from gateway.execution.trace_records import summary_record
 from gateway.planning.lorr import LorrProblem
 

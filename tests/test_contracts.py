@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from typing import get_args
 
+from gateway.execution.oneshot.policies import AUTONOMOUS_POLICIES, POLICY_NAMES, make_policy
 from gateway.execution.params import PAPER
-from gateway.execution.policies import AUTONOMOUS_POLICIES, POLICY_NAMES, make_policy
 from gateway.execution.trace_records import (
     EVENT_TYPES,
     event_record,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from gateway.conformance.cli import add_arguments, run
+from conformance.cli import add_arguments, run
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -27,7 +27,7 @@ def _schema(args: argparse.Namespace) -> int:
 
 
 def _markdown(path: Path) -> int:
-    from gateway.conformance.doc import StaleDocument, render
+    from conformance.doc import StaleDocument, render
 
     try:
         path.write_text(render(path.read_text()))

@@ -24,6 +24,10 @@ _NEIGHBOUR_TABLES: weakref.WeakKeyDictionary[Grid, npt.NDArray[np.int32]] = (
 _PREDECESSOR_TABLES: weakref.WeakKeyDictionary[Grid, npt.NDArray[np.int32]] = (
     weakref.WeakKeyDictionary()
 )
+_FREE_INDEX: weakref.WeakKeyDictionary[Grid, npt.NDArray[np.int32]] = weakref.WeakKeyDictionary()
+_COMPACT_TABLES: weakref.WeakKeyDictionary[Grid, npt.NDArray[np.int32]] = (
+    weakref.WeakKeyDictionary()
+)
 
 
 def neighbour_table(grid: Grid) -> npt.NDArray[np.int32]:
@@ -134,3 +138,42 @@ def turning_distance_tables(grid: Grid, goals: Sequence[Cell],
                else [4 * grid.index(g) + d for d in range(4)]
                for g, h in zip(goals, fixed, strict=True)]
     return _multi_bfs(turning_predecessor_table(grid), sources)
+
+
+def free_index(grid: Grid) -> npt.NDArray[np.int32]:
+    """``(size,)``: each free cell's position among the free cells (row by row), -1 for an
+    obstacle: the columns of a compact table (:func:`cell_distance_rows`). Cached per grid."""
+    index = _FREE_INDEX.get(grid)
+    if index is None:
+        free = grid.free.ravel()
+        index = np.full(free.size, -1, dtype=np.int32)
+        index[free] = np.arange(int(free.sum()), dtype=np.int32)
+        index.setflags(write=False)
+        _FREE_INDEX[grid] = index
+    return index
+
+
+def compact_neighbour_table(grid: Grid) -> npt.NDArray[np.int32]:
+    """:func:`neighbour_table` over the free cells only (positions of :func:`free_index`;
+    sentinel: the number of free cells). Cached per grid."""
+    table = _COMPACT_TABLES.get(grid)
+    if table is None:
+        index = free_index(grid)
+        m = int(grid.free.sum())
+        full = neighbour_table(grid)[: grid.size][grid.free.ravel()]
+        extended = np.append(index, np.int32(m))  # the sentinel size maps to the sentinel m
+        table = np.vstack([extended[full], np.full((1, 4), m, dtype=np.int32)])
+        table.setflags(write=False)
+        _COMPACT_TABLES[grid] = table
+    return table
+
+
+def cell_distance_rows(grid: Grid, cells: Sequence[int]) -> npt.NDArray[np.int32]:
+    """``out[k, free_index[c]]``: moves from free cell c to flat cell ``cells[k]`` (-1 if
+    unreachable): :func:`distance_tables` over the free cells only (a sixth of the memory on a
+    map with 17% free cells, such as brc202d). ValueError for a cell that is not free."""
+    index = free_index(grid)
+    for c in cells:
+        if not 0 <= c < grid.size or index[c] < 0:
+            raise ValueError(f"goal {grid.cell(c)} is not a free cell of {grid!r}")
+    return _multi_bfs(compact_neighbour_table(grid), [[int(index[c])] for c in cells])

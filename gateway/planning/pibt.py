@@ -28,8 +28,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
-from gateway.planning.distance import distance_tables, turning_distance_tables
+from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
 
 UNREACHABLE = 32000
@@ -44,54 +45,34 @@ class StateSpace:
     ``omni``: state = cell id, successors = free 4-neighbours and the cell itself (wait).
     ``turning``: state = ``cell * 4 + heading``; successors = forward (if free), clockwise,
     counter-clockwise, wait. ``cell_of[s]`` is the cell a state stands on.
+
+    Tables (:func:`goal_tables`) are cached in an LRU of ``budget_bytes``. Under ``omni`` they
+    are exact moves over the free cells (2 bytes a free cell). Under ``turning`` they are exact
+    over the states (8 bytes a cell) when ``exact``, by default when two tables per robot of
+    ``robots`` fit the budget; otherwise one table per goal serves the four headings: the moves
+    over the free cells, a lower bound of the turning cost (a quarter of the memory or less, for
+    10,000 robots on the competition's large maps). :attr:`options` name the table entry each
+    move is weighed by accordingly.
     """
 
-    def __init__(self, grid: Grid, turning: bool, budget_bytes: int = 512 << 20) -> None:
+    def __init__(self, grid: Grid, turning: bool, budget_bytes: int = 1 << 30,
+                 robots: int = 0, exact: bool | None = None) -> None:
         self.grid = grid
         self.turning = turning
-        n, w = grid.size, grid.width
-        free = grid.free.ravel()
-        # options[s]: (cell, evaluated state, turns, resulting state) per neighbour cell and
-        # the own cell (a wait): under turning a robot that does not face the chosen cell
-        # turns towards it this timestep (and stays), as the evaluated state says
-        options: list[tuple[tuple[int, int, int, int], ...]] = []
-        if turning:
-            ns = 4 * n
-            self.cell_of: list[int] = [s >> 2 for s in range(ns)]
-            deltas = (1, w, -1, -w)
-            for c in range(n):
-                x = c % w
-                dirs = {}
-                for d, delta in enumerate(deltas):
-                    nxt = c + delta
-                    if (0 <= nxt < n and free[nxt]
-                            and not (d == 0 and x == w - 1) and not (d == 2 and x == 0)):
-                        dirs[d] = nxt
-                for h in range(4):
-                    s = 4 * c + h
-                    if not free[c]:
-                        options.append(())
-                        continue
-                    opts = [(c, s, 0, s)]
-                    for d, nxt in dirs.items():
-                        turns = (d - h) % 4
-                        if turns == 0:
-                            opts.append((nxt, 4 * nxt + d, 0, 4 * nxt + h))
-                        else:
-                            step = 1 if turns in (1, 2) else 3
-                            opts.append((nxt, 4 * nxt + d, min(turns, 4 - turns),
-                                         4 * c + (h + step) % 4))
-                    options.append(tuple(opts))
-        else:
-            ns = n
-            self.cell_of = list(range(n))
-            for c in range(n):
-                nb = grid.neighbour_ids(c)
-                options.append(((c, c, 0, c), *((v, v, 0, v) for v in nb)) if free[c] else ())
-        self.n_states = ns
-        self.options = options
+        n = grid.size
+        if exact is None:
+            exact = 2 * max(robots, 32) * 8 * n <= budget_bytes
+        self.exact = turning and exact
+        """Whether tables are over the states (else over the free cells)."""
+        self.index = free_index(grid)
+        """Each cell's position in a table over the free cells (-1: obstacle)."""
+        self.n_states = 4 * n if turning else n
+        self.cell_of: list[int] = ([s >> 2 for s in range(self.n_states)] if turning
+                                   else list(range(n)))
+        self.options = _Options(grid, turning, self.exact, self.index)
         self._cache: OrderedDict[int, array[int]] = OrderedDict()
-        self._capacity = max(16, budget_bytes // (2 * ns))
+        entries = self.n_states if self.exact else int(grid.free.sum())
+        self._capacity = max(16, budget_bytes // (2 * entries))
 
     def state(self, cell: int, heading: int = 0) -> int:
         """The state of a robot on ``cell`` (facing ``heading`` under ``turning``)."""
@@ -101,8 +82,14 @@ class StateSpace:
         """The heading of a state (0 under ``omni``)."""
         return state & 3 if self.turning else 0
 
+    @property
+    def capacity(self) -> int:
+        """How many tables the cache keeps (its memory budget over a table's size)."""
+        return self._capacity
+
     def distances(self, goal: int) -> array[int]:
-        """Actions from every state to standing on cell ``goal`` (any heading); cached."""
+        """Actions to standing on cell ``goal`` (any heading), from every state if
+        :attr:`exact`, else from every free cell (at :attr:`index`); cached."""
         table = self._cache.get(goal)
         if table is not None:
             self._cache.move_to_end(goal)
@@ -123,11 +110,11 @@ class StateSpace:
         """Compute the missing tables of ``goals`` together (one batched search)."""
         missing = self.missing(goals)
         if missing:
-            self.offer(goal_tables(self.grid, self.turning, missing))
+            self.offer(goal_tables(self.grid, self.exact, missing))
 
     def offer(self, tables: Mapping[int, array[int]]) -> None:
-        """Cache tables computed elsewhere (:func:`goal_tables` of this grid and model, e.g. in
-        another process); a table already cached is kept."""
+        """Cache tables computed elsewhere (:func:`goal_tables` of this grid and kind, e.g.
+        in another process); a table already cached is kept."""
         cache = self._cache
         for g, table in tables.items():
             if g not in cache:
@@ -136,15 +123,63 @@ class StateSpace:
             cache.popitem(last=False)
 
 
-def goal_tables(grid: Grid, turning: bool, goals: Sequence[int]) -> dict[int, array[int]]:
+class _Options:
+    """``options[s]``: the moves of state s, built when first asked for (a million-cell map
+    has four million states; robots visit few), as ``(cell, table entry weighing it, turns,
+    resulting state)`` per neighbour cell and the own cell (a wait). Under ``turning`` a robot
+    that does not face the chosen cell turns towards it this timestep (and stays)."""
+
+    def __init__(self, grid: Grid, turning: bool, exact: bool,
+                 index: npt.NDArray[np.int32]) -> None:
+        self.grid = grid
+        self.turning = turning
+        self.exact = exact
+        self.index = index.tolist()
+        self._built: dict[int, tuple[tuple[int, int, int, int], ...]] = {}
+
+    def __getitem__(self, s: int) -> tuple[tuple[int, int, int, int], ...]:
+        opts = self._built.get(s)
+        if opts is None:
+            opts = self._built[s] = self._build(s)
+        return opts
+
+    def _build(self, s: int) -> tuple[tuple[int, int, int, int], ...]:
+        grid, index = self.grid, self.index
+        if not self.turning:
+            if index[s] < 0:
+                return ()
+            return ((s, index[s], 0, s),
+                    *((v, index[v], 0, v) for v in grid.neighbour_ids(s)))
+        c, h = s >> 2, s & 3
+        if index[c] < 0:
+            return ()
+        w, n = grid.width, grid.size
+        x = c % w
+        opts = [(c, s if self.exact else index[c], 0, s)]
+        for d, delta in enumerate((1, w, -1, -w)):  # the headings' order
+            nxt = c + delta
+            if (not 0 <= nxt < n or index[nxt] < 0
+                    or (d == 0 and x == w - 1) or (d == 2 and x == 0)):
+                continue
+            entry = 4 * nxt + d if self.exact else index[nxt]
+            turns = (d - h) % 4
+            if turns == 0:
+                opts.append((nxt, entry, 0, 4 * nxt + h))
+            else:
+                step = 1 if turns in (1, 2) else 3
+                opts.append((nxt, entry, min(turns, 4 - turns), 4 * c + (h + step) % 4))
+        return tuple(opts)
+
+
+def goal_tables(grid: Grid, exact: bool, goals: Sequence[int]) -> dict[int, array[int]]:
     """The distance table of each goal cell (:meth:`StateSpace.distances`: int16, capped at
-    :data:`UNREACHABLE`), searched in batches."""
+    :data:`UNREACHABLE`): over the ``turning`` states if ``exact``, else over the free cells
+    (exact moves, a lower bound of the turning cost), searched in batches."""
     out: dict[int, array[int]] = {}
     for i in range(0, len(goals), 32):
         chunk = goals[i : i + 32]
-        cells = [grid.cell(g) for g in chunk]
-        found = (turning_distance_tables(grid, cells) if turning
-                 else distance_tables(grid, cells))
+        found = (turning_distance_tables(grid, [grid.cell(g) for g in chunk]) if exact
+                 else cell_distance_rows(grid, chunk))
         rows = np.where(found < 0, UNREACHABLE, np.minimum(found, UNREACHABLE))
         for g, row in zip(chunk, rows.astype(np.int16), strict=True):
             out[g] = array("h", row.tobytes())

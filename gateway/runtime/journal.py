@@ -5,7 +5,7 @@ owner task). The records are the inputs of the current run's executor, in order:
 itself (its plan and every parameter the executor was built with), every robot report the
 executor was given, every monitor tick, pause, resume, replan request, adopted or abandoned
 plan, policy change, and every intruder report. Replaying them through a fresh executor
-(:func:`gateway.server.resume.replay`) rebuilds it, its monitor included, exactly: the executor
+(:func:`gateway.server.runs.resume.replay`) rebuilds it, its monitor included, exactly: the executor
 is deterministic and reads no clock.
 
 :meth:`Journal.append` buffers; :meth:`Journal.commit` writes the buffer in one transaction.
@@ -35,7 +35,7 @@ In lifelong mode the journal holds the shift instead: the task book's changes
 (:class:`TaskRecord`), the shift's start (:class:`ShiftRecord`), and the inputs of its executor
 (reports, ticks, pause, resume, stop, "plan now", adopted segments (:class:`SegmentRecord`),
 failed planner calls), from which a restarted gateway replays the shift
-(:mod:`gateway.server.shift_journal`). Every few segments :meth:`Journal.compact` replaces
+(:mod:`gateway.server.runs.shift_journal`). Every few segments :meth:`Journal.compact` replaces
 them by one :class:`ShiftSnapshotRecord` of the shift's state.
 """
 
@@ -50,13 +50,13 @@ import secrets
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
-from gateway.execution.shift_state import ShiftHistory, ShiftState
+from gateway.execution.lifelong.shift_state import ShiftHistory, ShiftState
 
 Cell = tuple[int, int]
 
@@ -203,7 +203,7 @@ class ShiftRecord(_Record):
 
 class SegmentRecord(_Record):
     """The planner's window for call ``call`` adopted at ``t_ms`` by a lifelong shift
-    (the :class:`~gateway.execution.lifelong.Segment`: planner states step by step, and the
+    (the :class:`~gateway.execution.lifelong.executor.Segment`: planner states step by step, and the
     steps at which each robot reaches its goals)."""
 
     kind: Literal["segment"] = "segment"
@@ -257,7 +257,7 @@ class SnapshotRecord(_Record):
 
 class ShiftHistoryRecord(_Record):
     """A chunk of a lifelong shift's task history (ended tasks, events, idempotency keys new
-    since the previous chunk: :class:`~gateway.execution.shift_state.ShiftHistory`). A
+    since the previous chunk: :class:`~gateway.execution.lifelong.shift_state.ShiftHistory`). A
     compaction keeps the chunks the task book may still need, before its snapshot."""
 
     kind: Literal["shift_history"] = "shift_history"
@@ -266,7 +266,7 @@ class ShiftHistoryRecord(_Record):
 
 class ShiftSnapshotRecord(_Record):
     """A lifelong shift's records so far, compacted: the shift's start, what its executor and
-    task book are (:class:`~gateway.execution.shift_state.ShiftState`) and what the engine
+    task book are (:class:`~gateway.execution.lifelong.shift_state.ShiftState`) and what the engine
     keeps besides; replaying it gives what replaying those records gave."""
 
     kind: Literal["shift_snapshot"] = "shift_snapshot"
@@ -311,6 +311,9 @@ robots' ``hello`` carries what they reported again)."""
 
 _CREATE_RECORDS = ("CREATE TABLE records (seq INTEGER PRIMARY KEY, kind TEXT NOT NULL, "
                    "body TEXT NOT NULL, chain TEXT NOT NULL)")
+
+SEAL_BYTES = 512
+"""The seal's size: one sector, written in place (``<journal>.seal``)."""
 
 GENESIS = ""
 """The chain value before a journal's first record."""
@@ -446,6 +449,7 @@ class Journal:
             last = self._db.execute(
                 "SELECT chain FROM records ORDER BY seq DESC LIMIT 1").fetchone() \
                 if "chain" in columns else None
+            count = int(self._db.execute("SELECT COUNT(*) FROM records").fetchone()[0])
         except (OSError, sqlite3.Error) as exc:
             raise JournalError(f"cannot open the journal {path}: {exc}") from None
         if mode != "wal":
@@ -453,10 +457,15 @@ class Journal:
         self._legacy = "chain" not in columns
         """Written by a fleetgate without checksums: read as damaged, replaced by a new run."""
         self._chain = GENESIS if last is None else str(last[0])
+        self._count = count  # records in the table
+        self._seal_path = path.with_name(path.name + ".seal")
         self._buffer: list[tuple[str, str]] = []
         self._durable = False  # the buffer holds a kind of DURABLE_KINDS
         self.failed: str | None = None
         """Why a write failed (then every later write is refused)."""
+        self.on_failure: Callable[[str], None] | None = None
+        """Told (with a one-line message) when a write or sync fails, before the error is
+        raised: the gateway ends the process there (:func:`gateway.runtime.exits.fatal`)."""
         self.checkpointer: Checkpointer | None = None
         self.appended = 0
         """Records written since the journal was opened."""
@@ -490,20 +499,34 @@ class Journal:
         if kind in DURABLE_KINDS:
             self._durable = True
 
+    def _fail(self, what: str, exc: Exception) -> JournalWriteError:
+        """A write failed: the journal takes no more; :attr:`on_failure` is told first."""
+        self.failed = str(exc)
+        message = f"{what} {self.path}: {exc}"
+        if self.on_failure is not None:
+            self.on_failure(message)
+        return JournalWriteError(message)
+
     def _check_writable(self) -> None:
         if self.failed is not None:
             raise JournalWriteError(f"the journal {self.path} failed earlier: {self.failed}")
 
     def _write(self, statements: list[tuple[str, tuple[object, ...]]],
-               rows: list[tuple[str, str]], chain: str, *, full: bool) -> None:
-        """One transaction: ``statements``, then ``rows`` chained from ``chain``; on any error
-        it is rolled back and the journal fails (:class:`JournalWriteError`)."""
+               rows: list[tuple[str, str]], chain: str, *, full: bool,
+               replace: bool = False) -> None:
+        """One transaction: ``statements``, then ``rows`` chained from ``chain`` (after every
+        record, or instead of them if ``replace``); on any error it is rolled back and the
+        journal fails (:class:`JournalWriteError`). A synced one is sealed after it (and a
+        ``replace`` before it too: either side of its commit is then a sealed state)."""
         self._check_writable()
         db = self._db
         chained = []
         for kind, body in rows:
             chain = chain_next(chain, kind, body)
             chained.append((kind, body, chain))
+        count = len(rows) if replace else self._count + len(rows)
+        if replace:
+            self._seal([(self._count, self._chain), (count, chain)])
         try:
             if full:
                 db.execute("PRAGMA synchronous=FULL")
@@ -517,11 +540,48 @@ class Journal:
         except sqlite3.Error as exc:
             with contextlib.suppress(sqlite3.Error):
                 db.execute("ROLLBACK")
-            self.failed = str(exc)
-            raise JournalWriteError(f"cannot write the journal {self.path}: {exc}") from None
-        self._chain = chain
+            raise self._fail("cannot write the journal", exc) from None
+        self._chain, self._count = chain, count
         self.appended += len(rows)
         self.synced_commits += full
+        if full:
+            self._seal([(count, chain)])
+
+    def _seal(self, states: list[tuple[int, str]]) -> None:
+        """Write and sync the seal: the journal holds (at least) one of ``states`` (record
+        count, chain value after the last of them) once the commit being made returned."""
+        body = json.dumps(states).encode().ljust(SEAL_BYTES)
+        try:
+            fd = os.open(self._seal_path, os.O_WRONLY | os.O_CREAT, 0o600)
+            try:
+                os.pwrite(fd, body, 0)
+                os.fdatasync(fd)
+            finally:
+                os.close(fd)
+        except OSError as exc:
+            raise self._fail("cannot seal the journal", exc) from None
+
+    def _check_seal(self, chains: list[str]) -> None:
+        """The journal (whose records' chain values are ``chains``) holds a sealed state."""
+        try:
+            raw = self._seal_path.read_bytes()
+        except FileNotFoundError:
+            return  # never sealed (a copy of a journal, or one never synced)
+        except OSError as exc:
+            raise JournalError(f"cannot read the seal of the journal {self.path}: "
+                               f"{exc.strerror}") from None
+        try:
+            states = [(int(n), str(c)) for n, c in json.loads(raw.rstrip(b" ") or b"[]")]
+        except (ValueError, TypeError):
+            raise JournalError(f"the seal of the journal {self.path} is damaged: start with "
+                               f"--fresh to abandon the run") from None
+        if not states or any(n <= len(chains) and (chains[n - 1] if n else GENESIS) == c
+                             for n, c in states):
+            return
+        n = max(n for n, _ in states)
+        raise JournalError(f"the journal {self.path} lost synced records ({n} were committed "
+                           f"and synced, {len(chains)} are there: its WAL was damaged or "
+                           f"deleted): start with --fresh to abandon the run")
 
     def commit(self) -> None:
         """Write the buffered records in one transaction (synced if one of them is of
@@ -538,14 +598,14 @@ class Journal:
         cp = self.checkpointer
         if cp is None:
             self.checkpointer = Checkpointer(self.path, self._period_s, self._bound_pages)
+        elif cp.error is not None:  # a checkpoint could not copy or sync: nothing is safe
+            raise self._fail("cannot checkpoint the journal", sqlite3.Error(cp.error))
         elif cp.restart_due:
             # the frames since the checkpointer's last pass: few, and nobody waits for a lock
             try:
                 busy = self._db.execute("PRAGMA wal_checkpoint(RESTART)").fetchone()[0]
             except sqlite3.Error as exc:
-                self.failed = str(exc)
-                raise JournalWriteError(f"cannot checkpoint the journal {self.path}: "
-                                        f"{exc}") from None
+                raise self._fail("cannot checkpoint the journal", exc) from None
             if not busy:  # else the checkpointer was in a pass: ask again after the next
                 cp.restart_due = False
                 self.restarts += 1
@@ -564,10 +624,10 @@ class Journal:
             kept = [(k, b) for k, b in self._db.execute(
                 "SELECT kind, body FROM records WHERE kind = ? ORDER BY seq", (keep,))][drop:]
         except sqlite3.Error as exc:
-            self.failed = str(exc)
-            raise JournalWriteError(f"cannot read the journal {self.path}: {exc}") from None
+            raise self._fail("cannot read the journal", exc) from None
         self._buffer, self._durable = [], False
-        self._write([("DELETE FROM records", ())], kept + rows, GENESIS, full=True)
+        self._write([("DELETE FROM records", ())], kept + rows, GENESIS, full=True,
+                    replace=True)
         self.appended -= len(kept)
         with contextlib.suppress(sqlite3.Error):  # returning free pages is an optimisation
             self._db.execute("PRAGMA incremental_vacuum")
@@ -595,7 +655,7 @@ class Journal:
         journal of an earlier format is made anew. Synced before it returns."""
         fresh = [("DROP TABLE records", ()), (_CREATE_RECORDS, ())] if self._legacy \
             else [("DELETE FROM records", ())]
-        self._write([*fresh, ("DELETE FROM meta", ())], [], GENESIS, full=True)
+        self._write([*fresh, ("DELETE FROM meta", ())], [], GENESIS, full=True, replace=True)
         self._legacy = False
         self._buffer, self._durable = [], False
         with contextlib.suppress(sqlite3.Error):
@@ -639,13 +699,16 @@ class Journal:
                 "SELECT kind, body, chain FROM records ORDER BY seq").fetchall()
         except sqlite3.Error as exc:
             raise JournalError(f"cannot read the journal {self.path}: {exc}") from None
-        chain = GENESIS
+        chain, chains = GENESIS, []
         for seq, (kind, body, stored) in enumerate(rows, 1):
             chain = chain_next(chain, kind, body)
             if chain != stored:
                 raise JournalError(f"record {seq} of the journal {self.path} is damaged "
                                    f"(its checksum does not match): start with --fresh to "
                                    f"abandon the run")
+            chains.append(chain)
+        self._check_seal(chains)
+        for seq, (kind, body, _) in enumerate(rows, 1):
             try:
                 rec = _ADAPTER.validate_json(body)
             except ValidationError as exc:

@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Literal
 
 import gateway.planning
+from fleetgate.userio.files import make_folder, write_bytes
+from gateway.runtime.exits import UsageError
 
 Kind = Literal["map", "scen"]
 KINDS: tuple[Kind, ...] = ("map", "scen")
@@ -39,7 +41,12 @@ _SCEN_NAME = re.compile(r"^(?P<map>.+)-(?P<kind>random|even)-\d+$")
 
 
 class MapNotFound(LookupError):
-    """A map or scenario name resolves nowhere (the message says where it looked)."""
+    """A map or scenario name resolves nowhere (the message says where it looked;
+    ``public`` says the same without the folders, for a browser)."""
+
+    def __init__(self, message: str, public: str | None = None) -> None:
+        super().__init__(message)
+        self.public = public or message
 
 
 class DownloadError(RuntimeError):
@@ -61,7 +68,10 @@ def cache_dir() -> Path:
 
 def search_dirs(maps_dir: str | Path | None = None,
                 environ: Mapping[str, str] | None = None) -> list[MapDir]:
-    """The folders names resolve in, first match wins."""
+    """The folders names resolve in, first match wins. UsageError if ``maps_dir`` (a user's
+    ``--maps-dir``) is no folder: a typo there would silently fall through to the others."""
+    if maps_dir and not Path(maps_dir).is_dir():
+        raise UsageError(f"--maps-dir {maps_dir} is no folder")
     env = os.environ if environ is None else environ
     dirs = [MapDir("--maps-dir", Path(maps_dir))] if maps_dir else []
     dirs += [MapDir(f"${ENV_MAPS}", Path(p)) for p in env.get(ENV_MAPS, "").split(os.pathsep)
@@ -97,7 +107,8 @@ def resolve(name: str | Path, kind: Kind, maps_dir: str | Path | None = None,
         raise MapNotFound(f"{kind} file {text!r} does not exist")
     where = ", ".join(f"{d.path} ({d.origin})" for d in dirs)
     hint = "; try 'fleetgate maps download NAME'" if kind == "map" else ""
-    raise MapNotFound(f"no {kind} named {text!r} in {where}{hint}")
+    raise MapNotFound(f"no {kind} named {text!r} in {where}{hint}",
+                      f"no {kind} named {text!r} on the gateway")
 
 
 @dataclass(frozen=True)
@@ -176,8 +187,8 @@ def store_members(members: list[tuple[str, bytes]], dest: Path) -> list[Path]:
     written: list[Path] = []
     for base, content in members:
         folder = dest / "scen" if base.endswith(".scen") else dest
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / base).write_bytes(content)
+        make_folder(folder)
+        write_bytes(folder / base, content)
         written.append(folder / base)
     return written
 

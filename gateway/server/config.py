@@ -2,7 +2,9 @@
 
 The embedded defaults give a zero-setup loopback demo: 127.0.0.1:8080, the ``lab`` map, demo
 tokens (``demo-robot-<id>``, ``demo-operator``, ``demo-world``). Demo tokens are refused on a
-non-loopback host unless ``allow_demo_tokens`` is set.
+non-loopback host unless ``allow_demo_tokens`` is set; so are the example configs' placeholder
+tokens (``CHANGE-ME-...``), and plain websockets unless ``allow_plaintext`` is set (a TLS proxy
+in front).
 """
 
 from __future__ import annotations
@@ -28,8 +30,12 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from gateway.execution.oneshot.policies import PolicyName
 from gateway.execution.params import PAPER
-from gateway.execution.policies import PolicyName
+from gateway.vda5050.config import Vda5050Config
+
+PLACEHOLDER = "CHANGE-ME"
+"""What the example configs' tokens contain: refused on a non-loopback host."""
 
 
 class TokensConfig(BaseModel):
@@ -95,6 +101,10 @@ class LifelongSettings(BaseModel):
     seed: int = 0
     """Seed of the generated warehouse and of the planner's tie-breaks."""
     scheduler: Literal["greedy", "mincost", "shortest"] = "shortest"
+    max_wait_ms: float | None = Field(default=45_000.0, gt=0)
+    """Fairness bound: a task that has waited this long for a robot goes before the tasks of
+    its priority that have not, and waiting tasks age towards it (None: no bound; then a far
+    or long task can wait a whole shift while nearer ones keep coming)."""
     planner: Literal["pibt"] = "pibt"
     """The windowed planner: 1-robust PIBT (gateway/planning/pibt.py)."""
     period_ms: float = Field(default=1000.0, gt=0)
@@ -143,6 +153,11 @@ class GatewayConfig(BaseSettings):
     tokens: TokensConfig = TokensConfig()
     allow_demo_tokens: bool = False
     tls: TlsConfig | None = None
+    vda5050: Vda5050Config | None = None
+    """VDA 5050 vehicles driven over MQTT beside the websocket robots (docs/vda5050.md)."""
+    allow_plaintext: bool = False
+    """Serve plain ws:// and http:// on a non-loopback host (only behind a proxy that
+    terminates TLS; without it such a host needs ``[tls]``)."""
     allowed_origins: list[str] = Field(default_factory=list)
     """Browser origins (``https://host:port``) allowed besides the gateway's own."""
     login_ttl_s: float = Field(default=12 * 3600.0, gt=0)
@@ -248,6 +263,23 @@ class GatewayConfig(BaseSettings):
         if demo and not self.allow_demo_tokens and not _is_loopback(self.host):
             raise ValueError(f"demo tokens on non-loopback host {self.host!r}: configure "
                              'tokens (and demo_robot_prefix = "") or set allow_demo_tokens')
+        return self
+
+    @model_validator(mode="after")
+    def _safe_on_a_public_host(self) -> GatewayConfig:
+        if _is_loopback(self.host):
+            return self
+        t = self.tokens
+        fixes = []
+        if any(PLACEHOLDER in token for token in (*t.operators, *t.world, *t.robots)):
+            fixes.append(f"replace every {PLACEHOLDER} token with a random one (python -c "
+                         '"import secrets; print(secrets.token_urlsafe(32))")')
+        if self.tls is None and not self.allow_plaintext:
+            fixes.append("add [tls] (deploy/gateway.tls.example.toml, deploy/TLS.md) or set "
+                         "allow_plaintext = true behind a TLS proxy")
+        if fixes:
+            raise ValueError(f"refusing to serve on non-loopback host {self.host!r}: "
+                             f"{'; '.join(fixes)} (or listen on host = \"127.0.0.1\")")
         return self
 
     @model_validator(mode="after")

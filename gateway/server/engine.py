@@ -9,11 +9,11 @@ time); the executor's commands back to the sessions (dispatch, cancel), to the p
 the operator feed; operator commands to :class:`~gateway.server.operator_commands.OperatorCommands`
 (which checks them and drives the run's lifecycle: load, start, pause, settings). It also ticks
 the executor every ``MONITOR_PERIOD_MS`` while running. The planner runs off-loop in
-:class:`~gateway.server.solver_tasks.SolverTasks` while events keep queueing; its result comes
+:class:`~gateway.server.runs.solver_tasks.SolverTasks` while events keep queueing; its result comes
 back as a queue item.
 
 The journal (:mod:`gateway.runtime.journal`, optional): the executor is a
-:class:`~gateway.server.resume.JournaledExecutor` that journals each of its inputs before
+:class:`~gateway.server.runs.resume.JournaledExecutor` that journals each of its inputs before
 applying it; the run's start, intruder reports and speed changes are journaled too, and the
 engine commits the journal (then flushes the trace) every time the owner task is about to
 yield to the event loop, so no message it queued leaves the process before its cause is
@@ -46,9 +46,9 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
-from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.executor import LifelongExecutor
+from gateway.execution.lifelong.tasks import TaskPool
+from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
 from gateway.execution.trace_records import summary_record
 from gateway.planning.instance import Instance
 from gateway.planning.movingai import parse_map
@@ -72,12 +72,12 @@ from gateway.server.items import (
     OwnerCall,
     SolverDone,
 )
-from gateway.server.lifelong_run import LifelongRun
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import OperatorCommands
 from gateway.server.operator_feed import OperatorFeed
 from gateway.server.planner import Problem
-from gateway.server.resume import (
+from gateway.server.runs.lifelong import LifelongRun
+from gateway.server.runs.resume import (
     Carried,
     JournaledExecutor,
     Replayed,
@@ -85,9 +85,9 @@ from gateway.server.resume import (
     replay,
     snapshot_of,
 )
-from gateway.server.session import Session
-from gateway.server.solver_tasks import SolverTasks
+from gateway.server.runs.solver_tasks import SolverTasks
 from gateway.server.views import FleetView, ShiftView, snapshot_fields
+from gateway.server.wire.session import Session
 from protocol import (
     Ack,
     ActionRefused,
@@ -164,6 +164,7 @@ class Engine:
         self.before_commit: list[Callable[[], None]] = []
         """Called before each commit (the task journal appends the task events here)."""
         self._tick_failing = False  # the last monitor tick raised (logged once per streak)
+        self._flushing: set[int] = set()  # robots whose session's effects are being carried out
 
     # -------------------------------------------------------------------------- status
     @property
@@ -267,7 +268,9 @@ class Engine:
         for hook in self.before_commit:
             hook()
         if self.journal is not None:
+            t0 = time.perf_counter()
             self.journal.commit()
+            self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
 
     def _next_tick(self, after: float) -> float:
@@ -396,7 +399,9 @@ class Engine:
             self._online.discard(r)
             self.metrics.connected_robots.dec()
         now = self.now_ms()
-        gs.hello(msg, now)
+        running = self._core() is not None
+        gs.hello(msg, now, run=self.run_id if running else None,
+                 plan=self.executor.plan_id if self.executor is not None else None)
         self.flush(gs, session)  # catch-ups; what they unlock is held for the resend
         resent = gs.welcome(session, version=session.version, start=self._start_pose(r),
                             plan=self.executor.plan_id if self.executor else None,
@@ -439,7 +444,18 @@ class Engine:
 
     def flush(self, gs: GatewaySession, sender: Session | None = None) -> None:
         """Carry out a robot session's effects: messages to its connection, refusals to the
-        ``sender`` of the message being handled, reports to the executor."""
+        ``sender`` of the message being handled, reports to the executor. A flush of the same
+        session nested in this one (an effect's dispatch) leaves the rest to this loop, so the
+        session's effects are carried out in the order it queued them."""
+        if gs.robot_id in self._flushing:
+            return
+        self._flushing.add(gs.robot_id)
+        try:
+            self._flush(gs, sender)
+        finally:
+            self._flushing.discard(gs.robot_id)
+
+    def _flush(self, gs: GatewaySession, sender: Session | None) -> None:
         while effects := gs.drain():
             for e in effects:
                 if isinstance(e, ToRobot):
@@ -462,8 +478,8 @@ class Engine:
             "stopped": ex.stopped, "unblocked": ex.unblocked, "cancelled": ex.cancelled,
             "refused": partial(ex.refused, reason=r.reason)}
         apply = handlers[r.kind]
-        try:
-            apply(r.robot, r.plan, r.index, r.t_ms)
+        try:  # (a catch-up applied after later inputs takes effect at the latest of them)
+            apply(r.robot, r.plan, r.index, max(r.t_ms, ex.now_ms))
         except ExecutionError as exc:
             if r.ref is None:
                 log.warning("hello: cannot apply %s of %s: %s", r.kind, r.action_id, exc)
@@ -565,6 +581,7 @@ class Engine:
         log.info("execution complete", extra={"soc_ms": c.soc_ms, "makespan_ms": c.makespan_ms})
 
     def _solver_done(self, item: SolverDone) -> None:
+        self.metrics.planner_call.labels(item.purpose).observe(item.wall_ms / 1000.0)
         if item.purpose == "load":
             self.operator.load_solved(item)
             return
@@ -695,9 +712,9 @@ class Engine:
             threshold_ms=self.threshold_ms,
             policy=self.policy_name, speed=self.clock.speed, slack_series=feed.slack_series,
             intruders=feed.intruders, replan_marks=feed.replan_marks, problem=self.problem,
-            executor=self.executor, robots=self.robots,
+            executor=self.executor, robots=self.robots, worlds=len(self.worlds),
             shift=None if self.lifelong is None else ShiftView(
-                self.lifelong.shift.name, self.lifelong.executor))
+                self.lifelong.shift.name, self.lifelong.executor, self.lifelong.period_ms))
 
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""

@@ -21,7 +21,7 @@ exception escapes a handler: an unexpected one is logged as one line and the con
 closed with 1011 (:class:`protocol.CloseCode`).
 
 Transport defences of the websocket server: TLS and mutual TLS (``config.tls``), credentials and
-``Origin`` checked at the upgrade (:mod:`gateway.server.auth`; bad requests get 400/401/403,
+``Origin`` checked at the upgrade (:mod:`gateway.server.wire.auth`; bad requests get 400/401/403,
 never 500), handshake, hello and idle timeouts, frames of at most ``HARD_MAX_BYTES`` (1009),
 text frames only, at most ``max_connections`` connections (503) and the soft limit of open
 files raised to the hard one.
@@ -36,31 +36,33 @@ import logging
 import resource
 import time
 import weakref
+from collections.abc import Callable
 from types import TracebackType
 from urllib.parse import urlsplit
 
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
+from gateway.runtime.exits import EXIT_JOURNAL, EXIT_SOFTWARE, fatal
 from gateway.runtime.journal import JournalError, JournalLock
 from gateway.server import gc_tuning
-from gateway.server.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
-from gateway.server.http import HttpRoutes, json_response, response
-from gateway.server.http_api import RoutingConnection, close_all, routing_connection
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.journal_open import open_journal
-from gateway.server.lifelong_run import LifelongRun, shift_from
 from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
-from gateway.server.session import Session
-from gateway.server.task_api import TaskApi
-from gateway.server.task_journal import journal_tasks
-from gateway.server.tls import server_context
-from gateway.server.transport import (
+from gateway.server.runs.lifelong import LifelongRun, shift_from
+from gateway.server.runs.task_journal import journal_tasks
+from gateway.server.task_api.api import TaskApi
+from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
+from gateway.server.wire.http import HttpRoutes, json_response, response
+from gateway.server.wire.http_api import RoutingConnection, close_all, routing_connection
+from gateway.server.wire.session import Session
+from gateway.server.wire.tls import server_context
+from gateway.server.wire.transport import (
     HARD_MAX_BYTES,
     Link,
     LinkClosed,
@@ -141,6 +143,9 @@ class Gateway:
         """The bound port once :meth:`listen` returned."""
         self._fresh = fresh
         self._lock: JournalLock | None = None
+        self.fatal: Callable[[str, int], None] = fatal
+        """How the gateway ends the process when it cannot go on (a journal write failed, the
+        owner task died): :func:`gateway.runtime.exits.fatal`."""
         self.resumed = False
         """Whether :meth:`start` resumed a journaled run."""
 
@@ -160,8 +165,7 @@ class Gateway:
             raise
         if (run := self.engine.lifelong) is not None:
             await run.planner_ready()  # its process started while the journal replayed
-            self._owner = asyncio.get_running_loop().create_task(self.engine.run(),
-                                                                 name="owner")
+            self._start_owner()
             self.engine.operator.maybe_autostart()
             return
         configured = cfg.instance is not None or (
@@ -173,7 +177,26 @@ class Gateway:
             except InstanceError as exc:
                 raise ValueError(f"cannot load the configured instance: {exc}") from None
             self.engine.load(problem)
+        self._start_owner()
+
+    def _start_owner(self) -> None:
+        """Start the owner task; if it ever ends but by :meth:`stop`, the process ends too (one
+        line, a non-zero exit for the supervisor): never a gateway that listens and does
+        nothing."""
         self._owner = asyncio.get_running_loop().create_task(self.engine.run(), name="owner")
+        self._owner.add_done_callback(self._owner_done)
+
+    def _owner_done(self, task: asyncio.Task[None]) -> None:
+        if task.cancelled() or task is not self._owner:
+            return
+        exc = task.exception()
+        self.fatal(f"the gateway's owner task ended: {type(exc).__name__}: {exc}"
+                   if exc is not None else "the gateway's owner task ended", EXIT_SOFTWARE)
+
+    def _journal_failed(self, message: str) -> None:
+        """A journal write or sync failed: stop before anything it would acknowledge leaves."""
+        self.fatal(f"journal write failed, stopping (nothing more is acknowledged): {message}",
+                   EXIT_JOURNAL)
 
     def _resume(self) -> bool:
         """Open the journal (locked, checked against the configuration) and rebuild the run
@@ -183,6 +206,7 @@ class Gateway:
             return False
         try:
             engine.journal, self._lock = open_journal(cfg, self._fresh)
+            engine.journal.on_failure = self._journal_failed
             if engine.lifelong is not None:
                 return journal_tasks(engine)
             return engine.resume() and engine.status != "done"

@@ -11,7 +11,7 @@ from typing import Literal
 
 from gateway.planning.plan import Plan
 from gateway.server.planner import Problem
-from gateway.server.session import Session
+from gateway.server.wire.session import Session
 from protocol import AnyMessage, ErrorCode, OperatorCommand
 
 

@@ -15,7 +15,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from gateway.execution.actions import ActionDurations
-from gateway.execution.executor import ExecutionError
+from gateway.execution.oneshot.executor import ExecutionError
 from gateway.planning.movingai import format_map
 from gateway.planning.plan import Plan
 from gateway.runtime.journal import PolicyRecord, RunRecord, SpeedRecord, new_run_id
@@ -25,9 +25,10 @@ from gateway.server.planner import (
     Problem,
     problem_from_paths,
     resolve_instance,
+    without_paths,
 )
-from gateway.server.resume import executor_for
-from gateway.server.session import Session
+from gateway.server.runs.resume import executor_for
+from gateway.server.wire.session import Session
 from protocol import (
     ErrorCode,
     GetSnapshot,
@@ -64,7 +65,7 @@ def reply_to(reply: Reply, ref: str | None, code: ErrorCode | None, detail: str)
         if code is None:
             reply.send(Ok, ref=ref or "", detail=detail)
         else:
-            reply.error(code, ref, detail)
+            reply.error(code, ref, without_paths(detail))
     elif reply is not None and not reply.done():
         reply.set_result((code, detail))
 
@@ -104,7 +105,7 @@ class OperatorCommands:
                 try:
                     problem = resolve_instance(msg.map, msg.scen, msg.agents, seed)
                 except InstanceError as exc:
-                    raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
+                    raise CommandError(ErrorCode.BAD_REQUEST, exc.public) from None
                 self.load(problem, reply, msg.msg_id)
                 return None
             case LoadPlan():
@@ -112,7 +113,7 @@ class OperatorCommands:
                 try:
                     problem = problem_from_paths(msg.map, msg.paths, msg.headings)
                 except InstanceError as exc:
-                    raise CommandError(ErrorCode.BAD_REQUEST, str(exc)) from None
+                    raise CommandError(ErrorCode.BAD_REQUEST, exc.public) from None
                 e.executor = None
                 e.problem = problem
                 self._loaded()

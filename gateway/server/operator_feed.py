@@ -9,7 +9,8 @@ The trace is only ever appended to: records are buffered and written, then flush
 :meth:`OperatorFeed.flush_trace` (the engine calls it right after each journal commit, so the
 trace never runs ahead of the journal). A new run moves an existing trace file aside
 (``NAME.1``, ``NAME.2``, ...) rather than truncating it; a resumed run appends to it
-(:meth:`OperatorFeed.resume_trace` first adds what the journal holds and the file lacks).
+(:meth:`OperatorFeed.resume_trace` first adds what the journal holds and the file lacks, and
+cuts what the journal lost).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import IO, Any, get_args
 
 from gateway.execution.trace_records import intruder_record
 from gateway.planning.grid import Cell
-from gateway.server.session import Session
+from gateway.server.wire.session import Session
 from protocol import Event
 from protocol.messages import EventKind
 
@@ -72,8 +73,10 @@ class OperatorFeed:
     def resume_trace(self, records: list[str], skip: int = 0) -> None:
         """A resumed run: reopen its trace for appending, after adding the tail of
         ``records`` (the run's trace after its first ``skip`` records, rebuilt by replay) that
-        the file lacks (it is written after the journal, so a crash can leave it behind, never
-        ahead). A torn last line is completed the same way."""
+        the file lacks (it is written after the journal, so a crash can leave it behind). A
+        torn last line is completed the same way. A file ahead of the journal (a power cut lost
+        the journal's last records, not the trace's) is cut back to what the journal holds:
+        the trace never tells of what the resumed run does not stand behind."""
         self.close_trace()
         self._pending.clear()
         path = self._trace_path
@@ -83,6 +86,7 @@ class OperatorFeed:
             if path.exists() else []
         if have and not have[-1].endswith("\n"):
             have.pop()
+        del have[skip + len(records):]
         with path.open("w" if not have else "r+", encoding="utf-8") as f:
             f.seek(sum(len(line.encode()) for line in have))
             f.truncate()

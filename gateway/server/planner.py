@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from gateway.execution.adg import ADG
 from gateway.execution.errors import ExecutionError
+from gateway.execution.oneshot.adg import ADG
 from gateway.planning.generators import random_instance
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
@@ -27,7 +28,21 @@ log = logging.getLogger("fleetgate.planner")
 
 
 class InstanceError(ValueError):
-    """The named map, scenario or plan cannot be used; the message says why."""
+    """The named map, scenario or plan cannot be used; the message says why (``public``:
+    the same without the server's file paths, for an operator's browser)."""
+
+    def __init__(self, message: str, public: str | None = None) -> None:
+        super().__init__(message)
+        self.public = without_paths(public or message)
+
+
+_PATH = re.compile(r"(?<![\w.~-])~?/(?:[^\s'\"/]+/)*")
+
+
+def without_paths(text: str) -> str:
+    """``text`` with the folders of every absolute path left out (``/srv/maps/x.map``:
+    ``x.map``): a server's file layout is nobody's business in a browser."""
+    return _PATH.sub("", text)
 
 
 @dataclass(frozen=True)
@@ -65,7 +80,7 @@ def resolve_instance(map: str, scen: str | None, agents: int | None, seed: int =
         inst = random_instance(grid, agents, np.random.default_rng(seed), name=map_name)
         return Problem(inst, map_name)
     except mapstore.MapNotFound as exc:
-        raise InstanceError(str(exc)) from None
+        raise InstanceError(str(exc), exc.public) from None
     except (MapFormatError, ValueError) as exc:
         raise InstanceError(str(exc)) from None
     except OSError as exc:
@@ -79,7 +94,7 @@ def problem_from_paths(map: str, paths: list[list[Cell]],
     try:
         grid, map_name = _map(map)
     except mapstore.MapNotFound as exc:
-        raise InstanceError(str(exc)) from None
+        raise InstanceError(str(exc), exc.public) from None
     except (MapFormatError, OSError) as exc:
         raise InstanceError(f"cannot read map {map!r}: {exc}") from None
     if headings is None:

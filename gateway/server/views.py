@@ -14,12 +14,13 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.execution.executor import Executor
-from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.tasks import Task
+from gateway.execution.lifelong.executor import LifelongExecutor
+from gateway.execution.lifelong.tasks import Task
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
 from gateway.server.planner import Problem
+from gateway.server.runs.lifelong import throughput_per_min
 from protocol import ActionCounts, Pose, ReplanMark, RobotView, WaitEdge
 from protocol.gateway_session import GatewaySession
 from protocol.messages import HEADINGS, GatewayStatus, Heading, PolicyName
@@ -43,16 +44,20 @@ class FleetView:
     problem: Problem | None
     executor: Executor | None
     robots: Mapping[int, GatewaySession]
+    worlds: int = 0
+    """World connections (they place intruders)."""
     shift: ShiftView | None = None
     """The lifelong shift (then ``problem`` and ``executor`` are None)."""
 
 
 @dataclass(frozen=True)
 class ShiftView:
-    """A lifelong shift as operators see it: its map's name and its executor."""
+    """A lifelong shift as operators see it: its map's name, its executor and its planning
+    period (plan ms)."""
 
     name: str
     executor: LifelongExecutor
+    period_ms: float
 
 
 PATH_AHEAD = 24
@@ -89,11 +94,14 @@ def snapshot_fields(view: FleetView) -> dict[str, Any]:
         "fleet_slack": list(view.slack_series),
         "intruders": sorted(view.intruders),
         "replan_marks": [ReplanMark(**m) for m in view.replan_marks],
+        "worlds": view.worlds,
     }
     if view.shift is not None:
         sex = view.shift.executor
-        out.update(shift_fields(view.shift, view.robots),
-                   t_ms=sex.now_ms if sex.done else view.t_ms)
+        t_ms = sex.now_ms if sex.done else view.t_ms if view.status != "loaded" else 0.0
+        out.update(shift_fields(view.shift, view.robots), t_ms=t_ms,
+                   tasks_per_min=throughput_per_min(sex.finished_tasks, t_ms),
+                   period_ms=view.shift.period_ms)
         return out
     if problem is None:
         return out

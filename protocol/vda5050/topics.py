@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Literal
+from typing import Any, Literal
 
 TopicName = Literal["order", "instantActions", "state", "visualization", "connection",
                     "factsheet"]
@@ -85,3 +85,20 @@ def timestamp(epoch_s: float) -> str:
     """``epoch_s`` (seconds since 1970, UTC) as ``YYYY-MM-DDTHH:mm:ss.ffZ`` (section 6.4)."""
     moment = datetime.fromtimestamp(epoch_s, tz=UTC)
     return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{moment.microsecond // 10000:02d}Z"
+
+
+class Headers:
+    """The header fields of the messages one side sends about one vehicle: ``headerId``
+    counts from 0 per topic (section 6.4)."""
+
+    def __init__(self, version: str, topics: VehicleTopics) -> None:
+        self.version = version
+        self.topics = topics
+        self._ids: dict[str, int] = {}
+
+    def __call__(self, topic: TopicName, now_s: float) -> dict[str, Any]:
+        """The next header of ``topic`` at time ``now_s`` (model field names)."""
+        header_id = self._ids.get(topic, -1) + 1
+        self._ids[topic] = header_id
+        return {"header_id": header_id, "timestamp": timestamp(now_s), "version": self.version,
+                "manufacturer": self.topics.manufacturer, "serial_number": self.topics.serial}

@@ -70,7 +70,7 @@ def test_python_dash_m_fleetgate_is_the_command() -> None:
 
 
 def test_simulate_offers_the_simulators_policies() -> None:
-    from gateway.execution.policies import AUTONOMOUS_POLICIES
+    from gateway.execution.oneshot.policies import AUTONOMOUS_POLICIES
     from sim_clients.cmd_simulate import register
 
     sub = argparse.ArgumentParser().add_subparsers()

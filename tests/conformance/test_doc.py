@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
+from conformance.doc import render
+from conformance.gateway_checks import GATEWAY_CHECKS
+from conformance.robot_checks import ROBOT_CHECKS
 from gateway.cli import main
-from gateway.conformance.doc import render
-from gateway.conformance.gateway_checks import GATEWAY_CHECKS
-from gateway.conformance.robot_checks import ROBOT_CHECKS
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
 RULE = re.compile(r"^- \*\*([A-Z]+-\d+)\*\*", re.M)

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
+from conformance.gateway_checks import GATEWAY_CHECKS
 from gateway.cli import main
-from gateway.conformance.gateway_checks import GATEWAY_CHECKS
 from gateway.server.config import TlsConfig
 from gateway.server.gateway import Gateway
-from gateway.server.session import Session
+from gateway.server.wire.session import Session
 from protocol import AnyMessage, Hello, ProtocolError, decode
 from tests.server.conftest import make_config
 from tests.server.tls_certs import make_certs

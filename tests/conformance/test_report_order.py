@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.conformance.robot_checks import _valid_reports
+from conformance.robot_checks import _valid_reports
 
 CASES = [
     ("started finished", False, True),

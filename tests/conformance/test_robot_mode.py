@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from conformance.robot_checks import ROBOT_CHECKS
 from gateway.cli import main
-from gateway.conformance.robot_checks import ROBOT_CHECKS
 from tests.conformance.test_gateway_mode import free_port
 
 HERE = Path(__file__).resolve().parent

@@ -25,8 +25,8 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.executor import MONITOR_PERIOD_MS, Executor, Mode
-from gateway.execution.monitor import NOT_STARTED, Estimate, algorithm1
+from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, Executor, Mode
+from gateway.execution.oneshot.monitor import NOT_STARTED, Estimate, algorithm1
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan, random_walks

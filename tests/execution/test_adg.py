@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.execution.adg import ADG
 from gateway.execution.errors import ExecutionError
+from gateway.execution.oneshot.adg import ADG
 from gateway.planning.plan import Plan
 from tests.execution.support import (
     brute_predecessors,

@@ -8,11 +8,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.execution.adg import ADG
-from gateway.execution.blocks import BlockTracker, duration_quantiles
 from gateway.execution.commands import SolveRequest
-from gateway.execution.executor import Executor
-from gateway.execution.policies import ShadowPolicy
+from gateway.execution.oneshot.adg import ADG
+from gateway.execution.oneshot.blocks import BlockTracker, duration_quantiles
+from gateway.execution.oneshot.executor import Executor
+from gateway.execution.oneshot.policies import ShadowPolicy
 from gateway.planning.plan import Plan
 
 FAST = settings(max_examples=80, deadline=None)

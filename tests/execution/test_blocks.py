@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.execution.blocks import BlockTracker
 from gateway.execution.commands import SolveRequest
-from gateway.execution.executor import Executor
+from gateway.execution.oneshot.blocks import BlockTracker
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.plan import Plan
 
 

@@ -9,8 +9,8 @@ import pytest
 
 from gateway.execution.commands import Cancel, Dispatch, SolveRequest
 from gateway.execution.errors import ExecutionError
-from gateway.execution.executor import Executor
-from gateway.execution.monitor import NOT_STARTED, algorithm1
+from gateway.execution.oneshot.executor import Executor
+from gateway.execution.oneshot.monitor import NOT_STARTED, algorithm1
 from gateway.planning.plan import Plan
 from tests.execution.support import turning_plan
 from tracecheck import check_trace

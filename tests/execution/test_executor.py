@@ -14,8 +14,8 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
-from gateway.execution.policies import (
+from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, ExecutionError, Executor, Mode
+from gateway.execution.oneshot.policies import (
     NoReplan,
     OperatorOnly,
     RandomReplan,

@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.execution.commands import Cancel, Dispatch, SolveRequest, Trigger
-from gateway.execution.executor import ExecutionError, Executor, Mode
-from gateway.execution.policies import OperatorOnly, SlackReplan
+from gateway.execution.oneshot.executor import ExecutionError, Executor, Mode
+from gateway.execution.oneshot.policies import OperatorOnly, SlackReplan
 from gateway.planning.plan import Plan
 from tests.execution.support import Driver, random_robust_plan, snapshot
 from tests.execution.test_adg import CORRIDOR, CROSSING

@@ -6,8 +6,8 @@ All actions take t_x = 1000 ms and robots are released at 0. Notation: A0 = a_0^
 from __future__ import annotations
 
 from gateway.execution.commands import Completed, Dispatch, SolveRequest, Trigger
-from gateway.execution.executor import Executor
-from gateway.execution.policies import SlackReplan
+from gateway.execution.oneshot.executor import Executor
+from gateway.execution.oneshot.policies import SlackReplan
 from gateway.planning.plan import Plan
 from tests.execution.support import is_one_robust
 from tests.execution.test_adg import CORRIDOR, CROSSING

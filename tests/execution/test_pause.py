@@ -13,8 +13,8 @@ from __future__ import annotations
 import pytest
 
 from gateway.execution.commands import Trigger
-from gateway.execution.executor import MONITOR_PERIOD_MS, ExecutionError, Executor
-from gateway.execution.policies import SlackReplan
+from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, ExecutionError, Executor
+from gateway.execution.oneshot.policies import SlackReplan
 from gateway.planning.plan import Plan
 from tests.execution.test_adg import CORRIDOR
 

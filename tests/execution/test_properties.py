@@ -13,9 +13,9 @@ from unittest import mock
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.execution import monitor
-from gateway.execution.executor import Executor
-from gateway.execution.policies import SlackReplan
+from gateway.execution.oneshot import monitor
+from gateway.execution.oneshot.executor import Executor
+from gateway.execution.oneshot.policies import SlackReplan
 from gateway.planning.plan import Plan
 from tests.execution.support import Driver, random_robust_plan
 

@@ -9,7 +9,7 @@ import pytest
 
 from gateway.execution.commands import Dispatch, SolveRequest
 from gateway.execution.errors import ExecutionError
-from gateway.execution.executor import Executor, Mode
+from gateway.execution.oneshot.executor import Executor, Mode
 from gateway.planning.plan import Plan
 from tracecheck import check_trace
 

@@ -12,12 +12,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gateway.execution.adg import ADG
 from gateway.execution.errors import ExecutionError
-from gateway.execution.executor import Executor, Mode
-from gateway.execution.monitor import Monitor, algorithm1
-from gateway.execution.policies import make_policy
-from gateway.execution.reschedule import Rescheduled, Schedule, Search, gains_edges
+from gateway.execution.oneshot.adg import ADG
+from gateway.execution.oneshot.executor import Executor, Mode
+from gateway.execution.oneshot.monitor import Monitor, algorithm1
+from gateway.execution.oneshot.policies import make_policy
+from gateway.execution.oneshot.reschedule import Rescheduled, Schedule, Search, gains_edges
 from gateway.execution.trace_records import Record
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan

@@ -9,10 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.execution.actions import ActionDurations, action_kind
-from gateway.execution.adg import ADG
 from gateway.execution.commands import Dispatch, PlanAdopted, SolveRequest
 from gateway.execution.errors import ExecutionError
-from gateway.execution.executor import Executor
+from gateway.execution.oneshot.adg import ADG
+from gateway.execution.oneshot.executor import Executor
 from gateway.planning.plan import Plan
 from tests.execution.support import (
     Driver,

@@ -23,7 +23,7 @@ from experiments.campaign import (
 from experiments.clairvoyant_stats import binomial_cdf, clopper_pearson_upper, summarize_outcomes
 from experiments.oracle import sweep
 from gateway.execution.commands import SolveRequest
-from gateway.execution.policies import RandomReplan
+from gateway.execution.oneshot.policies import RandomReplan
 from gateway.planning.grid import Grid
 from gateway.planning.plan import Plan
 from gateway.runtime.mapstore import resolve

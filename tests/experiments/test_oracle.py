@@ -27,7 +27,7 @@ from experiments.campaign import (
 from experiments.oracle import OracleRow, Sweep, read_oracle_rows, sample_experiments, sweep
 from experiments.oracle_stats import judge, summarize_policy, wilson
 from experiments.stats import Experiment, join_experiments
-from gateway.execution.policies import RandomReplan
+from gateway.execution.oneshot.policies import RandomReplan
 from gateway.runtime.mapstore import resolve
 from sim_clients.des import Simulation
 

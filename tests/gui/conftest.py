@@ -18,8 +18,10 @@ between its two cells, short enough that a run of the lab instance (makespan 16)
 
 @pytest.fixture(scope="module")
 def demo() -> Iterator[DemoProcess]:
-    """``fleetgate demo`` on the lab map (10 robots), no automatic intruder, policy none."""
-    with DemoProcess("--speed", str(SPEED), "--no-intruder", "--policy", "none") as proc:
+    """``fleetgate demo`` on the lab map (10 robots), no automatic intruder, policy none; its
+    first run starts at once (not at the first login: the tests take turns on it)."""
+    with DemoProcess("--speed", str(SPEED), "--no-intruder", "--policy", "none", "--start",
+                     "now") as proc:
         yield proc
 
 

@@ -14,10 +14,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.execution.commands import Dispatch, Trigger
-from gateway.execution.errands import TaskDistances
 from gateway.execution.errors import ExecutionError
-from gateway.execution.lifelong import LifelongExecutor, PlanRequest, Segment, WindowPlanner
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.lifelong.executor import (
+    LifelongExecutor,
+    PlanRequest,
+    Segment,
+    WindowPlanner,
+)
+from gateway.execution.lifelong.tasks import TaskPool
 from sim_clients.shift_des import ShiftRun, drive_shift
 from tests.lifelong.support import small_problem
 from tracecheck import check_trace

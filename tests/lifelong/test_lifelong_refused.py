@@ -21,10 +21,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.execution.commands import Completed, Dispatch
-from gateway.execution.errands import TaskDistances
 from gateway.execution.errors import ExecutionError
-from gateway.execution.lifelong import LifelongExecutor, PlanRequest, WindowPlanner
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.lifelong.executor import LifelongExecutor, PlanRequest, WindowPlanner
+from gateway.execution.lifelong.tasks import TaskPool
 from gateway.execution.trace_records import summary_record
 from protocol import (
     Ack,

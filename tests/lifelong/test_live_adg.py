@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.execution.errors import ExecutionError
-from gateway.execution.live_adg import FORWARD, LiveADG
+from gateway.execution.lifelong.live_adg import FORWARD, LiveADG
 from gateway.planning.grid import Grid
 from gateway.planning.pibt import StateSpace, WindowedPIBT
 from tests.lifelong.support import small_problem
@@ -122,17 +122,17 @@ def test_held_robot_moves_after_its_hold() -> None:
 
 @settings(max_examples=15, deadline=None)
 @given(seed=st.integers(0, 10_000), turning=st.booleans(), k=st.integers(1, 3),
-       p_delay=st.sampled_from([0.0, 0.1, 0.4]))
+       p_delay=st.sampled_from([0.0, 0.1, 0.4]), exact=st.booleans())
 def test_appending_while_executing_stays_acyclic_and_collision_free(
-        seed: int, turning: bool, k: int, p_delay: float) -> None:
+        seed: int, turning: bool, k: int, p_delay: float, exact: bool) -> None:
     """Windows planned from the committed end states (held for the backlog) and appended while
     the fleet executes under random delays: every dependency points to an earlier action (the
     graph is acyclic), and no two robots ever hold a cell at the same tick (a moving robot
-    holds both cells of its move)."""
+    holds both cells of its move); with exact turning tables or the cells' lower bound."""
     n = 8
     problem = small_problem(seed, robots=n, size=10)
     rng = np.random.default_rng(seed)
-    space = StateSpace(problem.grid, turning)
+    space = StateSpace(problem.grid, turning, exact=exact)
     planner = WindowedPIBT(space, n, seed=seed)
     adg = LiveADG(problem.grid, problem.starts, [0] * n if turning else None)
     goals = [list(problem.tasks[r]) for r in range(n)]

@@ -75,6 +75,26 @@ def test_cli_run_prints_throughput(tmp_path: Path, capsys: pytest.CaptureFixture
     assert data["makespan"] == 40 and len(data["actualPaths"]) == 4
 
 
+def test_cli_delay_seed_and_wait_percentiles(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write(tmp_path)  # small_problem(1): delayConfig seed 1
+    runs = {}
+    for name, extra in (("file", []), ("same", ["--delay-seed", "1"]),
+                        ("other", ["--delay-seed", "7"])):
+        out = tmp_path / f"{name}.json"
+        assert main(["lifelong", "--problem", str(path), "--ticks", "60", "--output", str(out),
+                     "--planner-time", "zero", "--no-progress", *extra]) == 0
+        runs[name] = json.loads(out.read_text())
+    assert runs["same"]["delayIntervals"] == runs["file"]["delayIntervals"]
+    assert runs["other"]["delayIntervals"] != runs["file"]["delayIntervals"]
+    wait = runs["file"]["assignmentWait"]
+    assert set(wait) == {"p50", "p90", "p99", "max"}
+    assert 0 <= wait["p50"] <= wait["p90"] <= wait["p99"] <= wait["max"] <= 60
+    assert "assignment wait p50" in capsys.readouterr().out
+    assert main(["lifelong", "--problem", str(path), "--max-wait", "-1"]) == 2
+    assert "--max-wait must be >= 0" in capsys.readouterr().err
+
+
 def test_compress_path_runs_and_windows() -> None:
     p = small_problem(1, robots=1, size=8)
     loc = p.starts[0]
@@ -84,7 +104,14 @@ def test_compress_path_runs_and_windows() -> None:
 
 
 def test_cli_offers_the_schedulers() -> None:
-    from gateway.execution.tasks import SCHEDULERS
+    from gateway.execution.lifelong.tasks import SCHEDULERS
     from sim_clients.cmd_lifelong import SCHEDULER_CHOICES
 
     assert sorted(SCHEDULER_CHOICES) == sorted(SCHEDULERS)
+
+
+def test_cli_default_bound_is_the_runner_s() -> None:
+    from sim_clients.cmd_lifelong import MAX_WAIT_TICKS as CLI
+    from sim_clients.lifelong import MAX_WAIT_TICKS, LifelongConfig
+
+    assert CLI == MAX_WAIT_TICKS == LifelongConfig(small_problem(1)).max_wait

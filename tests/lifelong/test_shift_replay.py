@@ -5,7 +5,8 @@ journal; at random points and at the end, a fresh executor fed the committed rec
 the live one in every field (executor, live ADG, errand book, task pool).
 
 Snapshots too: at the same random points the live shift's state is snapshotted
-(:func:`~gateway.execution.shift_state.snapshot_shift`, through the journal record's JSON); a
+(:func:`~gateway.execution.lifelong.shift_state.snapshot_shift`, through the journal record's
+JSON); a
 fresh executor restored from it must equal the live one field by field, and after the records
 that followed it (the journal a compaction there would have left) the live one at the end."""
 
@@ -33,9 +34,9 @@ from pydantic import TypeAdapter
 
 from bench.lifelong import journaled_shift
 from gateway.execution.errors import ExecutionError
-from gateway.execution.lifelong import LifelongExecutor
-from gateway.execution.shift_state import HistoryLog, snapshot_shift
-from gateway.execution.tasks import KEEP, NewTask, TaskError
+from gateway.execution.lifelong.executor import LifelongExecutor
+from gateway.execution.lifelong.shift_state import HistoryLog, snapshot_shift
+from gateway.execution.lifelong.tasks import KEEP, NewTask, TaskError
 from gateway.runtime.journal import (
     Journal,
     JournalError,
@@ -45,8 +46,8 @@ from gateway.runtime.journal import (
     ShiftSnapshotRecord,
     TimeRecord,
 )
-from gateway.server.shift_journal import JournaledLifelong, replay_shift
-from gateway.server.task_journal import TaskJournal
+from gateway.server.runs.shift_journal import JournaledLifelong, replay_shift
+from gateway.server.runs.task_journal import TaskJournal
 from tests.lifelong.support import small_problem
 from tests.lifelong.test_lifelong_executor import drive
 

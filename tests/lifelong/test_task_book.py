@@ -13,7 +13,7 @@ from hypothesis import settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, precondition, rule
 
-from gateway.execution.tasks import (
+from gateway.execution.lifelong.tasks import (
     NewTask,
     TaskConflict,
     TaskError,

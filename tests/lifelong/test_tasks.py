@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from gateway.execution.tasks import TaskPool, greedy_nearest, min_cost, shortest_first
+from gateway.execution.lifelong.tasks import (
+    SCHEDULERS,
+    NewTask,
+    TaskPool,
+    greedy_nearest,
+    min_cost,
+    shortest_first,
+    wait_percentiles,
+)
 
 
 def line(cells: Sequence[int], targets: Sequence[int]) -> np.ndarray:
@@ -49,3 +60,86 @@ def test_released_task_goes_back_to_the_scheduler() -> None:
     assert pool.errand_done(1, tick=3) is False
     with pytest.raises(ValueError, match="already started"):
         pool.release(1)  # its first errand is done
+
+
+def test_an_overdue_task_goes_before_cheaper_ones_of_its_priority() -> None:
+    # a long task (10 -> 40) submitted at 0, a short one (12 -> 13) at 25: shortest_first
+    # passes the long one over as long as short ones keep coming, unless it waited max_wait
+    for bound, want in ((None, 1), (50.0, 1), (30.0, 0)):
+        pool = TaskPool([], reveal=2, leg=lambda a, b: abs(a - b), max_wait=bound)
+        pool.submit([NewTask((10, 40))], now=0.0)
+        pool.submit([NewTask((12, 13))], now=25.0)
+        pool.settle(30.0)
+        assert pool.overdue(pool.tasks[0]) is (want == 0)
+        assert not pool.overdue(pool.tasks[1])
+        assert shortest_first([(0, 11)], pool, line) == {0: want}
+
+
+def test_priority_still_beats_an_overdue_task() -> None:
+    pool = TaskPool([], reveal=2, leg=lambda a, b: abs(a - b), max_wait=10.0)
+    old, _ = pool.submit([NewTask((10, 40))], now=0.0)
+    urgent, _ = pool.submit([NewTask((30, 90), priority=1)], now=20.0)
+    pool.settle(25.0)  # the old one is overdue, the urgent one is not
+    for scheduler in (greedy_nearest, min_cost, shortest_first):
+        assert scheduler([(0, 11)], pool, line) == {0: urgent[0]}
+    assert greedy_nearest([(0, 11), (1, 12)], pool, line) == {0: urgent[0], 1: old[0]}
+
+
+def test_overdue_tasks_go_longest_waiting_first() -> None:
+    pool = TaskPool([], reveal=3, leg=lambda a, b: abs(a - b), max_wait=10.0)
+    far, _ = pool.submit([NewTask((90,))], now=0.0)
+    near, _ = pool.submit([NewTask((12,))], now=5.0)
+    pool.submit([NewTask((11,))], now=19.0)
+    pool.settle(20.0)  # far and near are overdue, far the longest; fresh is not
+    assert min_cost([(0, 11)], pool, line) == {0: far[0]}
+    assert min_cost([(0, 11), (1, 10)], pool, line) == {0: far[0], 1: near[0]}
+
+
+def test_wait_percentiles_by_nearest_rank() -> None:
+    assert wait_percentiles([]) == {"p50": 0.0, "p90": 0.0, "p99": 0.0, "max": 0.0}
+    waits = [float(w) for w in range(1, 101)]  # 1 .. 100
+    assert wait_percentiles(waits[::-1]) == {"p50": 50.0, "p90": 90.0, "p99": 99.0,
+                                             "max": 100.0}
+    pool = TaskPool([], reveal=1, max_wait=None)
+    a, _ = pool.submit([NewTask((3,))], now=2.0)
+    pool.submit([NewTask((4,))], now=3.0)  # not revealed: it waits in the backlog
+    c, _ = pool.submit([NewTask((5,))], now=3.0)
+    pool.assign(a[0], robot=0, now=9.0)
+    pool.cancel(c[0], now=4.0)
+    assert sorted(pool.waits(now=10.0)) == [7.0, 7.0]  # a: 9 - 2; b: queued since 3
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 60), st.integers(0, 60)), min_size=1, max_size=30),
+       st.integers(1, 4), st.integers(1, 8), st.integers(1, 20),
+       st.sampled_from(["greedy", "mincost", "shortest"]))
+def test_the_bound_holds_under_a_stream_of_cheaper_tasks(
+        errands: list[tuple[int, int]], free_per_step: int, reveal: int, bound: int,
+        name: str) -> None:
+    """Robots come free ``free_per_step`` at a time at every step (they finish a task in one
+    step); however cheap the other tasks, a task waits at most ``bound`` plus the steps to
+    serve the tasks overdue before it: ceil(reveal / free_per_step)."""
+    pool = TaskPool(errands, reveal=reveal, leg=lambda a, b: abs(a - b), max_wait=bound)
+    scheduler = SCHEDULERS[name]
+    robots = [(r, 30) for r in range(free_per_step)]
+    for step in range(1, 120):
+        pool.settle(float(step))
+        for robot, task_id in scheduler(robots, pool, line).items():
+            pool.assign(task_id, robot, now=float(step))
+            for _ in pool.tasks[task_id].errands:
+                pool.errand_done(task_id, float(step))
+    limit = bound + math.ceil(reveal / free_per_step)
+    assert max(pool.waits(now=120.0)) <= limit
+
+
+def test_a_waiting_task_ages_before_it_is_overdue() -> None:
+    # robot at 0; first errands: A at 50 (submitted at 0), B at 10 and C at 90 (both at 50):
+    # costs 50, 10, 90, span 80. From half the bound (100) on, A costs up to the span less:
+    # at 60 it waited 0.6 of it (16 less: 34, B still cheaper), at 90 0.9 (64 less: -14)
+    for now, bound, want in ((60.0, 100.0, "B"), (90.0, 100.0, "A"), (90.0, None, "B")):
+        pool = TaskPool([], reveal=3, max_wait=bound)
+        ids = {name: pool.submit([NewTask((cell,))], now=t)[0][0]
+               for name, cell, t in (("A", 50, 0.0), ("B", 10, 50.0), ("C", 90, 50.0))}
+        pool.settle(now)
+        assert not pool.overdue(pool.tasks[ids["A"]])
+        assert min_cost([(0, 0)], pool, line) == {0: ids[want]}

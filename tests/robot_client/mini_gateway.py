@@ -18,8 +18,8 @@ from websockets.datastructures import Headers
 from websockets.exceptions import InvalidStatus
 from websockets.http11 import Request, Response
 
-from gateway.server.auth import Peer
-from gateway.server.transport import MemoryClient, memory_pair
+from gateway.server.wire.auth import Peer
+from gateway.server.wire.transport import MemoryClient, memory_pair
 from protocol import AnyMessage, decode, encode
 from robot_client.config import RobotSettings
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -14,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from gateway.cli import main
-from gateway.server.auth import Authenticator, AuthError, Peer, request_token
 from gateway.server.config import ConfigError, load_config
 from gateway.server.logs import JsonFormatter
+from gateway.server.wire.auth import Authenticator, AuthError, Peer, request_token
 
 FLEETGATE = str(Path(sys.executable).parent / "fleetgate")
 
@@ -102,13 +103,38 @@ def test_serve_rejects_a_missing_config(tmp_path: Path,
     assert "config file not found" in capsys.readouterr().err
 
 
-def test_the_example_deployment_config_is_valid() -> None:
-    cfg = load_config(Path(__file__).parents[2] / "deploy" / "gateway.example.toml")
+EXAMPLE = Path(__file__).parents[2] / "deploy" / "gateway.example.toml"
+
+
+def test_the_production_example_refuses_placeholders_and_plaintext(tmp_path: Path) -> None:
+    """Issue 27 item 1: as shipped, the example (0.0.0.0, CHANGE-ME tokens, no TLS) does not
+    start: one line saying what to change, exit 2."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FLEETGATE_")}
+    run = subprocess.run([FLEETGATE, "serve", "--config", str(EXAMPLE)], env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in run.stderr, run.stderr
+    assert "'0.0.0.0'" in lines[0] and "CHANGE-ME" in lines[0] and "[tls]" in lines[0]
+    text = EXAMPLE.read_text()
+    real = text.replace("CHANGE-ME-", "f7Kq2-")
+    for body, refused in ((real, "[tls]"), ("allow_plaintext = true\n" + text, "CHANGE-ME")):
+        path = tmp_path / "gw.toml"
+        path.write_text(body)
+        with pytest.raises(ConfigError, match=re.escape(refused)) as err:
+            load_config(path)
+        other = "CHANGE-ME" if refused == "[tls]" else "[tls]"
+        assert other not in str(err.value)
+    # real tokens behind a TLS proxy: it starts, and only its tokens get in
+    path.write_text(real.replace("[tokens]\n", "allow_plaintext = true\n\n[tokens]\n", 1))
+    cfg = load_config(path)
     assert cfg.host == "0.0.0.0" and not cfg.allow_demo_tokens
     auth = Authenticator(cfg.tokens)
-    assert auth.identify("CHANGE-ME-robot-2-token") == Peer("robot", 2)
+    assert auth.identify("f7Kq2-robot-2-token") == Peer("robot", 2)
     with pytest.raises(AuthError):
         auth.identify("demo-robot-0")
+    # on loopback the placeholders are a harmless local try-out
+    assert load_config(EXAMPLE, host="127.0.0.1").tls is None
 
 
 def test_logs_are_json_lines_with_extra_fields() -> None:

@@ -10,6 +10,7 @@ import sqlite3
 import time
 from array import array
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,8 +18,8 @@ import numpy as np
 import pytest
 from pydantic import TypeAdapter
 
-from gateway.execution.executor import Mode
-from gateway.execution.policies import POLICY_NAMES, PolicyName, make_policy
+from gateway.execution.oneshot.executor import Mode
+from gateway.execution.oneshot.policies import POLICY_NAMES, PolicyName, make_policy
 from gateway.planning.instance import Instance
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
@@ -119,6 +120,27 @@ async def assert_rebuilt(live: Engine, config: GatewayConfig) -> None:
         assert (again.policy_name, again.threshold_ms) == (live.policy_name, live.threshold_ms)
         assert again.solvers.solver_ms == live.solvers.solver_ms
         assert again.paused == live.paused
+
+
+async def running(journal: Path, trace: Path, problem: Problem, *, must_only: bool = False,
+                  on_event: Callable[[str, int, int, int], None] | None = None
+                  ) -> tuple[GatewayConfig, Gateway, int, SimFleet]:
+    """A journaled gateway at speed 20 on a free port running ``problem`` with a simulated
+    fleet over websockets (``must_only``: robots that implement only the MUST rules;
+    ``on_event``: the fleet's hook)."""
+    config = GatewayConfig(port=0, map=None, policy="none", journal=journal, trace=trace,
+                           speed=20.0, autostart=True)
+    gw = Gateway(config)
+    await gw.start()
+    port = await gw.listen()
+    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"),
+                     range(len(problem.plan.paths)), clock=gw.clock, send_state=False,
+                     reconnect_delay_s=0.05, must_only=must_only)
+    fleet.on_event = on_event
+    gw.engine.load(problem)
+    await fleet.start()
+    await fleet.wait_connected()
+    return config, gw, port, fleet
 
 
 def lanes(robots: int, width: int) -> Problem:
@@ -269,16 +291,7 @@ def test_a_restarted_gateway_resumes_the_run_and_the_trace_is_appended(
     done: dict[str, Any] = {}
 
     async def main() -> None:
-        config = GatewayConfig(port=0, map=None, policy="none", journal=journal, trace=trace,
-                               speed=20.0, autostart=True)
-        gw = Gateway(config)
-        await gw.start()
-        port = await gw.listen()
-        fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(6),
-                         clock=gw.clock, send_state=False, reconnect_delay_s=0.05)
-        gw.engine.load(problem)
-        await fleet.start()
-        await fleet.wait_connected()
+        config, gw, port, fleet = await running(journal, trace, problem)
         await asyncio.sleep(0.25)  # speed 20: 5 s of plan time
         await gw.stop()
         size = trace.stat().st_size

@@ -216,3 +216,38 @@ def test_a_journal_without_checksums_is_refused_and_fresh_makes_it_anew(tmp_path
     journal.close()
     lock.release()
     assert len(list(Journal(path).records())) == 2
+
+
+def _task(i: int) -> TaskRecord:
+    return TaskRecord(seq=i, task=i, state="queued", robot=-1, done=0, t_ms=float(i),
+                      errands=[1])
+
+
+@pytest.mark.parametrize("damage", ["delete", "flip"])
+def test_a_wal_that_lost_synced_records_is_refused(tmp_path: Path, damage: str) -> None:
+    """Synced task records live in the WAL (no checkpoint yet); the process dies and the WAL
+    is deleted, or bits of its frames are flipped (SQLite then ignores the frames from the
+    first bad one: committed records roll back silently). The seal, synced after each synced
+    commit, shows what is missing: a one-line refusal, never a resume without them."""
+    path = tmp_path / "j.sqlite"
+    journal = Journal(path, checkpoint_period_s=3600.0)
+    _ticks(journal, 2)
+    for i in range(1, 6):
+        journal.append(_task(i))
+        journal.commit()
+    dead = tmp_path / "dead"  # the files as a killed process leaves them
+    dead.mkdir()
+    for suffix in ("", "-wal", ".seal"):
+        shutil.copy(f"{path}{suffix}", f"{dead / path.name}{suffix}")
+    journal.close()
+    wal = dead / "j.sqlite-wal"
+    if damage == "delete":
+        wal.unlink()
+    else:
+        data = bytearray(wal.read_bytes())
+        for k in range(20):
+            at = 32 + (k * 7919) % (len(data) - 32)
+            data[at] ^= 1 << (k % 8)
+        wal.write_bytes(bytes(data))
+    with pytest.raises(JournalError, match="lost synced records"):
+        list(Journal(dead / "j.sqlite").records())

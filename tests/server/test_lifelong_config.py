@@ -15,7 +15,7 @@ import pytest
 from gateway.planning.movingai import read_map
 from gateway.runtime.mapstore import resolve
 from gateway.server.config import ConfigError, load_config
-from gateway.server.lifelong_run import shift_from
+from gateway.server.runs.lifelong import shift_from
 from tests.server.task_client import call
 
 EXAMPLE = Path(__file__).parents[2] / "deploy" / "gateway.lifelong.example.toml"
@@ -26,8 +26,8 @@ def test_the_example_configures_every_key_of_a_shift() -> None:
     cfg = load_config(EXAMPLE, port=0)
     s = cfg.lifelong
     assert s is not None
-    assert (s.map, s.robots, s.scheduler, s.planner, s.period_ms, s.window) == (
-        "warehouse-small", 4, "shortest", "pibt", 1000.0, 0)
+    assert (s.map, s.robots, s.scheduler, s.max_wait_ms, s.planner, s.period_ms, s.window) == (
+        "warehouse-small", 4, "shortest", 45_000.0, "pibt", 1000.0, 0)
     for name in ("horizon", "window"):  # the horizon's two names
         other = load_config(None, lifelong={name: 5}).lifelong
         assert other is not None and other.window == 5

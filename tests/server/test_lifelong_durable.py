@@ -25,13 +25,13 @@ from bench.crash import (
     lifelong_shift,
     shift_defects,
 )
-from gateway.execution.lifelong import PlanRequest, Segment
+from gateway.execution.lifelong.executor import PlanRequest, Segment
 from gateway.planning.lorr import warehouse_problem
 from gateway.runtime.journal import Journal
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.server.items import OwnerCall
-from gateway.server.planner_process import PlannerProcess
+from gateway.server.runs.planner_process import PlannerProcess
 from protocol import SetThreshold
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet

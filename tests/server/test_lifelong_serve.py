@@ -17,7 +17,8 @@ from tracecheck import check_trace, read_trace
 ROBOTS = 10
 
 
-def _shift(tmp_path: Path, plan_ms: float, **lifelong: Any) -> tuple[ShiftStats, Gateway]:
+def _shift(tmp_path: Path, plan_ms: float, **lifelong: Any
+           ) -> tuple[ShiftStats, Gateway, str]:
     trace = tmp_path / "trace.jsonl"
     out: dict[str, Any] = {}
 
@@ -32,14 +33,15 @@ def _shift(tmp_path: Path, plan_ms: float, **lifelong: Any) -> tuple[ShiftStats,
             out["stats"] = await run_shift(gw, fleet, plan_ms)
             out["errors"] = list(fleet.stats.errors)
             out["gw"] = gw
+            out["metrics"] = gw.metrics.render().decode()
 
     asyncio.run(main())
     assert out["errors"] == []
-    return out["stats"], out["gw"]
+    return out["stats"], out["gw"], out["metrics"]
 
 
 def test_a_shift_over_websockets_finishes_tasks_safely(tmp_path: Path) -> None:
-    stats, gw = _shift(tmp_path, 40_000.0)
+    stats, gw, metrics = _shift(tmp_path, 40_000.0)
     assert stats.finished_tasks >= 5
     assert stats.lost == 0 and stats.duplicated == 0 and stats.collisions == 0
     records = read_trace(tmp_path / "trace.jsonl")
@@ -65,3 +67,8 @@ def test_a_shift_over_websockets_finishes_tasks_safely(tmp_path: Path) -> None:
                 if p[:2] == q[:2] and p[2] != q[2])
     assert turns > 0  # turning actions ran
     assert gw.engine.lifelong is not None and gw.engine.tasks is gw.engine.lifelong.tasks
+    # /metrics: the tasks' assignment waits (p50, p90, p99, max) in seconds
+    waits = [float(line.rsplit(" ", 1)[1]) for q in ("0.5", "0.9", "0.99", "1")
+             for line in metrics.splitlines()
+             if line.startswith(f'fleetgate_task_assignment_wait_seconds{{quantile="{q}"}}')]
+    assert len(waits) == 4 and waits == sorted(waits) and waits[3] > 0

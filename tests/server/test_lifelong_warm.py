@@ -15,16 +15,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from gateway.execution.errands import TaskDistances
-from gateway.execution.lifelong import LifelongExecutor, PlanRequest, WindowPlanner
-from gateway.execution.tasks import TaskPool
+from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.lifelong.executor import LifelongExecutor, PlanRequest, WindowPlanner
+from gateway.execution.lifelong.tasks import TaskPool
 from gateway.planning.distance import distance_tables
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.pibt import UNREACHABLE
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
-from gateway.server.planner_process import PlannerDied, PlannerProcess, Warm
+from gateway.server.runs.planner_process import PlannerDied, PlannerProcess, Warm
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import run_shift
 from tests.server.task_client import call
@@ -88,8 +88,8 @@ def test_the_gateway_calls_the_planner_at_its_period_off_the_tick_grid(
 
 
 def _oracle(grid: Any, cell: int) -> list[int]:
-    """Moves to ``cell`` from every cell by the plain search, capped as the tables are."""
-    row = distance_tables(grid, [grid.cell(cell)])[0]
+    """Moves to ``cell`` from every free cell by the plain search, capped as the tables are."""
+    row = distance_tables(grid, [grid.cell(cell)])[0][grid.free.ravel()]
     return np.where(row < 0, UNREACHABLE, np.minimum(row, UNREACHABLE)).tolist()
 
 

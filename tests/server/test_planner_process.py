@@ -18,7 +18,7 @@ from gateway.runtime.solver_time import SolverTime
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
-from gateway.server.planner_process import PlannerDied, PlannerProcess
+from gateway.server.runs.planner_process import PlannerDied, PlannerProcess
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import ShiftStats, run_shift, start_shift, stop_shift
@@ -46,7 +46,7 @@ def test_a_killed_planner_process_costs_one_error_line_and_the_shift_goes_on(
             assert run is not None
             first = out["first"] = run.planner.pid
             assert first is not None and first != os.getpid()
-            assert "gateway.server.planner_process" in _cmdline(first)
+            assert "gateway.server.runs.planner_process" in _cmdline(first)
             port = await gw.listen()
             grid = run.shift.grid
             free = [grid.cell(c) for c in range(grid.size) if grid.free.ravel()[c]]
@@ -98,7 +98,7 @@ def test_a_killed_planner_process_costs_one_error_line_and_the_shift_goes_on(
 
 
 def test_a_planner_process_answers_reports_errors_and_restarts() -> None:
-    from gateway.execution.lifelong import PlanRequest
+    from gateway.execution.lifelong.executor import PlanRequest
     from gateway.planning.lorr import warehouse_problem
 
     prob = warehouse_problem(4, 0, (2, 3), p_delay=0.0)

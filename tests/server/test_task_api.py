@@ -19,8 +19,8 @@ from openapi_spec_validator import validate as validate_spec
 from gateway.planning.grid import Cell, Grid
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
-from gateway.server.openapi import openapi_document
-from gateway.server.task_models import MAX_BATCH, MAX_BODY_BYTES
+from gateway.server.task_api.models import MAX_BATCH, MAX_BODY_BYTES
+from gateway.server.task_api.openapi import openapi_document
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import start_shift, stop_shift
@@ -287,12 +287,12 @@ def test_tasks_finish_once_and_the_stream_tells_every_change(tmp_path: Path) -> 
 
 
 def test_docs_tasks_md_is_up_to_date() -> None:
-    """docs/tasks.md is what ``python -m gateway.server.openapi`` renders now."""
-    from gateway.server.openapi import markdown
+    """docs/tasks.md is what ``python -m gateway.server.task_api.openapi`` renders now."""
+    from gateway.server.task_api.openapi import markdown
 
     doc = Path(__file__).resolve().parents[2] / "docs" / "tasks.md"
     assert doc.read_text() == markdown(), \
-        "docs/tasks.md is stale: python -m gateway.server.openapi > docs/tasks.md"
+        "docs/tasks.md is stale: python -m gateway.server.task_api.openapi > docs/tasks.md"
 
 
 def test_the_task_api_over_tls(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:

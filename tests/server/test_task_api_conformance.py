@@ -34,7 +34,7 @@ from openapi_spec_validator import validate as validate_spec
 
 from bench.crash import GatewayProcess, free_port
 from gateway.planning.lorr import warehouse_problem
-from gateway.server.http_api import _Dechunker
+from gateway.server.wire.http_api import _Dechunker
 from gateway.web import __file__ as web_init
 from tests.server.task_client import Reply, Sse, call, sse
 

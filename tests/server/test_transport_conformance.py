@@ -13,8 +13,8 @@ from typing import Any
 import pytest
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from gateway.server.auth import AuthError
 from gateway.server.gateway import Gateway
+from gateway.server.wire.auth import AuthError
 from protocol import ErrorCode, GetSnapshot, LoadPlan, Ok, SetThreshold
 from tests.server.conftest import LAB_PATHS, connector, make_config
 from tests.server.robots import ClientLink, Peer, TestRobot

@@ -80,7 +80,7 @@ def test_default_demo_replans_when_the_slack_crosses_the_threshold(tmp_path: Pat
 
 def test_without_headless_it_keeps_serving_until_ctrl_c() -> None:
     proc = subprocess.Popen([*FLEETGATE, "demo", "--port", "0", "--speed", "20", "--agents", "3",
-                             "--no-intruder"], stdout=subprocess.DEVNULL,
+                             "--no-intruder", "--start", "now"], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stderr is not None
@@ -97,7 +97,7 @@ def test_without_headless_it_keeps_serving_until_ctrl_c() -> None:
         assert health["gateway"] == "done"  # the run is over, the gateway still answers
         assert health["robots"] == 3
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=20) == 0
+        assert proc.wait(timeout=20) == 130  # Ctrl-C, after a clean stop (README)
     finally:
         proc.kill()
         proc.wait()

@@ -156,8 +156,8 @@ def test_a_fork_goes_on_exactly_as_the_run_it_was_forked_from(
     # ``vectorised`` lowers the size thresholds so that every tick of this small plan takes the
     # vectorised path. The fork, taken at 2 s, is compared tick by tick with a fresh run.
     if vectorised:
-        monkeypatch.setattr("gateway.execution.monitor.VECTOR_MIN_VERTICES", 1)
-        monkeypatch.setattr("gateway.execution.monitor.VECTOR_MIN_ACTIVE", 1)
+        monkeypatch.setattr("gateway.execution.oneshot.monitor.VECTOR_MIN_VERTICES", 1)
+        monkeypatch.setattr("gateway.execution.oneshot.monitor.VECTOR_MIN_ACTIVE", 1)
     grid = open_grid(6, 5)
     plan = random_plan(grid, 7, 14, random.Random(5))
     config = SimConfig(grid, plan, seed=3, policy="slack", threshold_ms=500.0,

@@ -13,13 +13,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gateway.execution.adg import ADG
 from gateway.execution.commands import SolveRequest
 from gateway.execution.errors import ExecutionError
-from gateway.execution.executor import Executor
-from gateway.execution.monitor import Monitor, algorithm1
-from gateway.execution.policies import ShadowPolicy
-from gateway.execution.shadow import forecast_completions
+from gateway.execution.oneshot.adg import ADG
+from gateway.execution.oneshot.executor import Executor
+from gateway.execution.oneshot.monitor import Monitor, algorithm1
+from gateway.execution.oneshot.policies import ShadowPolicy
+from gateway.execution.oneshot.shadow import forecast_completions
 from gateway.execution.trace_records import Record
 from gateway.planning.generators import random_instance
 from gateway.planning.movingai import read_map

@@ -23,13 +23,21 @@ if (!(await loggedIn())) {
   await new Promise(() => {}); // the page is being replaced
 }
 const conn = new Connection(url, { onMessage, onLink });
-const taskBoard = new TaskBoard($("tasks-card")); // shown only in lifelong mode
-taskBoard.start();
+// shown, and reading the task API, only once a snapshot says the gateway runs a shift
+const taskBoard = new TaskBoard($("tasks-card"), (t, text) => {
+  model.note(t, text, "plan");
+  logDirty = true;
+});
 
 // ------------------------------------------------------------------------- incoming
 function onMessage(msg) {
   if (msg.type === "snapshot") {
     snapshotAsked = 0;
+    if (msg.lifelong && !taskBoard.started) {
+      model.note(msg.t_ms, `lifelong shift on ${msg.map_name}: ${msg.robots.length} robots`);
+      logDirty = true;
+      taskBoard.start();
+    }
     model.applySnapshot(msg);
     mapView.setRows(msg.rows);
     showInstance(msg);
@@ -57,16 +65,16 @@ function onLink(state, detail) {
 
 let shownInstance = ""; // the loaded instance the Instance form last showed
 
-/** Show the gateway's loaded instance in the Instance form when it changes (a page opened
- * on a running demo shows what runs), never while the operator is editing the form. */
+/** Show the gateway's loaded instance (or shift) in the Instance form when it changes (a
+ * page opened on a running demo shows what runs), never while the operator is editing it. */
 function showInstance(snap) {
-  const robots = (snap.paths || []).length;
+  const robots = (snap.robots || []).length;
   const key = `${snap.map_name}|${snap.scen_name}|${robots}`;
-  if (!snap.map_name || snap.lifelong || key === shownInstance) return;
+  if (!snap.map_name || key === shownInstance) return;
   if ($("load-form").contains(document.activeElement)) return;
   shownInstance = key;
   $("map-name").value = snap.map_name;
-  if (snap.scen_name) $("scen-name").value = snap.scen_name;
+  $("scen-name").value = snap.scen_name || ""; // none: a generated instance
   if (robots > 0) $("agents").value = String(robots);
 }
 
@@ -146,9 +154,7 @@ $("map").addEventListener("click", (ev) => {
   command("place_intruder", { cell, duration_ms: seconds * 1000 }, "intruder");
 });
 
-$("generate").addEventListener("change", () => {
-  $("scen-name").disabled = $("generate").checked;
-});
+$("generate").addEventListener("change", syncControls);
 $("load-form").addEventListener("submit", (ev) => {
   ev.preventDefault();
   const fields = { map: $("map-name").value.trim(), agents: Number($("agents").value) };
@@ -171,11 +177,20 @@ function syncControls() {
   $("btn-start").disabled = !live || !(status === "loaded" || status === "done");
   $("btn-pause").disabled = !live || !(status === "running" || status === "replanning");
   $("btn-resume").disabled = !live || status !== "paused";
-  const budgetUsed = !!s && s.replans >= s.max_replans;
+  const budgetUsed = !!s && !s.lifelong && s.replans >= s.max_replans; // a shift has none
   $("btn-replan").disabled = !live || status !== "running" || budgetUsed;
   $("btn-replan").title = budgetUsed
     ? `the run's replan budget is used (${s.replans} of ${s.max_replans})` : "";
-  $("btn-load").disabled = !live || BUSY.has(status);
+  const shift = !!s && !!s.lifelong; // a shift's map and robots come from the configuration
+  $("btn-load").disabled = !live || BUSY.has(status) || shift;
+  for (const id of ["map-name", "scen-name", "generate", "gen-seed", "agents"]) {
+    $(id).disabled = shift || (id === "scen-name" && $("generate").checked);
+  }
+  $("instance-hint").hidden = !shift;
+  const worlds = s ? s.worlds : 0;
+  $("btn-intruder").disabled = !live || !worlds || !s.map_name;
+  $("btn-intruder").title = worlds ? "" : "no simulated world is connected to place one";
+  if (armed && $("btn-intruder").disabled) setArmed(false);
   if (!s) return;
   const focused = document.activeElement;
   if (focused !== $("policy")) $("policy").value = s.policy;
@@ -184,10 +199,13 @@ function syncControls() {
     $("speed").value = String(s.speed);
     $("speed-out").textContent = `${s.speed}×`;
   }
-  const thresholded = ["slack", "informed", "reschedule+slack"].includes(s.policy);
+  const thresholded = shift || ["slack", "informed", "reschedule+slack"].includes(s.policy);
   $("threshold").disabled = !thresholded;
-  $("policy-now").textContent = thresholded
-    ? `${s.policy}: slack > ${fmtS(s.threshold_ms)}` : s.policy;
+  $("policy").disabled = shift; // a shift plans a window every period, whatever the policy
+  $("policy").title = shift ? "a lifelong shift plans a window every period" : "";
+  $("policy-now").textContent = shift
+    ? `window every ${fmtS(s.period_ms)}, early at slack > ${fmtS(s.threshold_ms)}`
+    : thresholded ? `${s.policy}: slack > ${fmtS(s.threshold_ms)}` : s.policy;
 }
 
 function renderPanels() {
@@ -200,7 +218,9 @@ function renderPanels() {
   $("legend-errands").hidden = !s.lifelong;
   plan.dataset.plan = s.plan === null ? "" : String(s.plan);
   $("map-now").textContent = s.map_name ? `${s.map_name} · ${s.robots.length} robots` : "–";
-  const hasRun = s.plan !== null && !s.lifelong; // a shift has no SOC or plan costs
+  $("exec-costs").hidden = !!s.lifelong; // a shift has no SOC, makespan or plan costs
+  taskBoard.shiftRate(s.tasks_per_min);
+  const hasRun = s.plan !== null && !s.lifelong;
   $("soc").textContent = hasRun ? fmtS(s.soc_ms) : "–";
   $("makespan").textContent = hasRun ? fmtS(s.makespan_ms) : "–";
   $("est-soc").textContent = hasRun ? fmtS(s.est_soc_ms) : "–";

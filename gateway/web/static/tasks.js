@@ -1,7 +1,8 @@
 // Tasks of a lifelong shift (the task API): the queue, each robot's task and errand, the
-// finished tasks and a live throughput chart (tasks finished per minute of the gateway's
-// clock); the operator pauses, resumes and cancels tasks. The card stays hidden while the
-// gateway is not in lifelong mode. State: every open task (GET /tasks, page by page), then
+// finished tasks and a live throughput chart (tasks finished in each minute of the shift's
+// clock; the rate beside the title is the gateway's, the terminal's figure); the operator
+// adds, pauses, resumes and cancels tasks. The card stays hidden, and the task API unread,
+// until a snapshot says the gateway runs a shift. State: every open task (GET /tasks, page by page), then
 // the server-sent events from somewhat before that read: the older ones only give the chart
 // and the finished list their recent finishes, the newer ones change the tasks.
 
@@ -13,8 +14,13 @@ const OPEN = "queued,paused,assigned,started";
 const RECENT = 10; // finished tasks listed
 
 export class TaskBoard {
-  constructor(card) {
+  /** `onNote(t_ms, text)` gets a line for the event log when a task finishes. */
+  constructor(card, onNote = () => {}) {
     this.card = card;
+    this.onNote = onNote;
+    this.started = false;
+    this.fetchDue = false; // a read of the missing tasks is scheduled
+    this.perMin = null; // the gateway's tasks per minute of the shift
     this.tasks = new Map(); // id -> TaskView
     this.finishedAt = []; // t_ms of each finish seen (the chart's last BARS minutes)
     this.recent = []; // [task id, t_ms] of the latest finishes, newest first
@@ -30,7 +36,39 @@ export class TaskBoard {
   }
 
   async start() {
+    this.started = true;
+    this.card.querySelector("#task-form").addEventListener("submit", (e) => this.addTask(e));
     await this.reload();
+  }
+
+  /** The gateway's throughput (tasks per minute of the shift so far), from a snapshot. */
+  shiftRate(perMin) {
+    this.perMin = perMin ?? null;
+    this.$("tasks-rate").textContent = this.perMin === null ? ""
+      : `${this.perMin.toFixed(1)} / min`;
+  }
+
+  /** Submit the form's task (POST /tasks, as a warehouse system would). */
+  async addTask(e) {
+    e.preventDefault();
+    const errands = this.$("task-errands").value.trim().split(/\s+/)
+      .map((xy) => xy.split(",").map(Number));
+    const note = this.$("tasks-note");
+    const r = await fetch("/tasks", {
+      method: "POST", credentials: "same-origin",
+      headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ errands, priority: Number(this.$("task-priority").value) || 0 }),
+    });
+    const body = await r.json();
+    if (!r.ok) {
+      note.textContent = body.error;
+      return;
+    }
+    const task = body.tasks[0];
+    this.tasks.set(task.id, task);
+    note.textContent = `task ${task.id}: added`;
+    this.$("task-errands").value = "";
+    this.render();
   }
 
   /** Read every open task again (first load, and after a `reset` event). */
@@ -88,7 +126,10 @@ export class TaskBoard {
       this.scheduleRender();
       return;
     }
-    if (ev.state === "finished") this.finished += 1;
+    if (ev.state === "finished") {
+      this.finished += 1;
+      this.onNote(ev.t_ms, `task ${ev.task} finished by robot ${ev.robot ?? "?"}`);
+    }
     const t = this.tasks.get(ev.task);
     if (t === undefined) {
       if (ev.state !== "finished" && ev.state !== "cancelled") this.fetchTasks(ev.task);
@@ -104,8 +145,10 @@ export class TaskBoard {
    * read a page at a time, not one request each). */
   fetchTasks(id) {
     this.missing.add(id);
-    if (this.missing.size > 1) return; // a read is due already
+    if (this.fetchDue) return; // a read is due already
+    this.fetchDue = true;
     setTimeout(async () => {
+      this.fetchDue = false;
       const ids = this.missing;
       this.missing = new Set();
       const low = Math.min(...ids);
@@ -128,11 +171,6 @@ export class TaskBoard {
     setTimeout(() => { this.drawPending = false; this.render(); }, 200);
   }
 
-  /** Tasks finished in the minute of plan time up to now. */
-  rate() {
-    return this.finishedAt.filter((t) => t > this.nowMs - MINUTE).length;
-  }
-
   render() {
     this.finishedAt = this.finishedAt.filter((t) => t > this.nowMs - BARS * MINUTE);
     const all = [...this.tasks.values()];
@@ -140,18 +178,25 @@ export class TaskBoard {
       .sort((a, b) => (b.finished_ms ?? b.cancelled_ms) - (a.finished_ms ?? a.cancelled_ms));
     for (const t of ended.slice(KEEP_ENDED)) this.tasks.delete(t.id);
     const count = (s) => all.filter((t) => t.state === s).length;
+    const held = all.filter((t) => t.state === "assigned" || t.state === "started")
+      .sort((a, b) => a.robot - b.robot || (a.assigned_ms ?? 0) - (b.assigned_ms ?? 0)
+        || a.id - b.id);
+    const byRobot = new Map(); // robot -> its tasks, the one it does now first
+    for (const t of held) {
+      if (!byRobot.has(t.robot)) byRobot.set(t.robot, []);
+      byRobot.get(t.robot).push(t);
+    }
     this.$("tasks-counts").textContent = `${count("queued")} queued, ${count("paused")} paused, `
-      + `${count("assigned") + count("started")} at work, ${this.finished} finished`;
-    this.$("tasks-rate").textContent = `${this.rate()} / min`;
+      + `${byRobot.size} robots at work, ${this.finished} finished`;
+    this.$("tasks-empty").hidden = count("queued") + count("paused") + held.length > 0;
     const queue = all.filter((t) => t.state === "queued" || t.state === "paused")
       .sort((a, b) => b.priority - a.priority || a.id - b.id).slice(0, 30);
     this.$("queue-rows").replaceChildren(...queue.map((t) => row(t, [
       t.id, t.state, t.errands.map((c) => `(${c[0]},${c[1]})`).join(" → "), t.priority,
     ], [t.state === "paused" ? "resume" : "pause", "cancel"])));
-    const work = all.filter((t) => t.state === "assigned" || t.state === "started")
-      .sort((a, b) => a.robot - b.robot);
-    this.$("work-rows").replaceChildren(...work.map((t) => row(t, [
+    this.$("work-rows").replaceChildren(...[...byRobot.values()].map(([t, ...next]) => row(t, [
       t.robot, t.id, `${t.errands_done + 1} of ${t.errands.length}`,
+      next.map((n) => n.id).join(", "),
     ], t.errands_done === 0 ? ["pause", "cancel"] : []))); // started: no longer
     this.$("finished-list").replaceChildren(...this.recent.map(([id, t]) => {
       const li = document.createElement("li");

@@ -1,0 +1,121 @@
+"""One connection's outgoing side: a bounded send queue drained by its own writer task.
+
+The owner task never awaits a peer: it builds a message and puts it in the session's queue.
+If that queue is full the peer is too slow and the session is closed (code 1013), so one slow
+client never stalls the others. Also counts the peer's protocol errors (closing the connection
+on repeated abuse, code 1008: an error budget of ``max_errors`` that forgets one error every
+``error_decay_s``) and rate-limits it (token bucket on the loop clock).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from gateway.server.wire.auth import Peer
+from gateway.server.wire.transport import Link, LinkClosed
+from protocol import PROTOCOL_VERSION, AnyMessage, Error, ErrorCode, encode
+from protocol.messages import ProtocolVersion
+
+log = logging.getLogger("fleetgate.session")
+
+_ids = itertools.count(1)
+
+
+class Session:
+    """An authenticated connection as the gateway sees it."""
+
+    def __init__(self, link: Link, *, queue_size: int, max_errors: int, rate_per_s: float,
+                 rate_burst: float, error_decay_s: float = 1.0,
+                 on_error: Callable[[ErrorCode], None] | None = None) -> None:
+        self.link = link
+        self.peer: Peer = link.peer
+        self.id = next(_ids)
+        self._queue: asyncio.Queue[str | None] = asyncio.Queue(queue_size)
+        self._seq = itertools.count()
+        self._max_errors = max_errors
+        self._error_decay_s = error_decay_s
+        self.errors = 0
+        """Recent protocol errors (one forgotten per ``error_decay_s``)."""
+        self._errors_at = asyncio.get_running_loop().time()
+        self._on_error = on_error
+        self._rate = rate_per_s
+        self._burst = rate_burst
+        self._tokens = rate_burst
+        self._last = asyncio.get_running_loop().time()
+        self.closing = False
+        self.version: ProtocolVersion = PROTOCOL_VERSION
+        """The protocol version of this connection (a robot's ``hello`` fixes it)."""
+        self.writer = asyncio.create_task(self._write(), name=f"writer-{self.id}")
+
+    def __str__(self) -> str:
+        return f"{self.peer}#{self.id}"
+
+    def send(self, kind: type[AnyMessage], **fields: Any) -> AnyMessage | None:
+        """Build a message of type ``kind`` with this session's next msg_id/seq and queue it.
+
+        Returns the message, or None if the session is closing or was too slow (then closed).
+        """
+        if self.closing:
+            return None
+        seq = next(self._seq)
+        message = kind(v=self.version, msg_id=f"g{self.id}-{seq}", seq=seq, **fields)
+        try:
+            self._queue.put_nowait(encode(message))
+        except asyncio.QueueFull:
+            log.warning("send queue full, closing", extra={"peer": str(self)})
+            self.close(1013, "too slow: send queue full")
+            return None
+        return message
+
+    def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
+        """Reply ``error``; close the connection (1008) after too many in a short time."""
+        now = asyncio.get_running_loop().time()
+        forgiven = int((now - self._errors_at) / self._error_decay_s)
+        if forgiven >= self.errors:
+            self.errors, self._errors_at = 0, now
+        elif forgiven > 0:
+            self.errors -= forgiven
+            self._errors_at += forgiven * self._error_decay_s
+        self.errors += 1
+        if self._on_error is not None:
+            self._on_error(code)
+        self.send(Error, code=code, ref=ref, detail=detail)
+        if self.errors >= self._max_errors:
+            self.close(1008, f"too many protocol errors ({self._max_errors} recently)")
+
+    def allow(self) -> bool:
+        """Take one token of the rate limit; False if the peer sends too fast."""
+        now = asyncio.get_running_loop().time()
+        self._tokens = min(self._burst, self._tokens + (now - self._last) * self._rate)
+        self._last = now
+        if self._tokens < 1.0:
+            return False
+        self._tokens -= 1.0
+        return True
+
+    def close(self, code: int = 1000, reason: str = "") -> None:
+        """Flush what is queued, then close the link."""
+        if self.closing:
+            return
+        self.closing = True
+        self._close_args = (code, reason)
+        try:
+            self._queue.put_nowait(None)
+        except asyncio.QueueFull:
+            self.writer.cancel()
+            self._closer = asyncio.get_running_loop().create_task(self.link.close(code, reason))
+
+    async def _write(self) -> None:
+        try:
+            while True:
+                text = await self._queue.get()
+                if text is None:
+                    await self.link.close(*self._close_args)
+                    return
+                await self.link.send(text)
+        except LinkClosed:
+            self.closing = True

@@ -1,0 +1,93 @@
+"""How fleetgate and its simulated vehicles reach an MQTT broker: ``mqtt://host:port`` or, over
+TLS, ``mqtts://host:port``, with optional username and password (see docs/vda5050.md)."""
+
+from __future__ import annotations
+
+import ssl
+from pathlib import Path
+from typing import Annotated
+from urllib.parse import urlsplit
+
+import aiomqtt
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator
+
+from protocol.vda5050.models import Header, dump
+from protocol.vda5050.topics import QOS, RETAINED, TopicName
+
+
+class BrokerConfig(BaseModel):
+    """Where the broker is and how to log in."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    url: str = "mqtt://127.0.0.1:1883"
+    username: str | None = None
+    password: SecretStr | None = None
+    ca_file: Path | None = None
+    """CA bundle that signs the broker's certificate (mqtts; the system's by default)."""
+    cert_file: Path | None = None
+    key_file: Path | None = None
+    keepalive_s: Annotated[int, Field(ge=5, le=3600)] = 15
+    """MQTT keep-alive: the broker sends a vehicle's last will this long (x 1.5) after it
+    went silent; section 6.14 suggests about 15 s."""
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, value: str) -> str:
+        parts = urlsplit(value)
+        if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
+            raise ValueError(f"broker url must be mqtt://host[:port] or mqtts://host[:port], "
+                             f"got {value!r}")
+        if parts.path not in ("", "/") or parts.query or parts.username or parts.password:
+            raise ValueError("broker url holds only scheme, host and port (username and "
+                             "password are separate settings)")
+        return value
+
+    @property
+    def host(self) -> str:
+        """The broker's host name or address."""
+        host = urlsplit(self.url).hostname
+        assert host is not None
+        return host
+
+    @property
+    def tls(self) -> bool:
+        """Whether the connection uses TLS (``mqtts://``)."""
+        return urlsplit(self.url).scheme == "mqtts"
+
+    @property
+    def port(self) -> int:
+        """The broker's port (1883, or 8883 with TLS, unless given)."""
+        return urlsplit(self.url).port or (8883 if self.tls else 1883)
+
+    def tls_context(self) -> ssl.SSLContext | None:
+        """The client TLS context (certificate checked against ``ca_file`` or the system's
+        CAs), or None without TLS."""
+        if not self.tls:
+            return None
+        context = ssl.create_default_context(
+            cafile=str(self.ca_file) if self.ca_file is not None else None)
+        if self.cert_file is not None:
+            context.load_cert_chain(str(self.cert_file),
+                                    str(self.key_file) if self.key_file else None)
+        return context
+
+    def client(self, identifier: str, will: aiomqtt.Will | None = None) -> aiomqtt.Client:
+        """An (unconnected) client; use it as ``async with``."""
+        return aiomqtt.Client(
+            self.host, self.port, identifier=identifier, username=self.username,
+            password=self.password.get_secret_value() if self.password else None,
+            will=will, keepalive=self.keepalive_s, tls_context=self.tls_context(),
+            clean_session=True)
+
+
+def will(topic: str, message: Header) -> aiomqtt.Will:
+    """The last will: ``message`` (a CONNECTIONBROKEN ``connection``), QoS 1, retained."""
+    return aiomqtt.Will(topic, dump(message), qos=QOS["connection"], retain=True)
+
+
+async def publish(client: aiomqtt.Client, topic: str, name: TopicName,
+                  message: Header) -> None:
+    """Publish ``message`` on ``topic`` with the QoS and retain flag the standard sets for
+    topic ``name``."""
+    await client.publish(topic, dump(message), qos=QOS[name], retain=name in RETAINED)

@@ -1,0 +1,433 @@
+"""The master control's side of VDA 5050 for one vehicle, as a sans-I/O state machine (no I/O,
+no clock: times are arguments).
+
+The gateway speaks in actions (:class:`protocol.messages.Action`, one per plan step: a move, a
+90-degree turn or a wait) and expects started / finished / blocked / unblocked / cancelled /
+refused reports back. A vehicle speaks VDA 5050. :class:`VehicleMaster` translates:
+
+* every action is one edge and its end node (a turn's and a wait's edge start and end on the
+  same node). The first released actions become an order: its first node is where the vehicle
+  stands (the first action's source), the released actions are the base, the planned rest
+  (:meth:`VehicleMaster.set_plan`) the horizon. Actions released later extend the base with an
+  order update: the same ``orderId``, ``orderUpdateId`` + 1, its first node the decision point
+  (the last base node, resent unchanged with the same ``sequenceId``), never a base node before
+  it (section 6.6.2). ``sequenceId`` counts 0, 1, 2, ... over nodes and edges of an order;
+* ``state`` messages become reports, in the order of the actions and never twice: an action
+  whose end node is traversed (``lastNodeSequenceId`` reached its node) is finished (and
+  started first if no state showed it started); the next released action is started when the
+  vehicle drives (``driving`` and not ``paused``) after traversing its start node. A vehicle
+  that does not move on because of an obstacle (a protective field violation or a WARNING
+  error that is not an order rejection) blocks the action it waits to start; ``unblocked``
+  when that clears. States lost on the way (QoS 0) lose no report: the next state carries the
+  progress;
+* the gateway cancels actions it released but that have not started (a replan): the base
+  cannot be taken back, so the master sends ``cancelOrder``; once the vehicle reports it
+  finished (or failed: it had no order left) the actions it traversed meanwhile are finished
+  and the others cancelled. Released actions the gateway did not cancel go into a new order
+  from the vehicle's last node;
+* a vehicle that rejects an order or update (an error referring to its ``orderId``, e.g.
+  ``validationError``, ``orderError``, ``orderUpdateError``, ``noRouteError``) refuses its
+  first action and, with it, every later released action; the rejection of an update that
+  came after a lost one is no refusal (the lost one is resent, then the rest);
+* ``pause`` / ``resume`` are the instant actions ``startPause`` / ``stopPause``;
+  ``stateRequest`` and ``factsheetRequest`` are sent on request;
+* the ``connection`` topic (ONLINE, OFFLINE, the last will CONNECTIONBROKEN) is the link state;
+* everything is QoS 0 and may be lost: an order message the vehicle has not acknowledged (its
+  state shows an older ``orderUpdateId``) within ``resend_s`` is sent again, with every update
+  after the one the vehicle holds, in order (the vehicle ignores a duplicate
+  ``orderId``/``orderUpdateId``); so are a pause or resume its ``paused`` does not show and a
+  ``cancelOrder`` missing from its ``actionStates`` (:meth:`VehicleMaster.tick`).
+
+The ``orderId`` of an order is ``"<run>.<plan>.<robot>.<first action index>"``: unique for a
+run, plan epoch and start, so a master restarted from its journal names it again the same way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+from protocol.messages import Action, plan_key
+from protocol.vda5050.models import Action as VdaAction
+from protocol.vda5050.models import (
+    Connection,
+    Edge,
+    Header,
+    InstantActions,
+    Node,
+    Order,
+    State,
+    VdaVersion,
+)
+from protocol.vda5050.nodes import NodeMap
+from protocol.vda5050.topics import Headers, TopicName, VehicleTopics
+
+REJECTIONS = frozenset({"validationError", "orderError", "orderUpdateError", "noRouteError"})
+"""Error types that mean the vehicle did not take an order over (section 6.6.4)."""
+
+ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled", "refused"]
+
+
+@dataclass(frozen=True, slots=True)
+class Publish:
+    """Send ``message`` on the vehicle's topic ``topic``."""
+
+    topic: TopicName
+    message: Header
+
+
+@dataclass(frozen=True, slots=True)
+class Report:
+    """What the vehicle did with action ``action_id``, for the executor."""
+
+    kind: ReportKind
+    action_id: str
+    detail: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class LinkState:
+    """The vehicle's connection changed (``connection`` topic)."""
+
+    online: bool
+    state: str
+
+
+Effect = Publish | Report | LinkState
+
+
+@dataclass(slots=True)
+class _Step:
+    """A released action in the current order: its edge's sequence id and its end node."""
+
+    action: Action
+    edge_seq: int
+    node: Node
+    started: bool = False
+    finished: bool = False
+    blocked: bool = False
+
+    @property
+    def node_seq(self) -> int:
+        return self.edge_seq + 1
+
+
+@dataclass(slots=True)
+class _Sent:
+    """An order message and when it was last sent."""
+
+    order: Order
+    sent_s: float
+    first_step: int
+
+
+@dataclass(slots=True)
+class _Order:
+    """The order the vehicle holds or is being sent."""
+
+    order_id: str
+    start: Node
+    steps: list[_Step] = field(default_factory=list)
+    sent: list[_Sent] = field(default_factory=list)
+    cancel_id: str | None = None
+    dead: bool = False
+
+    @property
+    def update_id(self) -> int:
+        return len(self.sent) - 1
+
+    def decision_point(self) -> Node:
+        """The last base node, as it was first sent."""
+        return self.steps[-1].node if self.steps else self.start
+
+
+class VehicleMaster:
+    """Drives one vehicle (see the module docstring). Feed it the gateway's releases, cancels
+    and pauses and the vehicle's messages; take what :meth:`drain` returns, in order."""
+
+    def __init__(self, topics: VehicleTopics, version: VdaVersion, nodes: NodeMap, *,
+                 resend_s: float = 1.0) -> None:
+        self.topics = topics
+        self.version = version
+        self.nodes = nodes
+        self.resend_s = resend_s
+        self.online = False
+        self.state: State | None = None
+        self._order: _Order | None = None
+        self._plan: list[Action] = []
+        self._carry: list[Action] = []
+        self._cancelled: set[str] = set()
+        self._header = Headers(version, topics)
+        self._instant = 0
+        self._want_paused: bool | None = None
+        self._pause_sent_s = 0.0
+        self._cancel_sent_s = 0.0
+        self._effects: list[Effect] = []
+
+    # ------------------------------------------------------------------ gateway -> vehicle
+
+    def set_plan(self, actions: Sequence[Action]) -> None:
+        """The robot's planned actions of the current plan (the horizon is the part after the
+        last released one); an empty sequence sends no horizon."""
+        self._plan = list(actions)
+
+    def release(self, actions: Sequence[Action], now_s: float) -> None:
+        """The gateway released ``actions`` (in index order, after those released before):
+        extend the base with an order update, or start a new order."""
+        if not actions:
+            return
+        order = self._order
+        if order is not None and not order.dead and order.cancel_id is not None:
+            self._carry.extend(actions)  # a new order once the cancelOrder completes
+        elif (order is None or order.dead
+              or not order.order_id.startswith(plan_key(actions[0].action_id) + ".")):
+            self._new_order(list(actions), now_s)
+        else:
+            self._update(order, list(actions), now_s)
+
+    def cancel(self, action_ids: Iterable[str], now_s: float) -> None:
+        """The gateway cancels these released, unstarted actions (a replan)."""
+        order = self._order
+        ids = set(action_ids)
+        carried = [a for a in self._carry if a.action_id in ids]
+        for action in carried:
+            self._carry.remove(action)
+            self._emit(Report("cancelled", action.action_id))
+        ids -= {a.action_id for a in carried}
+        if order is None or not ids:
+            return
+        live = {s.action.action_id for s in order.steps if not s.finished}
+        self._cancelled |= ids & live
+        if not (ids & live) or order.cancel_id is not None or order.dead:
+            return
+        order.cancel_id = self._instant_action("cancelOrder", now_s)
+        self._cancel_sent_s = now_s
+
+    def pause(self, now_s: float) -> None:
+        """Stop driving (``startPause``); the order is kept."""
+        self._want_paused = True
+        self._pause_sent_s = now_s
+        self._instant_action("startPause", now_s)
+
+    def resume(self, now_s: float) -> None:
+        """Drive on (``stopPause``)."""
+        self._want_paused = False
+        self._pause_sent_s = now_s
+        self._instant_action("stopPause", now_s)
+
+    def request_state(self, now_s: float) -> None:
+        """Ask for a ``state`` message now (``stateRequest``)."""
+        self._instant_action("stateRequest", now_s)
+
+    def request_factsheet(self, now_s: float) -> None:
+        """Ask for the ``factsheet`` (``factsheetRequest``)."""
+        self._instant_action("factsheetRequest", now_s)
+
+    def tick(self, now_s: float) -> None:
+        """Send again what the vehicle has not acted on for ``resend_s``: order messages it
+        does not hold, a pause or resume its ``paused`` does not show, a cancelOrder it does
+        not list."""
+        order, state = self._order, self.state
+        due = now_s - self.resend_s
+        if (state is not None and state.paused is not None and self._want_paused is not None
+                and state.paused != self._want_paused and self._pause_sent_s <= due):
+            (self.pause if self._want_paused else self.resume)(now_s)
+        if (order is not None and order.cancel_id is not None and not order.dead
+                and state is not None and self._cancel_sent_s <= due
+                and all(a.action_id != order.cancel_id for a in state.action_states)):
+            self._cancel_sent_s = now_s
+            self._emit(Publish("instantActions", self._instant_message(
+                "cancelOrder", order.cancel_id, now_s)))
+        if order is None or order.dead or not order.sent:
+            return
+        held = state.order_update_id if state and state.order_id == order.order_id else -1
+        pending = [s for s in order.sent[held + 1:]]
+        if pending and now_s - pending[0].sent_s >= self.resend_s:
+            for sent in pending:
+                sent.sent_s = now_s
+                self._emit(Publish("order", sent.order))
+
+    # ------------------------------------------------------------------ vehicle -> gateway
+
+    def receive_connection(self, msg: Connection) -> None:
+        """The vehicle's ``connection`` message (or its last will)."""
+        online = msg.connection_state == "ONLINE"
+        if online != self.online:
+            self.online = online
+            self._emit(LinkState(online, msg.connection_state))
+
+    def receive_state(self, msg: State, now_s: float) -> None:
+        """A ``state`` message: reports for the executor."""
+        self.state = msg
+        order = self._order
+        if order is None or order.dead:
+            return
+        if self._rejected(order, msg):
+            return
+        if msg.order_id != order.order_id:
+            return  # the vehicle does not hold this order yet (tick() resends it)
+        self._progress(order, msg)
+        if order.cancel_id is not None:
+            status = next((a.action_status for a in msg.action_states
+                           if a.action_id == order.cancel_id), None)
+            if status in ("FINISHED", "FAILED"):
+                self._cancel_done(order, now_s)
+
+    def drain(self) -> list[Effect]:
+        """What to send and report, in order (then cleared)."""
+        effects, self._effects = self._effects, []
+        return effects
+
+    # ------------------------------------------------------------------ internals
+
+    def _emit(self, effect: Effect) -> None:
+        self._effects.append(effect)
+
+    def _instant_action(self, action_type: str, now_s: float) -> str:
+        self._instant += 1
+        action_id = f"{action_type}-{self._instant}"
+        self._emit(Publish("instantActions",
+                           self._instant_message(action_type, action_id, now_s)))
+        return action_id
+
+    def _instant_message(self, action_type: str, action_id: str,
+                         now_s: float) -> InstantActions:
+        return InstantActions(**self._header("instantActions", now_s),
+                              actions=[VdaAction(action_type=action_type, action_id=action_id,
+                                                 blocking_type="HARD")])
+
+    def _node(self, action: Action, seq: int, released: bool) -> Node:
+        dst = action.dst
+        return Node(node_id=self.nodes.node_id(dst.cell), sequence_id=seq, released=released,
+                    node_position=self.nodes.position(dst.cell, dst.heading))
+
+    def _edge(self, action: Action, seq: int, released: bool) -> Edge:
+        src, dst = self.nodes.node_id(action.src.cell), self.nodes.node_id(action.dst.cell)
+        return Edge(edge_id=self.nodes.edge_id(action.src.cell, action.dst.cell),
+                    sequence_id=seq, released=released, start_node_id=src, end_node_id=dst)
+
+    def _horizon(self, last: Action, seq: int) -> tuple[list[Node], list[Edge]]:
+        """Nodes and edges of the planned actions after ``last``, from sequence id ``seq``."""
+        after = [a for a in self._plan if plan_key(a.action_id) == plan_key(last.action_id)
+                 and a.sequence > last.sequence]
+        nodes: list[Node] = []
+        edges: list[Edge] = []
+        for action in after:
+            edges.append(self._edge(action, seq, False))
+            nodes.append(self._node(action, seq + 1, False))
+            seq += 2
+        return nodes, edges
+
+    def _send(self, order: _Order, nodes: list[Node], edges: list[Edge], first_step: int,
+              now_s: float) -> None:
+        last = order.steps[-1].action if order.steps else None
+        h_nodes, h_edges = self._horizon(last, len(nodes) + len(edges) + nodes[0].sequence_id) \
+            if last else ([], [])
+        msg = Order(**self._header("order", now_s),
+                    order_id=order.order_id, order_update_id=len(order.sent),
+                    nodes=nodes + h_nodes, edges=edges + h_edges)
+        order.sent.append(_Sent(msg, now_s, first_step))
+        self._emit(Publish("order", msg))
+
+    def _new_order(self, actions: list[Action], now_s: float) -> None:
+        first = actions[0]
+        start = Node(node_id=self.nodes.node_id(first.src.cell), sequence_id=0, released=True,
+                     node_position=self.nodes.position(first.src.cell, first.src.heading))
+        order_id = f"{plan_key(first.action_id)}.{first.sequence}"
+        if self.state is not None and self.state.order_id.startswith(order_id):
+            order_id += f"r{self.state.order_update_id + 1}"  # never reuse the vehicle's id
+        order = _Order(order_id=order_id, start=start)
+        self._order = order
+        self._append(order, [start], actions, now_s)
+
+    def _update(self, order: _Order, actions: list[Action], now_s: float) -> None:
+        self._append(order, [order.decision_point()], actions, now_s)
+
+    def _append(self, order: _Order, nodes: list[Node], actions: list[Action],
+                now_s: float) -> None:
+        first_step = len(order.steps)
+        edges: list[Edge] = []
+        seq = nodes[0].sequence_id + 1
+        for action in actions:
+            node = self._node(action, seq + 1, True)
+            order.steps.append(_Step(action, seq, node))
+            edges.append(self._edge(action, seq, True))
+            nodes.append(node)
+            seq += 2
+        self._send(order, nodes, edges, first_step, now_s)
+
+    def _rejected(self, order: _Order, msg: State) -> bool:
+        """Refuse the actions of an order message the vehicle rejected; True if it did."""
+        for error in msg.errors:
+            refs = {r.reference_key: r.reference_value for r in error.error_references or ()}
+            if error.error_type not in REJECTIONS or refs.get("orderId") != order.order_id:
+                continue
+            update = refs.get("orderUpdateId")
+            held = msg.order_update_id if msg.order_id == order.order_id else -1
+            index = int(update) if update and update.isdigit() else held + 1
+            if index != held + 1 or index >= len(order.sent):
+                continue  # stale, or an update after a lost one: tick() resends the gap
+            first = order.sent[index].first_step
+            for step in order.steps[first:]:
+                if not step.finished:
+                    self._emit(Report("refused", step.action.action_id,
+                                      f"{error.error_type}: {error.error_description or ''}"))
+            del order.steps[first:]
+            del order.sent[index:]
+            if not order.sent:
+                order.dead = True
+            return True
+        return False
+
+    def _progress(self, order: _Order, msg: State) -> None:
+        reached = msg.last_node_sequence_id
+        obstacle = msg.safety_state.field_violation or any(
+            e.error_level == "WARNING" and e.error_type not in REJECTIONS for e in msg.errors)
+        moving = msg.driving and not msg.paused
+        for i, step in enumerate(order.steps):
+            if step.finished:
+                continue
+            aid = step.action.action_id
+            if step.node_seq <= reached:
+                if not step.started:
+                    self._started(step)
+                step.finished = True
+                self._emit(Report("finished", aid))
+                continue
+            first_open = i == 0 or order.steps[i - 1].finished
+            if not first_open or step.started:
+                break
+            if step.edge_seq - 1 <= reached and moving and aid not in self._cancelled:
+                self._started(step)
+            elif obstacle and not step.blocked:
+                step.blocked = True
+                self._emit(Report("blocked", aid))
+            elif not obstacle and step.blocked and aid not in self._cancelled:
+                step.blocked = False
+                self._emit(Report("unblocked", aid))
+            break
+
+    def _started(self, step: _Step) -> None:
+        if step.blocked:
+            step.blocked = False
+            self._emit(Report("unblocked", step.action.action_id))
+        step.started = True
+        self._emit(Report("started", step.action.action_id))
+
+    def _cancel_done(self, order: _Order, now_s: float) -> None:
+        """The vehicle stands still without its order: cancelled or re-sent actions."""
+        order.dead = True
+        rest = [s for s in order.steps if not s.finished]
+        carry: list[Action] = []
+        for step in rest:
+            aid = step.action.action_id
+            if aid in self._cancelled:
+                self._emit(Report("cancelled", aid))
+            else:
+                carry.append(step.action)
+        self._cancelled.clear()
+        carry.extend(self._carry)
+        self._carry = []
+        if carry:
+            self._new_order(carry, now_s)

@@ -1,0 +1,77 @@
+"""Many simulated VDA 5050 vehicles (:class:`sim_clients.vda_vehicle.VdaVehicle`) in one
+process, each with its own MQTT connection (and so its own last will); on a shared
+:class:`sim_clients.world.World` a vehicle does not enter a cell another robot, vehicle or
+obstacle holds.
+
+Real time: ``time.time()`` drives them; their speed is the vehicles' ``move_s``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Iterable
+from typing import Any
+
+import aiomqtt
+
+from gateway.vda5050.broker import BrokerConfig, publish, will
+from protocol.vda5050.master import Publish
+from protocol.vda5050.topics import MASTER_PUBLISHES
+from sim_clients.vda_vehicle import VdaVehicle
+
+log = logging.getLogger("fleetgate.sim.vda5050")
+
+
+async def run_vehicle(vehicle: VdaVehicle, broker: BrokerConfig, stop: asyncio.Event) -> None:
+    """Connect ``vehicle`` (last will CONNECTIONBROKEN, then ONLINE), follow its orders until
+    ``stop`` is set, then go OFFLINE and disconnect gracefully."""
+    topics = vehicle.topics
+    broken, online = vehicle.connect(time.time())
+    client = broker.client(f"{topics.manufacturer}-{topics.serial}",
+                           will(topics.topic("connection"), broken.message))
+    async with client:
+        for name in MASTER_PUBLISHES:
+            await client.subscribe(topics.topic(name), qos=0)
+        await publish(client, topics.topic("connection"), "connection", online.message)
+        messages = aiter(client.messages)
+        stopping: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
+        nxt: asyncio.Future[Any] | None = None
+        try:
+            while not stop.is_set():
+                vehicle.step(time.time())
+                await _send(client, vehicle.drain(), vehicle)
+                wait = max(0.0, vehicle.next_wakeup_s() - time.time())
+                if nxt is None:
+                    nxt = asyncio.ensure_future(anext(messages))
+                waiting: set[asyncio.Future[Any]] = {nxt, stopping}
+                done, _ = await asyncio.wait(waiting, timeout=wait,
+                                             return_when=asyncio.FIRST_COMPLETED)
+                if nxt in done:
+                    msg, nxt = nxt.result(), None
+                    assert isinstance(msg, aiomqtt.Message)
+                    payload = msg.payload if isinstance(msg.payload, bytes | str) else b""
+                    vehicle.receive(str(msg.topic).rsplit("/", 1)[-1], payload, time.time())
+        finally:
+            stopping.cancel()
+            if nxt is not None:
+                nxt.cancel()
+                with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                    await nxt
+        offline = vehicle.disconnect(time.time())
+        await publish(client, topics.topic("connection"), "connection", offline.message)
+
+
+async def _send(client: aiomqtt.Client, out: Iterable[Publish], vehicle: VdaVehicle) -> None:
+    for item in out:
+        await publish(client, vehicle.topics.topic(item.topic), item.topic, item.message)
+
+
+async def run_fleet(vehicles: list[VdaVehicle], broker: BrokerConfig,
+                    stop: asyncio.Event) -> None:
+    """Run every vehicle until ``stop`` is set."""
+    async with asyncio.TaskGroup() as group:
+        for vehicle in vehicles:
+            group.create_task(run_vehicle(vehicle, broker, stop))

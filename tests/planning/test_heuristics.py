@@ -1,0 +1,76 @@
+"""The planner's tables over the free cells: equal to a plain BFS, and, under ``turning``,
+never above the exact turning cost they stand in for (an admissible lower bound)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
+from gateway.planning.grid import Grid
+from gateway.planning.pibt import UNREACHABLE, StateSpace, goal_tables
+from tests.planning.test_cbs_low_level import bfs
+
+grids = arrays(bool, st.tuples(st.integers(1, 9), st.integers(1, 9)), elements=st.booleans())
+
+
+def _grid(free: np.ndarray) -> tuple[Grid, list[int]]:
+    """The grid (one free cell at least) and its free cells' flat ids."""
+    if not free.any():
+        free[0, 0] = True
+    grid = Grid(free)
+    return grid, np.flatnonzero(grid.free.ravel()).tolist()
+
+
+@settings(max_examples=60, deadline=None)
+@given(grids, st.data())
+def test_compact_rows_equal_breadth_first_search(free: np.ndarray, data: st.DataObject) -> None:
+    grid, cells = _grid(free)
+    goals = data.draw(st.lists(st.sampled_from(cells), min_size=1, max_size=8))
+    rows = cell_distance_rows(grid, goals)
+    index = free_index(grid)
+    assert sorted(index[cells].tolist()) == list(range(len(cells)))
+    for goal, row in zip(goals, rows, strict=True):
+        want = bfs(grid, goal)
+        assert row.tolist() == [want[c] for c in cells]
+
+
+@st.composite
+def grid_and_cell(draw: st.DrawFn) -> tuple[Grid, list[int], int]:
+    """A drawn grid, its free cells and one of them."""
+    grid, cells = _grid(draw(grids))
+    return grid, cells, draw(st.sampled_from(cells))
+
+
+@settings(max_examples=60, deadline=None)
+@given(grid_and_cell())
+def test_cell_tables_never_exceed_the_turning_cost(case: tuple[Grid, list[int], int]) -> None:
+    grid, cells, goal = case
+    exact = goal_tables(grid, True, [goal])[goal]
+    lower = goal_tables(grid, False, [goal])[goal]
+    assert list(exact) == np.where(
+        (t := turning_distance_tables(grid, [grid.cell(goal)])[0]) < 0, UNREACHABLE, t).tolist()
+    index = free_index(grid)
+    for c in cells:
+        for h in range(4):
+            bound, cost = lower[index[c]], exact[4 * c + h]
+            assert bound <= cost  # also: unreachable in one is unreachable in the other
+            assert (bound == UNREACHABLE) == (cost == UNREACHABLE)
+        assert (lower[index[c]] == 0) == (c == goal) == (min(exact[4 * c:4 * c + 4]) == 0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(grid_and_cell(), st.integers(0, 3))
+def test_each_option_is_weighed_by_its_cell_or_state(case: tuple[Grid, list[int], int],
+                                                     h: int) -> None:
+    grid, _, c = case
+    exact, lower = StateSpace(grid, True, exact=True), StateSpace(grid, True, exact=False)
+    assert exact.exact and not lower.exact
+    index = free_index(grid)
+    pairs = zip(exact.options[4 * c + h], lower.options[4 * c + h], strict=True)
+    for (c1, e1, t1, s1), (c2, e2, t2, s2) in pairs:
+        assert (c1, t1, s1) == (c2, t2, s2)
+        assert e2 == index[c1] and e1 >> 2 == c1
+    assert StateSpace(grid, False).options[c][0] == (c, index[c], 0, c)

@@ -1,0 +1,193 @@
+"""The sans-I/O master control against the simulated vehicle in virtual time: orders and
+updates, reports for the executor, cancel, pause, rejection, lost messages, connection; every
+message on the wire validates against the official schema of its version."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from protocol.vda5050.master import LinkState, Report
+from protocol.vda5050.models import VERSIONS, Connection, VdaVersion
+from sim_clients.world import INTRUDER, World
+from tests.vda5050.loop import Loop, actions_of
+from tests.vda5050.schemas import assert_valid, needs_schemas
+
+# east 2 cells, turn left (north), north 1 cell, wait: 5 actions
+PATH = [(0, 5, 0), (1, 5, 0), (2, 5, 0), (2, 5, 3), (2, 4, 3), (2, 4, 3)]
+
+
+def _orders(loop: Loop) -> list[dict[str, object]]:
+    return [json.loads(p) for t, p in loop.traffic if t == "order"]
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_base_extended_by_updates_and_every_action_reported_in_order(version: VdaVersion) -> None:
+    loop = Loop(version, PATH[0])
+    actions = actions_of(PATH)
+    loop.master.set_plan(actions)
+    loop.master.release(actions[:2], loop.now)
+    loop.run(1.5)
+    assert [r.kind for r in loop.reports] == ["started", "finished", "started"]
+    loop.master.release(actions[2:4], loop.now)
+    loop.run(3.2)
+    loop.master.release(actions[4:], loop.now)
+    loop.run(10)
+    for a in actions:
+        assert loop.kinds(a.action_id) == ["started", "finished"], a.action_id
+    assert [r.action_id for r in loop.reports if r.kind == "finished"] == [
+        a.action_id for a in actions]
+    orders = _orders(loop)
+    assert [o["orderUpdateId"] for o in orders] == [0, 1, 2]
+    assert len({o["orderId"] for o in orders}) == 1
+    first, second, third = orders
+    # base of order 0: start node + 2 released actions; the horizon holds the other 3
+    assert [n["released"] for n in first["nodes"]] == [True] * 3 + [False] * 3
+    assert [n["sequenceId"] for n in first["nodes"]] == [0, 2, 4, 6, 8, 10]
+    # an update starts at the decision point (node seq 4), resends no earlier base node
+    assert second["nodes"][0]["sequenceId"] == 4 and second["nodes"][0]["released"]
+    assert second["nodes"][0] == first["nodes"][2]
+    assert [n["sequenceId"] for n in third["nodes"]] == [8, 10]
+    # the turn keeps the cell and changes theta: east 0 -> north pi/2
+    turn = second["nodes"][1]
+    assert turn["nodeId"] == "n2_5" and turn["nodePosition"]["theta"] == pytest.approx(1.5708,
+                                                                                       abs=1e-4)
+    assert loop.vehicle.cell == (2, 4) and not loop.vehicle.errors
+    # 5 actions of 1 s each, with the vehicle never waiting for a release: 5 s
+    assert loop.vehicle.last_node_seq == 10
+
+
+@needs_schemas
+@pytest.mark.parametrize("version", VERSIONS)
+def test_all_traffic_validates(version: VdaVersion) -> None:
+    loop = Loop(version, PATH[0])
+    actions = actions_of(PATH)
+    loop.master.set_plan(actions)
+    loop.master.release(actions[:3], loop.now)
+    loop.master.pause(loop.now)
+    loop.run(2)
+    loop.master.resume(loop.now)
+    loop.master.request_state(loop.now)
+    loop.master.cancel([actions[2].action_id], loop.now)
+    loop.run(6)
+    loop.master.release(actions[3:], loop.now)
+    loop.run(12)
+    topics = {t for t, _ in loop.traffic}
+    assert {"order", "instantActions", "state", "connection"} <= topics
+    for topic, payload in loop.traffic:
+        assert_valid(version, topic, payload)
+
+
+def test_pause_holds_the_vehicle_and_resume_continues() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    actions = actions_of(PATH)
+    loop.master.pause(loop.now)
+    loop.master.release(actions, loop.now)
+    loop.run(3)
+    assert loop.reports == [] and loop.vehicle.cell == (0, 5) and loop.vehicle.paused
+    loop.master.resume(loop.now)
+    loop.run(9)
+    assert loop.kinds(actions[-1].action_id) == ["started", "finished"]
+
+
+def test_cancel_order_then_new_order_from_the_last_node() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    actions = actions_of(PATH)
+    loop.master.release(actions[:4], loop.now)
+    loop.run(0.5)  # action 0 is running: it completes, 1..3 are cancelled
+    loop.master.cancel([a.action_id for a in actions[1:4]], loop.now)
+    loop.run(3)
+    assert loop.kinds(actions[0].action_id) == ["started", "finished"]
+    for a in actions[1:4]:
+        assert loop.kinds(a.action_id) == ["cancelled"]
+    assert loop.vehicle.cell == (1, 5) and not loop.vehicle.held.nodes
+    sent = [json.loads(p) for t, p in loop.traffic if t == "instantActions"]
+    assert sent[-1]["actions"][0]["actionType"] == "cancelOrder"
+    # a replan: plan 1 starts where the vehicle stands, as a new order
+    new = actions_of([(1, 5, 0), (2, 5, 0)], plan=1)
+    loop.master.release(new, loop.now)
+    loop.run(5)
+    assert loop.kinds(new[0].action_id) == ["started", "finished"]
+    orders = _orders(loop)
+    assert orders[-1]["orderId"] != orders[0]["orderId"] and orders[-1]["orderUpdateId"] == 0
+    assert orders[-1]["nodes"][0]["nodeId"] == "n1_5" and not loop.vehicle.errors
+
+
+def test_cancel_when_the_vehicle_finished_first() -> None:
+    loop = Loop("2.0.0", PATH[0])
+    actions = actions_of(PATH[:3])
+    loop.master.release(actions, loop.now)
+    loop.run(5)  # both done; the cancel comes late: noOrderToCancel, nothing is cancelled
+    loop.master.cancel([actions[1].action_id], loop.now)
+    loop.run(6)
+    assert [r.kind for r in loop.reports] == ["started", "finished"] * 2
+
+
+def test_lost_order_update_is_resent() -> None:
+    loop = Loop("2.1.0", PATH[0], drop={1})  # the first update is lost (QoS 0)
+    actions = actions_of(PATH)
+    loop.master.release(actions[:1], loop.now)
+    loop.master.release(actions[1:], loop.now)
+    loop.run(10)
+    assert all(loop.kinds(a.action_id) == ["started", "finished"] for a in actions)
+    assert [o["orderUpdateId"] for o in _orders(loop)] == [0, 1, 1]
+
+
+def test_rejected_order_is_refused() -> None:
+    loop = Loop("2.1.0", (4, 4, 0))  # the vehicle is not where the order starts
+    actions = actions_of(PATH)
+    loop.master.release(actions[:2], loop.now)
+    loop.run(2)
+    assert [(r.kind, r.action_id) for r in loop.reports] == [
+        ("refused", actions[0].action_id), ("refused", actions[1].action_id)]
+    assert "noRouteError" in loop.reports[0].detail
+    assert loop.vehicle.errors[0].error_type == "noRouteError"
+
+
+def test_blocked_while_the_next_cell_is_taken() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    world = World()
+    world.occupy((1, 5), INTRUDER, 0.0)
+    loop.vehicle.world = world
+    world.occupy((0, 5), 0, 0.0)
+    actions = actions_of(PATH[:3])
+    loop.master.release(actions, loop.now)
+    loop.run(2)
+    assert [r.kind for r in loop.reports] == ["blocked"] and loop.vehicle.cell == (0, 5)
+    world.release((1, 5), INTRUDER)
+    loop.run(5)
+    assert loop.kinds(actions[0].action_id) == ["blocked", "unblocked", "started", "finished"]
+    assert world.collisions == [] and world.holders((2, 5)) == (0,)
+
+
+def test_connection_is_the_link_state() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    assert loop.links == [] or loop.links[-1].online
+    loop.pump()
+    assert loop.links == [LinkState(True, "ONLINE")]
+    will = loop.vehicle.connect(loop.now)[0].message
+    assert isinstance(will, Connection)
+    loop.master.receive_connection(will)
+    assert loop.master.drain() == [LinkState(False, "CONNECTIONBROKEN")]
+    assert Report("started", "x") != Report("finished", "x")
+
+
+def test_cancel_while_blocked_leaves_the_vehicle_ready_for_a_new_order() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    world = World()
+    loop.vehicle.world = world
+    world.occupy((0, 5), 0, 0.0)
+    world.occupy((1, 5), INTRUDER, 0.0)
+    actions = actions_of(PATH[:3])
+    loop.master.release(actions, loop.now)
+    loop.run(1)
+    loop.master.cancel([a.action_id for a in actions], loop.now)
+    loop.run(2)
+    assert [r.kind for r in loop.reports] == ["blocked", "cancelled", "cancelled"]
+    # nothing left to re-check: the next wake-up is the periodic state, not the past
+    assert loop.vehicle.next_wakeup_s() > loop.now + 20
+    new = actions_of([(0, 5, 0), (0, 5, 3)], plan=1)
+    loop.master.release(new, loop.now)
+    loop.run(4)
+    assert loop.kinds(new[0].action_id) == ["started", "finished"]
