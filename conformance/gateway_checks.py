@@ -706,6 +706,45 @@ async def _foreign_in_hello(t: Target) -> None:
                                lambda m: isinstance(m, Error) and m.ref == ref, QUIET_S)
 
 
+@check("foreign-held-action-dropped-in-welcome", "RESEND-5")
+async def _foreign_dropped(t: Target) -> None:
+    """An action of another run in ``hello.acked`` is listed in ``welcome.drop`` (the robot
+    MUST drop it before it starts anything); the run's own held action is not."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        await run.start()
+        first = await robot.action(0)
+        await robot.conn.send(Ack, action_id=first.action_id)
+        await robot.conn.close()
+        foreign = f"zz{t.options.robot_id}.0.{t.options.robot_id}.0"
+        again = await run.robot(robot.id, acked=[first.action_id, foreign])
+        assert again.welcome is not None
+        if foreign not in again.welcome.drop or first.action_id in again.welcome.drop:
+            raise CheckFailed(f"welcome.drop is {again.welcome.drop}: expected {foreign} (of "
+                              f"another run) and not {first.action_id}")
+
+
+@check("finish-applied-without-repeat", "DUP-1")
+async def _finish_without_repeat(t: Target) -> None:
+    """A robot that implements only the MUST rules reports a ``finished`` once: listed again
+    in its next ``hello`` (its link dropped after the report), the action is not resent and the
+    next one arrives, without the robot repeating the ``finished``."""
+    async with _single(t) as run:
+        robot = await run.robot(t.options.robot_id)
+        await run.start()
+        first = await robot.action(0)
+        await robot.conn.send(Ack, action_id=first.action_id)
+        await robot.report(Started, first.action_id)
+        await robot.report(Finished, first.action_id)
+        await robot.conn.close()
+        again = await run.robot(robot.id, finished=[first.action_id])
+        assert again.welcome is not None
+        if any(a.action_id == first.action_id for a in again.welcome.resend):
+            raise CheckFailed(f"{first.action_id} was resent although the robot finished it")
+        if not any(a.sequence == 1 for a in again.welcome.resend):
+            await again.action(1)
+
+
 # ---------------------------------------------------------------------- two robots
 def _pair(t: Target) -> Run:
     """Robot R moves lane[1] -> lane[2]; the peer waits on lane[0], then enters lane[1]."""
