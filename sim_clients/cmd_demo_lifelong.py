@@ -67,12 +67,12 @@ async def _shift(config: GatewayConfig, args: argparse.Namespace, status: Status
     import asyncio
 
     from gateway.server.gateway import Gateway
-    from sim_clients.cmd_demo import _stop_on_signals
+    from sim_clients.cmd_demo import stop_on_signals
     from sim_clients.connect import websocket_connector
     from sim_clients.fleet import SimFleet
     from sim_clients.shift import start_shift, stop_shift
 
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         run = gateway.engine.lifelong

@@ -53,7 +53,6 @@ from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.runs.lifelong import LifelongRun, shift_from
-from gateway.server.runs.task_journal import journal_tasks
 from gateway.server.task_api.api import TaskApi
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.wire.http import HttpRoutes, json_response, response
@@ -152,7 +151,7 @@ class Gateway:
         self.clock.reset()
         cfg = self.config
         if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
-            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
+            self.engine.current_run = LifelongRun(self.engine, shift_from(cfg))
         try:
             self.resumed = self._resume()
         except BaseException:
@@ -183,9 +182,7 @@ class Gateway:
             return False
         try:
             engine.journal, self._lock = open_journal(cfg, self._fresh)
-            if engine.lifelong is not None:
-                return journal_tasks(engine)
-            return engine.resume() and engine.status != "done"
+            return engine.resume()
         except JournalError as exc:
             raise ValueError(str(exc)) from None
         except Exception as exc:  # a replay the journal's checks let through, yet failed

@@ -64,4 +64,5 @@ def test_a_shift_over_websockets_finishes_tasks_safely(tmp_path: Path) -> None:
                 for a in r["agents"] for p, q in zip(a["path"], a["path"][1:], strict=False)
                 if p[:2] == q[:2] and p[2] != q[2])
     assert turns > 0  # turning actions ran
-    assert gw.engine.lifelong is not None and gw.engine.tasks is gw.engine.lifelong.tasks
+    run = gw.engine.lifelong
+    assert run is not None and gw.engine.current_run.tasks is run.tasks
