@@ -133,7 +133,7 @@ def demo_intruder(args: argparse.Namespace) -> IntruderConfig:
     return IntruderConfig(stay_ms=None if stay is None else stay.draw_ms(args.seed))
 
 
-def _stop_on_signals() -> asyncio.Event:
+def stop_on_signals() -> asyncio.Event:
     """An event set by SIGINT or SIGTERM (the demo then stops cleanly)."""
     import asyncio
 
@@ -154,7 +154,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
     from sim_clients.fleet import fleet_for, run_in_process
     from sim_clients.summary import RunSummary
 
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         host = config.host

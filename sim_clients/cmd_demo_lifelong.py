@@ -38,7 +38,7 @@ def shift_status(engine: Engine) -> str:
     run = engine.lifelong
     if run is None:
         return f"gateway {engine.status}"
-    from gateway.server.runs.lifelong import throughput_per_min
+    from gateway.server.views import throughput_per_min
 
     ex = run.executor
     t = engine.now_ms() if ex.mode.value != "new" else 0.0
@@ -69,12 +69,12 @@ async def _shift(config: GatewayConfig, args: argparse.Namespace, status: Status
     import asyncio
 
     from gateway.server.gateway import Gateway
-    from sim_clients.cmd_demo import _stop_on_signals
+    from sim_clients.cmd_demo import stop_on_signals
     from sim_clients.connect import websocket_connector
     from sim_clients.fleet import SimFleet
     from sim_clients.shift import start_shift, stop_shift
 
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         run = gateway.engine.lifelong
