@@ -7,7 +7,13 @@ against the LoRR Start-Kit's reference in ``SOURCES.md`` (one ratio per problem)
 output replayed by the independent checker (``tracecheck/lorr.py``): collisions
 must be 0. ``--delay-seeds K`` runs each problem with K delay seeds (the file's and the next
 ones; the reference was measured with the file's) and reports the mean and the smallest ratio,
-so a lead is not the luck of one seed.
+so a lead is not the luck of one seed; each scheduler of ``--schedulers`` (default all) is run.
+``--rules-2024`` adds random-example_400 under the LoRR 2024 rules (one tick per action, no
+delays, 200 steps) against the 2024 winner's 698 tasks. ``--json``: this part only, as one JSON
+line (per problem and scheduler: tasks finished per seed, mean, min, the reference, the ratios,
+planner CPU seconds per run and the longest call, the longest assignment wait, ``valid``).
+
+    nice -n 10 .venv/bin/python bench/lifelong.py --json --delay-seeds 3 --rules-2024
 
 Part 2: ``--robots`` robots for 600 simulated seconds (one action a second, a plan every
 second) on a generated warehouse of about 10,000 free cells (shelf rows, like MovingAI's
@@ -27,24 +33,42 @@ later ones only what is new). ``--kept N`` starts the task book with N ended tas
 events, as after hours of a shift (the pool keeps 100,000 of each).
 
     .venv/bin/python bench/lifelong.py --journal --robots 100 --seconds 3600 --json
+
+``--scale`` (instead): the LoRR archive's warehouse_large (10,000 robots) and brc202d (6,500)
+under the 2026 rules, ``--ticks`` ticks each (skipped when the archive
+copy is absent; :mod:`sim_clients.lifelong_scale`).
+
+    .venv/bin/python bench/lifelong.py --scale --archive DIR --ticks 600
 """
 
 from __future__ import annotations
+
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
 
 import argparse
 import copy
 import dataclasses
 import json
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.lifelong.executor import LifelongExecutor
 from gateway.execution.lifelong.shift_state import HistoryLog, snapshot_shift
-from gateway.execution.lifelong.tasks import NewTask, TaskEvent, TaskPool
+from gateway.execution.lifelong.tasks import (
+    SCHEDULERS,
+    NewTask,
+    TaskEvent,
+    TaskPool,
+    wait_percentiles,
+)
 from gateway.planning.lorr import LorrProblem, read_problem, warehouse_problem
 from gateway.planning.movingai import format_map
 from gateway.runtime.journal import Journal, JournalRecord, ShiftRecord
@@ -57,6 +81,14 @@ from gateway.server.runs.shift_journal import (
 )
 from gateway.server.runs.task_journal import TaskJournal
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from sim_clients.lifelong_scale import (
+    ARCHIVE_ENV,
+    INSTANCES,
+    archive_dir,
+    scale_line,
+    scale_one,
+    scale_runs,
+)
 from sim_clients.shift_des import drive_shift
 from tracecheck.lorr import check_output, read_free
 
@@ -71,27 +103,61 @@ REFERENCE = {  # tasks finished in 600 ticks by the Start-Kit's default planner 
 }
 
 
-def shared_runs(ticks: int, seeds: int) -> list[str]:
-    """One ``name finished/reference=ratio`` entry per shared problem (collisions checked);
-    with ``seeds`` > 1, the mean over that many delay seeds (the file's, then the next ones)
-    and the smallest ratio."""
+RULES_2024 = ("random", 698)
+"""The 2024-rules conversion of random-example_400 (one tick per action, no delays, 200
+steps) and the tasks the LoRR 2024 winner (EPIBT) finished on it, built and run here under
+those rules (issue 28)."""
+
+
+def shared_run(problem: LorrProblem, ticks: int, scheduler: str) -> dict[str, Any]:
+    """One run of ``problem``: tasks finished, planner CPU (total and longest call) and the
+    assignment waits, its output checked by the independent checker."""
+    cfg = LifelongConfig(problem, ticks=ticks, scheduler=scheduler)
+    res = run_lifelong(cfg)
+    check_output(lorr_output(cfg, res), read_free(format_map(problem.grid)))
+    return {"finished": res.finished, "cpu_s": round(sum(res.planner_times), 2),
+            "max_call_s": round(max(res.planner_times, default=0.0), 3),
+            "wait_max": wait_percentiles(res.waits)["max"]}
+
+
+def shared_runs(shared: Path, ticks: int, seeds: int, schedulers: Sequence[str]
+                ) -> list[dict[str, Any]]:
+    """Each shared problem under each scheduler over ``seeds`` delay seeds (the file's, then
+    the next ones): tasks finished per seed, mean and min, the Start-Kit reference scaled to
+    ``ticks``, the ratios, planner CPU; every output checked (``valid``)."""
     out = []
     for name, (rel, reference) in REFERENCE.items():
-        problem = read_problem(SHARED / rel)
+        problem = read_problem(shared / rel)
         scaled = reference * ticks / 600
-        finished = []
-        for k in range(seeds):
-            delay = dataclasses.replace(problem.delay, seed=problem.delay.seed + k)
-            cfg = LifelongConfig(dataclasses.replace(problem, delay=delay), ticks=ticks)
-            res = run_lifelong(cfg)
-            check_output(lorr_output(cfg, res), read_free(format_map(problem.grid)))
-            finished.append(res.finished)
-        avg = sum(finished) / seeds
-        entry = f"{name} {avg:.0f}/{scaled:.0f}={avg / scaled:.2f}"
-        if seeds > 1:
-            entry += f" (min {min(finished) / scaled:.2f})"
-        out.append(entry)
+        for scheduler in schedulers:
+            runs = []
+            for k in range(seeds):
+                delay = dataclasses.replace(problem.delay, seed=problem.delay.seed + k)
+                runs.append(shared_run(dataclasses.replace(problem, delay=delay), ticks,
+                                       scheduler))
+            finished = [r["finished"] for r in runs]
+            avg = sum(finished) / seeds
+            out.append({"problem": name, "scheduler": scheduler, "finished": finished,
+                        "mean": round(avg, 1), "min": min(finished),
+                        "reference": round(scaled, 1), "ratio": round(avg / scaled, 3),
+                        "min_ratio": round(min(finished) / scaled, 3),
+                        "cpu_s": [r["cpu_s"] for r in runs],
+                        "max_call_s": max(r["max_call_s"] for r in runs),
+                        "wait_max_ticks": max(r["wait_max"] for r in runs), "valid": True})
     return out
+
+
+def rules_2024_run(shared: Path, scheduler: str) -> dict[str, Any]:
+    """random-example_400 under the LoRR 2024 rules (one tick per action, no delays, 200
+    steps; fleetgate keeps its own no-following safety) against the 2024 winner's tasks."""
+    name, winner = RULES_2024
+    problem = read_problem(shared / REFERENCE[name][0])
+    problem = dataclasses.replace(problem, agent_counter=1,
+                                  delay=dataclasses.replace(problem.delay, p_delay=0.0))
+    run = shared_run(problem, 200, scheduler)
+    return {"problem": f"{name} (2024 rules, 200 steps)", "scheduler": scheduler,
+            "finished": run["finished"], "winner": winner,
+            "ratio": round(run["finished"] / winner, 3), "cpu_s": run["cpu_s"], "valid": True}
 
 
 def speed_run(robots: int, seconds: int, seed: int) -> tuple[float, int, int]:
@@ -251,7 +317,7 @@ def journal_run(robots: int, seconds: float, every: int, seed: int,
 
 def main() -> None:
     """Run both parts (or the ``--journal`` measurement) and print one result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ticks", type=int, default=600, help="ticks per LoRR problem")
     ap.add_argument("--robots", type=int, default=1000, help="robots in the speed run")
     ap.add_argument("--seconds", type=int, default=600, help="simulated seconds (speed run)")
@@ -265,8 +331,34 @@ def main() -> None:
     ap.add_argument("--kept", type=int, default=0,
                     help="--journal: ended tasks (and events) the task book starts with, as "
                          "after hours of a shift (at most 100,000 are kept)")
-    ap.add_argument("--json", action="store_true", help="--journal: print one JSON line")
+    ap.add_argument("--json", action="store_true",
+                    help="print one JSON line (the LoRR problems, --journal's or --scale's)")
+    ap.add_argument("--schedulers", default="shortest,greedy,mincost",
+                    help="LoRR problems: comma-separated schedulers to run (default all)")
+    ap.add_argument("--lorr", type=Path, default=SHARED,
+                    help="the shared LoRR problems (default ../shared/lorr beside the repo)")
+    ap.add_argument("--rules-2024", action="store_true",
+                    help="also random-example_400 under the 2024 rules vs the 2024 winner")
+    ap.add_argument("--scale", action="store_true",
+                    help="the LoRR archive's warehouse_large (10,000) and brc202d (6,500) "
+                         "under the 2026 rules (sim_clients/lifelong_scale.py)")
+    ap.add_argument("--archive", type=Path, default=None,
+                    help=f"--scale: a copy of MAPF-Competition/Benchmark-Archive (default "
+                         f"${ARCHIVE_ENV} or ~/.cache/fleetgate/lorr-archive)")
+    ap.add_argument("--reassign", type=int, default=LifelongConfig.reassign,
+                    help="--scale: planning calls between reassignments of unstarted tasks "
+                         "(0: never)")
+    ap.add_argument("--scale-one", choices=sorted(INSTANCES), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.scale_one:
+        print(json.dumps(scale_one(args.scale_one, archive_dir(args.archive), args.ticks,
+                                   args.reassign)))
+        return
+    if args.scale:
+        scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign,
+                            [sys.executable, __file__])
+        print(json.dumps(scaled) if args.json else scale_line(scaled))
+        return
     if args.journal:
         out = journal_run(args.robots, args.seconds, args.every, args.seed, args.kept)
         print(json.dumps(out) if args.json else
@@ -279,12 +371,29 @@ def main() -> None:
               "both replays equal the live shift")
         return
     parts = []
-    if SHARED.is_dir():
-        runs = shared_runs(args.ticks, args.delay_seeds)
-        parts.append("tasks vs LoRR reference: " + ", ".join(runs)
+    if args.lorr.is_dir():
+        schedulers = args.schedulers.split(",")
+        unknown = sorted(set(schedulers) - set(SCHEDULERS))
+        if unknown:
+            ap.error(f"unknown scheduler(s) {', '.join(unknown)}; expected {sorted(SCHEDULERS)}")
+        runs = shared_runs(args.lorr, args.ticks, args.delay_seeds, schedulers)
+        rules = [rules_2024_run(args.lorr, s) for s in schedulers] if args.rules_2024 else []
+        if args.json:
+            print(json.dumps({"ticks": args.ticks, "delay_seeds": args.delay_seeds,
+                              "lorr": runs, "rules_2024": rules,
+                              "worst_ratio": min(r["min_ratio"] for r in runs)}))
+            return
+        entries = [f"{r['problem']}/{r['scheduler']} {r['mean']:.0f}/{r['reference']:.0f}="
+                   f"{r['ratio']:.2f} (min {r['min_ratio']:.2f})" for r in runs]
+        entries += [f"{r['problem']}/{r['scheduler']} {r['finished']}/{r['winner']}="
+                    f"{r['ratio']:.2f}" for r in rules]
+        parts.append("tasks vs LoRR reference: " + ", ".join(entries)
                      + f"; collisions 0 over {args.delay_seeds} delay seed(s)")
+    elif args.json:
+        print(json.dumps({"skipped": f"{args.lorr} absent"}))
+        return
     else:
-        parts.append("LoRR problems skipped (../shared/lorr absent)")
+        parts.append(f"LoRR problems skipped ({args.lorr} absent)")
     cpu, finished, cells = speed_run(args.robots, args.seconds, args.seed)
     parts.append(f"speed: {args.robots} robots x {args.seconds} s on {cells} free cells "
                  f"({finished} tasks) in {cpu:.1f} s CPU = {cpu / 60:.2f} x the 60 s goal "
@@ -293,4 +402,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/lifelong.py", main)

@@ -11,6 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fleetgate.userio.files import write_text
 from gateway.execution.params import INTRUDER_READINGS
 from gateway.execution.params import PAPER as PAPER_PARAMS
 from gateway.planning.motion import MOTIONS
@@ -575,8 +576,12 @@ def run(args: argparse.Namespace) -> int:
             "cpu_s_total": round(sum(r.cpu_s for r in clair.rows), 3),
             "running_s": clair.running_s, "swept_now": clair.ran,
             "failures": [asdict(f) for f in clair.failures]}
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    out = Console()
+    write_text(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    class Out(Console):
+        def on_broken_pipe(self) -> None:
+            raise BrokenPipeError  # rich would exit 1; every command ends with 141 here
+
+    out = Out()
     out.width = max(out.width, TABLE_WIDTH)  # never truncate numbers on a narrow terminal
     if args.json:
         print(json.dumps(summary, indent=2))

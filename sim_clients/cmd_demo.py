@@ -15,15 +15,14 @@ The operator token is random for each run and printed once, in the GUI's login U
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import secrets
-import signal
 import sys
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from fleetgate.userio.files import check_writable
 from gateway.commands.instance_args import add_instance_arguments, add_motion_arguments
 from gateway.commands.progress import StatusLine
 from gateway.commands.solving import (
@@ -34,12 +33,11 @@ from gateway.commands.solving import (
 )
 from gateway.execution.oneshot.policies import POLICY_NAMES
 from gateway.execution.params import PAPER
-from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, EXIT_OK, UsageError
+from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, UsageError
 from sim_clients.cmd_demo_lifelong import add_lifelong_arguments, run_lifelong_demo
 from sim_clients.stays import STAY_HELP, stay_option
 
 if TYPE_CHECKING:
-    import asyncio
 
     from gateway.server.config import GatewayConfig
     from gateway.server.engine import Engine
@@ -69,12 +67,13 @@ def status_text(engine: Engine) -> str:
             f"{slack / 1000:.1f} s | replans {ex.replans} | {engine.status}")
 
 
-def run_summary(engine: Engine) -> str:
-    """One line for a finished run (from the GUI, say): SOC, makespan and replans."""
+def run_summary(engine: Engine, collisions: int) -> str:
+    """One line for a finished run, the same whether the command or the GUI started it:
+    SOC, makespan, replans and the world's collisions during the run."""
     soc, makespan = engine.summary or (0.0, 0.0)
     replans = engine.executor.replans if engine.executor is not None else 0
     return (f"run complete: SOC {soc:.0f} ms, makespan {makespan:.0f} ms, "
-            f"{replans} replan(s)")
+            f"{replans} replan(s), {collisions} collisions")
 
 
 async def show_status(engine: Engine, status: StatusLine) -> None:
@@ -97,6 +96,7 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
     summary line when a run ends."""
     engine = gateway.engine
     previous: list[str] = [engine.status]
+    collisions_before = [len(fleet.world.collisions)]
 
     def on_status(now: str) -> None:
         was, previous[0] = previous[0], now
@@ -110,8 +110,10 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
             plan = engine.executor.plan
             fleet.place_all([p[0] for p in plan.paths],
                             None if plan.headings is None else [h[0] for h in plan.headings])
+            collisions_before[0] = len(fleet.world.collisions)
         if now == "done" and was != "done":
-            status.print(run_summary(engine))
+            collisions = len(fleet.world.collisions) - collisions_before[0]
+            status.print(run_summary(engine, collisions))
 
     engine.status_listeners.append(on_status)
 
@@ -133,28 +135,17 @@ def demo_intruder(args: argparse.Namespace) -> IntruderConfig:
     return IntruderConfig(stay_ms=None if stay is None else stay.draw_ms(args.seed))
 
 
-def stop_on_signals() -> asyncio.Event:
-    """An event set by SIGINT or SIGTERM (the demo then stops cleanly)."""
-    import asyncio
-
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError):
-            loop.add_signal_handler(sig, stop.set)
-    return stop
-
-
 async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace,
                 status: StatusLine) -> int:
     import asyncio
 
+    from fleetgate.userio.signals import StopSignals
     from gateway.server.gateway import Gateway
     from sim_clients.connect import websocket_connector
     from sim_clients.fleet import fleet_for, run_in_process
     from sim_clients.summary import RunSummary
 
-    stop = stop_on_signals()
+    stop = StopSignals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         host = config.host
@@ -184,15 +175,12 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
             if args.json:
                 print(json.dumps(result.summary()), flush=True)
             else:
-                status.print(f"run complete: SOC {result.soc_ms:.0f} ms (plan "
-                             f"{result.plan_soc} x 1000 ms), makespan "
-                             f"{result.makespan_ms:.0f} ms, {result.replans} replan(s), "
-                             f"{result.collisions} collisions")
+                status.print(run_summary(gateway.engine, result.collisions))
             if not args.headless:
                 _follow_runs(gateway, fleet, status)
                 status.print("serving the GUI until Ctrl-C")
                 await stopped
-            return EXIT_OK
+            return stop.exit_code
         finally:
             for task in (run, stopped, live):
                 task.cancel()
@@ -230,10 +218,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"fleetgate: {why}", file=sys.stderr)
         return EXIT_NO_SOLUTION
     if args.trace:
-        try:
-            Path(args.trace).open("w").close()
-        except OSError as exc:
-            raise UsageError(f"cannot write the trace {args.trace}: {exc.strerror}") from None
+        check_writable(args.trace, "the trace")  # an earlier one is moved aside, not lost
     try:
         config = load_config(None, host=args.host, port=args.port, map=None, speed=args.speed,
                              policy=args.policy, threshold_ms=args.threshold_ms,

@@ -10,15 +10,13 @@ Ctrl-C.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_OK, UsageError
+from gateway.runtime.exits import EXIT_BAD_INPUT, UsageError
 
 if TYPE_CHECKING:
     import ssl
@@ -27,9 +25,13 @@ if TYPE_CHECKING:
 
 
 def parse_robots(spec: str) -> list[int]:
-    """``"10"`` = robots 0..9; ``"3-5,8"`` = robots 3, 4, 5 and 8. ValueError if malformed."""
+    """``"10"`` = robots 0..9; ``"3-5,8"`` = robots 3, 4, 5 and 8. ValueError if malformed or
+    if it names no robot (``"0"``)."""
     spec = spec.strip()
     if spec.isdigit():
+        if int(spec) == 0:
+            raise ValueError("--robots 0 names no robot: give a count >= 1 or ids like 0-9,12 "
+                             "(robot 0 alone: 0-0)")
         return list(range(int(spec)))
     robots: list[int] = []
     for part in spec.split(","):
@@ -46,9 +48,12 @@ def parse_robots(spec: str) -> list[int]:
 
 
 def token_source(spec: str) -> Callable[[int], str]:
-    """Robot id -> token from a template containing ``{id}`` or a JSON file ``{"id": token}``."""
+    """Robot id -> token from a template containing ``{id}``, a JSON file ``{"id": token}``,
+    or else one literal token for every robot (a name ending in ``.json`` must be a file)."""
     if "{id}" in spec:
         return lambda r: spec.replace("{id}", str(r))
+    if not Path(spec).exists() and not spec.endswith(".json"):
+        return lambda r: spec
     try:
         data = json.loads(Path(spec).read_text())
     except OSError as exc:
@@ -95,31 +100,58 @@ def tls_contexts(args: argparse.Namespace, robots: list[int], tokens: Callable[[
     return lambda token: contexts.get(token, shared)
 
 
-async def _run_fleet(fleet: SimFleet) -> None:
+def robots_connected(n: int) -> str:
+    """``"1 robot connected"``, ``"10 robots connected"``."""
+    return f"{n} robot{'' if n == 1 else 's'} connected"
+
+
+async def _connect(fleet: SimFleet, url: str) -> None:
+    """Start the fleet and say when every robot is connected, or, once, that nothing answers
+    at ``url`` yet (the robots keep retrying). RuntimeError if a robot can never connect."""
     import asyncio
 
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError):
-            loop.add_signal_handler(sig, stop.set)
-    await fleet.start()
+    connected = asyncio.ensure_future(_start_and_wait(fleet))
+    absent = asyncio.ensure_future(fleet.gateway_absent.wait())
     try:
-        waiting = asyncio.ensure_future(fleet.wait_connected())
-        stopped = asyncio.ensure_future(stop.wait())
-        await asyncio.wait({waiting, stopped}, return_when=asyncio.FIRST_COMPLETED)
-        if waiting.done():
-            waiting.result()  # a robot that can never connect raises here
-            print(f"fleetgate sim: {len(fleet.robots)} robots connected", file=sys.stderr,
-                  flush=True)
-        else:
-            waiting.cancel()
+        await asyncio.wait({connected, absent}, return_when=asyncio.FIRST_COMPLETED)
+        if not connected.done():
+            print(f"fleetgate sim: no gateway answers at {url} ({fleet.connect_error}); "
+                  f"retrying every {fleet.reconnect_delay_s:g} s (Ctrl-C stops)",
+                  file=sys.stderr, flush=True)
+        await connected
+    finally:
+        absent.cancel()
+    print(f"fleetgate sim: {robots_connected(len(fleet.robots))}", file=sys.stderr, flush=True)
+
+
+async def _start_and_wait(fleet: SimFleet) -> None:
+    await fleet.start()
+    await fleet.wait_connected()
+
+
+async def _run_fleet(fleet: SimFleet, url: str) -> int:
+    """Run until Ctrl-C (130) or SIGTERM (0), stopping at once even while connecting."""
+    import asyncio
+
+    from fleetgate.userio.signals import StopSignals
+
+    stop = StopSignals()
+    body = asyncio.ensure_future(_connect(fleet, url))
+    stopped = asyncio.ensure_future(stop.wait())
+    try:
+        await asyncio.wait({body, stopped}, return_when=asyncio.FIRST_COMPLETED)
+        if body.done():
+            body.result()  # a robot that can never connect raises here
         await stopped
     finally:
+        for task in (body, stopped):
+            task.cancel()
+        await asyncio.gather(body, stopped, return_exceptions=True)
         await fleet.stop()
     st = fleet.stats
     print(f"fleetgate sim: {len(st.finish_sent)} actions finished, {st.duplicates} duplicates "
           f"dropped, {st.reconnects} reconnects", file=sys.stderr, flush=True)
+    return stop.exit_code
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -144,18 +176,17 @@ def _run(args: argparse.Namespace) -> int:
     if args.reconnect_s <= 0:
         raise UsageError(f"--reconnect-s must be positive, got {args.reconnect_s}")
 
-    async def main() -> None:
+    async def main() -> int:
         world = None if args.world_token == "none" else args.world_token
         fleet = SimFleet(websocket_connector(args.connect, tls), robots, token=tokens,
                          world_token=world, reconnect_delay_s=args.reconnect_s)
-        await _run_fleet(fleet)
+        return await _run_fleet(fleet, args.connect)
 
     try:
-        asyncio.run(main())
-    except RuntimeError as exc:  # a robot's handshake was refused
+        return asyncio.run(main())
+    except RuntimeError as exc:  # a robot's handshake was refused, TLS verification failed
         print(f"fleetgate sim: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    return EXIT_OK
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -171,8 +202,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--robots", metavar="SPEC", default="10",
                    help="how many robots (0..N-1) or which: e.g. 10, 0-4, 0,2,7 (default 10)")
     p.add_argument("--tokens", metavar="TEMPLATE|FILE", default="demo-robot-{id}",
-                   help="robot tokens: a template with {id} (default demo-robot-{id}) or a "
-                        'JSON file {"0": "token", ...}')
+                   help="robot tokens: a template with {id} (default demo-robot-{id}), a "
+                        'JSON file {"0": "token", ...}, or one literal token for every robot')
     p.add_argument("--world-token", default="demo-world",
                    help="token of the world connection, or 'none' (default demo-world)")
     p.add_argument("--ca", metavar="FILE",

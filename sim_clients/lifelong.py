@@ -43,11 +43,12 @@ DELAY_CHARGE = 4.0
 on top of its distance when the scheduler weighs it for a task, so tasks go to robots that
 can go (room-64-64-16, 10-30 tick delays, 8 delay seeds: mean 111 tasks without, 117 with 4x,
 113-114 with about 2x, 9x or an infinite charge; random-64-64-10's 1-4 tick delays: neutral)."""
-MAX_WAIT_TICKS = 450
-"""Default fairness bound (:attr:`~gateway.execution.lifelong.tasks.TaskPool.max_wait`): 45 s at
-100 ms a tick. The gateway's is 30 s (a 600 s demo shift: max wait 56 s, more tasks than
-without); a 600-tick LoRR run ends before most tasks forced after 300 ticks finish (maze,
-room, random: 3-10% fewer tasks), at 450 ticks it finishes as many as without a bound."""
+MAX_WAIT_TICKS = 600
+"""Default fairness bound (:attr:`~gateway.execution.lifelong.tasks.TaskPool.max_wait`): 60 s
+at 100 ms a tick (the gateway's ``lifelong.max_wait_ms`` is 45 s). On the 600-tick shared LoRR
+runs (maze, room, random, 3 delay seeds, planner time zero) 600 finishes as many tasks as no
+bound (235, 342, 1410 summed, against 241, 330, 1411), 450 costs 4-7% (225, 317, 1349): aging
+from half the bound then reaches tasks the short run would not have finished anyway."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -165,16 +166,18 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
-    space = StateSpace(grid, cfg.turning, robots=n)
+    space = StateSpace(grid, cfg.turning, budget_bytes=2 << 30, robots=n)
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)
     window = cfg.window or math.ceil(cfg.period / counter)
     # the scheduler's distances: exact moves; a robot in a delay competes for tasks with a
-    # charge, so tasks go to robots that can go
+    # charge, so tasks go to robots that can go. On a large map the planner's tables are the
+    # moves over the free cells too: one cache serves both (the robots' goals are errands)
     distances = TaskDistances(grid, charge=round(DELAY_CHARGE * prob.delay.mean_duration
-                                                 / counter))
+                                                 / counter),
+                              space=None if space.exact else space)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
                     max_wait=cfg.max_wait)
     book = ErrandBook(pool, n)

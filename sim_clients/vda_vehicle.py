@@ -14,9 +14,11 @@ What it does (section numbers of the 2.1.0 text):
   ``orderUpdateId`` references and stay until an order is accepted (6.6.4);
 * it drives released edges only, one after the other: ``move_s`` per edge that moves one cell
   or turns 90 degrees (a 180-degree turn takes twice that), ``wait_s`` for an edge that does
-  neither (a wait of the plan), plus an optional per-edge delay. Before it enters an edge it
-  checks that the end node's cell is free (``occupied``); while it is not, it stands with its
-  protective field violated and re-checks every ``recheck_s``;
+  neither (a wait of the plan), plus an optional per-edge delay. On a shared
+  :class:`sim_clients.world.World` (as robot ``who``) it holds its cell, and while it moves
+  into the next one that one too; before it enters a cell it checks that the cell is free;
+  while it is not, it stands with its protective field violated and re-checks every
+  ``recheck_s``;
 * a node is traversed when the vehicle arrives (6.10.2): its state leaves ``nodeStates``, the
   edge before it ``edgeStates``, ``lastNodeId`` / ``lastNodeSequenceId`` become its own, and its
   actions (e.g. ``pick`` / ``drop``) run for ``action_s`` each, blocking the next edge;
@@ -54,6 +56,7 @@ from protocol.vda5050.models import (
 )
 from protocol.vda5050.nodes import NodeMap
 from protocol.vda5050.topics import Headers, VehicleTopics
+from sim_clients.world import World
 
 Cell = tuple[int, int]
 
@@ -108,7 +111,7 @@ class VdaVehicle:
     def __init__(self, topics: VehicleTopics, version: VdaVersion, nodes: NodeMap, start: Cell,
                  theta: float = 0.0, *, move_s: float = 1.0, wait_s: float = 1.0,
                  action_s: float = 1.0, recheck_s: float = 0.1, state_period_s: float = 30.0,
-                 occupied: Callable[[Cell, VdaVehicle], bool] | None = None,
+                 world: World | None = None, who: int = 0,
                  delay_s: Callable[[int], float] | None = None) -> None:
         self.topics = topics
         self.version = version
@@ -117,7 +120,9 @@ class VdaVehicle:
         self.theta = theta
         self.move_s, self.wait_s, self.action_s = move_s, wait_s, action_s
         self.recheck_s, self.state_period_s = recheck_s, state_period_s
-        self.occupied = occupied
+        self.world, self.who = world, who
+        if world is not None:
+            world.occupy(start, who, 0.0)
         self.delay_s = delay_s
         self.held = _Held()
         self.last_node_id = ""
@@ -181,7 +186,7 @@ class VdaVehicle:
             times.append(self.drive.until_s)
         if self._pending_actions:
             times.append(self._busy_until)
-        if self._recheck_at is not None:
+        if self._recheck_at is not None and self.drive is None:
             times.append(self._recheck_at)
         return min(times)
 
@@ -278,15 +283,18 @@ class VdaVehicle:
         if (self.paused or self._cancel is not None or not held.edges
                 or not held.edges[0].released or not held.nodes[0].released):
             self._set_violation(False)
+            self._recheck_at = None
             return
         edge, node = held.edges[0], held.nodes[0]
         assert node.node_position is not None
         pos = node.node_position
         cell = self.nodes.cell_of(pos.x, pos.y)
-        if cell != self.cell and self.occupied is not None and self.occupied(cell, self):
-            self._set_violation(True)
-            self._recheck_at = now_s + self.recheck_s
-            return
+        if cell != self.cell and self.world is not None:
+            if not self.world.is_free(cell):
+                self._set_violation(True)
+                self._recheck_at = now_s + self.recheck_s
+                return
+            self.world.occupy(cell, self.who, now_s * 1000)
         self._set_violation(False)
         self._recheck_at = None
         theta = self.theta if pos.theta is None else pos.theta
@@ -308,7 +316,10 @@ class VdaVehicle:
         held.nodes.pop(0)
         pos = drive.node.node_position
         assert pos is not None
-        self.cell = self.nodes.cell_of(pos.x, pos.y)
+        cell = self.nodes.cell_of(pos.x, pos.y)
+        if cell != self.cell and self.world is not None:
+            self.world.release(self.cell, self.who)
+        self.cell = cell
         if pos.theta is not None:
             self.theta = pos.theta
         self.last_node_id, self.last_node_seq = drive.node.node_id, drive.node.sequence_id

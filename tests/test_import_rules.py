@@ -8,6 +8,7 @@ module's package.
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,7 +19,7 @@ PROJECT = ("gateway", "protocol", "robot_client", "sim_clients", "experiments", 
 PURE_FORBIDDEN = ("gateway.server", "gateway.runtime", "gateway.commands", "gateway.cli",
                   "asyncio", "websockets", "pydantic", "time", "datetime", "sim_clients",
                   "experiments", "tracecheck", "protocol")
-CLI = ("gateway.cli", "gateway.commands", "gateway.__main__", "fleetgate")
+CLI = ("gateway.cli", "gateway.commands", "gateway.__main__", "fleetgate.__main__")
 """The ``fleetgate`` command's own modules (plugins' command modules: see :func:`_is_cli`)."""
 
 
@@ -78,13 +79,30 @@ def test_pure_core_has_no_io_clock_or_server_imports(package: str) -> None:
     assert _violations(_modules(package), PURE_FORBIDDEN) == []
 
 
+USERIO = "fleetgate.userio"
+"""How every command writes the files a user asked for and how it ends (exit codes, one line
+for Ctrl-C, a closed pipe, a full disk): standard library only and no fleetgate logic, so the
+independent checker, the robot client and the conformance checker use it too."""
+
+
+def _outside_userio(violations: list[tuple[str, str]]) -> list[tuple[str, str]]:
+    return [(m, n) for m, n in violations if not _hits(n, (USERIO,)) and n != "fleetgate"]
+
+
+def test_userio_uses_the_standard_library_only() -> None:
+    names = {n.split(".")[0] for f in _modules(USERIO) for n in _imports(f)
+             if not _hits(n, (USERIO,)) and n != "fleetgate"}
+    assert sorted(n for n in names if n not in sys.stdlib_module_names
+                  and n != "__future__") == []
+
+
 def test_protocol_imports_nothing_of_the_project() -> None:
     assert _violations(_modules("protocol"), tuple(p for p in PROJECT if p != "protocol")) == []
 
 
 def test_robot_client_imports_only_protocol() -> None:
     others = tuple(p for p in PROJECT if p not in ("protocol", "robot_client"))
-    assert _violations(_modules("robot_client"), others) == []
+    assert _outside_userio(_violations(_modules("robot_client"), others)) == []
 
 
 def test_gateway_imports_neither_simulator_nor_experiments() -> None:
@@ -122,7 +140,7 @@ def test_no_package_imports_the_cli() -> None:
 
 def test_tracecheck_imports_nothing_of_the_project() -> None:
     others = tuple(p for p in PROJECT if p != "tracecheck")
-    assert _violations(_modules("tracecheck"), others) == []
+    assert _outside_userio(_violations(_modules("tracecheck"), others)) == []
 
 
 def test_benchmarks_do_not_import_tests() -> None:
@@ -147,7 +165,7 @@ def test_the_shared_execution_modules_import_neither_mode() -> None:
 
 def test_conformance_kit_imports_only_protocol() -> None:
     others = tuple(p for p in PROJECT if p not in ("protocol", "conformance"))
-    assert _violations(_modules("conformance"), others) == []
+    assert _outside_userio(_violations(_modules("conformance"), others)) == []
 
 
 def test_the_wire_knows_no_engine_run_or_execution() -> None:

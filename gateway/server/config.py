@@ -32,6 +32,7 @@ from pydantic_settings import (
 
 from gateway.execution.oneshot.policies import PolicyName
 from gateway.execution.params import PAPER
+from gateway.vda5050.config import Vda5050Config
 
 PLACEHOLDER = "CHANGE-ME"
 """What the example configs' tokens contain: refused on a non-loopback host."""
@@ -100,10 +101,10 @@ class LifelongSettings(BaseModel):
     seed: int = 0
     """Seed of the generated warehouse and of the planner's tie-breaks."""
     scheduler: Literal["greedy", "mincost", "shortest"] = "shortest"
-    max_wait_ms: float | None = Field(default=30_000.0, gt=0)
+    max_wait_ms: float | None = Field(default=45_000.0, gt=0)
     """Fairness bound: a task that has waited this long for a robot goes before the tasks of
-    its priority that have not (None: no bound; then a far or long task can wait a whole
-    shift while nearer ones keep coming)."""
+    its priority that have not, and waiting tasks age towards it (None: no bound; then a far
+    or long task can wait a whole shift while nearer ones keep coming)."""
     planner: Literal["pibt"] = "pibt"
     """The windowed planner: 1-robust PIBT (gateway/planning/pibt.py)."""
     period_ms: float = Field(default=1000.0, gt=0)
@@ -152,6 +153,8 @@ class GatewayConfig(BaseSettings):
     tokens: TokensConfig = TokensConfig()
     allow_demo_tokens: bool = False
     tls: TlsConfig | None = None
+    vda5050: Vda5050Config | None = None
+    """VDA 5050 vehicles driven over MQTT beside the websocket robots (docs/vda5050.md)."""
     allow_plaintext: bool = False
     """Serve plain ws:// and http:// on a non-loopback host (only behind a proxy that
     terminates TLS; without it such a host needs ``[tls]``)."""

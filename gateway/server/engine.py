@@ -243,7 +243,9 @@ class Engine:
         for hook in self.before_commit:
             hook()
         if self.journal is not None:
+            t0 = time.perf_counter()
             self.journal.commit()
+            self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
 
     def _next_tick(self, after: float) -> float:
@@ -524,6 +526,7 @@ class Engine:
         log.info("execution complete", extra={"soc_ms": c.soc_ms, "makespan_ms": c.makespan_ms})
 
     def _solver_done(self, item: SolverDone) -> None:
+        self.metrics.planner_call.labels(item.purpose).observe(item.wall_ms / 1000.0)
         if item.purpose == "load":
             self.operator.load_solved(item)
             return

@@ -7,6 +7,10 @@ from collections.abc import Callable
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 
 LATENCY_BUCKETS = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+PLANNER_BUCKETS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0, 60.0)
+TASK_BUCKETS = (5.0, 10.0, 20.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1200.0, 1800.0, 3600.0)
+OPEN_STATES = ("queued", "paused", "assigned", "started")
+"""Task states of the queue-length gauge (finished tasks are counted, not kept)."""
 
 
 class Metrics:
@@ -42,12 +46,35 @@ class Metrics:
             "Lifelong mode: tasks' wait from submission to a robot, over the kept tasks (a "
             "task still queued counts as waiting until now); quantile 1 is the longest",
             ["quantile"], registry=r)
+        self.tasks = Gauge("fleetgate_tasks",
+                           "Lifelong mode: tasks in each open state now (the queue by state)",
+                           ["state"], registry=r)
+        self.tasks_finished = Counter("fleetgate_tasks_finished",
+                                      "Lifelong mode: tasks finished", registry=r)
+        self.task_completion = Histogram(
+            "fleetgate_task_completion_seconds",
+            "Lifelong mode: from a task's submission to its finish (seconds of the shift's "
+            "clock)", buckets=TASK_BUCKETS, registry=r)
+        self.planner_call = Histogram(
+            "fleetgate_planner_call_seconds",
+            "Planner calls by purpose (window: a lifelong window; load, replan, shadow: a "
+            "one-shot plan), wall seconds (charged seconds under virtual time)", ["purpose"],
+            buckets=PLANNER_BUCKETS, registry=r)
+        self.journal_commit = Histogram(
+            "fleetgate_journal_commit_seconds", "Journal commits (wall seconds)",
+            buckets=LATENCY_BUCKETS, registry=r)
+        self.task_counts: Callable[[], dict[str, int]] | None = None
+        """Lifelong mode: how many tasks are in each state now, read at each :meth:`render`."""
         self.waits: Callable[[], dict[str, float]] | None = None
         """Lifelong mode: the assignment waits' ``p50``, ``p90``, ``p99`` and ``max`` (s),
         read at each :meth:`render`."""
 
     def render(self) -> bytes:
         """The Prometheus text exposition of every metric."""
+        if self.task_counts is not None:
+            counts = self.task_counts()
+            for state in OPEN_STATES:
+                self.tasks.labels(state).set(counts.get(state, 0))
         if self.waits is not None:
             for key, value in self.waits().items():
                 q = "1" if key == "max" else str(int(key[1:]) / 100)

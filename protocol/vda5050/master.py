@@ -403,7 +403,7 @@ class VehicleMaster:
             elif obstacle and not step.blocked:
                 step.blocked = True
                 self._emit(Report("blocked", aid))
-            elif not obstacle and step.blocked:
+            elif not obstacle and step.blocked and aid not in self._cancelled:
                 step.blocked = False
                 self._emit(Report("unblocked", aid))
             break

@@ -2,9 +2,10 @@
 
 The map frame is the standard's (section 6.7): x to the right, y up, theta counter-clockwise
 from +x in radians. A cell ``(x, y)`` (x the column, y the row counted downwards, as in
-MovingAI files) has its centre at ``((x + 0.5) * size, (rows - y - 0.5) * size)`` plus the
-configured origin, so the grid's top row is the largest y. Plan headings (0 east (+x), 1 south,
-2 west, 3 north) become theta 0, -pi/2, pi and pi/2.
+MovingAI files) has its centre at ``(origin_x + (x + 0.5) * size, origin_y - (y + 0.5) *
+size)``: the origin is the grid's top-left corner (set ``origin_y`` to rows x size for
+non-negative coordinates). Plan headings (0 east (+x), 1 south, 2 west, 3 north) become theta
+0, -pi/2, pi and pi/2.
 """
 
 from __future__ import annotations
@@ -26,20 +27,16 @@ def heading_of(theta: float) -> Heading:
 
 @dataclass(frozen=True, slots=True)
 class NodeMap:
-    """Cells of a grid with ``rows`` rows as nodes on map ``map_id`` (cells of ``cell_m``
-    metres)."""
+    """Grid cells as nodes on map ``map_id`` (cells of ``cell_m`` metres)."""
 
     cell_m: float
     map_id: str
-    rows: int
     origin_x: float = 0.0
     origin_y: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.cell_m > 0 and math.isfinite(self.cell_m)):
             raise ValueError(f"cell size must be a positive number of metres, got {self.cell_m}")
-        if self.rows < 1:
-            raise ValueError(f"a grid has at least one row, got {self.rows}")
 
     def node_id(self, cell: tuple[int, int]) -> str:
         """The node id of ``cell``: ``"n<x>_<y>"``."""
@@ -52,11 +49,11 @@ class NodeMap:
     def position(self, cell: tuple[int, int], heading: Heading | None) -> NodePosition:
         """The node position of ``cell``; ``theta`` only when the motion model has headings."""
         return NodePosition(x=self.origin_x + (cell[0] + 0.5) * self.cell_m,
-                            y=self.origin_y + (self.rows - cell[1] - 0.5) * self.cell_m,
+                            y=self.origin_y - (cell[1] + 0.5) * self.cell_m,
                             theta=None if heading is None else THETA[heading],
                             map_id=self.map_id)
 
     def cell_of(self, x: float, y: float) -> tuple[int, int]:
         """The cell that contains the point ``(x, y)`` of the map."""
         return (math.floor((x - self.origin_x) / self.cell_m),
-                self.rows - 1 - math.floor((y - self.origin_y) / self.cell_m))
+                math.floor((self.origin_y - y) / self.cell_m))

@@ -76,7 +76,10 @@ def test_the_demo_starts_when_its_gui_is_first_opened(browser: Browser) -> None:
     plan time, 0.75-2.5 s of wall time at speed 4); the first login starts the run, and the
     viewer sees the intruder, the trigger and the replan. Item 8: no task API requests."""
     with DemoProcess("--speed", "4") as demo:
-        time.sleep(4.0)  # 16 s of plan time
+        deadline = time.monotonic() + 30
+        while health(demo.url)["robots"] < 10 and time.monotonic() < deadline:
+            time.sleep(0.1)  # every robot connected: on main the run starts now
+        time.sleep(3.0)  # 12 s of plan time
         before = health(demo.url)
         assert (before["gateway"], before["robots"]) == ("loaded", 10), before
         with gui(browser, demo.url, "first-hour-demo-start") as (page, requests):
@@ -138,6 +141,7 @@ def test_the_lifelong_gui_shows_the_shift_and_offers_what_the_gateway_accepts(
             "window every 1.0 s, early at slack > 2.0 s")
         expect(page.locator("#exec-costs")).to_be_hidden()
         expect(page.locator("#log")).to_contain_text("lifelong shift on warehouse: 20 robots")
+        expect(page.locator("#robot-rows tr")).to_have_count(20)  # the Robots card
         counts = page.locator("#tasks-counts")
         expect(counts).to_contain_text("robots at work")
         assert counts.evaluate("e => getComputedStyle(e).color") != DANGER

@@ -130,3 +130,16 @@ def test_the_bound_holds_under_a_stream_of_cheaper_tasks(
                 pool.errand_done(task_id, float(step))
     limit = bound + math.ceil(reveal / free_per_step)
     assert max(pool.waits(now=120.0)) <= limit
+
+
+def test_a_waiting_task_ages_before_it_is_overdue() -> None:
+    # robot at 0; first errands: A at 50 (submitted at 0), B at 10 and C at 90 (both at 50):
+    # costs 50, 10, 90, span 80. From half the bound (100) on, A costs up to the span less:
+    # at 60 it waited 0.6 of it (16 less: 34, B still cheaper), at 90 0.9 (64 less: -14)
+    for now, bound, want in ((60.0, 100.0, "B"), (90.0, 100.0, "A"), (90.0, None, "B")):
+        pool = TaskPool([], reveal=3, max_wait=bound)
+        ids = {name: pool.submit([NewTask((cell,))], now=t)[0][0]
+               for name, cell, t in (("A", 50, 0.0), ("B", 10, 50.0), ("C", 90, 50.0))}
+        pool.settle(now)
+        assert not pool.overdue(pool.tasks[ids["A"]])
+        assert min_cost([(0, 0)], pool, line) == {0: ids[want]}

@@ -27,7 +27,7 @@ def test_the_example_configures_every_key_of_a_shift() -> None:
     s = cfg.lifelong
     assert s is not None
     assert (s.map, s.robots, s.scheduler, s.max_wait_ms, s.planner, s.period_ms, s.window) == (
-        "warehouse-small", 4, "shortest", 30_000.0, "pibt", 1000.0, 0)
+        "warehouse-small", 4, "shortest", 45_000.0, "pibt", 1000.0, 0)
     for name in ("horizon", "window"):  # the horizon's two names
         other = load_config(None, lifelong={name: 5}).lifelong
         assert other is not None and other.window == 5

@@ -32,7 +32,6 @@ class Loop:
 
     version: VdaVersion
     start: Step
-    rows: int = 10
     drop: set[int] = field(default_factory=set)  # indexes of master publishes to lose
     now: float = 1_700_000_000.0
     traffic: list[tuple[str, bytes]] = field(default_factory=list)
@@ -41,7 +40,7 @@ class Loop:
 
     def __post_init__(self) -> None:
         topics = VehicleTopics("uagv", "v2", "fleetgate", "sim0")
-        nodes = NodeMap(cell_m=1.0, map_id="lab", rows=self.rows)
+        nodes = NodeMap(cell_m=1.0, map_id="lab")
         self.master = VehicleMaster(topics, self.version, nodes)
         self.vehicle = VdaVehicle(topics, self.version, nodes, (self.start[0], self.start[1]),
                                   THETA[HEADINGS[self.start[2]]])

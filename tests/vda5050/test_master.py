@@ -10,6 +10,7 @@ import pytest
 
 from protocol.vda5050.master import LinkState, Report
 from protocol.vda5050.models import VERSIONS, Connection, VdaVersion
+from sim_clients.world import INTRUDER, World
 from tests.vda5050.loop import Loop, actions_of
 from tests.vda5050.schemas import assert_valid, needs_schemas
 
@@ -146,15 +147,18 @@ def test_rejected_order_is_refused() -> None:
 
 def test_blocked_while_the_next_cell_is_taken() -> None:
     loop = Loop("2.1.0", PATH[0])
-    blocked = {(1, 5)}
-    loop.vehicle.occupied = lambda cell, _v: cell in blocked
+    world = World()
+    world.occupy((1, 5), INTRUDER, 0.0)
+    loop.vehicle.world = world
+    world.occupy((0, 5), 0, 0.0)
     actions = actions_of(PATH[:3])
     loop.master.release(actions, loop.now)
     loop.run(2)
     assert [r.kind for r in loop.reports] == ["blocked"] and loop.vehicle.cell == (0, 5)
-    blocked.clear()
+    world.release((1, 5), INTRUDER)
     loop.run(5)
     assert loop.kinds(actions[0].action_id) == ["blocked", "unblocked", "started", "finished"]
+    assert world.collisions == [] and world.holders((2, 5)) == (0,)
 
 
 def test_connection_is_the_link_state() -> None:
@@ -167,3 +171,23 @@ def test_connection_is_the_link_state() -> None:
     loop.master.receive_connection(will)
     assert loop.master.drain() == [LinkState(False, "CONNECTIONBROKEN")]
     assert Report("started", "x") != Report("finished", "x")
+
+
+def test_cancel_while_blocked_leaves_the_vehicle_ready_for_a_new_order() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    world = World()
+    loop.vehicle.world = world
+    world.occupy((0, 5), 0, 0.0)
+    world.occupy((1, 5), INTRUDER, 0.0)
+    actions = actions_of(PATH[:3])
+    loop.master.release(actions, loop.now)
+    loop.run(1)
+    loop.master.cancel([a.action_id for a in actions], loop.now)
+    loop.run(2)
+    assert [r.kind for r in loop.reports] == ["blocked", "cancelled", "cancelled"]
+    # nothing left to re-check: the next wake-up is the periodic state, not the past
+    assert loop.vehicle.next_wakeup_s() > loop.now + 20
+    new = actions_of([(0, 5, 0), (0, 5, 3)], plan=1)
+    loop.master.release(new, loop.now)
+    loop.run(4)
+    assert loop.kinds(new[0].action_id) == ["started", "finished"]

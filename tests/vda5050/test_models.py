@@ -28,7 +28,7 @@ HEADER = {"header_id": 3, "timestamp": timestamp(1_700_000_000.123), "manufactur
 
 
 def _order(version: str) -> Order:
-    nodes = NodeMap(cell_m=0.5, map_id="floor1", rows=4)
+    nodes = NodeMap(cell_m=0.5, map_id="floor1")
     return Order(**HEADER, version=version, order_id="r1.0.2.0", order_update_id=0,
                  nodes=[Node(node_id="n0_0", sequence_id=0, released=True,
                              node_position=nodes.position((0, 0), "E")),
@@ -106,11 +106,11 @@ def test_topics_and_timestamps() -> None:
 
 
 def test_node_positions() -> None:
-    nodes = NodeMap(cell_m=0.5, map_id="m", rows=4)
+    nodes = NodeMap(cell_m=0.5, map_id="m", origin_y=2.0)
     pos = nodes.position((2, 0), "N")
     assert (pos.x, pos.y, pos.theta) == (1.25, 1.75, pytest.approx(1.5707963267948966))
     assert nodes.position((0, 3), None).theta is None
     assert nodes.cell_of(1.25, 1.75) == (2, 0) and nodes.cell_of(0.1, 0.1) == (0, 3)
     assert nodes.position((1, 1), "W").theta == pytest.approx(3.141592653589793)
     with pytest.raises(ValueError):
-        NodeMap(cell_m=0.0, map_id="m", rows=4)
+        NodeMap(cell_m=0.0, map_id="m")

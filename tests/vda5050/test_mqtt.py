@@ -16,12 +16,13 @@ from protocol.vda5050.master import Effect, LinkState, Report, VehicleMaster
 from protocol.vda5050.models import VdaVersion
 from protocol.vda5050.nodes import THETA, NodeMap
 from protocol.vda5050.topics import VehicleTopics
-from sim_clients.vda_fleet import World, run_fleet
+from sim_clients.vda_fleet import run_fleet
 from sim_clients.vda_vehicle import VdaVehicle
+from sim_clients.world import World
 from tests.vda5050.loop import actions_of
 from tests.vda5050.schemas import SCHEMA_DIR, assert_valid
 
-NODES = NodeMap(cell_m=1.0, map_id="lab", rows=8)
+NODES = NodeMap(cell_m=1.0, map_id="lab")
 PATHS = [[(0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 0, 1), (2, 1, 1)],
          [(0, 3, 0), (1, 3, 0), (1, 3, 0), (2, 3, 0)],
          [(5, 5, 3), (5, 4, 3), (5, 3, 3), (5, 3, 2), (4, 3, 2)]]
@@ -51,15 +52,14 @@ async def test_plan_through_mosquitto(broker_url: str) -> None:
         topics = VehicleTopics("uagv", "v2", "fleetgate", f"sim{robot}")
         masters.append(VehicleMaster(topics, version, NODES))
         vehicle = VdaVehicle(topics, version, NODES, path[0][:2], THETA[HEADINGS[path[0][2]]],
-                             move_s=0.1, wait_s=0.1)
-        world.add(vehicle)
+                             move_s=0.1, wait_s=0.1, world=world, who=robot)
         vehicles.append(vehicle)
     client = MasterClient(config, masters,
                           lambda m, e: effects.append((m.topics.serial, e)))
     master_task = asyncio.create_task(client.run())
     await client.connected.wait()
     stop = asyncio.Event()
-    fleet = asyncio.create_task(run_fleet(vehicles, config, stop, world))
+    fleet = asyncio.create_task(run_fleet(vehicles, config, stop))
     plans = [actions_of(path, robot=r) for r, path in enumerate(PATHS)]
     deadline = time.monotonic() + 20
     while sum(isinstance(e, LinkState) for _, e in effects) < 3:
@@ -91,7 +91,7 @@ async def test_plan_through_mosquitto(broker_url: str) -> None:
         kinds = [e.kind for s, e in effects if s == f"sim{robot}" and isinstance(e, Report)]
         assert kinds == ["started", "finished"] * len(actions), kinds
         assert vehicles[robot].cell == PATHS[robot][-1][:2]
-    assert client.dropped == 0 and world.collisions == 0
+    assert client.dropped == 0 and world.collisions == []
     names = {t.rsplit("/", 1)[-1] for t, _ in seen}
     assert {"order", "instantActions", "state", "connection"} <= names
     states = [json.loads(p)["connectionState"] for t, p in seen if t.endswith("/connection")]
@@ -110,7 +110,7 @@ from sim_clients.vda_vehicle import VdaVehicle
 
 async def main():
     topics = VehicleTopics("uagv", "v2", "fleetgate", "doomed")
-    vehicle = VdaVehicle(topics, "2.1.0", NodeMap(1.0, "lab", 4), (0, 0))
+    vehicle = VdaVehicle(topics, "2.1.0", NodeMap(1.0, "lab"), (0, 0))
     broken, online = vehicle.connect(time.time())
     config = BrokerConfig(url=sys.argv[1], keepalive_s=5)
     async with config.client("doomed", will(topics.topic("connection"), broken.message)) as c:
@@ -126,7 +126,7 @@ async def test_last_will_reaches_the_master(broker_url: str) -> None:
     config = BrokerConfig(url=broker_url)
     topics = VehicleTopics("uagv", "v2", "fleetgate", "doomed")
     links: list[LinkState] = []
-    master = VehicleMaster(topics, "2.1.0", NodeMap(1.0, "lab", 4))
+    master = VehicleMaster(topics, "2.1.0", NodeMap(1.0, "lab"))
     client = MasterClient(config, [master], lambda _m, e: links.append(e)  # type: ignore
                           if isinstance(e, LinkState) else None)
     task = asyncio.create_task(client.run())

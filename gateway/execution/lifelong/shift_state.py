@@ -44,7 +44,7 @@ from gateway.execution.lifelong.executor import LifelongExecutor, LifelongMode, 
 from gateway.execution.lifelong.live_adg import LiveAction
 from gateway.execution.lifelong.tasks import NewTask, Task, TaskEvent, TaskPool, TaskState
 
-SNAPSHOT_VERSION = 2
+SNAPSHOT_VERSION = 3
 """The layout of :class:`ShiftState` (a snapshot of another version is refused)."""
 
 ActionRow = tuple[int, int, int, int, int, int]
@@ -79,6 +79,8 @@ class TaskColumns:
     listed: list[bool]
     announced: list[int]
     batch: list[int]
+    waited: list[float]
+    queued_at: list[float]
 
 
 @dataclass(frozen=True)

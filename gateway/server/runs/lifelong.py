@@ -134,6 +134,9 @@ class LifelongRun:
             durations=ActionDurations.uniform(cfg.action_ms), lookahead=cfg.dispatch_lookahead,
             threshold_ms=s.threshold_ms, record=engine.feed.record)
         engine.metrics.waits = self.wait_percentiles_s
+        engine.metrics.task_counts = lambda: {str(k): n for k, n in self.tasks.counts().items()}
+        self._counted = 0  # the last task event counted in the metrics
+        engine.before_commit.append(self._count_tasks)
         self.turning = shift.headings is not None
         self.planner = PlannerProcess(grid, len(shift.starts), self.turning, s.seed)
         try:  # waited for by :meth:`planner_ready`: a restart replays its journal meanwhile
@@ -167,13 +170,25 @@ class LifelongRun:
 
     def wait_percentiles_s(self) -> dict[str, float]:
         """The tasks' assignment waits so far (s): ``p50``, ``p90``, ``p99``, ``max``."""
-        waits = self.tasks.waits(self._engine.now_ms())
+        waits = self.tasks.waits(self.now_ms())
         return {k: v / 1000.0 for k, v in wait_percentiles(waits).items()}
 
     @property
     def robots(self) -> int:
         """The fleet's size."""
         return self.executor.n
+
+    def now_ms(self) -> float:
+        """The shift's clock: plan ms since the shift started, 0 before it (the task API's
+        one clock: a task submitted before the start is submitted at 0)."""
+        if self.executor.mode is LifelongMode.NEW:
+            return 0.0
+        return self._engine.now_ms()
+
+    def counted_until(self, seq: int) -> None:
+        """Task events up to ``seq`` are not counted in the metrics (a restarted gateway's
+        replayed ones were counted by the process before it)."""
+        self._counted = seq
 
     @property
     def period_ms(self) -> float:
@@ -339,6 +354,7 @@ class LifelongRun:
             log_tasks.info("task book rebuilt from the journal", extra={
                 "records": len(records), "tasks": len(pool.book), "finished": pool.finished})
         tasks = TaskJournal(pool, journal, last)
+        self.counted_until(last)
         e.before_commit.append(tasks.flush)
 
         def sink(rec: JournalRecord) -> None:
@@ -350,6 +366,22 @@ class LifelongRun:
         assert s is not None
         self.after_adopt = partial(compact_shift, e, self, history, s.snapshot_segments)
         return bool(records)
+
+    def _count_tasks(self) -> None:
+        """Before each commit: the tasks finished since the last one into the metrics (their
+        count, and each one's time from submission to finish)."""
+        pool = self.tasks
+        if pool.event_seq == self._counted:
+            return
+        events, _ = pool.events_after(self._counted)
+        self._counted = pool.event_seq
+        metrics = self._engine.metrics
+        for event in events:
+            if event.state == "finished":
+                metrics.tasks_finished.inc()
+                task = pool.book.get(event.task)
+                if task is not None:
+                    metrics.task_completion.observe(max(0.0, event.t - task.submitted) / 1000.0)
 
     # ------------------------------------------------------------------ warming
     def _warm_tasks(self) -> None:
@@ -400,6 +432,7 @@ class LifelongRun:
             try:
                 segment, charged = await e.clock.run_measured(partial(self.planner.call, req))
                 self.planner_ms.append(charged)
+                e.metrics.planner_call.labels("window").observe(charged / 1000.0)
             except PlannerDied as exc:
                 self._planner_died(exc, req.call)
             except Exception as exc:  # a planner bug: one line, the next period plans again

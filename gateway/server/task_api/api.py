@@ -170,9 +170,7 @@ class TaskApi:
         """The one clock of the task API: plan ms since the shift started, 0 before it (a
         task submitted before the start is submitted at 0)."""
         run = self._engine.lifelong
-        if run is None or run.executor.mode is LifelongMode.NEW:
-            return 0.0
-        return self._engine.now_ms()
+        return 0.0 if run is None else run.now_ms()
 
     def wall_time(self, t_ms: float) -> str | None:
         """The wall-clock time (ISO 8601, UTC) of shift time ``t_ms``: the shift's start plus

@@ -1,0 +1,154 @@
+"""VDA 5050 vehicles as robots of the gateway: a second robot transport beside websockets.
+
+Each configured vehicle is a :class:`protocol.vda5050.robot.VdaRobot` on an in-memory link
+served by :meth:`Gateway.serve_link` (the same sessions, engine, executor and journal as a
+websocket robot); its :class:`protocol.vda5050.master.VehicleMaster` talks to the vehicle
+through one shared MQTT connection (:class:`gateway.vda5050.driver.MasterClient`). The link is
+up while the vehicle's ``connection`` topic says ONLINE: OFFLINE or the last will
+(CONNECTIONBROKEN) closes it, and the next ONLINE opens a new one with a ``hello``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from types import TracebackType
+from typing import TYPE_CHECKING
+
+from gateway.server.wire.auth import Peer
+from gateway.server.wire.transport import MemoryClient, memory_pair
+from gateway.vda5050.config import Vda5050Config
+from gateway.vda5050.driver import MasterClient
+from protocol.codec import ProtocolError, decode, encode
+from protocol.messages import Welcome
+from protocol.vda5050.master import Effect, LinkState, VehicleMaster
+from protocol.vda5050.robot import VdaRobot
+
+if TYPE_CHECKING:
+    from gateway.server.gateway import Gateway
+
+log = logging.getLogger("fleetgate.vda5050")
+
+
+class _Vehicle:
+    """One vehicle's gateway side: its robot and its current in-memory link."""
+
+    def __init__(self, robot: VdaRobot) -> None:
+        self.robot = robot
+        self.client: MemoryClient | None = None
+        self.tasks: list[asyncio.Task[None]] = []
+        self.out: asyncio.Queue[str] = asyncio.Queue()
+        self.state_period_s = 5.0
+        self.flush_due = False
+
+
+class VdaTransport:
+    """``async with VdaTransport(gateway, config):`` drives the configured vehicles."""
+
+    def __init__(self, gateway: Gateway, config: Vda5050Config) -> None:
+        self.gateway = gateway
+        self.config = config
+        turning = gateway.config.motion == "turning"
+        nodes = config.nodes()
+        self.vehicles: dict[int, _Vehicle] = {}
+        masters: list[VehicleMaster] = []
+        for v in config.vehicles:
+            master = VehicleMaster(config.topics(v), config.version_of(v), nodes,
+                                   resend_s=config.resend_s)
+            masters.append(master)
+            self.vehicles[id(master)] = _Vehicle(VdaRobot(v.robot_id, master, turning=turning))
+        self.mqtt = MasterClient(config.broker, masters, self._effect)
+        self._task: asyncio.Task[None] | None = None
+
+    async def __aenter__(self) -> VdaTransport:
+        self._task = asyncio.create_task(self.mqtt.run())
+        done, _ = await asyncio.wait({self._task, asyncio.ensure_future(
+            self.mqtt.connected.wait())}, return_when=asyncio.FIRST_COMPLETED)
+        if self._task in done:
+            self._task.result()  # the broker refused or is unreachable: raise it
+        return self
+
+    async def __aexit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                        tb: TracebackType | None) -> None:
+        for vehicle in self.vehicles.values():
+            await self._close(vehicle)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._task
+
+    # ------------------------------------------------------------------ vehicle side
+    def _effect(self, master: VehicleMaster, effect: Effect) -> None:
+        vehicle = self.vehicles[id(master)]
+        if isinstance(effect, LinkState):
+            log.info("vehicle link", extra={"robot": vehicle.robot.robot_id,
+                                            "state": effect.state})
+            if effect.online:
+                self._open(vehicle)
+            else:
+                asyncio.get_running_loop().create_task(self._close(vehicle))
+            return
+        vehicle.robot.vehicle(effect)
+        self._flush(vehicle)
+
+    def _flush(self, vehicle: _Vehicle) -> None:
+        self.mqtt.flush(vehicle.robot.master)
+        for message in vehicle.robot.drain():
+            vehicle.out.put_nowait(encode(message))
+
+    # ------------------------------------------------------------------ gateway side
+    def _open(self, vehicle: _Vehicle) -> None:
+        robot = vehicle.robot
+        client, link = memory_pair(Peer("robot", robot.robot_id), self.gateway.config.send_queue)
+        vehicle.client = client
+        vehicle.out = asyncio.Queue()
+        loop = asyncio.get_running_loop()
+        vehicle.tasks = [loop.create_task(self.gateway.serve_link(link)),
+                         loop.create_task(self._read(vehicle, client)),
+                         loop.create_task(self._write(vehicle, client)),
+                         loop.create_task(self._states(vehicle))]
+        robot.connected()
+        self._flush(vehicle)
+
+    async def _close(self, vehicle: _Vehicle) -> None:
+        vehicle.robot.disconnected()
+        client, tasks = vehicle.client, vehicle.tasks
+        vehicle.client, vehicle.tasks = None, []
+        if client is not None:
+            await client.close()
+        for task in tasks[1:]:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+
+    async def _read(self, vehicle: _Vehicle, client: MemoryClient) -> None:
+        async for text in client:
+            try:
+                message = decode(text)
+            except ProtocolError as exc:
+                log.warning("undecodable gateway message", extra={"error": str(exc)[:300]})
+                continue
+            if isinstance(message, Welcome):
+                vehicle.state_period_s = message.state_period_ms / 1000
+            vehicle.robot.receive(message, time.time())
+            if not vehicle.flush_due:  # after every message already queued has been read
+                vehicle.flush_due = True
+                asyncio.get_running_loop().call_soon(self._commit, vehicle)
+
+    def _commit(self, vehicle: _Vehicle) -> None:
+        vehicle.flush_due = False
+        vehicle.robot.commit(time.time())
+        self._flush(vehicle)
+
+    async def _write(self, vehicle: _Vehicle, client: MemoryClient) -> None:
+        while True:
+            await client.send(await vehicle.out.get())
+
+    async def _states(self, vehicle: _Vehicle) -> None:
+        while True:
+            await asyncio.sleep(vehicle.state_period_s)
+            vehicle.robot.state()
+            self._flush(vehicle)

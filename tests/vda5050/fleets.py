@@ -1,0 +1,133 @@
+"""Run one planned instance through the real gateway with websocket-protocol robots (the
+in-memory transport) or with simulated VDA 5050 vehicles through mosquitto, and return the
+run's SOC and trace: the two transports are compared on the same plan."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from gateway.server.config import GatewayConfig
+from gateway.server.gateway import Gateway
+from gateway.vda5050.broker import BrokerConfig
+from gateway.vda5050.config import Vda5050Config, VehicleConfig
+from gateway.vda5050.transport import VdaTransport
+from protocol.messages import HEADINGS, LoadInstance, Start
+from protocol.vda5050.nodes import THETA
+from sim_clients.fleet import SimFleet
+from sim_clients.vda_fleet import run_fleet
+from sim_clients.vda_vehicle import VdaVehicle
+from sim_clients.world import World
+
+SPEED = 2.0
+"""Plan time runs this much faster than real time (a 1 s action takes 0.5 s)."""
+
+
+def config(trace: Path, vda: Vda5050Config | None = None) -> GatewayConfig:
+    """A loopback gateway with a trace, at :data:`SPEED`."""
+    return GatewayConfig(port=0, speed=SPEED, trace=trace, log_level="WARNING", vda5050=vda)
+
+
+async def _load(gw: Gateway, map_name: str, scen: str, agents: int) -> None:
+    code, detail = await gw.command(LoadInstance(msg_id="i", seq=0, map=map_name, scen=scen,
+                                                 agents=agents))
+    assert code is None, detail
+
+
+async def run_websocket(trace: Path, map_name: str, scen: str, agents: int,
+                        timeout_s: float = 120) -> float:
+    """SOC (plan ms) of the instance run by simulated websocket-protocol robots."""
+    async with Gateway(config(trace)) as gw:
+        await _load(gw, map_name, scen, agents)
+        fleet = SimFleet(gw.connect, range(agents), clock=gw.clock, send_state=False)
+        await fleet.start()
+        await fleet.wait_connected(30)
+        await gw.command(Start(msg_id="s", seq=1))
+        soc, _ = await asyncio.wait_for(gw.wait_done(), timeout_s)
+        await fleet.stop()
+        return soc
+
+
+def vda_config(broker_url: str, robots: list[int], versions: tuple[str, ...] = ("2.1.0",)
+               ) -> Vda5050Config:
+    """Vehicles ``sim<r>`` as robots ``r``, their versions alternating over ``versions``."""
+    return Vda5050Config(broker=BrokerConfig(url=broker_url), vehicles=[
+        VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r,
+                      version=versions[i % len(versions)])  # type: ignore[arg-type]
+        for i, r in enumerate(robots)])
+
+
+@dataclass
+class VdaRun:
+    """What a run with VDA 5050 vehicles left: SOC, the floor and every MQTT message."""
+
+    soc_ms: float
+    world: World
+    vehicles: list[VdaVehicle]
+    traffic: list[tuple[str, bytes]] = field(default_factory=list)
+
+
+async def _sniff(broker: BrokerConfig, seen: list[tuple[str, bytes]],
+                 ready: asyncio.Event) -> None:
+    async with broker.client("sniffer") as client:
+        await client.subscribe("uagv/#", qos=1)
+        ready.set()
+        async for msg in client.messages:
+            assert isinstance(msg.payload, bytes)
+            seen.append((str(msg.topic), msg.payload))
+
+
+async def run_vda(trace: Path, broker_url: str, map_name: str, scen: str, agents: int,
+                  vda_robots: list[int], timeout_s: float = 120,
+                  versions: tuple[str, ...] = ("2.1.0",),
+                  during: Callable[[Gateway, World], Awaitable[None]] | None = None) -> VdaRun:
+    """Run the instance with robots ``vda_robots`` as simulated VDA 5050 vehicles through the
+    broker (the others: websocket-protocol robots in memory); ``during`` runs beside it once
+    started."""
+    vda = vda_config(broker_url, vda_robots, versions)
+    seen: list[tuple[str, bytes]] = []
+    sniffing = asyncio.Event()
+    sniffer = asyncio.create_task(_sniff(vda.broker, seen, sniffing))
+    await sniffing.wait()
+    async with Gateway(config(trace, vda)) as gw:
+        await _load(gw, map_name, scen, agents)
+        problem = gw.engine.problem
+        assert problem is not None and problem.plan is not None
+        plan, starts = problem.plan, problem.instance.starts
+        others = [r for r in range(agents) if r not in vda_robots]
+        fleet = SimFleet(gw.connect, others, clock=gw.clock, send_state=False)
+        world = fleet.world  # one floor for both kinds of robots
+        vehicles = []
+        for v in vda.vehicles:
+            r = v.robot_id
+            heading = plan.headings[r][0] if plan.headings is not None else 0
+            vehicle = VdaVehicle(vda.topics(v), vda.version_of(v), vda.nodes(), starts[r],
+                                 THETA[HEADINGS[heading]], move_s=1 / SPEED,
+                                 wait_s=1 / SPEED, recheck_s=0.1 / SPEED, world=world,
+                                 who=r)
+            vehicles.append(vehicle)
+        stop = asyncio.Event()
+        vehicles_task = asyncio.create_task(run_fleet(vehicles, vda.broker, stop))
+        async with VdaTransport(gw, vda):
+            if others:
+                await fleet.start()
+                await fleet.wait_connected(30)
+            deadline = time.monotonic() + 30
+            while not gw.engine.all_online(agents):
+                assert time.monotonic() < deadline, "vehicles did not come online"
+                await asyncio.sleep(0.05)
+            await gw.command(Start(msg_id="s", seq=1))
+            side = asyncio.create_task(during(gw, world)) if during else None
+            soc, _ = await asyncio.wait_for(gw.wait_done(), timeout_s)
+            if side is not None:
+                await side
+            if others:
+                await fleet.stop()
+        stop.set()
+        await vehicles_task
+    await asyncio.sleep(0.2)
+    sniffer.cancel()
+    return VdaRun(soc, world, vehicles, seen)
