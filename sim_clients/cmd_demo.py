@@ -90,10 +90,12 @@ async def show_status(engine: Engine, status: StatusLine) -> None:
         status.clear()
 
 
-def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
+def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine,
+                 intruder: bool) -> None:
     """After the first run, an operator may load and start others: give every agent a
-    robot, put the robots on the plan's starts whenever a new run begins, and print a
-    summary line when a run ends."""
+    robot, put the robots on the plan's starts whenever a new run begins (and, with
+    ``intruder``, bring the automatic intruder again, so each run shows a replan), and print
+    a summary line when a run ends."""
     engine = gateway.engine
     previous: list[str] = [engine.status]
     collisions_before = [len(fleet.world.collisions)]
@@ -110,6 +112,8 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
             plan = engine.executor.plan
             fleet.place_all([p[0] for p in plan.paths],
                             None if plan.headings is None else [h[0] for h in plan.headings])
+            if intruder:
+                fleet.rearm_intruder()
             collisions_before[0] = len(fleet.world.collisions)
         if now == "done" and was != "done":
             collisions = len(fleet.world.collisions) - collisions_before[0]
@@ -177,7 +181,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
             else:
                 status.print(run_summary(gateway.engine, result.collisions))
             if not args.headless:
-                _follow_runs(gateway, fleet, status)
+                _follow_runs(gateway, fleet, status, args.intruder)
                 status.print("serving the GUI until Ctrl-C")
                 await stopped
             return stop.exit_code
@@ -275,7 +279,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the world runs F times faster than plan time (default 1)")
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
                    help=f"the intruder appears at {PAPER.intruder_appear_ms:g} ms and leaves at "
-                   f"{PAPER.intruder_leave_ms:g} ms (default: on)")
+                   f"{PAPER.intruder_leave_ms:g} ms of every run, those started from the GUI "
+                   "too (default: on)")
     p.add_argument("--intruder-stay", metavar="SPEC|FILE", help=STAY_HELP)
     p.add_argument("--policy", choices=POLICY_NAMES, default="slack",
                    help="replanning policy (default slack)")

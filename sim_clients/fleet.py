@@ -545,6 +545,13 @@ class SimFleet:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
 
+    def rearm_intruder(self) -> None:
+        """A new run: the automatic intruder comes again, at ``T_a`` of that run (if the fleet
+        has one; one that never appeared in the last run is not doubled)."""
+        if self._oracle is not None:
+            self._intruders = [i for i in self._intruders if i.state is not IntruderState.ABSENT]
+            self._intruders.append(Intruder(self.world, self._intruder_config))
+
     def place_all(self, starts: Sequence[Cell], headings: Sequence[int] | None = None) -> None:
         """Put robot k on ``starts[k]`` (facing ``headings[k]`` under ``turning``) for a new
         run (other robots leave the world)."""
