@@ -47,6 +47,7 @@ import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is o
 
 # isort: split
 
+import argparse
 import copy
 import dataclasses
 import json

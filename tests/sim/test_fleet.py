@@ -206,12 +206,13 @@ def test_fleetgate_sim_drives_a_gateway_over_websockets() -> None:
 def test_the_shadow_policy_goes_around_a_reported_block_through_the_gateway(
         tmp_path: Path) -> None:
     """Without replanning robot 0 waits for the intruder; with the shadow policy (and a
-    gateway that has seen a block that long before) it goes around."""
+    gateway that has seen blocks that long before, often enough to trust that this one is
+    not about to end) it goes around."""
     trace = tmp_path / "trace.jsonl"
 
     async def main(policy: PolicyName) -> float:
         config = GatewayConfig(port=0, map=None, policy=policy, trace=trace, motion="omni",
-                               block_history_ms=[7100.0])
+                               block_history_ms=[7100.0] * 19)
         async with Gateway(config, clock=VirtualClock()) as gw:
             fleet = fleet_for(gw, 2, gw.connect, intruder=False)
             run = asyncio.ensure_future(run_in_process(gw, problem(), fleet))
