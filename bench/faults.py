@@ -308,6 +308,27 @@ def new_gateway(work: Path, speed: float, shim: Path | None, trigger: Path,
     return gw
 
 
+def must_only_fleet(gw: GatewayProcess, robots: int, speed: float, rng: random.Random
+                    ) -> tuple[SimFleet, Counter[tuple[int, int, int]],
+                               set[tuple[int, int, int]]]:
+    """Simulated robots for ``gw`` that implement only the MUST rules, with the actions they
+    executed (how often) and completed, as (plan, robot, index)."""
+    executed: Counter[tuple[int, int, int]] = Counter()
+    completed: set[tuple[int, int, int]] = set()
+
+    def on_event(kind: str, p: int, r: int, i: int) -> None:
+        if kind == "execute":
+            executed[(p, r, i)] += 1
+        elif kind == "finished":
+            completed.add((p, r, i))
+
+    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"), range(robots),
+                     clock=LoopClock(speed), send_state=False, reconnect_delay_s=0.05,
+                     seed=rng.randrange(1 << 30), must_only=True)
+    fleet.on_event = on_event
+    return fleet, executed, completed
+
+
 async def oneshot_trial(kind: str, work: Path, rng: random.Random, shim: Path | None,
                         disk: Disk) -> dict[str, Any]:
     """A one-shot run of a random plan with one fault."""
@@ -318,19 +339,7 @@ async def oneshot_trial(kind: str, work: Path, rng: random.Random, shim: Path | 
     write_map(grid, map_file)
     trigger = work / "eio"
     gw = new_gateway(work, speed, shim, trigger, disk)
-    executed: Counter[tuple[int, int, int]] = Counter()
-    completed: set[tuple[int, int, int]] = set()
-
-    def on_event(kind_: str, p: int, r: int, i: int) -> None:
-        if kind_ == "execute":
-            executed[(p, r, i)] += 1
-        elif kind_ == "finished":
-            completed.add((p, r, i))
-
-    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"), range(robots),
-                     clock=LoopClock(speed), send_state=False, reconnect_delay_s=0.05,
-                     seed=rng.randrange(1 << 30), must_only=True)
-    fleet.on_event = on_event
+    fleet, executed, completed = must_only_fleet(gw, robots, speed, rng)
     out: dict[str, Any] = {"acknowledged_lost": 0}
     try:
         await asyncio.to_thread(gw.start)
@@ -381,19 +390,7 @@ async def lifelong_trial(kind: str, work: Path, rng: random.Random, shim: Path |
     gw.config.write_text(json.dumps(cfg))
     grid = warehouse_problem(robots, 0, warehouse, p_delay=0.0).grid
     free = [[x, y] for x, y in grid.free_cells()]
-    executed: Counter[tuple[int, int, int]] = Counter()
-    completed: set[tuple[int, int, int]] = set()
-
-    def on_event(kind_: str, p: int, r: int, i: int) -> None:
-        if kind_ == "execute":
-            executed[(p, r, i)] += 1
-        elif kind_ == "finished":
-            completed.add((p, r, i))
-
-    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"), range(robots),
-                     clock=LoopClock(speed), send_state=False, reconnect_delay_s=0.05,
-                     seed=rng.randrange(1 << 30), must_only=True)
-    fleet.on_event = on_event
+    fleet, executed, completed = must_only_fleet(gw, robots, speed, rng)
     acked: dict[str, list[int]] = {}
     batches: dict[str, Any] = {}
     out: dict[str, Any] = {"acknowledged_lost": 0}
