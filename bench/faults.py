@@ -40,7 +40,10 @@ resume, i.e. all but the clean refusals, against 1.0).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import asyncio
 import contextlib
 import json
@@ -68,6 +71,7 @@ from crash import (  # bench/crash.py: the gateway process, operator and shift c
     shift_defects,
 )
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
 from gateway.planning.random_plans import open_grid, random_plan
@@ -505,7 +509,7 @@ def campaign(mode: str, trials: int, seed: int, kinds: tuple[str, ...]) -> dict[
 
 def main() -> int:
     """Run the campaign and print one line."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = CommandParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=12, help="trials per fault kind and mode")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--modes", default="oneshot,lifelong")
@@ -541,4 +545,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/faults.py", main)
