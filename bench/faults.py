@@ -76,7 +76,7 @@ from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_JOURNAL
-from gateway.runtime.journal import DURABLE_KINDS
+from gateway.runtime.journal import Journal
 from gateway.server.clock import LoopClock
 from protocol import LoadPlan, SetThreshold, Snapshot, Start, decode
 from sim_clients.connect import websocket_connector
@@ -92,12 +92,14 @@ KEYS = ("trials", "exact_resumes", "clean_refusals", "silent_wrong", "hung", "un
 
 # ------------------------------------------------------------------------ the faults
 def drop_tail(journal: Path, k: int) -> int:
-    """Drop the last ``k`` records but none of a synced commit; returns how many."""
+    """Drop the last ``k`` records, but none that a synced commit made durable (those survive
+    a power cut: the journal's seal says how many); returns how many were dropped."""
+    opened = Journal(journal)
+    synced = opened.synced()
+    opened.close()
     with sqlite3.connect(journal) as db:
-        rows = db.execute("SELECT seq, kind FROM records ORDER BY seq").fetchall()
-        durable = max((i for i, (_, kind) in enumerate(rows) if kind in DURABLE_KINDS),
-                      default=-1)
-        cut = max(durable + 1, len(rows) - k)
+        rows = db.execute("SELECT seq FROM records ORDER BY seq").fetchall()
+        cut = max(synced, len(rows) - k)
         if cut < len(rows):
             db.execute("DELETE FROM records WHERE seq >= ?", (rows[cut][0],))
         return len(rows) - cut
