@@ -214,3 +214,27 @@ def test_the_run_summary_is_one_line_for_cli_and_gui_runs() -> None:
     assert done.returncode == 0, done.stderr
     (line,) = [ln for ln in done.stderr.splitlines() if ln.startswith("run complete")]
     assert SUMMARY.fullmatch(line), line
+
+
+# ---------------------------------------------------------------------------- item 12
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 0)])
+def test_the_robot_client_stops_on_ctrl_c_with_130_and_on_sigterm_with_0(
+        sig: signal.Signals, code: int) -> None:
+    import pty
+
+    controller, device = pty.openpty()  # a serial line the Kobuki driver can open
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "robot_client", "--robot-id", "0", "--token", "t",
+             "--grid-width", "2", "--grid-height", "2", "--serial-port", os.ttyname(device),
+             "--no-camera", "--gateway-url", "ws://127.0.0.1:9/ws"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            preexec_fn=_default_sigint)
+        assert proc.stderr is not None
+        assert "lost or refused" in proc.stderr.readline()  # running: no gateway there
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == code and "Traceback" not in err
+    finally:
+        os.close(controller)
+        os.close(device)
