@@ -40,7 +40,10 @@ resume, i.e. all but the clean refusals, against 1.0).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import asyncio
 import contextlib
 import json
@@ -68,11 +71,12 @@ from crash import (  # bench/crash.py: the gateway process, operator and shift c
     shift_defects,
 )
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_JOURNAL
-from gateway.runtime.journal import DURABLE_KINDS
+from gateway.runtime.journal import Journal
 from gateway.server.clock import LoopClock
 from protocol import LoadPlan, SetThreshold, Snapshot, Start, decode
 from sim_clients.connect import websocket_connector
@@ -88,12 +92,14 @@ KEYS = ("trials", "exact_resumes", "clean_refusals", "silent_wrong", "hung", "un
 
 # ------------------------------------------------------------------------ the faults
 def drop_tail(journal: Path, k: int) -> int:
-    """Drop the last ``k`` records but none of a synced commit; returns how many."""
+    """Drop the last ``k`` records, but none that a synced commit made durable (those survive
+    a power cut: the journal's seal says how many); returns how many were dropped."""
+    opened = Journal(journal)
+    synced = opened.synced()
+    opened.close()
     with sqlite3.connect(journal) as db:
-        rows = db.execute("SELECT seq, kind FROM records ORDER BY seq").fetchall()
-        durable = max((i for i, (_, kind) in enumerate(rows) if kind in DURABLE_KINDS),
-                      default=-1)
-        cut = max(durable + 1, len(rows) - k)
+        rows = db.execute("SELECT seq FROM records ORDER BY seq").fetchall()
+        cut = max(synced, len(rows) - k)
         if cut < len(rows):
             db.execute("DELETE FROM records WHERE seq >= ?", (rows[cut][0],))
         return len(rows) - cut
@@ -503,7 +509,7 @@ def campaign(mode: str, trials: int, seed: int, kinds: tuple[str, ...]) -> dict[
 
 def main() -> int:
     """Run the campaign and print one line."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = CommandParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=12, help="trials per fault kind and mode")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--modes", default="oneshot,lifelong")
@@ -539,4 +545,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/faults.py", main)
