@@ -40,7 +40,10 @@ per minute of plan time against an undisturbed shift of the same fleet (the down
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import asyncio
 import contextlib
 import itertools
@@ -62,13 +65,14 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.grid import Grid
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.server.clock import LoopClock
-from protocol import LoadPlan, Ok, Start, decode, encode
+from protocol import LoadPlan, Ok, OperatorCommand, Start, decode, encode
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from tracecheck import check_trace, read_trace
@@ -105,6 +109,8 @@ class GatewayProcess:
                     "--log-level", "WARNING"]
         self.log_path = workdir / "gateway.log"
         self.log = self.log_path.open("a")
+        self.env: dict[str, str] | None = None
+        """The process's environment (None: this one's)."""
         self.proc: subprocess.Popen[bytes] | None = None
         self.starts = 0
         self.down_s: list[float] = []
@@ -115,7 +121,7 @@ class GatewayProcess:
         """Start the process and wait until it answers ``/readyz``; ``file_limit``: no file it
         writes may grow beyond that many bytes (``RLIMIT_FSIZE``: a write beyond fails with
         ``EFBIG``, as a full disk fails with ``ENOSPC``)."""
-        self.proc = subprocess.Popen(self.cmd, stdout=self.log, stderr=self.log,
+        self.proc = subprocess.Popen(self.cmd, stdout=self.log, stderr=self.log, env=self.env,
                                      preexec_fn=None if file_limit is None
                                      else partial(limit_files, file_limit))
         self.starts += 1
@@ -180,7 +186,7 @@ class GatewayProcess:
         self.log.close()
 
 
-async def _operator(port: int, *commands: LoadPlan | Start) -> None:
+async def _operator(port: int, *commands: OperatorCommand) -> None:
     """Send operator commands, as an operator would; each must be accepted."""
     from websockets.asyncio.client import connect
 
@@ -487,7 +493,7 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
 
 def main() -> int:
     """Parse arguments and run."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = CommandParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--kills", type=int, default=10)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--robots", type=int, default=10)
@@ -527,4 +533,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/crash.py", main)

@@ -10,7 +10,10 @@ cells), or on a LoRR/MovingAI map given with ``--map``, with both searches in th
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -18,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.distance import (
     _multi_bfs,
     neighbour_table,
@@ -68,7 +72,7 @@ def timed(search: Search, table: npt.NDArray[np.int32], sources: list[list[int]]
 
 def main() -> None:
     """Time both searches and print one result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--goals", type=int, default=64)
     ap.add_argument("--blocks", type=int, nargs=2, default=(40, 33),
                     help="shelf blocks (x, y) of the generated warehouse")
@@ -99,4 +103,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/distance.py", main)

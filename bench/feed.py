@@ -16,13 +16,17 @@ about 1,500 a second at 500 robots).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import json
 import random
 import statistics
 import time
 from typing import Any
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.lifelong.errands import TaskDistances
 from gateway.execution.lifelong.executor import LifelongExecutor, PlanRequest, WindowPlanner
@@ -114,7 +118,7 @@ def event_us(repeat: int) -> float:
 
 def main() -> int:
     """Run the benchmark and print its result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=500)
     ap.add_argument("--windows", type=int, default=5)
     ap.add_argument("--repeat", type=int, default=15)
@@ -136,4 +140,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main("bench/feed.py", main)

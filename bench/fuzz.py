@@ -33,14 +33,16 @@ Prints ONE JSON line. ``--frames 100000`` is the benchmark; the test suite runs 
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import asyncio
 import contextlib
 import itertools
 import json
 import logging
 import random
-import sys
 import tempfile
 import time
 import types
@@ -59,6 +61,7 @@ from pydantic import BaseModel
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.instance import load_instance
 from gateway.planning.solver import solve
 from gateway.runtime import mapstore
@@ -406,10 +409,13 @@ class _Budget:
 
 
 async def run_fuzz(n_frames: int, *, seed: int = 0, concurrency: int = 8,
-                   per_run: int = 5000) -> dict[str, Any]:
+                   per_run: int = 5000, problem: Problem | None = None,
+                   source: Iterator[str | bytes] | None = None) -> dict[str, Any]:
     """The benchmark (see the module doc); returns the result line as a dict. Must run on a
-    virtual-time loop (:func:`gateway.server.clock.run_virtual`)."""
-    problem = _problem()
+    virtual-time loop (:func:`gateway.server.clock.run_virtual`). ``problem`` and ``source``
+    (:func:`frames`) are made here unless given: made before the loop runs, their CPU-bound
+    minutes stay interruptible by Ctrl-C (the loop only sees a signal between callbacks)."""
+    problem = problem or _problem()
     errors = ErrorRecords()
     loggers = [logging.getLogger(n) for n in ("fleetgate", "websockets", "asyncio")]
     for lg in loggers:
@@ -417,7 +423,7 @@ async def run_fuzz(n_frames: int, *, seed: int = 0, concurrency: int = 8,
     loop = asyncio.get_running_loop()
     loop.set_exception_handler(lambda _loop, ctx: errors.records.append(str(ctx.get("message"))))
     stats = FuzzStats()
-    source = frames(n_frames, seed)  # drawn before the clock starts
+    source = source or frames(n_frames, seed)  # drawn before the clock starts
     cpu0, wall0 = time.process_time(), time.perf_counter()
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -454,20 +460,22 @@ async def run_fuzz(n_frames: int, *, seed: int = 0, concurrency: int = 8,
     }
 
 
-def main() -> None:
+def main() -> int:
     """Command line: see the module doc."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = CommandParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=100_000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--concurrency", type=int, default=8, help="fuzz connections at once")
     p.add_argument("--json", action="store_true", help="(the result line is always JSON)")
     args = p.parse_args()
-    result = run_virtual(run_fuzz(args.frames, seed=args.seed, concurrency=args.concurrency))
+    problem, source = _problem(), frames(args.frames, args.seed)
+    result = run_virtual(run_fuzz(args.frames, seed=args.seed, concurrency=args.concurrency,
+                                  problem=problem, source=source))
     print(json.dumps(result), flush=True)
     ok = (result["handler_exceptions"] == 0 and result["trace_errors"] == 0
           and result["soc_ms_fuzzed"] in ([], [result["soc_ms_undisturbed"]]))
-    sys.exit(0 if ok else 1)
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/fuzz.py", main)

@@ -33,21 +33,33 @@ later ones only what is new). ``--kept N`` starts the task book with N ended tas
 events, as after hours of a shift (the pool keeps 100,000 of each).
 
     .venv/bin/python bench/lifelong.py --journal --robots 100 --seconds 3600 --json
+
+``--scale`` (instead): the LoRR archive's warehouse_large (10,000 robots) and brc202d (6,500)
+under the 2026 rules, ``--ticks`` ticks each (skipped when the archive
+copy is absent; :mod:`sim_clients.lifelong_scale`).
+
+    .venv/bin/python bench/lifelong.py --scale --archive DIR --ticks 600
 """
 
 from __future__ import annotations
+
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
 
 import argparse
 import copy
 import dataclasses
 import json
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.lifelong.executor import LifelongExecutor
 from gateway.execution.lifelong.shift_state import HistoryLog, snapshot_shift
 from gateway.execution.lifelong.tasks import (
@@ -69,6 +81,14 @@ from gateway.server.runs.shift_journal import (
 )
 from gateway.server.runs.task_journal import TaskJournal
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from sim_clients.lifelong_scale import (
+    ARCHIVE_ENV,
+    INSTANCES,
+    archive_dir,
+    scale_line,
+    scale_one,
+    scale_runs,
+)
 from sim_clients.shift_des import drive_shift
 from tracecheck.lorr import check_output, read_free
 
@@ -297,7 +317,7 @@ def journal_run(robots: int, seconds: float, every: int, seed: int,
 
 def main() -> None:
     """Run both parts (or the ``--journal`` measurement) and print one result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ticks", type=int, default=600, help="ticks per LoRR problem")
     ap.add_argument("--robots", type=int, default=1000, help="robots in the speed run")
     ap.add_argument("--seconds", type=int, default=600, help="simulated seconds (speed run)")
@@ -312,14 +332,33 @@ def main() -> None:
                     help="--journal: ended tasks (and events) the task book starts with, as "
                          "after hours of a shift (at most 100,000 are kept)")
     ap.add_argument("--json", action="store_true",
-                    help="print one JSON line (the LoRR problems only, or --journal's)")
+                    help="print one JSON line (the LoRR problems, --journal's or --scale's)")
     ap.add_argument("--schedulers", default="shortest,greedy,mincost",
                     help="LoRR problems: comma-separated schedulers to run (default all)")
     ap.add_argument("--lorr", type=Path, default=SHARED,
                     help="the shared LoRR problems (default ../shared/lorr beside the repo)")
     ap.add_argument("--rules-2024", action="store_true",
                     help="also random-example_400 under the 2024 rules vs the 2024 winner")
+    ap.add_argument("--scale", action="store_true",
+                    help="the LoRR archive's warehouse_large (10,000) and brc202d (6,500) "
+                         "under the 2026 rules (sim_clients/lifelong_scale.py)")
+    ap.add_argument("--archive", type=Path, default=None,
+                    help=f"--scale: a copy of MAPF-Competition/Benchmark-Archive (default "
+                         f"${ARCHIVE_ENV} or ~/.cache/fleetgate/lorr-archive)")
+    ap.add_argument("--reassign", type=int, default=LifelongConfig.reassign,
+                    help="--scale: planning calls between reassignments of unstarted tasks "
+                         "(0: never)")
+    ap.add_argument("--scale-one", choices=sorted(INSTANCES), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.scale_one:
+        print(json.dumps(scale_one(args.scale_one, archive_dir(args.archive), args.ticks,
+                                   args.reassign)))
+        return
+    if args.scale:
+        scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign,
+                            [sys.executable, __file__])
+        print(json.dumps(scaled) if args.json else scale_line(scaled))
+        return
     if args.journal:
         out = journal_run(args.robots, args.seconds, args.every, args.seed, args.kept)
         print(json.dumps(out) if args.json else
@@ -363,4 +402,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/lifelong.py", main)

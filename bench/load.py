@@ -61,6 +61,10 @@ loop thread (CPU time of that thread).
 
 from __future__ import annotations
 
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import argparse
 import asyncio
 import contextlib
@@ -83,6 +87,8 @@ from typing import Any
 
 import numpy as np
 
+from fleetgate.userio.exits import CommandParser, run_main
+from fleetgate.userio.files import check_writable
 from gateway.execution.oneshot.adg import ADG
 from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
@@ -239,7 +245,8 @@ def cpu_pressure() -> float | None:
 
 
 _SLEEPER = """
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the benchmark ends it
 late = []
 end = time.perf_counter() + float(sys.argv[1])
 while time.perf_counter() < end:
@@ -591,7 +598,7 @@ def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int,
 
 def main() -> int:
     """Parse arguments and run."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = CommandParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--robots", type=int, default=500)
     p.add_argument("--seconds", type=int, default=30, help="plan steps (~ run seconds)")
     p.add_argument("--seed", type=int, default=1)
@@ -632,6 +639,8 @@ def main() -> int:
         p.error("--lookahead must be >= 0")
     if args.pairs < 1:
         p.error("--pairs must be >= 1")
+    if args.profile is not None:
+        check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.lifelong:
         shift = run_shift(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
                           args.window, args.profile)
@@ -683,4 +692,4 @@ def _print_profile(profile: Path | None) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/load.py", main)

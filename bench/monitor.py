@@ -18,13 +18,17 @@ and propagates to their descendants).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import heapq
 import random
 import statistics
 import sys
 import time
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, Executor
 from gateway.execution.oneshot.monitor import algorithm1
@@ -35,7 +39,7 @@ from gateway.planning.validate import plan_violations
 
 def main() -> int:
     """Run the benchmark and print its result line."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CommandParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=500)
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--steps", type=int, default=28,
@@ -123,4 +127,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/monitor.py", main)

@@ -16,7 +16,10 @@ also runs the omni planner in the same process so that the result line shows bot
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import statistics
 import sys
 import time
@@ -25,6 +28,7 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.cbs import CBSOptions, solve_cbs
 from gateway.planning.instance import Instance, load_instance, load_mapf_ir
 from gateway.planning.motion import MOTIONS, Motion
@@ -93,7 +97,7 @@ def p99(xs: list[float]) -> float:
 
 def main() -> None:
     """Run the benchmark and print the table and the result line."""
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = CommandParser(description=__doc__)
     ap.add_argument("--maps-dir", type=Path, default=DEFAULT_MAPS)
     ap.add_argument("--cap", type=float, default=10.0, help="per-instance limit, CPU seconds")
     ap.add_argument("--baseline-cap", type=float, default=2.0,
@@ -159,4 +163,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/planner.py", main)

@@ -9,12 +9,16 @@ intruder or monitor ticks). Prints one result line.
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import heapq
 import statistics
 import time
 from collections.abc import Callable
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.commands import Dispatch
 from gateway.execution.oneshot.executor import Executor
 from gateway.planning.instance import load_instance
@@ -54,7 +58,7 @@ def timed(fn: Callable[[], object], reps: int) -> list[float]:
 
 def main() -> None:
     """Run the benchmark and print the result line."""
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = CommandParser(description=__doc__)
     ap.add_argument("--agents", type=int, default=15)
     ap.add_argument("--runs", type=int, default=50)
     args = ap.parse_args()
@@ -78,4 +82,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/sim_speed.py", main)

@@ -8,6 +8,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from fleetgate.userio.files import atomic_open
+
 EXIT_PASSED = 0
 """Every required check passed."""
 EXIT_FAILED = 1
@@ -81,4 +83,5 @@ def write_junit(results: Sequence[CheckResult], suite: str, path: Path) -> None:
         if not r.passed:
             tag = "failure" if r.required else "skipped"
             ET.SubElement(case, tag, message=r.detail).text = r.detail
-    ET.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
+    with atomic_open(path, "wb") as f:
+        ET.ElementTree(root).write(f, encoding="utf-8", xml_declaration=True)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import (
@@ -36,6 +35,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from fleetgate.userio.files import atomic_open, make_folder, write_text
 from gateway.execution.oneshot.policies import PolicyName
 from gateway.execution.params import PAPER, IntruderReading
 from gateway.planning.generators import random_instance
@@ -501,12 +501,10 @@ def read_results(path: Path) -> list[Row]:
 
 def write_results(path: Path, rows: Iterable[Row]) -> None:
     """Write all rows sorted, atomically (a temporary file renamed over ``path``)."""
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
+    with atomic_open(path, newline="") as f:
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(COLUMNS)
         writer.writerows(r.to_csv() for r in sorted(rows, key=Row.sort_key))
-    os.replace(tmp, path)
 
 
 def appended_csv_rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, list[str]]]:
@@ -648,7 +646,7 @@ def _check_settings(out: Path, spec: CampaignSpec) -> None:
                 f"{out} holds a campaign made with other settings ("
                 + ", ".join(f"{k}: {old.get(k)!r} there, {settings[k]!r} now" for k in diff)
                 + f"); use another --out or the same settings{hint}")
-    path.write_text(json.dumps(settings, indent=2) + "\n")
+    write_text(path, json.dumps(settings, indent=2) + "\n")
 
 
 def _load_instances(folder: Path, spec: CampaignSpec,
@@ -691,10 +689,9 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     missing_maps = sorted({m for m, _ in spec.groups} - set(map_paths))
     if missing_maps:
         raise CampaignError(f"no map file given for {', '.join(missing_maps)}")
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     _check_settings(out, spec)
-    folder = out / "instances"
-    folder.mkdir(exist_ok=True)
+    folder = make_folder(out / "instances")
     report = progress or (lambda _phase, _done, _total: None)
 
     slots = spec.slots()
@@ -706,7 +703,7 @@ def run_campaign(spec: CampaignSpec, out: Path, map_paths: dict[str, str], *,
     for planned in as_completed([executor.submit(plan_instance, t) for t in todo]):
         rec = planned.result()
         path = folder / rec.filename
-        path.write_text(json.dumps(rec.to_json(spec.seed)) + "\n")
+        write_text(path, json.dumps(rec.to_json(spec.seed)) + "\n")
         records[(rec.map, rec.agents, rec.index)] = rec
         report("instances", len(records), len(slots))
 

@@ -149,12 +149,19 @@ class _ClairvoyantSimulation(_OracleSimulation):
 
     def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
         intr = self.intruder
-        if (intr is not None and intr.cell is not None and not request.shadow
-                and intr.state in (IntruderState.WAITING, IntruderState.PRESENT)
-                and intr.cell not in request.starts):
-            request = dataclasses.replace(request, obstacles=((intr.cell, intr.leave_ms),),
-                                          start_ms=None)
-        return super().plan_for(request, now)
+        if (intr is None or intr.cell is None or request.shadow
+                or intr.state not in (IntruderState.WAITING, IntruderState.PRESENT)
+                or intr.cell in request.starts):
+            return super().plan_for(request, now)
+        request = dataclasses.replace(request, obstacles=((intr.cell, intr.leave_ms),),
+                                      start_ms=None)
+        # the plan is a function of the starts, headings and forbidden timesteps
+        key = (request.starts, request.headings,
+               tuple(request.forbidden(now, self.cfg.action_ms)))
+        got = self.memo.solves.get(key)
+        if got is None:
+            got = self.memo.solves[key] = Simulation.plan_for(self, request, now)
+        return got
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from matplotlib.ticker import MaxNLocator
 
 from experiments.oracle_stats import Judged, policies_run, policy_replanned, policy_soc
 from experiments.stats import Experiment, OutlierRules, map_order, outlier_reasons
+from fleetgate.userio.files import atomic_open
 
 REPLANNED_LABELS = ("Replan", "No Replan")
 
@@ -109,8 +110,11 @@ def fleet_size_figure(exps: Sequence[Experiment], maps_first: Sequence[str] = ()
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        with atomic_open(path, "wb") as f:
+            fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=100)
+    finally:
+        plt.close(fig)
     return path
 
 

@@ -2,6 +2,10 @@
 
 import sys
 
-from gateway.cli import main
+from fleetgate.userio.exits import guard
+
+guard("fleetgate")
+
+from gateway.cli import main  # noqa: E402 (after the guard: Ctrl-C while importing)
 
 sys.exit(main())

@@ -3,8 +3,8 @@
 Gateway subcommands live in :mod:`gateway.commands`; packages the gateway must not import
 (``sim_clients``, ``experiments``) contribute theirs through the ``fleetgate.commands``
 entry-point group. Exit codes (0 success, 2 bad input with a one-line reason on stderr, 3 no
-solution within the limit, 130 interrupted) and :class:`UsageError` live in
-:mod:`gateway.runtime.exits`.
+solution within the limit, 130 interrupted, 141 output pipe closed) and how a command ends
+(one line, never a traceback) live in :mod:`fleetgate.userio.exits`, shared with every script.
 
 Building the parser imports only the command modules' registration code: each command imports
 what it needs (numpy, pydantic, matplotlib...) when it runs, so ``--help`` and the first line
@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import Any
 
-from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_INTERRUPTED, UsageError
+from fleetgate.userio.exits import CommandParser, call
 
 GATEWAY_COMMANDS: tuple[str, ...] = (
     "gateway.commands.plan",
@@ -31,7 +30,7 @@ GATEWAY_COMMANDS: tuple[str, ...] = (
 )
 """Modules with a ``register(subparsers)`` function, in the order ``--help`` lists them."""
 
-class StrictParser(argparse.ArgumentParser):
+class StrictParser(CommandParser):
     """A parser that rejects unknown arguments itself, so a mistyped option of a subcommand
     gets that subcommand's usage line, not the top-level one. Options are never abbreviated
     (a typo that happens to be a prefix of an option must not run the command)."""
@@ -68,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fleetgate",
         description="Execute multi-robot plans safely, monitor delays, replan when it pays off.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub: argparse._SubParsersAction[argparse.ArgumentParser] = parser.add_subparsers(
         dest="command", required=True, metavar="COMMAND", parser_class=StrictParser)
     for register in _registrars():
@@ -75,16 +75,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
-        code: int = args.func(args)
-    except UsageError as exc:
-        print(f"fleetgate: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("fleetgate: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return version("fleetgate")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown"
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    code: int = args.func(args)
     return code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script; returns the process exit code (Ctrl-C, a closed
+    pipe, an unwritable output: one line and the documented code, see
+    :mod:`fleetgate.userio.exits`)."""
+    return call("fleetgate", _main, argv)

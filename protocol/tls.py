@@ -20,7 +20,11 @@ def client_context(ca: str | Path | None = None, cert: str | Path | None = None,
                    key: str | Path | None = None) -> ssl.SSLContext:
     """A client SSL context that verifies the gateway against ``ca`` (the system's CAs if
     None) and, with ``cert`` (and ``key``, if not in the same PEM), presents a client
-    certificate. TLS 1.2 at least; the gateway's host name is checked."""
+    certificate. TLS 1.2 at least; the gateway's host name is checked. An OSError names the
+    file that cannot be read (ssl's own errors do not)."""
+    for what, path in (("CA", ca), ("certificate", cert), ("key", key)):
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(2, f"the TLS {what} file is missing", str(path))
     ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH,
                                      cafile=str(ca) if ca is not None else None)
     ctx.minimum_version = ssl.TLSVersion.TLSv1_2

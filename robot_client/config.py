@@ -15,11 +15,13 @@ from typing import Any, Literal
 from pydantic import Field, SecretStr, ValidationError
 from pydantic_settings import (
     BaseSettings,
+    CliSettingsSource,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
     TomlConfigSettingsSource,
 )
 
+from fleetgate.userio.exits import CommandParser
 from protocol.messages import Heading
 from protocol.tls import client_context
 from robot_client.apriltag_localiser import DownwardCamera
@@ -100,6 +102,23 @@ class RobotSettings(BaseSettings):
                             linear_gain=self.linear_gain, bumper_pause_ms=self.bumper_pause_ms)
 
 
+_METAVARS = {"SecretStr": "TOKEN", "{Path,null}": "FILE", "Path": "FILE", "str": "TEXT",
+             "int": "N", "float": "NUMBER"}
+"""Placeholders in ``--help`` for pydantic's type names (``--token TOKEN``, not SecretStr)."""
+
+
+class _Cli(CliSettingsSource[Any]):
+    """The command line of the settings, with placeholders a user reads (:data:`_METAVARS`)."""
+
+    def _metavar_format(self, obj: Any) -> str:
+        text = super()._metavar_format(obj)
+        return _METAVARS.get(text, text)
+
+    def _help_format(self, *args: Any, **kwargs: Any) -> str:
+        text: str = super()._help_format(*args, **kwargs)
+        return text.replace(f"(default: {self.cli_parse_none_str})", "(default: none)")
+
+
 class ConfigError(ValueError):
     """The settings are incomplete or wrong (one-line reason)."""
 
@@ -128,7 +147,12 @@ def load_settings(argv: list[str] | None = None, config_file: str | Path | None 
             return sources
 
     try:
-        cli: dict[str, Any] = {"_cli_parse_args": argv if argv is not None else False}
+        cli: dict[str, Any] = {"_cli_parse_args": False}
+        if argv is not None:
+            parser = CommandParser(prog="fleetgate-robot",
+                                             description=__doc__.splitlines()[0])
+            cli = {"_cli_settings_source": _Cli(_WithFile, cli_parse_args=argv,
+                                                root_parser=parser)}
         return _WithFile(**cli, **overrides)
     except ValidationError as exc:
         err = exc.errors(include_url=False)[0]

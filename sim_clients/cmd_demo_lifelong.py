@@ -18,7 +18,8 @@ import secrets
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.runtime.exits import EXIT_OK, UsageError
+from fleetgate.userio.files import check_writable
+from gateway.runtime.exits import UsageError
 
 if TYPE_CHECKING:
     from gateway.commands.progress import StatusLine
@@ -38,7 +39,7 @@ def shift_status(engine: Engine) -> str:
     run = engine.lifelong
     if run is None:
         return f"gateway {engine.status}"
-    from gateway.server.runs.lifelong import throughput_per_min
+    from gateway.server.views import throughput_per_min
 
     ex = run.executor
     t = engine.now_ms() if ex.mode.value != "new" else 0.0
@@ -68,13 +69,13 @@ async def _show(engine: Engine, status: StatusLine) -> None:
 async def _shift(config: GatewayConfig, args: argparse.Namespace, status: StatusLine) -> int:
     import asyncio
 
+    from fleetgate.userio.signals import StopSignals
     from gateway.server.gateway import Gateway
-    from sim_clients.cmd_demo import _stop_on_signals
     from sim_clients.connect import websocket_connector
     from sim_clients.fleet import SimFleet
     from sim_clients.shift import start_shift, stop_shift
 
-    stop = _stop_on_signals()
+    stop = StopSignals()
     async with Gateway(config) as gateway:
         port = await gateway.listen()
         run = gateway.engine.lifelong
@@ -116,10 +117,10 @@ async def _shift(config: GatewayConfig, args: argparse.Namespace, status: Status
                          f"{stats.dispatched} actions, {stats.lost} lost, {stats.duplicated} "
                          f"duplicated, {stats.collisions} collisions; assignment wait p50 "
                          f"{wait['p50']:.1f} s, max {wait['max']:.1f} s")
-        if not (args.headless or stop.is_set()):  # --seconds ended it: the GUI stays up
+        if not (args.headless or stop.event.is_set()):  # --seconds ended it: the GUI stays up
             status.print("serving the GUI until Ctrl-C")
             await stop.wait()
-    return EXIT_OK
+    return stop.exit_code
 
 
 def run_lifelong_demo(args: argparse.Namespace) -> int:
@@ -142,10 +143,7 @@ def run_lifelong_demo(args: argparse.Namespace) -> int:
     if problem is not None and not problem.is_file():
         raise UsageError(f"LoRR problem not found: {problem}")
     if args.trace:
-        try:
-            Path(args.trace).open("w").close()
-        except OSError as exc:
-            raise UsageError(f"cannot write the trace {args.trace}: {exc.strerror}") from None
+        check_writable(args.trace, "the trace")  # an earlier one is moved aside, not lost
     status = StatusLine()
     try:
         config = load_config(

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import sys
 
+from fleetgate.userio.files import check_writable, write_text
 from gateway.runtime.exits import EXIT_OK, UsageError
 
 SCHEDULER_CHOICES = ("greedy", "mincost", "shortest")
@@ -57,12 +58,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.delay_seed is not None:
         problem = dataclasses.replace(problem, delay=dataclasses.replace(problem.delay,
                                                                          seed=args.delay_seed))
-    out = None
     if args.output:
-        try:
-            out = open(args.output, "w", encoding="utf-8")  # noqa: SIM115 (closed below)
-        except OSError as exc:
-            raise UsageError(f"cannot write {args.output}: {exc.strerror}") from None
+        check_writable(args.output)  # before the run, not after it
     cfg = LifelongConfig(problem=problem, ticks=args.ticks, turning=args.motion == "turning",
                          period=args.period, window=args.window,
                          planner_time=args.planner_time, scheduler=args.scheduler,
@@ -74,9 +71,8 @@ def _run(args: argparse.Namespace) -> int:
                   console=Console(stderr=True)) as bar:
         task = bar.add_task(problem.name, total=args.ticks, done=0)
         result = run_lifelong(cfg, lambda t, done: bar.update(task, completed=t, done=done))
-    if out is not None:
-        with out:
-            json.dump(lorr_output(cfg, result), out)
+    if args.output:
+        write_text(args.output, json.dumps(lorr_output(cfg, result)))
     times = result.planner_times
     wait = wait_percentiles(result.waits)
     print(f"{problem.name}: {problem.team_size} robots, {args.ticks} ticks: "

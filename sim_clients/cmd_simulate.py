@@ -53,10 +53,7 @@ def _run(args: argparse.Namespace) -> int:
         why = no_solution_message(instance, args, str(exc), exc.timed_out)
         print(f"fleetgate: {why}", file=sys.stderr)
         return EXIT_NO_SOLUTION
-    try:
-        writer = JsonlWriter(args.trace) if args.trace else None
-    except OSError as exc:
-        raise UsageError(f"cannot write the trace {args.trace}: {exc.strerror}") from None
+    writer = JsonlWriter(args.trace) if args.trace else None
     stay = stay_option(args.intruder_stay)
     config = SimConfig(instance.grid, solution.plan, seed=args.seed, intruder=args.intruder,
                        policy=args.policy, threshold_ms=args.threshold_ms,
@@ -67,9 +64,12 @@ def _run(args: argparse.Namespace) -> int:
     try:
         with ticking(status, lambda s: f"simulating {instance.num_agents} robots ... {s:.0f} s"):
             result = run_simulation(config)
-    finally:
+    except BaseException as exc:
         if writer is not None:
-            writer.close()
+            writer.close(exc)
+        raise
+    if writer is not None:
+        writer.close()
     if args.json:
         print(json.dumps(result.summary()))
         return EXIT_OK

@@ -24,6 +24,7 @@ import contextlib
 import itertools
 import logging
 import random
+import ssl
 import time
 from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -202,8 +203,12 @@ class FleetRobot:
         while not fleet.stopping:
             try:
                 conn = await fleet.connect(fleet.token(self.robot_id))
+            except ssl.SSLError as exc:  # verification failed: retrying will not help
+                fleet.fail(f"robot {self.robot_id}: TLS: {exc.reason or exc}")
+                return
             except (OSError, ConnectionClosed) as exc:
                 log.info("robot %d cannot connect: %s", self.robot_id, exc)
+                fleet.unreachable(exc)
                 await asyncio.sleep(fleet.reconnect_delay_s)
                 continue
             except Exception as exc:  # e.g. handshake refused: retrying will not help
@@ -468,6 +473,9 @@ class SimFleet:
         self._welcomed: set[int] = set()  # robots that got a welcome at least once
         self._failure: str | None = None
         self._ids = list(robots)
+        self.connect_error: str | None = None
+        """Why the first connection attempt that found nobody failed (see :meth:`unreachable`)."""
+        self.gateway_absent = asyncio.Event()
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
@@ -482,6 +490,8 @@ class SimFleet:
                 log.warning("no set_speed from the gateway on the world connection yet")
         for r in self._ids:
             self.add_robot(r)
+        if not self._ids:  # only the world (e.g. the robots are VDA 5050 vehicles)
+            self._all_connected.set()
         if not self._external_poll:
             self._tasks.append(loop.create_task(self._poll_loop(), name="sim-intruders"))
 
@@ -510,10 +520,18 @@ class SimFleet:
             self._all_connected.set()
 
     def fail(self, reason: str) -> None:
-        """Stop waiting: a robot cannot run at all."""
+        """Stop waiting: a robot (or the world connection) cannot run at all."""
         self._failure = reason
         log.error(reason)
         self._all_connected.set()
+        self._world_ready.set()
+
+    def unreachable(self, exc: BaseException) -> None:
+        """A connection attempt found nobody there (it is retried): the first reason is kept
+        in :attr:`connect_error` and :attr:`gateway_absent` is set."""
+        if self.connect_error is None:
+            self.connect_error = str(exc) or type(exc).__name__
+        self.gateway_absent.set()
 
     async def stop(self) -> None:
         """Stop every robot and close the connections."""
@@ -528,6 +546,13 @@ class SimFleet:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+
+    def rearm_intruder(self) -> None:
+        """A new run: the automatic intruder comes again, at ``T_a`` of that run (if the fleet
+        has one; one that never appeared in the last run is not doubled)."""
+        if self._oracle is not None:
+            self._intruders = [i for i in self._intruders if i.state is not IntruderState.ABSENT]
+            self._intruders.append(Intruder(self.world, self._intruder_config))
 
     def place_all(self, starts: Sequence[Cell], headings: Sequence[int] | None = None) -> None:
         """Put robot k on ``starts[k]`` (facing ``headings[k]`` under ``turning``) for a new
@@ -545,7 +570,11 @@ class SimFleet:
         while not self.stopping:
             try:
                 conn = await self.connect(self._world_token)
-            except (OSError, ConnectionClosed):
+            except ssl.SSLError as exc:
+                self.fail(f"the world connection: TLS: {exc.reason or exc}")
+                return
+            except (OSError, ConnectionClosed) as exc:
+                self.unreachable(exc)
                 await asyncio.sleep(self.reconnect_delay_s)
                 continue
             self._world_conn = conn

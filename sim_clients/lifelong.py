@@ -166,16 +166,18 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
-    space = StateSpace(grid, cfg.turning, robots=n)
+    space = StateSpace(grid, cfg.turning, budget_bytes=2 << 30, robots=n)
     planner = WindowedPIBT(space, n, seed=cfg.seed)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)
     window = cfg.window or math.ceil(cfg.period / counter)
     # the scheduler's distances: exact moves; a robot in a delay competes for tasks with a
-    # charge, so tasks go to robots that can go
+    # charge, so tasks go to robots that can go. On a large map the planner's tables are the
+    # moves over the free cells too: one cache serves both (the robots' goals are errands)
     distances = TaskDistances(grid, charge=round(DELAY_CHARGE * prob.delay.mean_duration
-                                                 / counter))
+                                                 / counter),
+                              space=None if space.exact else space)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
                     max_wait=cfg.max_wait)
     book = ErrandBook(pool, n)

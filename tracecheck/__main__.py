@@ -2,6 +2,10 @@
 
 import sys
 
-from tracecheck.checker import main
+from fleetgate.userio.exits import guard
+
+guard("tracecheck")
+
+from tracecheck.checker import main  # noqa: E402 (after the guard: Ctrl-C while importing)
 
 sys.exit(main())

@@ -35,7 +35,6 @@ in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from bisect import bisect_right
@@ -44,6 +43,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio.exits import EPILOG, CommandParser, UsageError, call
 from tracecheck.reader import read_trace
 
 Pos = tuple[int, int]
@@ -621,20 +621,27 @@ def slack_series(records: Sequence[Mapping[str, Any]],
     return out
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m tracecheck FILE``: print the findings; exit 1 if any, 2 if the file cannot
-    be read as JSON lines (one line on stderr)."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+def _is_lorr_output(records: Sequence[Mapping[str, Any]]) -> bool:
+    return len(records) == 1 and "actualPaths" in records[0]
+
+
+def _check(argv: Sequence[str] | None) -> int:
+    parser = CommandParser(
+        prog="python -m tracecheck", description=__doc__.splitlines()[0] if __doc__ else None,
+        epilog=f"LoRR output JSON (fleetgate lifelong --output): python -m tracecheck.lorr. "
+               f"{EPILOG}")
     parser.add_argument("trace", type=Path, help="JSON-lines trace file")
     args = parser.parse_args(argv)
     try:
         records = read_trace(args.trace)
     except OSError as exc:
-        print(f"tracecheck: cannot read {args.trace}: {exc.strerror}", file=sys.stderr)
-        return 2
+        raise UsageError(f"cannot read {args.trace}: {exc.strerror}") from None
     except ValueError as exc:
-        print(f"tracecheck: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(str(exc)) from None
+    if _is_lorr_output(records):
+        raise UsageError(f"{args.trace} is a LoRR output (fleetgate lifelong --output), not a "
+                         f"trace: check it with python -m tracecheck.lorr {args.trace} "
+                         f"--problem PROBLEM.json")
     report = check_trace(records)
     for err in report.errors:
         print(f"error: {err}")
@@ -643,9 +650,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     for t, rec, mine in report.triggers:
         again = "not recomputed (lifelong)" if math.isnan(mine) else f"recomputed {mine} ms"
         print(f"trigger at {t} ms: fleet slack recorded {rec} ms, {again}")
-    print(f"{report.plans} plan(s), {report.actions_run} actions, SOC {report.soc_ms} ms, "
-          f"makespan {report.makespan_ms} ms: {'OK' if report.ok else 'FAILED'}")
+    print(f"{report.plans} plan(s), {report.actions_run} actions, SOC {report.soc_ms:.0f} ms, "
+          f"makespan {report.makespan_ms:.0f} ms: {'OK' if report.ok else 'FAILED'}")
     return 0 if report.ok else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m tracecheck FILE``: print the findings; exit 1 if any, 2 if the file cannot
+    be read as JSON lines (one line on stderr; the exit codes of :mod:`fleetgate.userio`)."""
+    return call("tracecheck", _check, argv)
 
 
 if __name__ == "__main__":

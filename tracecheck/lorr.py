@@ -6,12 +6,21 @@ ticks of that action; ``W`` makes no progress) and checks that robots stay on fr
 each window's snapshot matches the replayed state, and no two robots ever hold the same cell
 at the same tick (a robot in the middle of a move holds both cells; a robot holds a cell from
 the first tick of its move into it until the last tick of its move out of it).
+
+Run it as ``python -m tracecheck.lorr OUT.json --problem PROBLEM.json`` (or ``--map FILE.map``).
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
+
+from fleetgate.userio.exits import CommandParser, UsageError, call, guard
 
 _WINDOW = re.compile(r"\[\((\d+),(\d+),(\d+),(\d+),(\d+)\):\(([^)]*)\)\]")
 _STEP = {0: (0, 1), 1: (1, 0), 2: (0, -1), 3: (-1, 0)}  # heading -> (drow, dcol)
@@ -93,3 +102,69 @@ def check_output(out: dict[str, Any], free: list[list[bool]]) -> int:
                 t += 1
         ticks = max(ticks, t)
     return ticks
+
+
+def _read_json(path: Path, what: str) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise UsageError(f"cannot read the {what} {path}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"the {what} {path} is not JSON: {exc.msg} (line {exc.lineno})"
+                         ) from None
+
+
+def _map_file(args: argparse.Namespace) -> Path:
+    if (args.map is None) == (args.problem is None):
+        raise UsageError("give exactly one of --problem PROBLEM.json and --map FILE.map")
+    if args.map is not None:
+        return Path(args.map)
+    problem = _read_json(args.problem, "problem")
+    if not isinstance(problem, dict) or not isinstance(problem.get("mapFile"), str):
+        raise UsageError(f"the problem {args.problem} has no mapFile")
+    return Path(args.problem).parent / problem["mapFile"]
+
+
+def _check(argv: Sequence[str] | None) -> int:
+    parser = CommandParser(
+        prog="python -m tracecheck.lorr",
+        description="Replay a LoRR output JSON (fleetgate lifelong --output) under LoRR's "
+                    "rules and check it: robots on free cells, snapshots matching the replay, "
+                    "no two robots on one cell at a tick. Exit 1 on a violation.")
+    parser.add_argument("output", type=Path, help="the LoRR output JSON")
+    parser.add_argument("--problem", type=Path, help="the LoRR problem JSON (its mapFile)")
+    parser.add_argument("--map", type=Path, help="or the map file itself")
+    args = parser.parse_args(argv)
+    path = _map_file(args)
+    try:
+        free = read_free(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise UsageError(f"cannot read the map {path}: {exc.strerror}") from None
+    except (IndexError, ValueError):
+        raise UsageError(f"{path} is no MovingAI map") from None
+    out = _read_json(args.output, "LoRR output")
+    if not isinstance(out, dict) or "actualPaths" not in out:
+        raise UsageError(f"{args.output} is no LoRR output (no actualPaths); a fleetgate "
+                         f"trace is checked by python -m tracecheck")
+    try:
+        ticks = check_output(out, free)
+    except AssertionError as exc:
+        print(f"error: {exc}")
+        print(f"{len(out['actualPaths'])} robots: FAILED")
+        return 1
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise UsageError(f"{args.output}: malformed LoRR output ({exc!r})") from None
+    print(f"{len(out['actualPaths'])} robots, {ticks} ticks, "
+          f"{out.get('numTaskFinished', '?')} tasks finished: OK")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m tracecheck.lorr OUT.json --problem P.json``: exit 0 if the output replays
+    cleanly, 1 on a violation (printed), 2 on bad input."""
+    return call("tracecheck.lorr", _check, argv)
+
+
+if __name__ == "__main__":
+    guard("tracecheck.lorr")
+    sys.exit(main())

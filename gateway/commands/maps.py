@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from fleetgate.userio.files import make_folder, write_text
 from gateway.runtime import mapstore
 from gateway.runtime.exits import EXIT_OK, UsageError
 
@@ -84,12 +85,9 @@ def _generate(args: argparse.Namespace) -> int:
     clash = [n for n in texts if (out / n).exists()]
     if clash and not args.force:
         raise UsageError(f"{out / clash[0]} exists (use --force to overwrite)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        for file, text in texts.items():
-            (out / file).write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise UsageError(f"cannot write into {out}: {exc.strerror}") from None
+    make_folder(out)
+    for file, text in texts.items():
+        write_text(out / file, text)
     for file in texts:
         print(out / file)
     return EXIT_OK

@@ -1,37 +1,39 @@
-"""``fleetgate serve``: run the gateway (websockets + HTTP) until interrupted."""
+"""``fleetgate serve``: run the gateway (websockets + HTTP) until SIGTERM (exit 0) or Ctrl-C
+(exit 130)."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import signal
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.runtime.exits import EXIT_OK, UsageError
+from gateway.runtime.exits import UsageError
 
 if TYPE_CHECKING:
     from gateway.server.config import GatewayConfig
 
 
-async def _serve(config: GatewayConfig, fresh: bool) -> None:
-    import asyncio
-
+async def _serve(config: GatewayConfig, fresh: bool) -> int:
+    from fleetgate.userio.signals import StopSignals
     from gateway.server.gateway import Gateway
 
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError):
-            loop.add_signal_handler(sig, stop.set)
-    async with Gateway(config, fresh=fresh) as gateway:
+    stop = StopSignals()
+    async with Gateway(config, fresh=fresh) as gateway, contextlib.AsyncExitStack() as vda:
         port = await gateway.listen()
         s = "s" if config.tls is not None else ""
         print(f"fleetgate gateway on ws{s}://{config.host}:{port}/ws "
               f"(GUI http{s}://{config.host}:{port}/, metrics /metrics, probes /healthz "
               f"/readyz)", file=sys.stderr, flush=True)
+        if config.vda5050 is not None:
+            from gateway.vda5050.transport import VdaTransport
+
+            await vda.enter_async_context(VdaTransport(gateway, config.vda5050))
+            print(f"VDA 5050 master control on {config.vda5050.broker.url} "
+                  f"({len(config.vda5050.vehicles)} vehicles)", file=sys.stderr, flush=True)
         await stop.wait()
+    return stop.exit_code
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -59,13 +61,12 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot write the log file {config.log_file}: {exc.strerror}"
                          ) from None
     try:
-        asyncio.run(_serve(config, args.fresh))
-    except ValueError as exc:  # the configured instance cannot be loaded
+        return asyncio.run(_serve(config, args.fresh))
+    except ValueError as exc:  # the configured instance cannot be loaded, no MQTT broker
         raise UsageError(str(exc)) from None
     except OSError as exc:
         raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
                          ) from None
-    return EXIT_OK
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -45,6 +45,14 @@ class ExecutionParams:
     """Shadow planning starts a background solve at most this often."""
     shadow_min_slack_ms: float = 1000.0
     """Shadow planning solves while the fleet slack or a reported block is at least this."""
+    shadow_risk_aversion: float = 1.0
+    """Shadow planning counts the expected regret of a plan (its mean loss against keeping
+    the current one over the scenarios of the blocks' ends) this many times against its
+    expected gain."""
+    shadow_risk_level: float = 0.1
+    """Shadow planning adopts no plan that loses at this quantile of the blocks' ends."""
+    shadow_scenarios: int = 20
+    """The equally likely scenarios of the blocks' ends shadow planning weighs."""
     oracle_step_ms: float = 250.0
     """The step of the oracle's sweep of forced replans (``fleetgate experiment --oracle``)."""
 

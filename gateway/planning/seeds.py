@@ -18,11 +18,11 @@ from __future__ import annotations
 import random
 import zlib
 
-import numpy as np
-
 
 def derive_seed(*parts: int | str, bits: int = 63) -> int:
     """A stable seed of ``bits`` bits from ints and strings (independent of PYTHONHASHSEED)."""
+    import numpy as np  # here: the CLI's parser imports run_seed's module (no numpy at --help)
+
     entropy = [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) for p in parts]
     state = np.random.SeedSequence(entropy).generate_state(2, dtype=np.uint64)
     return int(state[0]) >> (64 - bits)

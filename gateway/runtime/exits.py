@@ -1,8 +1,10 @@
 """Process exit codes and the bad-input error of every ``fleetgate`` command (DESIGN section 3).
 
-Exit codes: 0 success, 2 bad input (one-line reason on stderr), 3 no solution within the limit,
-70 an internal error the gateway cannot go on after (its owner task died), 74 the journal
-could not be written or synced, 130 interrupted (Ctrl-C).
+The codes every command shares are the project's one set (:mod:`fleetgate.userio.exits`, which
+documents them): 0 success, 2 bad input (one-line reason on stderr), 3 no solution within the
+limit, 130 interrupted (Ctrl-C), 141 output pipe closed. The gateway adds two of its own:
+70 an internal error it cannot go on after (its owner task died), 74 the journal could not be
+written or synced.
 """
 
 from __future__ import annotations
@@ -10,12 +12,20 @@ from __future__ import annotations
 import logging
 import os
 
-EXIT_OK = 0
-EXIT_BAD_INPUT = 2
-EXIT_NO_SOLUTION = 3
+from fleetgate.userio.exits import (
+    EPILOG,
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_NO_SOLUTION,
+    EXIT_OK,
+    UsageError,
+)
+
+__all__ = ["EPILOG", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "EXIT_JOURNAL", "EXIT_NO_SOLUTION",
+           "EXIT_OK", "EXIT_SOFTWARE", "UsageError", "fatal"]
+
 EXIT_SOFTWARE = 70
 EXIT_JOURNAL = 74
-EXIT_INTERRUPTED = 130
 
 
 def fatal(message: str, code: int) -> None:
@@ -27,7 +37,3 @@ def fatal(message: str, code: int) -> None:
     for handler in logging.getLogger().handlers:
         handler.flush()
     os._exit(code)
-
-
-class UsageError(Exception):
-    """Bad input: the CLI prints ``fleetgate: <message>`` and exits with code 2."""

@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Literal
 
 import gateway.planning
+from fleetgate.userio.files import make_folder, write_bytes
+from gateway.runtime.exits import UsageError
 
 Kind = Literal["map", "scen"]
 KINDS: tuple[Kind, ...] = ("map", "scen")
@@ -66,7 +68,10 @@ def cache_dir() -> Path:
 
 def search_dirs(maps_dir: str | Path | None = None,
                 environ: Mapping[str, str] | None = None) -> list[MapDir]:
-    """The folders names resolve in, first match wins."""
+    """The folders names resolve in, first match wins. UsageError if ``maps_dir`` (a user's
+    ``--maps-dir``) is no folder: a typo there would silently fall through to the others."""
+    if maps_dir and not Path(maps_dir).is_dir():
+        raise UsageError(f"--maps-dir {maps_dir} is no folder")
     env = os.environ if environ is None else environ
     dirs = [MapDir("--maps-dir", Path(maps_dir))] if maps_dir else []
     dirs += [MapDir(f"${ENV_MAPS}", Path(p)) for p in env.get(ENV_MAPS, "").split(os.pathsep)
@@ -182,8 +187,8 @@ def store_members(members: list[tuple[str, bytes]], dest: Path) -> list[Path]:
     written: list[Path] = []
     for base, content in members:
         folder = dest / "scen" if base.endswith(".scen") else dest
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / base).write_bytes(content)
+        make_folder(folder)
+        write_bytes(folder / base, content)
         written.append(folder / base)
     return written
 

@@ -7,39 +7,51 @@ is the sink that writes them to a file.
 from __future__ import annotations
 
 import json
+from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+from fleetgate.userio.files import atomic_open
 from gateway.execution.trace_records import Record
 
 
 class JsonlWriter:
-    """A trace sink writing one compact JSON object per line to ``path`` (or an open file)."""
+    """A trace sink writing one compact JSON object per line to ``path`` (or an open file).
+
+    A path is written atomically: the trace appears there whole when the writer is closed
+    without an exception, and an interrupted run leaves a previous file as it was
+    (:func:`fleetgate.userio.files.atomic_open`; CannotWrite, one line, if it cannot be).
+    """
 
     def __init__(self, target: str | Path | IO[str]) -> None:
+        self._owned: AbstractContextManager[IO[str]] | None = None
         if isinstance(target, (str, Path)):
-            self._file: IO[str] = open(target, "w", encoding="utf-8")  # noqa: SIM115
-            self._owned = True
+            self._owned = atomic_open(target, what="the trace")
+            self._file: IO[str] = self._owned.__enter__()
         else:
             self._file = target
-            self._owned = False
 
     def __call__(self, record: Record) -> None:
         """Append one record."""
         self._file.write(json.dumps(record, separators=(",", ":")))
         self._file.write("\n")
 
-    def close(self) -> None:
-        """Flush, and close the file if this writer opened it."""
-        if self._owned:
-            self._file.close()
-        else:
+    def close(self, failed: BaseException | None = None) -> None:
+        """Flush, and if this writer opened the file put it in place (or, after ``failed``,
+        leave the previous one)."""
+        if self._owned is None:
             self._file.flush()
+            return
+        owned, self._owned = self._owned, None
+        if failed is None:
+            owned.__exit__(None, None, None)
+        else:
+            owned.__exit__(type(failed), failed, failed.__traceback__)
 
     def __enter__(self) -> JsonlWriter:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        self.close()
+        self.close(exc)

@@ -24,7 +24,9 @@ refused reports back. A vehicle speaks VDA 5050. :class:`VehicleMaster` translat
   cannot be taken back, so the master sends ``cancelOrder``; once the vehicle reports it
   finished (or failed: it had no order left) the actions it traversed meanwhile are finished
   and the others cancelled. Released actions the gateway did not cancel go into a new order
-  from the vehicle's last node;
+  from the vehicle's last node. A new plan's first actions for a vehicle whose order still
+  has a horizon cancel that order first too (the vehicle would reject a new order while it
+  waits for its horizon, figure 8);
 * a vehicle that rejects an order or update (an error referring to its ``orderId``, e.g.
   ``validationError``, ``orderError``, ``orderUpdateError``, ``noRouteError``) refuses its
   first action and, with it, every later released action; the rejection of an update that
@@ -178,12 +180,22 @@ class VehicleMaster:
         if not actions:
             return
         order = self._order
-        if order is not None and not order.dead and order.cancel_id is not None:
+        live = order is not None and not order.dead
+        other_plan = order is None or not order.order_id.startswith(
+            plan_key(actions[0].action_id) + ".")
+        if live and order is not None and order.cancel_id is not None:
             self._carry.extend(actions)  # a new order once the cancelOrder completes
-        elif (order is None or order.dead
-              or not order.order_id.startswith(plan_key(actions[0].action_id) + ".")):
+        elif live and order is not None and other_plan and order.sent and any(
+                not n.released for n in order.sent[-1].order.nodes):
+            # the vehicle waits for its old order's horizon: it would reject a new order
+            # (figure 8), so that order is cancelled first
+            self._carry.extend(actions)
+            order.cancel_id = self._instant_action("cancelOrder", now_s)
+            self._cancel_sent_s = now_s
+        elif not live or other_plan:
             self._new_order(list(actions), now_s)
         else:
+            assert order is not None
             self._update(order, list(actions), now_s)
 
     def cancel(self, action_ids: Iterable[str], now_s: float) -> None:

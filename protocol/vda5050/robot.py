@@ -21,6 +21,7 @@ vehicle.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from typing import Any
 
 from protocol.messages import (
@@ -29,9 +30,7 @@ from protocol.messages import (
     ActionRefused,
     Activity,
     AnyMessage,
-    Blocked,
     CancelAction,
-    Cancelled,
     Finished,
     Hello,
     Pause,
@@ -39,31 +38,30 @@ from protocol.messages import (
     Resume,
     RobotActivity,
     RobotMessage,
-    Started,
     State,
-    Unblocked,
     Welcome,
     parse_action_id,
     plan_key,
 )
-from protocol.robot_session import HISTORY
+from protocol.robot_session import HISTORY, REPORTS
 from protocol.vda5050.master import Effect, Report, VehicleMaster
 from protocol.vda5050.nodes import heading_of
-
-_REPORTS: dict[str, type[Started | Finished | Blocked | Unblocked | Cancelled]] = {
-    "started": Started, "finished": Finished, "blocked": Blocked, "unblocked": Unblocked,
-    "cancelled": Cancelled}
 
 
 class VdaRobot:
     """One VDA 5050 vehicle as robot ``robot_id`` of the gateway (see the module docstring).
 
-    ``turning``: plans carry headings (the pose reports the vehicle's heading)."""
+    ``turning``: plans carry headings (the pose reports the vehicle's heading).
+    ``plan_of(action)``: all actions of the robot's plan that ``action`` belongs to (the
+    orders' horizon is the part not released yet); without it orders have no horizon."""
 
-    def __init__(self, robot_id: int, master: VehicleMaster, *, turning: bool) -> None:
+    def __init__(self, robot_id: int, master: VehicleMaster, *, turning: bool,
+                 plan_of: Callable[[Action], list[Action]] | None = None) -> None:
         self.robot_id = robot_id
         self.master = master
         self.turning = turning
+        self.plan_of = plan_of
+        self._plan_key: str | None = None
         self.link_up = False
         self.paused = False
         self.held: dict[str, Action] = {}
@@ -81,6 +79,8 @@ class VdaRobot:
         """Where the vehicle is (its last ``state``), as a cell and heading."""
         state = self.master.state
         if state is None or state.agv_position is None:
+            return None
+        if not state.agv_position.position_initialized:
             return None
         pos = state.agv_position
         cell = self.master.nodes.cell_of(pos.x, pos.y)
@@ -141,6 +141,9 @@ class VdaRobot:
                 self._send(ActionRefused, action_id=aid, pose=self.pose, code=code,
                            detail=detail)
                 continue
+            if self.plan_of is not None and plan_key(aid) != self._plan_key:
+                self._plan_key = plan_key(aid)
+                self.master.set_plan(self.plan_of(action))
             self.held[aid] = action
             self._release.append(action)
             self._send(Ack, action_id=aid)
@@ -190,7 +193,7 @@ class VdaRobot:
             self.phase[aid] = "running" if effect.kind == "started" else "received"
         else:
             self.phase[aid] = "blocked"
-        self._send(_REPORTS[effect.kind], action_id=aid, pose=self.pose)
+        self._send(REPORTS[effect.kind], action_id=aid, pose=self.pose)
 
     def state(self, battery: float | None = None) -> None:
         """Send a ``state`` snapshot to the gateway."""

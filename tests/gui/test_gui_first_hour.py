@@ -76,7 +76,10 @@ def test_the_demo_starts_when_its_gui_is_first_opened(browser: Browser) -> None:
     plan time, 0.75-2.5 s of wall time at speed 4); the first login starts the run, and the
     viewer sees the intruder, the trigger and the replan. Item 8: no task API requests."""
     with DemoProcess("--speed", "4") as demo:
-        time.sleep(4.0)  # 16 s of plan time
+        deadline = time.monotonic() + 30
+        while health(demo.url)["robots"] < 10 and time.monotonic() < deadline:
+            time.sleep(0.1)  # every robot connected: on main the run starts now
+        time.sleep(3.0)  # 12 s of plan time
         before = health(demo.url)
         assert (before["gateway"], before["robots"]) == ("loaded", 10), before
         with gui(browser, demo.url, "first-hour-demo-start") as (page, requests):
@@ -86,6 +89,20 @@ def test_the_demo_starts_when_its_gui_is_first_opened(browser: Browser) -> None:
             page.wait_for_function("window.fleetgate.plan() === 1", timeout=20_000)
             expect(page.locator("#log")).to_contain_text("replan triggered")
             assert task_requests(requests) == []
+
+
+def test_a_rerun_from_the_gui_brings_the_intruder_again(browser: Browser) -> None:
+    """Item 9: whoever presses Start again after the first run sees the intruder and the
+    replan again (on main the automatic intruder came in the first run only)."""
+    with DemoProcess("--speed", "5", "--start", "now") as demo, \
+            gui(browser, demo.url, "first-hour-rerun") as (page, _):
+        page.wait_for_function("window.fleetgate.status() === 'done'", timeout=60_000)
+        page.get_by_role("button", name="Start").click()
+        expect(page.locator("#status")).to_have_text("running", timeout=10_000)
+        page.wait_for_function("window.fleetgate.model.snap.intruders.length > 0",
+                               timeout=15_000)
+        page.wait_for_function("window.fleetgate.plan() === 1", timeout=20_000)
+        page.wait_for_function("window.fleetgate.status() === 'done'", timeout=60_000)
 
 
 def test_the_demo_instance_form_shows_its_map_and_scenario_and_loads_them(
@@ -138,6 +155,7 @@ def test_the_lifelong_gui_shows_the_shift_and_offers_what_the_gateway_accepts(
             "window every 1.0 s, early at slack > 2.0 s")
         expect(page.locator("#exec-costs")).to_be_hidden()
         expect(page.locator("#log")).to_contain_text("lifelong shift on warehouse: 20 robots")
+        expect(page.locator("#robot-rows tr")).to_have_count(20)  # the Robots card
         counts = page.locator("#tasks-counts")
         expect(counts).to_contain_text("robots at work")
         assert counts.evaluate("e => getComputedStyle(e).color") != DANGER

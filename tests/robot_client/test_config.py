@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -49,8 +50,27 @@ def test_module_runs_with_help() -> None:
 def test_help_lists_config_and_log_level_and_plain_flags() -> None:
     out = subprocess.run([sys.executable, "-m", "robot_client", "--help"], capture_output=True,
                          text=True, timeout=60, check=True).stdout
-    assert "--config str" in out and "--log-level {DEBUG,INFO,WARNING,ERROR}" in out
+    assert "--config TEXT" in out and "--log-level {DEBUG,INFO,WARNING,ERROR}" in out
     assert "[--no-camera]" in out and "--no-no-camera" not in out
+
+
+def test_help_shows_placeholders_not_pydantic_type_names() -> None:
+    out = subprocess.run([sys.executable, "-m", "robot_client", "--help"], capture_output=True,
+                         text=True, timeout=60, check=True).stdout
+    assert "--token TOKEN" in out and "--ca-file FILE" in out and "--robot-id N" in out
+    for pydantic_name in ("SecretStr", "null", "{Path"):
+        assert pydantic_name not in out, pydantic_name
+    assert re.findall(r"--[a-z-]+ (?:str|int|float|bool)\b", out) == []
+    assert "exit codes: 0 success" in out
+
+
+def test_a_missing_file_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    ca = tmp_path / "no-such-ca.pem"
+    assert main(["--robot-id", "0", "--token", "t", "--grid-width", "2", "--grid-height", "2",
+                 "--serial-port", "/dev/null", "--no-camera", "--gateway-url",
+                 "wss://127.0.0.1:9/ws", "--ca-file", str(ca)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(ca) in err, err
 
 
 def test_log_level_from_the_config_file(tmp_path: Path,

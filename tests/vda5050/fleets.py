@@ -15,10 +15,9 @@ from gateway.server.gateway import Gateway
 from gateway.vda5050.broker import BrokerConfig
 from gateway.vda5050.config import Vda5050Config, VehicleConfig
 from gateway.vda5050.transport import VdaTransport
-from protocol.messages import HEADINGS, LoadInstance, Start
-from protocol.vda5050.nodes import THETA
+from protocol.messages import LoadInstance, Start
 from sim_clients.fleet import SimFleet
-from sim_clients.vda_fleet import run_fleet
+from sim_clients.vda_fleet import make_vehicles, run_fleet
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.world import World
 
@@ -100,15 +99,9 @@ async def run_vda(trace: Path, broker_url: str, map_name: str, scen: str, agents
         others = [r for r in range(agents) if r not in vda_robots]
         fleet = SimFleet(gw.connect, others, clock=gw.clock, send_state=False)
         world = fleet.world  # one floor for both kinds of robots
-        vehicles = []
-        for v in vda.vehicles:
-            r = v.robot_id
-            heading = plan.headings[r][0] if plan.headings is not None else 0
-            vehicle = VdaVehicle(vda.topics(v), vda.version_of(v), vda.nodes(), starts[r],
-                                 THETA[HEADINGS[heading]], move_s=1 / SPEED,
-                                 wait_s=1 / SPEED, recheck_s=0.1 / SPEED, world=world,
-                                 who=r)
-            vehicles.append(vehicle)
+        vehicles = make_vehicles(vda, world, speed=SPEED, starts={
+            r: (starts[r], plan.headings[r][0] if plan.headings is not None else None)
+            for r in vda_robots})
         stop = asyncio.Event()
         vehicles_task = asyncio.create_task(run_fleet(vehicles, vda.broker, stop))
         async with VdaTransport(gw, vda):

@@ -191,3 +191,20 @@ def test_cancel_while_blocked_leaves_the_vehicle_ready_for_a_new_order() -> None
     loop.master.release(new, loop.now)
     loop.run(4)
     assert loop.kinds(new[0].action_id) == ["started", "finished"]
+
+
+def test_a_new_plan_cancels_an_order_that_still_has_a_horizon() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    actions = actions_of(PATH)
+    loop.master.set_plan(actions)
+    loop.master.release(actions[:2], loop.now)
+    loop.run(4)  # the base is done; the vehicle waits at the decision point for its horizon
+    assert loop.vehicle.held.nodes and not loop.vehicle.held.nodes[0].released
+    new = actions_of([(2, 5, 0), (2, 5, 3)], plan=1)
+    loop.master.release(new, loop.now)
+    loop.run(7)
+    assert loop.kinds(new[0].action_id) == ["started", "finished"]
+    assert not loop.vehicle.errors
+    kinds = [json.loads(p)["actions"][0]["actionType"] for t, p in loop.traffic
+             if t == "instantActions"]
+    assert kinds == ["cancelOrder"]

@@ -15,10 +15,20 @@ as long as the earlier blocks that lasted longer than ``e`` did on average (thei
 duration), or, with no such earlier block, ``2 e`` (a block seen for ``e`` is as likely to end
 before ``2 e`` as after: the median under a scale-free prior), and never less than
 ``min_ms`` in all.
+
+Beside that point estimate, the block's duration as a distribution (:meth:`BlockTracker.
+end_quantiles`, what risk-aware shadow planning weighs): the history conditioned on how long
+the block has lasted, as a predictive distribution that does not trust a short history more
+than it deserves (Hill's A(n)): with ``n`` earlier blocks that lasted longer than ``e``, sorted
+``d_1 <= ... <= d_n``, the block ends in each of the ``n + 1`` gaps ``(e, d_1)``, ``(d_1, d_2)``,
+..., ``(d_n, inf)`` with probability ``1 / (n + 1)``, uniformly within a gap, and beyond
+``d_n`` as the scale-free prior says (``P(D > x | D > d_n) = d_n / x``; with no such block,
+beyond ``e``: as likely to end before ``2 e`` as after). No block lasts less than ``min_ms``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from gateway.planning.grid import Cell
@@ -63,14 +73,37 @@ class BlockTracker:
         total = sum(longer) / len(longer) if longer else 2.0 * lasted
         return since + max(total, self.min_ms, lasted)
 
-    def unsupported(self, cell: Cell) -> bool:
-        """True if no earlier block lasted longer than the open one on ``cell`` has been seen:
-        its expected end is the ``2 e`` guess, not what earlier blocks did."""
-        lasted = self.seen[cell] - self.open[cell]
-        return not any(d > lasted for d in self.history)
+    def end_quantiles(self, cell: Cell, levels: Sequence[float]) -> list[float]:
+        """When the open block on ``cell`` ends at each probability level of ``levels`` (the
+        quantiles of its end time; see the module's docstring)."""
+        since = self.open[cell]
+        lasted = self.seen[cell] - since
+        return [since + d for d in duration_quantiles(self.history, lasted, self.min_ms,
+                                                      levels)]
 
     def obstacles(self, now_ms: float) -> tuple[tuple[Cell, float], ...]:
         """Every open block expected to last beyond ``now_ms``, as ``(cell, expected end)``,
         in cell order."""
         ends = ((c, self.expected_end_ms(c)) for c in sorted(self.open))
         return tuple((c, end) for c, end in ends if end > now_ms)
+
+
+def duration_quantiles(history: Sequence[float], lasted: float, min_ms: float,
+                       levels: Sequence[float]) -> list[float]:
+    """A block's total duration at each probability level of ``levels`` (0 <= level < 1)
+    given it has lasted ``lasted`` ms and the earlier blocks lasted ``history`` (see the
+    module's docstring); at least ``lasted`` and ``min_ms``."""
+    longer = sorted(d for d in history if d > lasted)
+    edges = [lasted, *longer]
+    gaps = len(longer) + 1
+    out = []
+    for q in levels:
+        at = min(max(q, 0.0), 1.0 - 1e-12) * gaps
+        i = int(at)
+        f = at - i
+        if i < len(longer):
+            value = edges[i] + f * (edges[i + 1] - edges[i])
+        else:
+            value = edges[-1] / (1.0 - f)
+        out.append(max(value, lasted, min_ms))
+    return out

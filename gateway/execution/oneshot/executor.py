@@ -64,14 +64,14 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.core import check_robot, check_start, check_time
+from gateway.execution.core import MONITOR_PERIOD_MS, check_robot, check_start, check_time
 from gateway.execution.errors import ExecutionError
 from gateway.execution.oneshot.adg import ADG
 from gateway.execution.oneshot.blocks import BlockTracker
 from gateway.execution.oneshot.monitor import Monitor
 from gateway.execution.oneshot.policies import NoReplan, ReplanPolicy, Rescheduling, ShadowPolicy
 from gateway.execution.oneshot.reschedule import Schedule, Search, improve
-from gateway.execution.oneshot.shadow import candidate_soc, forecast_completions
+from gateway.execution.oneshot.shadow import candidate_monitor, forecast_completions
 from gateway.execution.params import PAPER
 from gateway.execution.trace_records import (
     TraceSink,
@@ -88,10 +88,6 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
 __all__ = ["MONITOR_PERIOD_MS", "ExecutionError", "Executor", "Mode"]
-
-MONITOR_PERIOD_MS = PAPER.monitor_period_ms
-"""Drivers call ``tick()`` at every multiple of this while running."""
-
 
 _PENDING, _DISPATCHED, _STARTED, _DONE = 0, 1, 2, 3
 
@@ -572,7 +568,7 @@ class Executor:
             return False
         self._check_plan(plan, cells, headings)
         adg = ADG(plan, drop_waits=self.drop_waits)
-        if self._shadow_gain(adg, start) < policy.margin_ms:
+        if not policy.adopts(self._shadow_gains(adg, start, policy.levels)):
             return False
         self._ready = (plan, adg)
         self._trigger(policy.name)
@@ -593,19 +589,16 @@ class Executor:
                 end = max(end, self.monitor.completion_ms(r, adg.step_of[v]))
         return tuple(cells), None if headings is None else tuple(headings), end
 
-    def _shadow_gain(self, adg: ADG, start_ms: float) -> float:
+    def _shadow_gains(self, adg: ADG, start_ms: float,
+                      levels: Sequence[float]) -> list[float]:
         """How much earlier (sum of completion times) the fleet is expected to finish if it
-        stops and executes ``adg``'s plan from ``start_ms`` than if it keeps its plan, both
-        with every move into a reported-blocked cell held until the block's expected end.
-
-        If a block's estimate has no support (no earlier block lasted longer:
-        :meth:`BlockTracker.unsupported`), the gain counted is at most the margin plus what
-        the plan gains if every block ended now: a plan that pays only under a guessed long
-        block must not lose anything if the block ends at once (the kept plan waits for the
-        cell only as long as it is taken, the new plan keeps its planned detour or wait)."""
+        stops and executes ``adg``'s plan from ``start_ms`` than if it keeps its plan, in one
+        scenario per probability level of ``levels``: every open block ends at that quantile
+        of its end (:meth:`BlockTracker.end_quantiles`; the blocks' ends comonotone), and in
+        both forecasts every move into a blocked cell waits until then."""
         now, blocks, cur = self._now, self.blocks, self.adg
-        ends = {c: blocks.expected_end_ms(c) for c in blocks.open}
-        holds = {}
+        ends = {c: blocks.end_quantiles(c, levels) for c in blocks.open}
+        keep_moves: list[tuple[int, Cell]] = []
         completions = list(self._completion)
         for r, queue in enumerate(self._queue):
             v = self.monitor.next_vertex(r)
@@ -613,17 +606,20 @@ class Executor:
                 completions[r] = self.monitor.completion_ms(r, cur.step_of[queue[0]])
             if v < 0 or not ends:
                 continue
-            for u in range(v, cur.first[r + 1]):
-                end = ends.get(cur.dst[u])
-                if (end is not None and end > now and cur.src[u] != cur.dst[u]
-                        and self._status[u] in (_PENDING, _DISPATCHED)):
-                    holds[u] = end
-        keep = sum(forecast_completions(self.monitor, holds))
-        new = candidate_soc(adg, self.durations, start_ms, completions)
-        if any(blocks.unsupported(c) for c in ends):
-            margin = self.policy.margin_ms if isinstance(self.policy, ShadowPolicy) else 0.0
-            return min(keep, sum(forecast_completions(self.monitor, {})) + margin) - new
-        return keep - new
+            keep_moves += [(u, cur.dst[u]) for u in range(v, cur.first[r + 1])
+                           if cur.dst[u] in ends and cur.src[u] != cur.dst[u]
+                           and self._status[u] in (_PENDING, _DISPATCHED)]
+        candidate = candidate_monitor(adg, self.durations, start_ms, completions)
+        new_moves = [(u, adg.dst[u]) for u in range(adg.n_vertices)
+                     if adg.dst[u] in ends and adg.src[u] != adg.dst[u]]
+        gains = []
+        for k in range(len(levels)):
+            keep = forecast_completions(
+                self.monitor, {u: ends[c][k] for u, c in keep_moves if ends[c][k] > now})
+            new = forecast_completions(
+                candidate, {u: ends[c][k] for u, c in new_moves if ends[c][k] > start_ms})
+            gains.append(sum(keep) - sum(new))
+        return gains
 
     def adopt_plan(self, plan: Plan, now_ms: float) -> None:
         """Answer to ``SolveRequest``: execute ``plan`` (from the robots' cells and, turning,

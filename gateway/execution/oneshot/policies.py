@@ -16,7 +16,7 @@ whatever the policy.
 from __future__ import annotations
 
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Literal, Protocol, get_args, runtime_checkable
 
 from gateway.execution.params import PAPER
@@ -128,11 +128,14 @@ class InformedReplan(SlackReplan):
 
 
 class ShadowPolicy(NoReplan):
-    """Shadow planning (:mod:`gateway.execution.oneshot.shadow`): while the fleet is delayed, solve
-    in
-    the background, informed, from where the robots would stop; adopt the plan only if the
-    estimate (the stop it costs and the blocks' expected ends included) says the fleet
-    finishes at least ``margin_ms`` (sum of completion times) earlier with it."""
+    """Shadow planning (:mod:`gateway.execution.oneshot.shadow`): while the fleet is delayed,
+    solve in the background, informed, from where the robots would stop; adopt the plan only if it
+    pays under the uncertainty of the blocks' ends (:meth:`adopts`).
+
+    The gain (sum of completion times saved, the stop included) is estimated in one scenario
+    per level of :attr:`levels`: every open block ends at that quantile of its duration, the
+    history's conditioned on how long the block has lasted (:meth:`gateway.execution.oneshot.
+    blocks.BlockTracker.end_quantiles`)."""
 
     name = "shadow"
     informed = True
@@ -140,10 +143,40 @@ class ShadowPolicy(NoReplan):
 
     def __init__(self, margin_ms: float = PAPER.shadow_margin_ms,
                  period_ms: float = PAPER.shadow_period_ms,
-                 min_slack_ms: float = PAPER.shadow_min_slack_ms) -> None:
+                 min_slack_ms: float = PAPER.shadow_min_slack_ms,
+                 risk_aversion: float = PAPER.shadow_risk_aversion,
+                 risk_level: float = PAPER.shadow_risk_level,
+                 scenarios: int = PAPER.shadow_scenarios) -> None:
+        if not (risk_aversion >= 0 and 0 <= risk_level <= 1 and scenarios >= 1):
+            raise ValueError("need risk_aversion >= 0, 0 <= risk_level <= 1, scenarios >= 1")
         self.margin_ms = float(margin_ms)
         self.period_ms = float(period_ms)
         self.min_slack_ms = float(min_slack_ms)
+        self.risk_aversion = float(risk_aversion)
+        self.risk_level = float(risk_level)
+        self.scenarios = float(int(scenarios))  # (a journal's snapshot keeps floats)
+
+    @property
+    def levels(self) -> tuple[float, ...]:
+        """The probability levels of the scenarios (equally likely)."""
+        n = int(self.scenarios)
+        return tuple((k + 0.5) / n for k in range(n))
+
+    def adopts(self, gains: Sequence[float]) -> bool:
+        """Adopt a plan whose gain in the equally likely scenarios is ``gains`` (ms) if its
+        expected gain, less ``risk_aversion`` times its expected regret against keeping the
+        plan (the mean loss where it loses), is at least the margin, and the chance that it
+        loses (the block ending too early for it) is at most ``risk_level``."""
+        if not gains:
+            return False
+        n = len(gains)
+        mean = sum(gains) / n
+        regret = sum(-g for g in gains if g < 0) / n
+        losing = sum(1 for g in gains if g < 0) / n
+        return mean - self.risk_aversion * regret >= self.margin_ms and \
+            losing <= self.risk_level
+
+
 @runtime_checkable
 class Rescheduling(Protocol):
     """A policy that also asks for reschedule-first (``Executor.reschedule``)."""

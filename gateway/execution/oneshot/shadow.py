@@ -8,13 +8,18 @@ compares two forecasts of the sum of completion times, both Algorithm 1 estimate
 same belief about the blocks:
 
 * keep the current plan (:func:`forecast_completions`): the monitor's estimates, with every
-  action that enters a reported-blocked cell held until the block's expected end;
-* adopt the new plan (:func:`candidate_soc`): every robot finishes the move it is making, then
-  all wait for the last of them (the stop), then the new plan runs from there; its solve kept
-  robots off the blocked cells until their expected ends.
+  action that enters a reported-blocked cell held until the block ends;
+* adopt the new plan (:func:`candidate_monitor`, then :func:`forecast_completions`): every
+  robot finishes the move it is making, then all wait for the last of them (the stop), then
+  the new plan runs from there, its moves into a blocked cell held until the block ends too.
 
-The plan is adopted (a replan that needs no solve) only if it is expected to save at least the
-policy's margin; otherwise it is dropped and has cost the fleet nothing.
+Both are computed in one scenario per probability level of the policy: every open block ends
+at that quantile of its duration, the history's conditioned on how long it has lasted
+(:meth:`gateway.execution.oneshot.blocks.BlockTracker.end_quantiles`). The plan is adopted (a
+replan that needs no solve) only if the policy's risk-aware rule accepts the gains
+(:meth:`gateway.execution.oneshot.policies.ShadowPolicy.adopts`): the expected gain less the
+expected regret is at least the margin, and the chance of a loss is small. Otherwise it is
+dropped and has cost the fleet nothing.
 """
 
 from __future__ import annotations
@@ -56,11 +61,10 @@ def forecast_completions(monitor: Monitor, holds: Mapping[int, float]) -> list[f
     return out
 
 
-def candidate_soc(adg: ADG, durations: Sequence[ActionDurations], start_ms: float,
-                  completions_ms: Sequence[float]) -> float:
-    """The estimated sum of completion times of a new plan (its ``adg``) started by every
-    robot at ``start_ms``; a robot with nothing to do keeps ``completions_ms``."""
+def candidate_monitor(adg: ADG, durations: Sequence[ActionDurations], start_ms: float,
+                      completions_ms: Sequence[float]) -> Monitor:
+    """Algorithm 1's estimates of a new plan (its ``adg``) started by every robot at
+    ``start_ms``; a robot with nothing to do keeps ``completions_ms``."""
     tx = [durations[adg.robot_of[v]].of(adg.kind[v]) for v in range(adg.n_vertices)]
-    monitor = Monitor(adg, now_ms=start_ms, action_ms=tx, release_ms=start_ms,
-                      base_completion_ms=completions_ms)
-    return monitor.estimated_soc_ms()
+    return Monitor(adg, now_ms=start_ms, action_ms=tx, release_ms=start_ms,
+                   base_completion_ms=completions_ms)

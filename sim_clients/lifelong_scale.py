@@ -1,0 +1,143 @@
+"""The competition's large instances under the 2026 rules (``bench/lifelong.py --scale``).
+
+LoRR 2024 main-round instances warehouse_large (10,000 agents, WAREHOUSE.json) and brc202d
+(6,500 agents, GAME.json), read from a copy of the public MAPF-Competition/Benchmark-Archive
+repository (``--archive DIR`` or ``$FLEETGATE_LORR_ARCHIVE``; never committed here; skipped
+cleanly when absent), converted by :mod:`gateway.planning.lorr_convert` (3 ticks an action,
+delays, no following) and run for ``--ticks`` ticks, each in its own process: planner CPU
+per call (p50, p99, max, the first call apart: it schedules every robot and computes every
+table), peak RSS of the run and of the independent validator (``tracecheck/lorr.py``) after
+it, tasks finished, and the ratio to the published winners' figures over 5,000 steps
+(WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and to the same number of
+actions (a 2026 tick is a third of an action: see the module doc of the converter).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import resource
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from gateway.planning.lorr_convert import convert
+from gateway.planning.movingai import format_map
+from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from tracecheck.lorr import check_output, read_free
+
+ARCHIVE_ENV = "FLEETGATE_LORR_ARCHIVE"
+PUBLISHED_STEPS = 5000
+"""Steps of the competitions' main-round runs of these instances."""
+
+
+@dataclass(frozen=True)
+class ScaleInstance:
+    """An instance of the archive and the winners' published tasks finished on it."""
+
+    path: str
+    wppl: int
+    """LoRR 2023 winner (on the 2023 instance of the same map and team size)."""
+    epibt: int
+    """LoRR 2024 winner."""
+
+
+MAIN_2024 = "2024 Competition/Main Round Evaluation Instances"
+INSTANCES = {
+    "warehouse_large": ScaleInstance(f"{MAIN_2024}/warehouse.domain/WAREHOUSE.json",
+                                     193_959, 154_834),
+    "brc202d": ScaleInstance(f"{MAIN_2024}/game.domain/GAME.json", 28_946, 23_274),
+}
+
+
+def archive_dir(given: Path | None) -> Path:
+    """The archive copy to read: ``given``, else ``$FLEETGATE_LORR_ARCHIVE``, else
+    ``~/.cache/fleetgate/lorr-archive``."""
+    if given is not None:
+        return given
+    env = os.environ.get(ARCHIVE_ENV)
+    return Path(env) if env else Path.home() / ".cache" / "fleetgate" / "lorr-archive"
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _percentile(values: list[float], q: float) -> float:
+    """The nearest-rank ``q`` percentile (0 for none)."""
+    ordered = sorted(values)
+    return ordered[max(0, math.ceil(q * len(ordered)) - 1)] if ordered else 0.0
+
+
+def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, Any]:
+    """Run one instance in this process (see the module doc); one dict of figures."""
+    inst = INSTANCES[name]
+    conv = convert(archive / inst.path)
+    prob = conv.problem
+    cfg = LifelongConfig(prob, ticks=ticks, reassign=reassign)
+    res = run_lifelong(cfg)
+    run_mb = _peak_mb()
+    check_output(lorr_output(cfg, res), read_free(format_map(prob.grid)))
+    times = res.planner_times
+    later = times[1:]
+    actions = ticks / prob.agent_counter
+    out: dict[str, Any] = {
+        "instance": name, "robots": prob.team_size, "ticks": ticks, "reassign": reassign,
+        "free_cells": int(prob.grid.free.sum()), "finished": res.finished,
+        "calls": res.calls, "first_call_s": round(times[0], 2) if times else None,
+        "cpu_p50_s": round(_percentile(later, 0.5), 3),
+        "cpu_p99_s": round(_percentile(later, 0.99), 3),
+        "cpu_max_s": round(max(later, default=0.0), 3),
+        "calls_over_1s": sum(t > 1.0 for t in later),
+        "peak_rss_mb": round(run_mb), "validator_peak_rss_mb": round(_peak_mb()),
+        "valid": True, "changes": list(conv.changes),
+    }
+    for who, figure in (("wppl", inst.wppl), ("epibt", inst.epibt)):
+        out[f"{who}_per_tick_ratio"] = round(res.finished / (figure * ticks / PUBLISHED_STEPS),
+                                             3)
+        out[f"{who}_per_action_ratio"] = round(
+            res.finished / (figure * actions / PUBLISHED_STEPS), 3)
+    return out
+
+
+def scale_runs(archive: Path, ticks: int, reassign: int,
+               command: Sequence[str]) -> list[dict[str, Any]]:
+    """Each instance whose files are there, in its own process (its own peak RSS:
+    ``command`` followed by ``--scale-one NAME --archive --ticks --reassign`` prints
+    :func:`scale_one` as one JSON line); an instance that is absent gives
+    ``{"instance": name, "skipped": reason}``."""
+    out: list[dict[str, Any]] = []
+    for name, inst in INSTANCES.items():
+        if not (archive / inst.path).is_file():
+            out.append({"instance": name, "skipped": f"{inst.path} not under {archive}"})
+            continue
+        proc = subprocess.run(
+            [*command, "--scale-one", name, "--archive", str(archive),
+             "--ticks", str(ticks), "--reassign", str(reassign)],
+            capture_output=True, text=True, check=False)
+        if proc.returncode:
+            raise SystemExit(f"{name}: the run failed: "
+                             f"{(proc.stderr.strip().splitlines() or ['?'])[-1]}")
+        out.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    return out
+
+
+def scale_line(runs: list[dict[str, Any]]) -> str:
+    """One result line of :func:`scale_runs`."""
+    parts = []
+    for r in runs:
+        if "skipped" in r:
+            parts.append(f"{r['instance']} skipped ({r['skipped']})")
+            continue
+        parts.append(
+            f"{r['instance']} {r['robots']} robots x {r['ticks']} ticks: {r['finished']} tasks, "
+            f"planner CPU per call p50 {r['cpu_p50_s']} s p99 {r['cpu_p99_s']} s max "
+            f"{r['cpu_max_s']} s (first {r['first_call_s']} s; {r['calls_over_1s']} of "
+            f"{r['calls'] - 1} later calls over 1 s), peak RSS {r['peak_rss_mb']} MB "
+            f"(validator {r['validator_peak_rss_mb']} MB), valid; vs WPPL "
+            f"{r['wppl_per_tick_ratio']} per tick / {r['wppl_per_action_ratio']} per action, "
+            f"vs EPIBT {r['epibt_per_tick_ratio']} / {r['epibt_per_action_ratio']}")
+    return "lifelong scale: " + "; ".join(parts)
