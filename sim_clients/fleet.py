@@ -490,6 +490,8 @@ class SimFleet:
                 log.warning("no set_speed from the gateway on the world connection yet")
         for r in self._ids:
             self.add_robot(r)
+        if not self._ids:  # only the world (e.g. the robots are VDA 5050 vehicles)
+            self._all_connected.set()
         if not self._external_poll:
             self._tasks.append(loop.create_task(self._poll_loop(), name="sim-intruders"))
 
