@@ -71,8 +71,8 @@ async def test_failed_handshakes_leave_nothing_behind() -> None:
         assert set(statuses) == {400}
         await asyncio.sleep(0.1)
         gc.collect()
-        assert len(gw._ws_peers) == 0
-        assert gw._sessions == set()
+        assert gw.pending_handshakes == 0
+        assert gw.sessions == set()
 
 
 async def _closed_with(robot: Peer) -> int:
@@ -91,11 +91,11 @@ async def test_a_robot_that_never_says_hello_is_closed() -> None:
         await silent.send(State, robot_id=0)  # not a hello: the clock keeps running
         assert await _closed_with(silent) == CloseCode.HELLO_TIMEOUT
         await asyncio.sleep(0.05)
-        assert gw._sessions == set()
+        assert gw.sessions == set()
         # an operator has no hello and no such timeout
         op = Peer(await connector(gw)("demo-operator"), "op")
         await asyncio.sleep(0.4)
-        assert len(gw._sessions) == 1 and op.link is not None
+        assert len(gw.sessions) == 1 and op.link is not None
 
 
 async def test_an_idle_robot_is_closed_and_a_talking_one_is_not() -> None:
