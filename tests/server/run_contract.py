@@ -88,8 +88,7 @@ Make = Callable[[], RunSetup]
 
 def _finished(gw: Gateway) -> float:
     """Action finishes the engine applied so far (its public metrics)."""
-    value = gw.metrics.registry.get_sample_value("fleetgate_actions_finished_total")
-    return 0.0 if value is None else value
+    return gw.metrics.value("fleetgate_actions_finished_total")
 
 
 async def _crash_and_resume(gw: Gateway, setup: RunSetup, journal: Path) -> None:

@@ -147,7 +147,7 @@ async def test_no_exception_escapes_a_handler(monkeypatch: pytest.MonkeyPatch,
         failures = [r for r in caplog.records if r.getMessage() == "connection handler failed"]
         assert len(failures) == 1 and failures[0].exc_info is None
         assert "RuntimeError('a bug')" in failures[0].__dict__["error"]
-        assert gw.metrics.handler_failures._value.get() == 1
+        assert gw.metrics.value("fleetgate_handler_failures_total") == 1
         await ok.send(State, robot_id=1)  # the others carry on
         await ok.hello()
         assert gw.engine.connected_robots() == 1
