@@ -15,9 +15,13 @@ line: the runs where shadow was worse than not replanning, and the ratio of the 
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 from typing import cast
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.oneshot.policies import AUTONOMOUS_POLICIES, PolicyName
 from gateway.planning.instance import Instance, load_instance
 from gateway.planning.plan import Plan
@@ -54,7 +58,7 @@ def run_once(inst: Instance, plan: Plan, seed: int, policy: PolicyName, stay_ms:
 
 def main() -> None:
     """Run both policies over the seeds and print the result line."""
-    p = argparse.ArgumentParser(description=__doc__)
+    p = CommandParser(description=__doc__)
     p.add_argument("--runs", type=int, default=50)
     p.add_argument("--stay", default="lognormal:5,1")
     p.add_argument("--policy", choices=AUTONOMOUS_POLICIES, default="shadow")
@@ -86,4 +90,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main("bench/demo_stays.py", main)

@@ -40,7 +40,10 @@ resume, i.e. all but the clean refusals, against 1.0).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import asyncio
 import contextlib
 import json
@@ -68,11 +71,12 @@ from crash import (  # bench/crash.py: the gateway process, operator and shift c
     shift_defects,
 )
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.runtime.exits import EXIT_BAD_INPUT, EXIT_JOURNAL
-from gateway.runtime.journal import DURABLE_KINDS
+from gateway.runtime.journal import Journal
 from gateway.server.clock import LoopClock
 from protocol import LoadPlan, SetThreshold, Snapshot, Start, decode
 from sim_clients.connect import websocket_connector
@@ -88,12 +92,14 @@ KEYS = ("trials", "exact_resumes", "clean_refusals", "silent_wrong", "hung", "un
 
 # ------------------------------------------------------------------------ the faults
 def drop_tail(journal: Path, k: int) -> int:
-    """Drop the last ``k`` records but none of a synced commit; returns how many."""
+    """Drop the last ``k`` records, but none that a synced commit made durable (those survive
+    a power cut: the journal's seal says how many); returns how many were dropped."""
+    opened = Journal(journal)
+    synced = opened.synced()
+    opened.close()
     with sqlite3.connect(journal) as db:
-        rows = db.execute("SELECT seq, kind FROM records ORDER BY seq").fetchall()
-        durable = max((i for i, (_, kind) in enumerate(rows) if kind in DURABLE_KINDS),
-                      default=-1)
-        cut = max(durable + 1, len(rows) - k)
+        rows = db.execute("SELECT seq FROM records ORDER BY seq").fetchall()
+        cut = max(synced, len(rows) - k)
         if cut < len(rows):
             db.execute("DELETE FROM records WHERE seq >= ?", (rows[cut][0],))
         return len(rows) - cut
@@ -304,6 +310,27 @@ def new_gateway(work: Path, speed: float, shim: Path | None, trigger: Path,
     return gw
 
 
+def must_only_fleet(gw: GatewayProcess, robots: int, speed: float, rng: random.Random
+                    ) -> tuple[SimFleet, Counter[tuple[int, int, int]],
+                               set[tuple[int, int, int]]]:
+    """Simulated robots for ``gw`` that implement only the MUST rules, with the actions they
+    executed (how often) and completed, as (plan, robot, index)."""
+    executed: Counter[tuple[int, int, int]] = Counter()
+    completed: set[tuple[int, int, int]] = set()
+
+    def on_event(kind: str, p: int, r: int, i: int) -> None:
+        if kind == "execute":
+            executed[(p, r, i)] += 1
+        elif kind == "finished":
+            completed.add((p, r, i))
+
+    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"), range(robots),
+                     clock=LoopClock(speed), send_state=False, reconnect_delay_s=0.05,
+                     seed=rng.randrange(1 << 30), must_only=True)
+    fleet.on_event = on_event
+    return fleet, executed, completed
+
+
 async def oneshot_trial(kind: str, work: Path, rng: random.Random, shim: Path | None,
                         disk: Disk) -> dict[str, Any]:
     """A one-shot run of a random plan with one fault."""
@@ -314,19 +341,7 @@ async def oneshot_trial(kind: str, work: Path, rng: random.Random, shim: Path | 
     write_map(grid, map_file)
     trigger = work / "eio"
     gw = new_gateway(work, speed, shim, trigger, disk)
-    executed: Counter[tuple[int, int, int]] = Counter()
-    completed: set[tuple[int, int, int]] = set()
-
-    def on_event(kind_: str, p: int, r: int, i: int) -> None:
-        if kind_ == "execute":
-            executed[(p, r, i)] += 1
-        elif kind_ == "finished":
-            completed.add((p, r, i))
-
-    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"), range(robots),
-                     clock=LoopClock(speed), send_state=False, reconnect_delay_s=0.05,
-                     seed=rng.randrange(1 << 30), must_only=True)
-    fleet.on_event = on_event
+    fleet, executed, completed = must_only_fleet(gw, robots, speed, rng)
     out: dict[str, Any] = {"acknowledged_lost": 0}
     try:
         await asyncio.to_thread(gw.start)
@@ -377,19 +392,7 @@ async def lifelong_trial(kind: str, work: Path, rng: random.Random, shim: Path |
     gw.config.write_text(json.dumps(cfg))
     grid = warehouse_problem(robots, 0, warehouse, p_delay=0.0).grid
     free = [[x, y] for x, y in grid.free_cells()]
-    executed: Counter[tuple[int, int, int]] = Counter()
-    completed: set[tuple[int, int, int]] = set()
-
-    def on_event(kind_: str, p: int, r: int, i: int) -> None:
-        if kind_ == "execute":
-            executed[(p, r, i)] += 1
-        elif kind_ == "finished":
-            completed.add((p, r, i))
-
-    fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{gw.port}/ws"), range(robots),
-                     clock=LoopClock(speed), send_state=False, reconnect_delay_s=0.05,
-                     seed=rng.randrange(1 << 30), must_only=True)
-    fleet.on_event = on_event
+    fleet, executed, completed = must_only_fleet(gw, robots, speed, rng)
     acked: dict[str, list[int]] = {}
     batches: dict[str, Any] = {}
     out: dict[str, Any] = {"acknowledged_lost": 0}
@@ -506,7 +509,7 @@ def campaign(mode: str, trials: int, seed: int, kinds: tuple[str, ...]) -> dict[
 
 def main() -> int:
     """Run the campaign and print one line."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = CommandParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=12, help="trials per fault kind and mode")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--modes", default="oneshot,lifelong")
@@ -542,4 +545,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/faults.py", main)

@@ -649,19 +649,29 @@ async def _no_resend_acked(t: Target) -> None:
                               "sent again")
 
 
+async def _back_having_finished(t: Target, run: Run, reported: bool) -> tuple[Robot, Action]:
+    """The robot starts and finishes its first action (``reported``: it sent ``finished``,
+    else its link dropped first), reconnects and lists it in ``hello.finished``: its new
+    connection and the action."""
+    robot = await run.robot(t.options.robot_id)
+    await run.start()
+    first = await robot.action(0)
+    await robot.conn.send(Ack, action_id=first.action_id)
+    await robot.report(Started, first.action_id)
+    if reported:
+        await robot.report(Finished, first.action_id)
+    else:
+        robot.done.add(first.action_id)
+    await robot.conn.close()
+    return await run.robot(robot.id, finished=[first.action_id]), first
+
+
 @check("finish-reported-in-hello", "RESEND-3")
 async def _finish_in_hello(t: Target) -> None:
     """A finish listed in ``hello.finished`` is applied; a later ``finished`` of it gets
     ``duplicate``."""
     async with _single(t) as run:
-        robot = await run.robot(t.options.robot_id)
-        await run.start()
-        first = await robot.action(0)
-        await robot.conn.send(Ack, action_id=first.action_id)
-        await robot.report(Started, first.action_id)
-        await robot.conn.close()
-        robot.done.add(first.action_id)
-        again = await run.robot(robot.id, finished=[first.action_id])
+        again, first = await _back_having_finished(t, run, reported=False)
         assert again.welcome is not None
         if any(a.action_id == first.action_id for a in again.welcome.resend):
             raise CheckFailed(f"{first.action_id} was resent although hello said finished")
@@ -686,24 +696,56 @@ async def _running_in_hello(t: Target) -> None:
                                lambda m: isinstance(m, Error) and m.ref == ref, QUIET_S)
 
 
+async def _back_holding_foreign(t: Target, run: Run) -> tuple[Robot, Action, str]:
+    """The robot acknowledges its first action, reconnects and says it holds it and an action
+    of another run: its new connection, the first action, the other run's action id."""
+    robot = await run.robot(t.options.robot_id)
+    await run.start()
+    first = await robot.action(0)
+    await robot.conn.send(Ack, action_id=first.action_id)
+    await robot.conn.close()
+    foreign = f"zz{t.options.robot_id}.0.{t.options.robot_id}.0"
+    return await run.robot(robot.id, acked=[first.action_id, foreign]), first, foreign
+
+
 @check("foreign-held-action-cancelled", "RESEND-5")
 async def _foreign_in_hello(t: Target) -> None:
     """An action id in ``hello.acked`` that the gateway never dispatched in this run (here: of
     another run) is cancelled after the ``welcome``; its ``cancelled`` gets no error."""
     async with _single(t) as run:
-        robot = await run.robot(t.options.robot_id)
-        await run.start()
-        first = await robot.action(0)
-        await robot.conn.send(Ack, action_id=first.action_id)
-        await robot.conn.close()
-        foreign = f"zz{t.options.robot_id}.0.{t.options.robot_id}.0"
-        again = await run.robot(robot.id, acked=[first.action_id, foreign])
+        again, _, foreign = await _back_holding_foreign(t, run)
         cancel = await again.conn.expect(f"cancel of {foreign}", lambda m: isinstance(
             m, CancelAction) and m.action_id == foreign)
         assert isinstance(cancel, CancelAction)
         ref = await again.report(Cancelled, foreign)
         await again.conn.quiet(f"error for {ref}",
                                lambda m: isinstance(m, Error) and m.ref == ref, QUIET_S)
+
+
+@check("foreign-held-action-dropped-in-welcome", "RESEND-5")
+async def _foreign_dropped(t: Target) -> None:
+    """An action of another run in ``hello.acked`` is listed in ``welcome.drop`` (the robot
+    MUST drop it before it starts anything); the run's own held action is not."""
+    async with _single(t) as run:
+        again, first, foreign = await _back_holding_foreign(t, run)
+        assert again.welcome is not None
+        if foreign not in again.welcome.drop or first.action_id in again.welcome.drop:
+            raise CheckFailed(f"welcome.drop is {again.welcome.drop}: expected {foreign} (of "
+                              f"another run) and not {first.action_id}")
+
+
+@check("finish-applied-without-repeat", "DUP-1")
+async def _finish_without_repeat(t: Target) -> None:
+    """A robot that implements only the MUST rules reports a ``finished`` once: listed again
+    in its next ``hello`` (its link dropped after the report), the action is not resent and the
+    next one arrives, without the robot repeating the ``finished``."""
+    async with _single(t) as run:
+        again, first = await _back_having_finished(t, run, reported=True)
+        assert again.welcome is not None
+        if any(a.action_id == first.action_id for a in again.welcome.resend):
+            raise CheckFailed(f"{first.action_id} was resent although the robot finished it")
+        if not any(a.sequence == 1 for a in again.welcome.resend):
+            await again.action(1)
 
 
 # ---------------------------------------------------------------------- two robots

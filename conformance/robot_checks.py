@@ -234,14 +234,15 @@ class FakeGateway:
         self.c().version = first.v  # VER-2: the gateway answers in the robot's version
         return first
 
-    async def welcome(self, resend: Sequence[str] = (), paused: bool = False) -> None:
-        """Send ``welcome`` (resending the named actions)."""
+    async def welcome(self, resend: Sequence[str] = (), paused: bool = False,
+                      drop: Sequence[str] = ()) -> None:
+        """Send ``welcome`` (resending the named actions, dropping ``drop``)."""
         self.sent.update(resend)
         v = self.c().version or PROTOCOL_VERSION
         actions = [Action(msg_id=f"resend-{aid}", seq=0, v=v, **self.dispatched[aid])
                    for aid in resend]
         await self.c().send(Welcome, robot_id=self.robot_id, start=Pose(cell=(0, 0)),
-                            plan=self.plan, resend=actions,
+                            plan=self.plan, resend=actions, drop=list(drop),
                             state_period_ms=STATE_PERIOD_MS, paused=paused)
 
     def moves_may_stop(self, aid: str) -> bool:
@@ -661,6 +662,21 @@ async def _resend_done(g: FakeGateway) -> None:
     await g.no_start(done)
     aid = await g.dispatch()
     await g.executes(aid)
+
+
+@check("welcome-drop-never-starts", "RESEND-5")
+async def _welcome_drop(g: FakeGateway) -> None:
+    """A held action that the ``welcome`` lists in ``drop`` (the gateway does not stand behind
+    it, e.g. of a run abandoned with ``--fresh``) never starts; a new plan's action does."""
+    await g.c().send(Pause, reason="conformance")
+    aid = await g.dispatch()
+    await g.acked(aid)
+    await g.drop_link()
+    await g.welcome(drop=[aid])
+    await g.no_start(aid)
+    g.cancelled_from(aid)
+    nxt = await g.dispatch()
+    await g.executes(nxt)
 
 
 @check("welcome-paused-is-honoured", "PAUSE-3")

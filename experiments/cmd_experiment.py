@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
@@ -198,6 +199,32 @@ def parse_groups(maps: Sequence[str] | None, agents: Sequence[str] | None,
             raise UsageError(f"no agent counts for map {name!r}: give --agents")
         groups.extend((name, n) for n in dict.fromkeys(counts))
     return groups
+
+
+PROGRESS_LINE_S = 10.0
+"""Off a terminal (a log, a pipe), a progress line at most this often (and at each phase's
+end): rich's bar only draws on a terminal, and a campaign runs for minutes."""
+
+
+class LineProgress:
+    """Progress as plain lines on stderr: ``fleetgate experiment: experiments 300/1300, 45 s``."""
+
+    def __init__(self, began: float, period_s: float = PROGRESS_LINE_S) -> None:
+        self._began = began
+        self._period_s = period_s
+        self._last = began
+        self._said: dict[str, int] = {}
+
+    def update(self, phase: str, done: int, total: int) -> None:
+        """Say where ``phase`` is if a period passed, or it just ended."""
+        now = time.perf_counter()
+        ended = done >= total and self._said.get(phase) != done
+        if not ended and now - self._last < self._period_s:
+            return
+        self._last = now
+        self._said[phase] = done
+        print(f"fleetgate experiment: {phase} {done}/{total}, {now - self._began:.0f} s",
+              file=sys.stderr, flush=True)
 
 
 def _map_files(groups: Sequence[tuple[str, int]], maps_dir: str | None) -> dict[str, str]:
@@ -524,8 +551,12 @@ def run(args: argparse.Namespace) -> int:
                   *(("clairvoyant",) if args.clairvoyant else ()))
         ids = {phase: bar.add_task(phase, total=None) for phase in phases}
 
+        lines = LineProgress(began) if not (args.no_progress or console.is_terminal) else None
+
         def progress(phase: str, done: int, total: int) -> None:
             bar.update(ids[phase], completed=done, total=total)
+            if lines is not None:
+                lines.update(phase, done, total)
 
         try:
             with open_executor(args.workers, args.scheduler) as (executor, workers):

@@ -73,9 +73,10 @@ HISTORY = 256
 longest list a ``hello`` may carry."""
 
 ReportKind = Literal["started", "finished", "blocked", "unblocked"]
-_REPORTS: dict[str, type[Started | Finished | Blocked | Unblocked | Cancelled]] = {
+REPORTS: dict[str, type[Started | Finished | Blocked | Unblocked | Cancelled]] = {
     "started": Started, "finished": Finished, "blocked": Blocked, "unblocked": Unblocked,
     "cancelled": Cancelled}
+"""The message of each report kind a robot sends."""
 
 M = TypeVar("M", bound=AnyMessage)
 
@@ -368,7 +369,7 @@ class RobotSession:
             self._moved = self._moved or kind == "started"
             self.phase = "blocked" if kind == "blocked" else (
                 "running" if self._moved else "received")
-        self._send(_REPORTS[kind], action_id=action_id, pose=self.pose)
+        self._send(REPORTS[kind], action_id=action_id, pose=self.pose)
 
     def state(self, pose: Pose | None = None, *, battery: float | None = None,
               held_up: bool = False) -> None:

@@ -15,10 +15,10 @@ The operator token is random for each run and printed once, in the GUI's login U
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import secrets
 import sys
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -38,11 +38,13 @@ from sim_clients.cmd_demo_lifelong import add_lifelong_arguments, run_lifelong_d
 from sim_clients.stays import STAY_HELP, stay_option
 
 if TYPE_CHECKING:
+    from collections.abc import AsyncIterator
 
     from gateway.server.config import GatewayConfig
     from gateway.server.engine import Engine
     from gateway.server.gateway import Gateway
     from gateway.server.planner import Problem
+    from gateway.vda5050.config import Vda5050Config
     from sim_clients.fleet import SimFleet
     from sim_clients.intruder import IntruderConfig
 
@@ -90,10 +92,12 @@ async def show_status(engine: Engine, status: StatusLine) -> None:
         status.clear()
 
 
-def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
+def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine,
+                 intruder: bool) -> None:
     """After the first run, an operator may load and start others: give every agent a
-    robot, put the robots on the plan's starts whenever a new run begins, and print a
-    summary line when a run ends."""
+    robot, put the robots on the plan's starts whenever a new run begins (and, with
+    ``intruder``, bring the automatic intruder again, so each run shows a replan), and print
+    a summary line when a run ends."""
     engine = gateway.engine
     previous: list[str] = [engine.status]
     collisions_before = [len(fleet.world.collisions)]
@@ -110,6 +114,8 @@ def _follow_runs(gateway: Gateway, fleet: SimFleet, status: StatusLine) -> None:
             plan = engine.executor.plan
             fleet.place_all([p[0] for p in plan.paths],
                             None if plan.headings is None else [h[0] for h in plan.headings])
+            if intruder:
+                fleet.rearm_intruder()
             collisions_before[0] = len(fleet.world.collisions)
         if now == "done" and was != "done":
             collisions = len(fleet.world.collisions) - collisions_before[0]
@@ -135,8 +141,42 @@ def demo_intruder(args: argparse.Namespace) -> IntruderConfig:
     return IntruderConfig(stay_ms=None if stay is None else stay.draw_ms(args.seed))
 
 
+async def all_online(engine: Engine, robots: int) -> None:
+    """Until every robot (websocket or VDA 5050) is connected."""
+    import asyncio
+
+    while not engine.all_online(robots):
+        await asyncio.sleep(0.05)
+
+
+@contextlib.asynccontextmanager
+async def vda_vehicles(gateway: Gateway, problem: Problem, vda: Vda5050Config,
+                       fleet: SimFleet, speed: float) -> AsyncIterator[None]:
+    """Simulated VDA 5050 vehicles on the plan's starts (on ``fleet``'s floor, where its
+    intruder walks) and the gateway's master control for them, while the block runs."""
+    import asyncio
+
+    from gateway.vda5050.transport import VdaTransport
+    from sim_clients.vda_fleet import make_vehicles, run_fleet
+
+    plan = problem.plan
+    assert plan is not None
+    starts = problem.instance.starts
+    vehicles = make_vehicles(vda, fleet.world, speed=speed, starts={
+        r: (starts[r], plan.headings[r][0] if plan.headings is not None else None)
+        for r in range(len(starts))})
+    stop = asyncio.Event()
+    running = asyncio.ensure_future(run_fleet(vehicles, vda.broker, stop))
+    try:
+        async with VdaTransport(gateway, vda):
+            yield
+    finally:
+        stop.set()
+        await asyncio.gather(running, return_exceptions=True)
+
+
 async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespace,
-                status: StatusLine) -> int:
+                status: StatusLine, vda: Vda5050Config | None = None) -> int:
     import asyncio
 
     from fleetgate.userio.signals import StopSignals
@@ -146,24 +186,33 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
     from sim_clients.summary import RunSummary
 
     stop = StopSignals()
-    async with Gateway(config) as gateway:
+    agents = problem.instance.num_agents
+    async with Gateway(config) as gateway, contextlib.AsyncExitStack() as vehicles:
         port = await gateway.listen()
         host = config.host
         token = config.tokens.operators[0]
         status.print(f"fleetgate demo: GUI at http://{host}:{port}/login#token={token} "
                      f"(robots and world on ws://{host}:{port}/ws)")
-        fleet = fleet_for(gateway, problem.instance.num_agents,
+        fleet = fleet_for(gateway, 0 if vda is not None else agents,
                           websocket_connector(f"ws://{host}:{port}/ws"),
                           seed=args.seed, intruder=args.intruder,
                           intruder_config=demo_intruder(args), poll_at_ticks=False,
                           send_state=True)
+        if vda is not None:
+            await vehicles.enter_async_context(vda_vehicles(gateway, problem, vda, fleet,
+                                                            args.speed))
+            status.print(f"fleetgate demo: {agents} VDA 5050 vehicles on {vda.broker.url}")
         watched = not args.headless and args.start == "login"
         if watched:
             status.print("fleetgate demo: the run starts when you open the GUI "
                          "(--start now: at once)")
-        run = asyncio.ensure_future(run_in_process(
-            gateway, problem, fleet, partial(first_operator, gateway.engine) if watched
-            else None))
+
+        async def before_start() -> None:
+            await all_online(gateway.engine, agents)
+            if watched:
+                await first_operator(gateway.engine)
+
+        run = asyncio.ensure_future(run_in_process(gateway, problem, fleet, before_start))
         stopped = asyncio.ensure_future(stop.wait())
         live = asyncio.ensure_future(show_status(gateway.engine, status))
         try:
@@ -177,7 +226,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
             else:
                 status.print(run_summary(gateway.engine, result.collisions))
             if not args.headless:
-                _follow_runs(gateway, fleet, status)
+                _follow_runs(gateway, fleet, status, args.intruder)
                 status.print("serving the GUI until Ctrl-C")
                 await stopped
             return stop.exit_code
@@ -199,6 +248,8 @@ def _run(args: argparse.Namespace) -> int:
     from gateway.server.planner import Problem
 
     if args.lifelong:
+        if args.vda5050:
+            raise UsageError("--vda5050 runs one-shot plans, not --lifelong (yet)")
         return run_lifelong_demo(args)
     if not 0 < args.speed <= 100:
         raise UsageError(f"--speed must be in (0, 100], got {args.speed:g}")
@@ -237,11 +288,42 @@ def _run(args: argparse.Namespace) -> int:
     # the names the GUI's Instance form shows and loads again: the map's, the scenario's
     problem = Problem(instance, Path(args.map).stem if args.map else instance.name, plan,
                       scen_name=Path(args.scen).stem if args.scen else "")
+    with contextlib.ExitStack() as broker:
+        vda = demo_vda_settings(args, instance.num_agents, broker)
+        try:
+            return asyncio.run(_demo(config, problem, args, status, vda))
+        except OSError as exc:
+            raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
+                             ) from None
+        except ValueError as exc:  # the MQTT broker cannot be reached
+            raise UsageError(str(exc)) from None
+
+
+def demo_vda_settings(args: argparse.Namespace, robots: int, stack: contextlib.ExitStack
+                      ) -> Vda5050Config | None:
+    """With ``--vda5050``: every robot a VDA 5050 vehicle (``fleetgate``/``sim<id>``) on
+    ``--broker``, or on a private mosquitto started for the demo (stopped with ``stack``)."""
+    if not args.vda5050:
+        if args.broker is not None:
+            raise UsageError("--broker needs --vda5050")
+        return None
+    from gateway.vda5050.broker import BrokerConfig
+    from gateway.vda5050.config import Vda5050Config, VehicleConfig
+    from sim_clients.mosquitto import LocalBroker, MosquittoMissing
+
+    url = args.broker
+    if url is None:
+        try:
+            url = stack.enter_context(LocalBroker())
+        except (MosquittoMissing, RuntimeError) as exc:
+            raise UsageError(str(exc)) from None
     try:
-        return asyncio.run(_demo(config, problem, args, status))
-    except OSError as exc:
-        raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
-                         ) from None
+        return Vda5050Config(broker=BrokerConfig(url=url), version=args.vda_version,
+                             vehicles=[VehicleConfig(manufacturer="fleetgate",
+                                                     serial_number=f"sim{r}", robot_id=r)
+                                       for r in range(robots)])
+    except ValueError as exc:
+        raise UsageError(f"--broker: {str(exc).splitlines()[-1].strip()}") from None
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -275,7 +357,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the world runs F times faster than plan time (default 1)")
     p.add_argument("--intruder", action=argparse.BooleanOptionalAction, default=True,
                    help=f"the intruder appears at {PAPER.intruder_appear_ms:g} ms and leaves at "
-                   f"{PAPER.intruder_leave_ms:g} ms (default: on)")
+                   f"{PAPER.intruder_leave_ms:g} ms of every run, those started from the GUI "
+                   "too (default: on)")
     p.add_argument("--intruder-stay", metavar="SPEC|FILE", help=STAY_HELP)
     p.add_argument("--policy", choices=POLICY_NAMES, default="slack",
                    help="replanning policy (default slack)")
@@ -293,6 +376,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="gateway log lines: readable text (default) or JSON objects")
     p.add_argument("--log-file", metavar="FILE", type=Path,
                    help="append the gateway's logs here instead of stderr")
+    p.add_argument("--vda5050", action="store_true",
+                   help="the robots are simulated VDA 5050 vehicles driven over MQTT "
+                        "(docs/vda5050.md); a private mosquitto is started unless --broker")
+    p.add_argument("--broker", metavar="URL",
+                   help="with --vda5050: an MQTT broker mqtt://HOST:PORT to use instead")
+    p.add_argument("--vda-version", choices=["2.0.0", "2.1.0"], default="2.1.0",
+                   help="with --vda5050: the vehicles' protocol version (default 2.1.0)")
     p.add_argument("--lookahead", metavar="N", type=int, default=1,
                    help="actions queued on a robot beyond its current one (default 1: the next "
                         "action is released early, so a robot need not wait for a round trip; "

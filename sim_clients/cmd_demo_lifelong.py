@@ -39,7 +39,7 @@ def shift_status(engine: Engine) -> str:
     run = engine.lifelong
     if run is None:
         return f"gateway {engine.status}"
-    from gateway.server.runs.lifelong import throughput_per_min
+    from gateway.server.views import throughput_per_min
 
     ex = run.executor
     t = engine.now_ms() if ex.mode.value != "new" else 0.0

@@ -4,7 +4,8 @@ Each robot connects to ``--connect`` with its own token (and, for ``wss://`` wit
 its own client certificate: ``--cert``/``--key`` templates with ``{id}``), executes what it is
 dispatched on a shared simulated floor, and reconnects when its link drops. The world
 connection receives the operator's ``place_intruder`` and the gateway's ``set_speed``. Runs until
-Ctrl-C.
+Ctrl-C. With ``--vda5050`` the robots are simulated VDA 5050 vehicles on an MQTT broker instead
+(the gateway drives them through its ``[vda5050]`` section).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from gateway.runtime.exits import EXIT_BAD_INPUT, UsageError
 if TYPE_CHECKING:
     import ssl
 
+    from gateway.vda5050.config import Vda5050Config
     from sim_clients.fleet import SimFleet
 
 
@@ -154,12 +156,97 @@ async def _run_fleet(fleet: SimFleet, url: str) -> int:
     return stop.exit_code
 
 
+def vda_settings(args: argparse.Namespace, robots: list[int]) -> Vda5050Config:
+    """The vehicles of ``fleetgate sim --vda5050``: the ``[vda5050]`` section of ``--config``
+    (a gateway configuration file), or vehicles ``fleetgate``/``sim<id>`` for ``--robots``;
+    ``--broker`` overrides the broker's URL. ValueError (one line) if that fails."""
+    from pydantic import ValidationError
+
+    from gateway.server.config import ConfigError, load_config
+    from gateway.vda5050.broker import BrokerConfig
+    from gateway.vda5050.config import Vda5050Config, VehicleConfig
+
+    if args.config is not None:
+        try:
+            found = load_config(args.config).vda5050
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        if found is None:
+            raise ValueError(f"{args.config} has no [vda5050] section")
+        config = found
+    else:
+        config = Vda5050Config(version=args.vda_version, vehicles=[
+            VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r)
+            for r in robots])
+    if args.broker is not None:
+        try:
+            broker = BrokerConfig.model_validate(
+                {**config.broker.model_dump(), "url": args.broker})
+        except ValidationError as exc:
+            raise ValueError(f"--broker: {exc.errors()[0]['msg']}") from None
+        config = config.model_copy(update={"broker": broker})
+    return config
+
+
+async def _run_vehicles(config: Vda5050Config, speed: float) -> int:
+    """Run the vehicles until Ctrl-C (130) or SIGTERM (0)."""
+    import asyncio
+
+    from fleetgate.userio.signals import StopSignals
+    from sim_clients.vda_fleet import make_vehicles, run_fleet
+    from sim_clients.world import World
+
+    stop = StopSignals()
+    vehicles = make_vehicles(config, World(), speed=speed)
+    print(f"fleetgate sim: {len(vehicles)} VDA 5050 vehicles on {config.broker.url} "
+          f"(topics {config.interface_name}/v2/<manufacturer>/<serial>/...)", file=sys.stderr,
+          flush=True)
+    done = asyncio.Event()
+    running = asyncio.ensure_future(run_fleet(vehicles, config.broker, done))
+    stopped = asyncio.ensure_future(stop.wait())
+    try:
+        await asyncio.wait({running, stopped}, return_when=asyncio.FIRST_COMPLETED)
+        done.set()
+        await running  # a broker that cannot be reached raises here
+    finally:
+        stopped.cancel()
+    print(f"fleetgate sim: {sum(v.edges_driven for v in vehicles)} edges driven",
+          file=sys.stderr, flush=True)
+    return stop.exit_code
+
+
+def _run_vda(args: argparse.Namespace) -> int:
+    import asyncio
+
+    import aiomqtt
+
+    try:
+        config = vda_settings(args, parse_robots(args.robots))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if not 0 < args.speed <= 100:
+        raise UsageError(f"--speed must be in (0, 100], got {args.speed:g}")
+    failed: list[BaseException] = []
+    code = EXIT_BAD_INPUT
+    try:
+        code = asyncio.run(_run_vehicles(config, args.speed))
+    except* aiomqtt.MqttError as group:
+        failed.extend(group.exceptions)
+    if failed:
+        print(f"fleetgate sim: cannot reach the MQTT broker at {config.broker.url}: "
+              f"{failed[0]}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return code
+
+
 def _run(args: argparse.Namespace) -> int:
     import asyncio
 
     from sim_clients.connect import websocket_connector
     from sim_clients.fleet import SimFleet
 
+    if args.vda5050:
+        return _run_vda(args)
     try:
         robots = parse_robots(args.robots)
         tokens = token_source(args.tokens)
@@ -215,4 +302,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the certificates' PEM keys if not in them (e.g. certs/robot-{id}.key)")
     p.add_argument("--reconnect-s", type=float, default=1.0,
                    help="seconds between reconnection attempts (default 1)")
+    vda = p.add_argument_group("VDA 5050 vehicles (docs/vda5050.md)")
+    vda.add_argument("--vda5050", action="store_true",
+                     help="simulate VDA 5050 vehicles on an MQTT broker instead of websocket "
+                          "robots (each stands on the first node of its first order)")
+    vda.add_argument("--broker", metavar="URL",
+                     help="the broker, mqtt://HOST:PORT (default: the config's, else "
+                          "mqtt://127.0.0.1:1883)")
+    vda.add_argument("--config", metavar="FILE", type=Path,
+                     help="a gateway configuration: its [vda5050] section names the vehicles "
+                          "(default: fleetgate/sim<id> for --robots)")
+    vda.add_argument("--vda-version", choices=["2.0.0", "2.1.0"], default="2.1.0",
+                     help="protocol version of the vehicles without --config (default 2.1.0)")
+    vda.add_argument("--speed", metavar="F", type=float, default=1.0,
+                     help="vehicles run F times faster than 1 s per move (default 1)")
     p.set_defaults(func=_run)

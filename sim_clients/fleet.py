@@ -490,6 +490,8 @@ class SimFleet:
                 log.warning("no set_speed from the gateway on the world connection yet")
         for r in self._ids:
             self.add_robot(r)
+        if not self._ids:  # only the world (e.g. the robots are VDA 5050 vehicles)
+            self._all_connected.set()
         if not self._external_poll:
             self._tasks.append(loop.create_task(self._poll_loop(), name="sim-intruders"))
 
@@ -544,6 +546,13 @@ class SimFleet:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+
+    def rearm_intruder(self) -> None:
+        """A new run: the automatic intruder comes again, at ``T_a`` of that run (if the fleet
+        has one; one that never appeared in the last run is not doubled)."""
+        if self._oracle is not None:
+            self._intruders = [i for i in self._intruders if i.state is not IntruderState.ABSENT]
+            self._intruders.append(Intruder(self.world, self._intruder_config))
 
     def place_all(self, starts: Sequence[Cell], headings: Sequence[int] | None = None) -> None:
         """Put robot k on ``starts[k]`` (facing ``headings[k]`` under ``turning``) for a new

@@ -12,15 +12,20 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import aiomqtt
 
+from gateway.planning.grid import Cell
 from gateway.vda5050.broker import BrokerConfig, publish, will
+from gateway.vda5050.config import Vda5050Config
+from protocol.messages import HEADINGS
 from protocol.vda5050.master import Publish
+from protocol.vda5050.nodes import THETA
 from protocol.vda5050.topics import MASTER_PUBLISHES
 from sim_clients.vda_vehicle import VdaVehicle
+from sim_clients.world import World
 
 log = logging.getLogger("fleetgate.sim.vda5050")
 
@@ -75,3 +80,19 @@ async def run_fleet(vehicles: list[VdaVehicle], broker: BrokerConfig,
     async with asyncio.TaskGroup() as group:
         for vehicle in vehicles:
             group.create_task(run_vehicle(vehicle, broker, stop))
+
+
+def make_vehicles(config: Vda5050Config, world: World | None, *, speed: float = 1.0,
+                  starts: Mapping[int, tuple[Cell, int | None]] | None = None
+                  ) -> list[VdaVehicle]:
+    """A simulated vehicle for every vehicle of ``config``: 1 s per move, 90-degree turn or
+    wait divided by ``speed``; robot ``r`` stands on ``starts[r]`` (cell, plan heading) or, if
+    not given, on the first node of its first order."""
+    vehicles = []
+    for v in config.vehicles:
+        cell, heading = (starts or {}).get(v.robot_id, (None, None))
+        theta = THETA[HEADINGS[heading]] if heading is not None else 0.0
+        vehicles.append(VdaVehicle(config.topics(v), config.version_of(v), config.nodes(), cell,
+                                   theta, move_s=1 / speed, wait_s=1 / speed,
+                                   recheck_s=0.1 / speed, world=world, who=v.robot_id))
+    return vehicles

@@ -25,7 +25,11 @@ What it does (section numbers of the 2.1.0 text):
 * instant actions (6.8): ``startPause`` / ``stopPause`` (a running edge completes, no new edge
   starts while paused), ``cancelOrder`` (stops at the next node; ``noOrderToCancel`` when it has
   no order), ``stateRequest``, ``factsheetRequest``; other types FAIL;
-* a state is published on every event of 6.10 and at least every ``state_period_s``.
+* a state is published on every event of 6.10 and at least every ``state_period_s``;
+* a vehicle created without a start position (``fleetgate sim --vda5050``, which does not
+  know the gateway's plan) reports ``positionInitialized`` false and takes the first node of
+  its first order as its position: a simulator's convenience, like the websocket robots that
+  the gateway's welcome places.
 """
 
 from __future__ import annotations
@@ -108,7 +112,8 @@ def order_problem(order: Order) -> str | None:
 class VdaVehicle:
     """One simulated vehicle (see the module docstring)."""
 
-    def __init__(self, topics: VehicleTopics, version: VdaVersion, nodes: NodeMap, start: Cell,
+    def __init__(self, topics: VehicleTopics, version: VdaVersion, nodes: NodeMap,
+                 start: Cell | None,
                  theta: float = 0.0, *, move_s: float = 1.0, wait_s: float = 1.0,
                  action_s: float = 1.0, recheck_s: float = 0.1, state_period_s: float = 30.0,
                  world: World | None = None, who: int = 0,
@@ -116,12 +121,14 @@ class VdaVehicle:
         self.topics = topics
         self.version = version
         self.nodes = nodes
-        self.cell = start
+        self.placed = start is not None
+        """Whether the vehicle knows where it is (``start`` None: the first order places it)."""
+        self.cell: Cell = start if start is not None else (0, 0)
         self.theta = theta
         self.move_s, self.wait_s, self.action_s = move_s, wait_s, action_s
         self.recheck_s, self.state_period_s = recheck_s, state_period_s
         self.world, self.who = world, who
-        if world is not None:
+        if world is not None and start is not None:
             world.occupy(start, who, 0.0)
         self.delay_s = delay_s
         self.held = _Held()
@@ -218,6 +225,8 @@ class VdaVehicle:
         first = order.nodes[0]
         held = self.held
         if order.order_id != held.order_id:
+            if not self.placed:
+                self._place(first)
             if self._executing():
                 self._reject("orderUpdateError", "a new order while the current one runs", refs)
             elif not self._at(first):
@@ -250,6 +259,21 @@ class VdaVehicle:
         held.nodes = [n for n in held.nodes if n.released]
         held.edges = [e for e in held.edges if e.released]
         self._accept(order, order.nodes[1:], order.edges, None, now_s)
+
+    def _place(self, node: Node) -> None:
+        """A simulator's convenience (no real vehicle does this): a vehicle started without a
+        position stands on the first node of its first order."""
+        pos = node.node_position
+        if pos is None:
+            return
+        cell = self.nodes.cell_of(pos.x, pos.y)
+        if self.world is not None:
+            if not self.world.is_free(cell):
+                return
+            self.world.occupy(cell, self.who, 0.0)
+        self.cell, self.placed = cell, True
+        if pos.theta is not None:
+            self.theta = pos.theta
 
     def _at(self, node: Node) -> bool:
         pos = node.node_position
@@ -407,7 +431,7 @@ class VdaVehicle:
             operating_mode="AUTOMATIC", errors=list(self.errors),
             safety_state=SafetyState(e_stop="NONE", field_violation=self.field_violation),
             agv_position=AgvPosition(x=x, y=y, theta=self.theta, map_id=self.nodes.map_id,
-                                     position_initialized=True))
+                                     position_initialized=self.placed))
         self._out.append(Publish("state", msg))
 
     def _xy(self) -> tuple[float, float]:

@@ -173,3 +173,74 @@ def test_the_wire_knows_no_engine_run_or_execution() -> None:
              "gateway.server.gateway", "gateway.execution")
     assert _violations(_modules("gateway/server/wire"), above) == []
 
+
+
+def test_runs_and_task_api_never_import_the_engine() -> None:
+    files = _modules("gateway/server/runs", "gateway/server/task_api")
+    assert _violations(files, ("gateway.server.engine", "gateway.server.operator_commands",
+                               "gateway.server.gateway")) == []
+
+
+def test_the_engine_imports_neither_execution_mode() -> None:
+    modes = ("gateway.execution.oneshot", "gateway.execution.lifelong")
+    engine = _modules("gateway.server.engine", "gateway.server.operator_commands")
+    assert _violations(engine, modes) == []
+
+
+def _import_graph(files: list[Path]) -> dict[str, set[str]]:
+    """Which of ``files`` each of them imports (an import names the longest module it
+    reaches; packages' ``__init__`` left out)."""
+    names = {_module_name(f): f for f in files if f.name != "__init__.py"}
+    graph: dict[str, set[str]] = {}
+    for name, f in names.items():
+        targets = set()
+        for imported in _imports(f):
+            parts = imported.split(".")
+            reached = [".".join(parts[:k]) for k in range(len(parts), 0, -1)
+                       if ".".join(parts[:k]) in names]
+            targets.update(reached[:1])
+        graph[name] = targets - {name}
+    return graph
+
+
+def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles of ``graph``: its strongly connected components of more than one
+    module (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component: list[str] = []
+            while not component or component[-1] != v:
+                component.append(stack.pop())
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+def test_no_import_circle_inside_gateway() -> None:
+    # TYPE_CHECKING imports count: a circle hidden behind them is still a circle
+    graph = _import_graph(_modules("gateway"))
+    assert "gateway.server.engine" in graph["gateway.server.gateway"]
+    assert _circles(graph) == []
+
+
+def test_the_circle_finder_finds_circles() -> None:
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"f"}, "f": {"e"}}
+    assert _circles(graph) == [["a", "b", "c"], ["e", "f"]]
+    assert _circles({"a": {"b"}, "b": set()}) == []

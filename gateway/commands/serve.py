@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,12 +20,18 @@ async def _serve(config: GatewayConfig, fresh: bool) -> int:
     from gateway.server.gateway import Gateway
 
     stop = StopSignals()
-    async with Gateway(config, fresh=fresh) as gateway:
+    async with Gateway(config, fresh=fresh) as gateway, contextlib.AsyncExitStack() as vda:
         port = await gateway.listen()
         s = "s" if config.tls is not None else ""
         print(f"fleetgate gateway on ws{s}://{config.host}:{port}/ws "
               f"(GUI http{s}://{config.host}:{port}/, metrics /metrics, probes /healthz "
               f"/readyz)", file=sys.stderr, flush=True)
+        if config.vda5050 is not None:
+            from gateway.vda5050.transport import VdaTransport
+
+            await vda.enter_async_context(VdaTransport(gateway, config.vda5050))
+            print(f"VDA 5050 master control on {config.vda5050.broker.url} "
+                  f"({len(config.vda5050.vehicles)} vehicles)", file=sys.stderr, flush=True)
         await stop.wait()
     return stop.exit_code
 
@@ -55,7 +62,7 @@ def _run(args: argparse.Namespace) -> int:
                          ) from None
     try:
         return asyncio.run(_serve(config, args.fresh))
-    except ValueError as exc:  # the configured instance cannot be loaded
+    except ValueError as exc:  # the configured instance cannot be loaded, no MQTT broker
         raise UsageError(str(exc)) from None
     except OSError as exc:
         raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"

@@ -16,8 +16,12 @@ from collections.abc import Sequence
 from typing import Protocol, TypeVar
 
 from gateway.execution.errors import ExecutionError
+from gateway.execution.params import PAPER
 
 C_co = TypeVar("C_co", covariant=True)
+
+MONITOR_PERIOD_MS = PAPER.monitor_period_ms
+"""Drivers call ``tick()`` at every multiple of this while running."""
 
 
 class Core(Protocol[C_co]):

@@ -561,6 +561,15 @@ class Journal:
         except OSError as exc:
             raise self._fail("cannot seal the journal", exc) from None
 
+    def synced(self) -> int:
+        """How many records (the first ones) the last synced commit made durable, as its seal
+        says (0: none): a power cut can only lose the records after them."""
+        try:
+            raw = self._seal_path.read_bytes()
+            return max((int(n) for n, _ in json.loads(raw.rstrip(b" ") or b"[]")), default=0)
+        except (OSError, ValueError, TypeError):
+            return 0
+
     def _check_seal(self, chains: list[str]) -> None:
         """The journal (whose records' chain values are ``chains``) holds a sealed state."""
         try:

@@ -46,21 +46,11 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.lifelong.executor import LifelongExecutor
-from gateway.execution.lifelong.tasks import TaskPool
-from gateway.execution.oneshot.executor import MONITOR_PERIOD_MS, ExecutionError, Mode
+from gateway.execution.core import MONITOR_PERIOD_MS, Core
+from gateway.execution.errors import ExecutionError
 from gateway.execution.trace_records import summary_record
-from gateway.planning.instance import Instance
-from gateway.planning.movingai import parse_map
-from gateway.planning.plan import Plan
 from gateway.planning.solver import Place
-from gateway.runtime.journal import (
-    IntruderRecord,
-    Journal,
-    ReportRecord,
-    RunRecord,
-    SnapshotRecord,
-)
+from gateway.runtime.journal import IntruderRecord, Journal, ReportRecord, RunRecord
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
@@ -76,17 +66,12 @@ from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import OperatorCommands
 from gateway.server.operator_feed import OperatorFeed
 from gateway.server.planner import Problem
+from gateway.server.runs.base import Run
 from gateway.server.runs.lifelong import LifelongRun
-from gateway.server.runs.resume import (
-    Carried,
-    JournaledExecutor,
-    Replayed,
-    plan_of,
-    replay,
-    snapshot_of,
-)
+from gateway.server.runs.oneshot import OneShotRun
+from gateway.server.runs.resume import JournaledExecutor
 from gateway.server.runs.solver_tasks import SolverTasks
-from gateway.server.views import FleetView, ShiftView, snapshot_fields
+from gateway.server.views import FleetView, snapshot_fields
 from gateway.server.wire.session import Session
 from protocol import (
     Ack,
@@ -124,8 +109,9 @@ class Engine:
         self.queue: asyncio.Queue[Item] = asyncio.Queue()
         self.problem: Problem | None = None
         self.executor: JournaledExecutor | None = None
-        self.lifelong: LifelongRun | None = None
-        """The shift in lifelong mode (then :attr:`executor` stays None)."""
+        self.current_run: Run = OneShotRun(self)
+        """The run the engine routes to: a one-shot run (:attr:`problem` and :attr:`executor`
+        are its plan and executor), or a lifelong shift the gateway puts here."""
         self.journal: Journal | None = None
         """Where the runs are journaled (None: they are not, and do not survive a restart)."""
         self.run_record: RunRecord | None = None
@@ -134,8 +120,10 @@ class Engine:
         """The current run's id, the first part of its action ids."""
         self.runs = 0
         """Runs started (or resumed) by this process (ids of runs without a journal)."""
-        self._replaying = False
-        self._replayed_trace: list[str] = []  # the trace records a replay rebuilt
+        self.replaying = False
+        """True while a run replays its journal (nothing is solved or announced)."""
+        self.replayed_trace: list[str] = []
+        """The trace records a replay rebuilt."""
         self.planning = False
         self.paused = False
         self.robots: dict[int, GatewaySession] = {}
@@ -168,31 +156,20 @@ class Engine:
 
     # -------------------------------------------------------------------------- status
     @property
-    def tasks(self) -> TaskPool | None:
-        """The live task pool of a lifelong shift (None: not in lifelong mode)."""
-        return self.lifelong.tasks if self.lifelong is not None else None
+    def lifelong(self) -> LifelongRun | None:
+        """For callers outside the engine (the task API, simulators, tests): the run if it is
+        a shift, else None. The engine itself never asks which run it has."""
+        run = self.current_run
+        return run if isinstance(run, LifelongRun) else None
 
-    def _core(self) -> JournaledExecutor | LifelongExecutor | None:
-        """What robot reports go to: the shift's executor, or the run's."""
-        return self.lifelong.executor if self.lifelong is not None else self.executor
+    def _core(self) -> Core[object] | None:
+        """What robot reports go to."""
+        return self.current_run.core
 
     @property
     def status(self) -> GatewayStatus:
         """What the gateway is doing."""
-        if self.lifelong is not None:
-            return self.lifelong.status
-        if self.planning:
-            return "planning"
-        ex = self.executor
-        if ex is None:
-            return "loaded" if self.problem is not None and self.problem.plan else "empty"
-        if ex.mode is Mode.DONE:
-            return "done"
-        if self.paused:
-            return "paused"
-        if ex.mode in (Mode.STOPPING, Mode.SOLVING):
-            return "replanning"
-        return "running"
+        return self.current_run.status
 
     def now_ms(self) -> float:
         """The present for the executor (never before its last input)."""
@@ -221,9 +198,7 @@ class Engine:
         """Process queue items forever; tick while running."""
         next_tick: float | None = None
         while True:
-            ticking = self.lifelong.ticking if self.lifelong is not None else (
-                self.executor is not None and self.executor.mode is not Mode.DONE)
-            if not ticking:
+            if not self.current_run.ticking:
                 next_tick = None
                 self.commit()
                 item = await self.queue.get()
@@ -315,20 +290,7 @@ class Engine:
             self._tick_failing = False
 
     def _tick(self) -> None:
-        if self.lifelong is not None:
-            now = self.now_ms()
-            self.lifelong.tick(now)
-            self.feed.slack(now, self.lifelong.executor.fleet_slack_ms)
-            return
-        ex = self.executor
-        if ex is None or ex.mode is Mode.DONE:
-            return  # while paused the monitor is kept true (the executor asks no policy)
-        now = self.now_ms()
-        ex.tick(now)
-        slack = ex.monitor.fleet_slack()
-        self.metrics.fleet_slack.set(slack)
-        self.feed.slack(now, slack)
-        self.route(ex.drain())
+        self.current_run.monitor_tick(self.now_ms())
 
     # -------------------------------------------------------------------------- connections
     def _connected(self, session: Session) -> None:
@@ -382,11 +344,7 @@ class Engine:
     def _hello(self, session: Session, msg: Hello) -> None:
         r = msg.robot_id
         session.version = msg.v  # answer in the robot's protocol version
-        plan = self.executor.plan if self.executor is not None else (
-            self.problem.plan if self.problem is not None else None)
-        turning = self.lifelong.turning if self.lifelong is not None else (
-            plan is not None and plan.headings is not None)
-        refusal = hello_refusal(msg, turning)
+        refusal = hello_refusal(msg, self.current_run.turning)
         if refusal is not None:
             session.error(ErrorCode.UNSUPPORTED_VERSION, msg.msg_id, refusal)
             session.close(CloseCode.POLICY, "protocol v1 robot on a turning plan")
@@ -401,10 +359,10 @@ class Engine:
         now = self.now_ms()
         running = self._core() is not None
         gs.hello(msg, now, run=self.run_id if running else None,
-                 plan=self.executor.plan_id if self.executor is not None else None)
+                 plan=self.current_run.plan_id)
         self.flush(gs, session)  # catch-ups; what they unlock is held for the resend
-        resent = gs.welcome(session, version=session.version, start=self._start_pose(r),
-                            plan=self.executor.plan_id if self.executor else None,
+        resent = gs.welcome(session, version=session.version, start=self.current_run.pose(r),
+                            plan=self.current_run.plan_id,
                             state_period_ms=self.config.state_period_ms, paused=self.paused)
         self.flush(gs, session)
         self._online.add(r)
@@ -412,16 +370,6 @@ class Engine:
         self.feed.event("connection", now, robot=r, state="on")
         log.info("robot connected", extra={"robot": r, "resent": resent})
         self.operator.maybe_autostart()
-
-    def _start_pose(self, r: int) -> Pose | None:
-        if self.lifelong is not None:
-            return self.lifelong.pose(r)
-        plan = self.executor.plan if self.executor is not None else (
-            self.problem.plan if self.problem is not None else None)
-        if plan is None or r >= len(plan.paths):
-            return None
-        heading = None if plan.headings is None else HEADINGS[plan.headings[r][0]]
-        return Pose(cell=plan.paths[r][0], heading=heading)
 
     def _report(self, session: Session,
                 msg: Started | Finished | Blocked | Unblocked | Cancelled | ActionRefused,
@@ -491,10 +439,7 @@ class Engine:
         elif r.kind == "refused":
             log.warning("robot refused an action", extra={
                 "robot": r.robot, "action": r.action_id, "reason": r.reason})
-        if self.lifelong is not None:
-            self.lifelong.route()
-        else:
-            self.route(self.executor.drain() if self.executor is not None else [])
+        self.current_run.route()
 
     def _intruder(self, session: Session, msg: IntruderReport, now: float) -> None:
         """Record a world's intruder report (trace and operators) at plan time ``now`` if it is
@@ -528,7 +473,7 @@ class Engine:
                 self.status_changed()
             elif isinstance(c, SolveRequest):
                 assert self.problem is not None
-                if self._replaying:
+                if self.replaying:
                     continue  # solved once the replay is over, if still unanswered
                 hs = c.headings
                 starts: Sequence[Place] = c.starts if hs is None else [
@@ -569,8 +514,8 @@ class Engine:
         self.summary = (c.soc_ms, c.makespan_ms)
         summary = summary_record(c.soc_ms, c.makespan_ms)
         self.feed.write_trace(summary)
-        if self._replaying:
-            self._replayed_trace.append(json.dumps(summary) + "\n")
+        if self.replaying:
+            self.replayed_trace.append(json.dumps(summary) + "\n")
             self.finished_event.set()
             return
         self.feed.close_trace()
@@ -585,37 +530,7 @@ class Engine:
         if item.purpose == "load":
             self.operator.load_solved(item)
             return
-        ex = self.executor
-        if item.purpose == "shadow":
-            if ex is not None and ex.shadow_pending:  # (else a new run was started meanwhile)
-                ex.shadow_solved(item.result if isinstance(item.result, Plan) else None,
-                                 self.now_ms())
-                self.route(ex.drain())
-            return
-        if ex is None or ex.mode is not Mode.SOLVING:
-            return  # a new run was started meanwhile
-        now = self.now_ms()
-        if isinstance(item.result, Plan):
-            lines = self.feed.trace_lines
-            ex.adopt_plan(item.result, now, self.solvers.solver_ms)
-            self._compact(ex, lines)
-        else:
-            log.warning("replan found no plan, keeping the old one: %s", item.result)
-            ex.abandon_replan(now)
-        self.route(ex.drain())
-
-    def _compact(self, ex: JournaledExecutor, trace_lines: int) -> None:
-        """A plan was just adopted (the fleet is idle): replace the journal's records by a
-        snapshot. Its records so far are committed and the trace flushed first, so a crash
-        at any point leaves a journal that rebuilds the run and a trace no shorter than the
-        snapshot says (``trace_lines``: those before the adoption)."""
-        if self.journal is None or self.run_record is None:
-            return
-        self.commit()
-        self.journal.compact(snapshot_of(self.run_record, ex, Carried(
-            self.policy_name, self.policy_seed, self.threshold_ms, self.clock.speed,
-            self.solvers.solver_ms, self.feed.intruders, self.feed.replan_marks,
-            trace_lines)))
+        self.current_run.solver_done(item)
 
     def load(self, problem: Problem) -> None:
         """Plan ``problem`` (unless it has a plan) and make it the loaded one."""
@@ -624,73 +539,14 @@ class Engine:
     # -------------------------------------------------------------------------- resume
     def resume(self) -> bool:
         """Rebuild the journaled run, if there is one, and carry on with it (robots are
-        re-synchronised by their ``hello``); False if the journal holds no run."""
-        journal = self.journal
-        if journal is None:
-            return False
-        records = list(journal.records())
-        if not records or not isinstance(records[0], RunRecord | SnapshotRecord):
-            return False
-        run = records[0] if isinstance(records[0], RunRecord) else records[0].run
-        self.run_record = run
-        grid = parse_map(run.map_text, name=run.map_name)
-        first = plan_of(run.paths, run.headings)
-        self.problem = Problem(Instance(grid, tuple(p[0] for p in first.paths),
-                                        tuple(p[-1] for p in first.paths), run.map_name),
-                               run.map_name, first)
-        self.run_id = run.run_id
-        self.runs += 1
-        trace: list[str] = []
-        self._replayed_trace = trace
+        re-synchronised by their ``hello``); True if a journaled run goes on."""
+        return self.current_run.resume()
 
-        def record(rec: dict[str, object]) -> None:
-            self.feed.record(rec)
-            trace.append(json.dumps(rec) + "\n")
-
-        self._replaying = True
-        try:
-            done = replay(records, on_commands=self.route,
-                          on_report=self._replayed_report, trace=record,
-                          on_snapshot=self._snapshot_replayed)
-        finally:
-            self._replaying = False
-        assert done is not None
-        self._resumed(done, trace)
-        return True
-
-    def _snapshot_replayed(self, done: Replayed) -> None:
-        """The journal starts with a snapshot: the replans before it, as operators saw them."""
-        self.feed.replan_marks = done.replan_marks
-
-    def _replayed_report(self, rec: ReportRecord) -> None:
-        """A report the replayed executor took: the robot's session takes it too."""
+    def replayed_report(self, rec: ReportRecord) -> None:
+        """A report the replayed core took: the robot's session takes it too."""
         aid = action_id(rec.plan, rec.robot, rec.index, self.run_id)
         self.robot(rec.robot).accepted(Report(rec.event, rec.robot, rec.plan, rec.index, aid,
                                               rec.t_ms, None, rec.reason))
-
-    def _resumed(self, done: Replayed, trace: list[str]) -> None:
-        run, ex = done.run, done.executor
-        self.executor = ex
-        self.block_history = ex.blocks.history
-        self.policy_name = cast(PolicyName, done.policy)
-        self.policy_seed, self.threshold_ms = done.policy_seed, done.threshold_ms
-        self.solvers.solver_ms = done.solver_ms
-        self.paused = ex.paused
-        self.feed.intruders = set(done.intruders)
-        self.feed.resume_trace(trace, done.trace_lines)
-        ex.set_record(self.feed.record)
-        ex.sink = self.journal.append if self.journal is not None else None
-        self.clock.set_speed(done.speed)
-        away = (time.time() - run.wall_start_s) * 1000.0 * done.speed
-        self.clock.reset(max(done.last_t_ms, away))
-        log.info("resumed the journaled run", extra={
-            "run": run.run_id, "records": done.records, "plan": ex.plan_id,
-            "t_ms": round(self.clock.now_ms()), "status": self.status})
-        if ex.mode is Mode.SOLVING and done.solve is not None:
-            self.route([done.solve])
-        if ex.shadow_pending and done.shadow is not None:
-            self.route([done.shadow])
-        self.status_changed()
 
     # -------------------------------------------------------------------------- outputs
     def status_changed(self) -> None:
@@ -713,13 +569,11 @@ class Engine:
             policy=self.policy_name, speed=self.clock.speed, slack_series=feed.slack_series,
             intruders=feed.intruders, replan_marks=feed.replan_marks, problem=self.problem,
             executor=self.executor, robots=self.robots, worlds=len(self.worlds),
-            shift=None if self.lifelong is None else ShiftView(
-                self.lifelong.shift.name, self.lifelong.executor, self.lifelong.period_ms))
+            shift=self.current_run.shift_view)
 
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""
         self.solvers.cancel_all()
-        if self.lifelong is not None:
-            self.lifelong.cancel()
+        self.current_run.cancel()
         self.commit()
         self.feed.close_trace()

@@ -55,7 +55,6 @@ from gateway.server.metrics import Metrics
 from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.runs.lifelong import LifelongRun, shift_from
-from gateway.server.runs.task_journal import journal_tasks
 from gateway.server.task_api.api import TaskApi
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.wire.http import HttpRoutes, json_response, response
@@ -157,7 +156,7 @@ class Gateway:
         self.clock.reset()
         cfg = self.config
         if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
-            self.engine.lifelong = LifelongRun(self.engine, shift_from(cfg))
+            self.engine.current_run = LifelongRun(self.engine, shift_from(cfg))
         try:
             self.resumed = self._resume()
         except BaseException:
@@ -207,9 +206,7 @@ class Gateway:
         try:
             engine.journal, self._lock = open_journal(cfg, self._fresh)
             engine.journal.on_failure = self._journal_failed
-            if engine.lifelong is not None:
-                return journal_tasks(engine)
-            return engine.resume() and engine.status != "done"
+            return engine.resume()
         except JournalError as exc:
             raise ValueError(str(exc)) from None
         except Exception as exc:  # a replay the journal's checks let through, yet failed
@@ -219,8 +216,7 @@ class Gateway:
 
     def _abort_start(self) -> None:
         """A start that failed: end the planner process, close the journal, release it."""
-        if self.engine.lifelong is not None:
-            self.engine.lifelong.cancel()
+        self.engine.current_run.cancel()
         self._close_journal()
 
     def _close_journal(self) -> None:
@@ -265,6 +261,16 @@ class Gateway:
     def status(self) -> str:
         """The engine's status (empty, planning, loaded, running, paused, replanning, done)."""
         return self.engine.status
+
+    @property
+    def sessions(self) -> frozenset[Session]:
+        """The sessions of the connections open now (authenticated, websocket or memory)."""
+        return frozenset(self._sessions)
+
+    @property
+    def pending_handshakes(self) -> int:
+        """Websocket handshakes authenticated whose connection is not served (yet)."""
+        return len(self._ws_peers)
 
     @property
     def latencies_ms(self) -> list[float]:

@@ -10,15 +10,12 @@ the engine's routing.
 
 from __future__ import annotations
 
-import time
+from collections.abc import Callable
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Protocol, TypeVar
 
-from gateway.execution.actions import ActionDurations
-from gateway.execution.oneshot.executor import ExecutionError
-from gateway.planning.movingai import format_map
 from gateway.planning.plan import Plan
-from gateway.runtime.journal import PolicyRecord, RunRecord, SpeedRecord, new_run_id
+from gateway.runtime.journal import SpeedRecord
 from gateway.server.items import Reply, SolverDone
 from gateway.server.planner import (
     InstanceError,
@@ -27,7 +24,7 @@ from gateway.server.planner import (
     resolve_instance,
     without_paths,
 )
-from gateway.server.runs.resume import executor_for
+from gateway.server.runs.base import Run, RunContext, RunRefused
 from gateway.server.wire.session import Session
 from protocol import (
     ErrorCode,
@@ -46,8 +43,14 @@ from protocol import (
     Start,
 )
 
-if TYPE_CHECKING:
-    from gateway.server.engine import Engine
+T = TypeVar("T")
+
+
+class CommandContext(RunContext, Protocol):
+    """What operator commands drive: the engine's run and what a run may touch."""
+
+    current_run: Run
+
 
 class CommandError(Exception):
     """An operator command is refused with ``code``."""
@@ -73,7 +76,7 @@ def reply_to(reply: Reply, ref: str | None, code: ErrorCode | None, detail: str)
 class OperatorCommands:
     """Carries out operator commands on the engine's run (the engine's owner task calls it)."""
 
-    def __init__(self, engine: Engine) -> None:
+    def __init__(self, engine: CommandContext) -> None:
         self._engine = engine
 
     def handle(self, msg: OperatorCommand, reply: Reply) -> None:
@@ -88,7 +91,7 @@ class OperatorCommands:
 
     def _idle(self, what: str) -> None:
         e = self._engine
-        if e.lifelong is not None:
+        if not e.current_run.loads_plans:
             raise CommandError(ErrorCode.BAD_STATE, f"cannot {what} in lifelong mode")
         if e.planning or e.status in ("running", "paused", "replanning"):
             raise CommandError(ErrorCode.BAD_STATE, f"cannot {what} while {e.status}")
@@ -119,7 +122,7 @@ class OperatorCommands:
                 self._loaded()
                 return f"loaded a plan for {len(msg.paths)} robots"
             case Start():
-                self.start()
+                self._run(e.current_run.start)
                 return "started"
             case Pause():
                 if e.status not in ("running", "replanning"):
@@ -132,36 +135,20 @@ class OperatorCommands:
                 self._set_paused(False)
                 return "resumed"
             case ReplanNow():
-                if e.lifelong is not None and not e.paused:
-                    try:
-                        e.lifelong.executor.plan_now(e.now_ms())
-                    except ExecutionError as exc:
-                        raise CommandError(ErrorCode.BAD_STATE, str(exc)) from None
-                    e.lifelong.route()
-                    return "planning a window now"
-                if e.executor is None or e.paused:
-                    raise CommandError(ErrorCode.BAD_STATE, f"cannot replan while {e.status}")
-                try:
-                    e.executor.request_replan(e.now_ms())
-                except ExecutionError as exc:
-                    raise CommandError(ErrorCode.BAD_STATE, str(exc)) from None
-                e.route(e.executor.drain())
-                return "replanning"
+                return self._run(e.current_run.replan_now)
             case SetPolicy():
                 e.policy_name, e.policy_seed = msg.policy, msg.seed
-                self._policy_changed(replace=True)
+                e.current_run.policy_changed(replace=True)
                 e.status_changed()
                 return f"policy {e.policy_name}"
             case SetThreshold():
                 e.threshold_ms = msg.threshold_ms
-                if e.lifelong is not None:
-                    e.lifelong.executor.set_threshold(msg.threshold_ms)
-                self._policy_changed(replace=False)
+                e.current_run.policy_changed(replace=False)
                 e.status_changed()
                 return f"threshold {e.threshold_ms} ms"
             case SetSpeed():
                 e.clock.set_speed(msg.speed)
-                if e.journal is not None and (e.executor is not None or e.lifelong is not None):
+                if e.journal is not None and e.current_run.active:
                     e.journal.append(SpeedRecord(speed=msg.speed))
                 for w in e.worlds:
                     w.send(SetSpeed, speed=msg.speed)
@@ -182,37 +169,22 @@ class OperatorCommands:
                 return "snapshot"
         raise CommandError(ErrorCode.FORBIDDEN, f"{msg.type} is not an operator command")
 
-    def _policy_changed(self, *, replace: bool) -> None:
-        """Give the running executor the operator's policy (or threshold), journaled."""
-        e = self._engine
-        ex = e.executor
-        if ex is not None:
-            ex.set_policy(PolicyRecord(
-                policy=e.policy_name, policy_seed=e.policy_seed, threshold_ms=e.threshold_ms,
-                replace=replace, makespan_lb_ms=ex.plan.makespan * e.config.action_ms))
+    @staticmethod
+    def _run(order: Callable[[], T]) -> T:
+        """Carry out an order to the run; its refusal is the command's (bad state)."""
+        try:
+            return order()
+        except RunRefused as exc:
+            raise CommandError(ErrorCode.BAD_STATE, str(exc)) from None
 
     def _set_paused(self, paused: bool) -> None:
         e = self._engine
         e.paused = paused
-        if e.lifelong is not None:
-            e.lifelong.set_paused(paused)
-        ex = e.executor
-        if ex is not None and ex.paused != paused:
-            (ex.pause if paused else ex.resume)(e.now_ms())
-            e.route(ex.drain())
+        e.current_run.set_paused(paused)
         for gs in e.robots.values():
             gs.set_paused(paused)
             e.flush(gs)
         e.status_changed()
-
-    def _durations(self, robots: int) -> list[ActionDurations]:
-        """Each robot's t_x per action kind: its configured model, else ``action_ms``."""
-        cfg = self._engine.config
-        models = {name: ActionDurations(m.move_ms, m.turn_ms, m.wait_ms)
-                  for name, m in cfg.robot_models.items()}
-        uniform = ActionDurations.uniform(cfg.action_ms)
-        return [models[cfg.robot_model[k]] if k in cfg.robot_model else uniform
-                for k in range(robots)]
 
     def load(self, problem: Problem, reply: Reply = None, ref: str | None = None) -> None:
         """Plan ``problem`` (unless it has a plan) and make it the loaded one."""
@@ -263,60 +235,4 @@ class OperatorCommands:
         e = self._engine
         if not e.config.autostart or e.status != "loaded":
             return
-        if e.lifelong is not None:
-            if e.all_online(e.lifelong.robots):
-                e.lifelong.start()
-            return
-        if e.problem is not None and e.all_online(e.problem.instance.num_agents):
-            self.start()
-
-    def start(self) -> None:
-        """Start executing the loaded plan (or the lifelong shift) from time 0."""
-        e = self._engine
-        if e.lifelong is not None:
-            if e.status != "loaded":
-                raise CommandError(ErrorCode.BAD_STATE, f"cannot start while {e.status}")
-            e.lifelong.start()
-            return
-        if e.problem is None or e.problem.plan is None or e.status not in ("loaded", "done"):
-            raise CommandError(ErrorCode.BAD_STATE, f"cannot start while {e.status}")
-        plan = e.problem.plan
-        for gs in e.robots.values():
-            gs.new_run()
-        e.summary = None
-        e.solvers.solver_ms = 0.0
-        e.finished_event.clear()
-        e.paused = False
-        e.feed.new_run()
-        cfg = e.config
-        e.runs += 1
-        journal = e.journal
-        # a journaled run's id never repeats (random); without a journal, the first run of
-        # the process has none and later ones are numbered
-        e.run_id = new_run_id() if journal is not None else (
-            "" if e.runs == 1 else str(e.runs))
-        run = RunRecord(
-            run_id=e.run_id, wall_start_s=0.0, speed=e.clock.speed,
-            map_name=e.problem.map_name, map_text=format_map(e.problem.instance.grid),
-            paths=[list(p) for p in plan.paths],
-            headings=None if plan.headings is None else [list(h) for h in plan.headings],
-            policy=e.policy_name, policy_seed=e.policy_seed, threshold_ms=e.threshold_ms,
-            makespan_lb_ms=plan.makespan * cfg.action_ms, action_ms=cfg.action_ms,
-            drop_waits=cfg.drop_waits, max_replans=cfg.max_replans,
-            lookahead=cfg.dispatch_lookahead,
-            durations=[(d.move_ms, d.turn_ms, d.wait_ms)
-                       for d in self._durations(len(plan.paths))],
-            # what the blocks of the earlier runs lasted (the gateway learns across runs)
-            block_history=e.block_history[-100:])
-        e.executor = executor_for(run, journal.append if journal is not None else None,
-                                  e.feed.record)
-        e.block_history = e.executor.blocks.history  # grows as this run's blocks clear
-        for hook in e.before_start:
-            hook()
-        e.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
-        if journal is not None:  # the plan boundary: the previous run's records go
-            e.run_record = run.model_copy(update={"wall_start_s": time.time()})
-            journal.begin_run(e.run_record)
-        e.executor.start(0.0)
-        e.status_changed()
-        e.route(e.executor.drain())
+        e.current_run.autostart()

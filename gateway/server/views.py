@@ -10,6 +10,7 @@ remaining errand cells (the next one first, also its ``goal``), and who waits fo
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -20,7 +21,6 @@ from gateway.execution.oneshot.executor import Executor
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.plan import Plan
 from gateway.server.planner import Problem
-from gateway.server.runs.lifelong import throughput_per_min
 from protocol import ActionCounts, Pose, ReplanMark, RobotView, WaitEdge
 from protocol.gateway_session import GatewaySession
 from protocol.messages import HEADINGS, GatewayStatus, Heading, PolicyName
@@ -195,3 +195,9 @@ def shift_fields(shift: ShiftView, sessions: Mapping[int, GatewaySession]) -> di
         "paths": paths, "headings": headings, "path_offsets": list(adg.done),
         "robots": robots, "actions": ActionCounts(pending=pending, **counts), "waits": waits,
     }
+
+
+def throughput_per_min(finished: int, elapsed_ms: float) -> float:
+    """Tasks per minute of plan time (0 before any time passed)."""
+    return finished * 60_000.0 / elapsed_ms if elapsed_ms > 0 and math.isfinite(elapsed_ms) \
+        else 0.0

@@ -17,12 +17,22 @@ import time
 from types import TracebackType
 from typing import TYPE_CHECKING
 
+import aiomqtt
+
 from gateway.server.wire.auth import Peer
 from gateway.server.wire.transport import MemoryClient, memory_pair
 from gateway.vda5050.config import Vda5050Config
 from gateway.vda5050.driver import MasterClient
 from protocol.codec import ProtocolError, decode, encode
-from protocol.messages import Welcome
+from protocol.messages import (
+    HEADINGS,
+    Action,
+    Pose,
+    Welcome,
+    action_id,
+    action_run,
+    parse_action_id,
+)
 from protocol.vda5050.master import Effect, LinkState, VehicleMaster
 from protocol.vda5050.robot import VdaRobot
 
@@ -30,6 +40,10 @@ if TYPE_CHECKING:
     from gateway.server.gateway import Gateway
 
 log = logging.getLogger("fleetgate.vda5050")
+
+
+class BrokerUnreachable(ValueError):
+    """The MQTT broker refused the master control or cannot be reached."""
 
 
 class _Vehicle:
@@ -58,17 +72,38 @@ class VdaTransport:
             master = VehicleMaster(config.topics(v), config.version_of(v), nodes,
                                    resend_s=config.resend_s)
             masters.append(master)
-            self.vehicles[id(master)] = _Vehicle(VdaRobot(v.robot_id, master, turning=turning))
-        self.mqtt = MasterClient(config.broker, masters, self._effect)
+            self.vehicles[id(master)] = _Vehicle(VdaRobot(v.robot_id, master, turning=turning,
+                                                          plan_of=self._plan_of))
+        self.mqtt = MasterClient(config.broker, masters, self._effect, on_state=self._state)
         self._task: asyncio.Task[None] | None = None
 
     async def __aenter__(self) -> VdaTransport:
-        self._task = asyncio.create_task(self.mqtt.run())
-        done, _ = await asyncio.wait({self._task, asyncio.ensure_future(
-            self.mqtt.connected.wait())}, return_when=asyncio.FIRST_COMPLETED)
+        """Connect to the broker; BrokerUnreachable (a ValueError) if that fails."""
+        self._task = asyncio.create_task(self._keep_connected())
+        connected = asyncio.ensure_future(self.mqtt.connected.wait())
+        done, _ = await asyncio.wait({self._task, connected},
+                                     return_when=asyncio.FIRST_COMPLETED)
         if self._task in done:
-            self._task.result()  # the broker refused or is unreachable: raise it
+            connected.cancel()
+            try:
+                self._task.result()
+            except aiomqtt.MqttError as exc:
+                raise BrokerUnreachable(f"cannot reach the MQTT broker at "
+                                        f"{self.config.broker.url}: {exc}") from None
         return self
+
+    async def _keep_connected(self) -> None:
+        """Run the master's connection; once it was up, reconnect every second after a
+        loss (vehicles keep their orders meanwhile, section 6.2)."""
+        while True:
+            try:
+                await self.mqtt.run()
+            except aiomqtt.MqttError as exc:
+                if not self.mqtt.connected.is_set():
+                    raise
+                log.warning("MQTT broker connection lost; reconnecting",
+                            extra={"error": str(exc)[:300]})
+                await asyncio.sleep(1.0)
 
     async def __aexit__(self, kind: type[BaseException] | None, exc: BaseException | None,
                         tb: TracebackType | None) -> None:
@@ -78,6 +113,28 @@ class VdaTransport:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await self._task
+
+    def _plan_of(self, action: Action) -> list[Action]:
+        """Every action of the robot in the executor's current plan, if ``action`` is one of
+        them (the orders' horizon); empty for a lifelong shift or an older plan."""
+        executor = self.gateway.engine.executor
+        plan, robot, _ = parse_action_id(action.action_id)
+        adg = getattr(executor, "adg", None)
+        if adg is None or getattr(executor, "plan_id", None) != plan:
+            return []
+        run = action_run(action.action_id)
+        tx = executor.monitor.tx  # type: ignore[union-attr]
+        out = []
+        for v in range(adg.first[robot], adg.first[robot + 1]):
+            step = adg.step_of[v]
+            h0, h1 = adg.heading(robot, step), adg.heading(robot, step + 1)
+            out.append(Action(msg_id=f"plan-{step}", seq=0, sequence=step,
+                              action_id=action_id(plan, robot, step, run),
+                              src=Pose(cell=adg.src[v], heading=None if h0 is None
+                                       else HEADINGS[h0]),
+                              dst=Pose(cell=adg.dst[v], heading=None if h1 is None
+                                       else HEADINGS[h1]), duration_ms=tx[v]))
+        return out
 
     # ------------------------------------------------------------------ vehicle side
     def _effect(self, master: VehicleMaster, effect: Effect) -> None:
@@ -91,6 +148,11 @@ class VdaTransport:
                 asyncio.get_running_loop().create_task(self._close(vehicle))
             return
         vehicle.robot.vehicle(effect)
+        self._flush(vehicle)
+
+    def _state(self, master: VehicleMaster) -> None:
+        vehicle = self.vehicles[id(master)]
+        vehicle.robot.state_seen()
         self._flush(vehicle)
 
     def _flush(self, vehicle: _Vehicle) -> None:
@@ -109,7 +171,7 @@ class VdaTransport:
                          loop.create_task(self._read(vehicle, client)),
                          loop.create_task(self._write(vehicle, client)),
                          loop.create_task(self._states(vehicle))]
-        robot.connected()
+        robot.connected(time.time())
         self._flush(vehicle)
 
     async def _close(self, vehicle: _Vehicle) -> None:

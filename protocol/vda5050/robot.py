@@ -21,6 +21,7 @@ vehicle.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from typing import Any
 
 from protocol.messages import (
@@ -29,9 +30,7 @@ from protocol.messages import (
     ActionRefused,
     Activity,
     AnyMessage,
-    Blocked,
     CancelAction,
-    Cancelled,
     Finished,
     Hello,
     Pause,
@@ -39,31 +38,30 @@ from protocol.messages import (
     Resume,
     RobotActivity,
     RobotMessage,
-    Started,
     State,
-    Unblocked,
     Welcome,
     parse_action_id,
     plan_key,
 )
-from protocol.robot_session import HISTORY
+from protocol.robot_session import HISTORY, REPORTS
 from protocol.vda5050.master import Effect, Report, VehicleMaster
 from protocol.vda5050.nodes import heading_of
-
-_REPORTS: dict[str, type[Started | Finished | Blocked | Unblocked | Cancelled]] = {
-    "started": Started, "finished": Finished, "blocked": Blocked, "unblocked": Unblocked,
-    "cancelled": Cancelled}
 
 
 class VdaRobot:
     """One VDA 5050 vehicle as robot ``robot_id`` of the gateway (see the module docstring).
 
-    ``turning``: plans carry headings (the pose reports the vehicle's heading)."""
+    ``turning``: plans carry headings (the pose reports the vehicle's heading).
+    ``plan_of(action)``: all actions of the robot's plan that ``action`` belongs to (the
+    orders' horizon is the part not released yet); without it orders have no horizon."""
 
-    def __init__(self, robot_id: int, master: VehicleMaster, *, turning: bool) -> None:
+    def __init__(self, robot_id: int, master: VehicleMaster, *, turning: bool,
+                 plan_of: Callable[[Action], list[Action]] | None = None) -> None:
         self.robot_id = robot_id
         self.master = master
         self.turning = turning
+        self.plan_of = plan_of
+        self._plan_key: str | None = None
         self.link_up = False
         self.paused = False
         self.held: dict[str, Action] = {}
@@ -72,6 +70,7 @@ class VdaRobot:
         self._finished: dict[str, None] = {}
         self._refused: tuple[str, int] | None = None
         self._release: list[Action] = []
+        self._hello_due = False
         self._ids = itertools.count()
         self._seq = 0
         self._out: list[RobotMessage] = []
@@ -81,6 +80,8 @@ class VdaRobot:
         """Where the vehicle is (its last ``state``), as a cell and heading."""
         state = self.master.state
         if state is None or state.agv_position is None:
+            return None
+        if not state.agv_position.position_initialized:
             return None
         pos = state.agv_position
         cell = self.master.nodes.cell_of(pos.x, pos.y)
@@ -96,11 +97,31 @@ class VdaRobot:
         return None
 
     # ------------------------------------------------------------------ gateway link
-    def connected(self) -> None:
-        """A gateway link is up: say hello."""
+    def connected(self, now_s: float) -> None:
+        """A gateway link is up: say hello, once a ``state`` of the vehicle is known (asked
+        for with ``stateRequest``): after a restart the vehicle's order is taken over first
+        (:meth:`VehicleMaster.adopt`), and the actions it finished meanwhile are reported."""
         self.link_up, self._seq = True, 0
+        if self.master.state is None:
+            self._hello_due = True
+            self.master.request_state(now_s)
+            return
+        self._hello()
+
+    def state_seen(self) -> None:
+        """The master got a ``state`` message (the hello may be due)."""
+        if self._hello_due and self.link_up and self.master.state is not None:
+            self._hello()
+
+    def _hello(self) -> None:
+        self._hello_due = False
+        state = self.master.state
+        if state is not None and not self.held:
+            finished, _ = self.master.adopt(state)
+            for aid in finished:
+                self._finished[aid] = None
         self._send(Hello, robot_id=self.robot_id, pose=self.pose,
-                   acked=list(self.held)[-HISTORY:], finished=list(self._finished),
+                   acked=list(self.held)[-HISTORY:], finished=list(self._finished)[-HISTORY:],
                    current=self.activity())
 
     def disconnected(self) -> None:
@@ -127,7 +148,12 @@ class VdaRobot:
             self.master.resume(now_s)
 
     def _actions(self, actions: list[Action]) -> None:
+        fresh = self.master.adopt_actions(actions)
         for action in actions:
+            if action not in fresh and action.action_id not in self.held:
+                self.held[action.action_id] = action  # in the base of a taken-over order
+                self._send(Ack, action_id=action.action_id)
+                continue
             aid = action.action_id
             if aid in self.held or aid in self._finished:
                 self._send(Ack, action_id=aid)
@@ -141,6 +167,9 @@ class VdaRobot:
                 self._send(ActionRefused, action_id=aid, pose=self.pose, code=code,
                            detail=detail)
                 continue
+            if self.plan_of is not None and plan_key(aid) != self._plan_key:
+                self._plan_key = plan_key(aid)
+                self.master.set_plan(self.plan_of(action))
             self.held[aid] = action
             self._release.append(action)
             self._send(Ack, action_id=aid)
@@ -190,7 +219,7 @@ class VdaRobot:
             self.phase[aid] = "running" if effect.kind == "started" else "received"
         else:
             self.phase[aid] = "blocked"
-        self._send(_REPORTS[effect.kind], action_id=aid, pose=self.pose)
+        self._send(REPORTS[effect.kind], action_id=aid, pose=self.pose)
 
     def state(self, battery: float | None = None) -> None:
         """Send a ``state`` snapshot to the gateway."""
@@ -202,7 +231,7 @@ class VdaRobot:
 
     # ------------------------------------------------------------------ effects
     def _send(self, kind: type[RobotMessage], **fields: Any) -> None:
-        if not self.link_up:
+        if not self.link_up or (self._hello_due and kind is not Hello):
             return
         self._out.append(kind(msg_id=f"vda{self.robot_id}-{next(self._ids)}", seq=self._seq,
                               **fields))

@@ -119,9 +119,11 @@ ROWS = [
         folder=("bench/load.py", "--profile", "{file}/p.prof"), long=True),
     Row("bench-crash", ("bench/crash.py", "--kills", "2", "--json"), long=True),
     Row("bench-fuzz", ("bench/fuzz.py", "--frames", "2000"), long=True),
+    Row("bench-demo-stays", ("bench/demo_stays.py", "--runs", "1")),
+    Row("bench-faults", ("bench/faults.py", "--trials", "1", "--modes", "oneshot"), long=True),
 ]
 NO_PATH = {"bench-monitor", "bench-sim-speed", "bench-feed", "bench-lifelong", "bench-crash",
-           "bench-fuzz"}
+           "bench-fuzz", "bench-demo-stays", "bench-faults"}
 """Scripts that take no path argument: no file can stand where they expect a folder."""
 CASES = ("full", "pipe", "folder", "sigint")
 

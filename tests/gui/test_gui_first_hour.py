@@ -91,6 +91,20 @@ def test_the_demo_starts_when_its_gui_is_first_opened(browser: Browser) -> None:
             assert task_requests(requests) == []
 
 
+def test_a_rerun_from_the_gui_brings_the_intruder_again(browser: Browser) -> None:
+    """Item 9: whoever presses Start again after the first run sees the intruder and the
+    replan again (on main the automatic intruder came in the first run only)."""
+    with DemoProcess("--speed", "5", "--start", "now") as demo, \
+            gui(browser, demo.url, "first-hour-rerun") as (page, _):
+        page.wait_for_function("window.fleetgate.status() === 'done'", timeout=60_000)
+        page.get_by_role("button", name="Start").click()
+        expect(page.locator("#status")).to_have_text("running", timeout=10_000)
+        page.wait_for_function("window.fleetgate.model.snap.intruders.length > 0",
+                               timeout=15_000)
+        page.wait_for_function("window.fleetgate.plan() === 1", timeout=20_000)
+        page.wait_for_function("window.fleetgate.status() === 'done'", timeout=60_000)
+
+
 def test_the_demo_instance_form_shows_its_map_and_scenario_and_loads_them(
         browser: Browser) -> None:
     """Item 2: the form shows the demo's map and scenario (not the scenario as the map), Load

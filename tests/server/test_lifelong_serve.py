@@ -66,7 +66,8 @@ def test_a_shift_over_websockets_finishes_tasks_safely(tmp_path: Path) -> None:
                 for a in r["agents"] for p, q in zip(a["path"], a["path"][1:], strict=False)
                 if p[:2] == q[:2] and p[2] != q[2])
     assert turns > 0  # turning actions ran
-    assert gw.engine.lifelong is not None and gw.engine.tasks is gw.engine.lifelong.tasks
+    run = gw.engine.lifelong
+    assert run is not None and gw.engine.current_run.tasks is run.tasks
     # /metrics: the tasks' assignment waits (p50, p90, p99, max) in seconds
     waits = [float(line.rsplit(" ", 1)[1]) for q in ("0.5", "0.9", "0.99", "1")
              for line in metrics.splitlines()

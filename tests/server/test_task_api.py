@@ -182,7 +182,8 @@ async def test_refusals_are_precise(served: tuple[Gateway, int]) -> None:
     own = await call(port, "POST", "/tasks", {"errands": [a]},
                      {"Cookie": cookie, "Origin": "http://127.0.0.1"})
     assert own.status == 201
-    assert gw.engine.tasks is not None and gw.engine.tasks.next_id == 1  # nothing else made
+    pool = gw.engine.current_run.tasks
+    assert pool is not None and pool.next_id == 1  # nothing else made
 
 
 async def test_openapi_document_is_served_valid_and_complete(

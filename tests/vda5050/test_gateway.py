@@ -38,6 +38,12 @@ async def test_ten_vehicles_and_a_mixed_fleet_match_the_websocket_run(
         for topic, payload in run.traffic:
             assert_valid(json.loads(payload)["version"], topic.rsplit("/", 1)[-1], payload)
     assert {json.loads(p)["version"] for _, p in run.traffic} == {"2.0.0", "2.1.0"}
+    orders = [json.loads(p) for t, p in run.traffic if t.endswith("/order")]
+    first = [o for o in orders if o["orderUpdateId"] == 0]
+    assert len(first) == AGENTS
+    # the first order's base is what the ADG released, its horizon the rest of the path
+    assert any(not n["released"] for o in first for n in o["nodes"])
+    assert max(o["orderUpdateId"] for o in orders) > 5
     mixed = await run_vda(tmp_path / "mixed.jsonl", broker_url, MAP, SCEN, AGENTS,
                           list(range(0, AGENTS, 2)))
     assert abs(mixed.soc_ms - soc_ws) / soc_ws <= 0.02, (mixed.soc_ms, soc_ws)

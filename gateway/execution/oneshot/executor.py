@@ -64,7 +64,7 @@ from gateway.execution.commands import (
     SolveRequest,
     Trigger,
 )
-from gateway.execution.core import check_robot, check_start, check_time
+from gateway.execution.core import MONITOR_PERIOD_MS, check_robot, check_start, check_time
 from gateway.execution.errors import ExecutionError
 from gateway.execution.oneshot.adg import ADG
 from gateway.execution.oneshot.blocks import BlockTracker
@@ -88,10 +88,6 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
 __all__ = ["MONITOR_PERIOD_MS", "ExecutionError", "Executor", "Mode"]
-
-MONITOR_PERIOD_MS = PAPER.monitor_period_ms
-"""Drivers call ``tick()`` at every multiple of this while running."""
-
 
 _PENDING, _DISPATCHED, _STARTED, _DONE = 0, 1, 2, 3
 

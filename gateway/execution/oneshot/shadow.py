@@ -15,11 +15,11 @@ same belief about the blocks:
 
 Both are computed in one scenario per probability level of the policy: every open block ends
 at that quantile of its duration, the history's conditioned on how long it has lasted
-(:meth:`gateway.execution.blocks.BlockTracker.end_quantiles`). The plan is adopted (a replan
-that needs no solve) only if the policy's risk-aware rule accepts the gains
-(:meth:`gateway.execution.policies.ShadowPolicy.adopts`): the expected gain less the expected
-regret is at least the margin, and the chance of a loss is small. Otherwise it is dropped and
-has cost the fleet nothing.
+(:meth:`gateway.execution.oneshot.blocks.BlockTracker.end_quantiles`). The plan is adopted (a
+replan that needs no solve) only if the policy's risk-aware rule accepts the gains
+(:meth:`gateway.execution.oneshot.policies.ShadowPolicy.adopts`): the expected gain less the
+expected regret is at least the margin, and the chance of a loss is small. Otherwise it is
+dropped and has cost the fleet nothing.
 """
 
 from __future__ import annotations

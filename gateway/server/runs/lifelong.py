@@ -1,9 +1,9 @@
 """Lifelong mode inside the gateway: a warehouse shift run by the engine's owner task.
 
 :class:`LifelongRun` owns the shift's sans-I/O
-:class:`~gateway.execution.lifelong.executor.LifelongExecutor` (tasks, live ADG, dispatch, monitor) and
-routes what it emits: dispatches, the slack trigger and the end of the shift go through the
-engine's routing (the same wire protocol as a one-shot run: action ids are
+:class:`~gateway.execution.lifelong.executor.LifelongExecutor` (tasks, live ADG, dispatch,
+monitor) and routes what it emits: dispatches, the slack trigger and the end of the shift go
+through the engine's routing (the same wire protocol as a one-shot run: action ids are
 ``run.segment.robot.n``, ``n`` counting the robot's actions over the shift, so they never
 repeat); a :class:`~gateway.execution.lifelong.executor.PlanRequest` goes to the windowed planner in
 its own process (:class:`~gateway.server.runs.planner_process.PlannerProcess`, so it never holds
@@ -19,53 +19,64 @@ is a function of the grid and the cell only, so nothing depends on when one arri
 engine ticks the run every monitor period (and when a planning call is due); robot reports
 reach the executor through the engine's robot sessions as in a one-shot run.
 
-The live task pool is :attr:`LifelongRun.tasks` (``Engine.tasks``): a task API reads it and
-submits to it from the owner task.
+The live task pool is :attr:`LifelongRun.tasks`: a task API reads it and submits to it from
+the owner task.
 
 With a journal the executor is a :class:`~gateway.server.runs.shift_journal.JournaledLifelong`:
 its inputs (adopted segments included) are journaled before they are applied, and a restarted
-gateway replays them and continues the same shift (:mod:`gateway.server.runs.shift_journal`).
+gateway replays them and continues the same shift (:meth:`LifelongRun.resume`,
+:mod:`gateway.server.runs.shift_journal`); the task book is journaled too
+(:mod:`gateway.server.runs.task_journal`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
 from array import array
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING
 
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import Command
-from gateway.execution.lifelong.errands import TaskDistances
+from gateway.execution.core import Core
 from gateway.execution.errors import ExecutionError
+from gateway.execution.lifelong.errands import TaskDistances
 from gateway.execution.lifelong.executor import (
     LifelongMode,
     PlanRequest,
     Segment,
 )
+from gateway.execution.lifelong.shift_state import HistoryLog
 from gateway.execution.lifelong.tasks import TaskPool, wait_percentiles
 from gateway.planning.grid import Grid
 from gateway.planning.lorr import random_problem, read_problem, warehouse_problem
 from gateway.planning.movingai import read_map
-from gateway.runtime.journal import ShiftRecord, new_run_id
+from gateway.runtime.journal import (
+    JournalError,
+    JournalRecord,
+    ShiftHistoryRecord,
+    ShiftRecord,
+    ShiftSnapshotRecord,
+    TaskRecord,
+    new_run_id,
+)
 from gateway.runtime.mapstore import MapNotFound, resolve
 from gateway.server.config import GatewayConfig
-from gateway.server.items import OwnerCall
+from gateway.server.items import OwnerCall, SolverDone
+from gateway.server.runs.base import RunContext, RunRefused
 from gateway.server.runs.planner_process import PlannerDied, PlannerFailed, PlannerProcess, Warm
-from gateway.server.runs.shift_journal import JournaledLifelong
+from gateway.server.runs.shift_journal import JournaledLifelong, compact_shift, resume_shift
+from gateway.server.runs.task_journal import TaskJournal, restore_tasks
+from gateway.server.views import ShiftView
 from protocol import Pose
 from protocol.messages import HEADINGS, GatewayStatus
 
-if TYPE_CHECKING:
-    from gateway.server.engine import Engine
-
 log = logging.getLogger("fleetgate.lifelong")
+log_tasks = logging.getLogger("fleetgate.tasks")
 
 
 @dataclass(frozen=True)
@@ -104,7 +115,7 @@ def shift_from(config: GatewayConfig) -> Shift:
 class LifelongRun:
     """A shift inside the gateway: its executor, its planner off the loop, its routing."""
 
-    def __init__(self, engine: Engine, shift: Shift) -> None:
+    def __init__(self, engine: RunContext, shift: Shift) -> None:
         cfg = engine.config
         s = cfg.lifelong
         assert s is not None
@@ -187,6 +198,31 @@ class LifelongRun:
         return s.period_ms
 
     @property
+    def core(self) -> Core[object]:
+        """The shift's executor: robot reports go there."""
+        return self.executor
+
+    @property
+    def plan_id(self) -> int | None:
+        """A shift names no plan in a welcome (its segments are in the action ids)."""
+        return None
+
+    @property
+    def loads_plans(self) -> bool:
+        """A shift's map and tasks come from the configuration: nothing is loaded."""
+        return False
+
+    @property
+    def active(self) -> bool:
+        """A shift's speed changes are always journaled."""
+        return True
+
+    @property
+    def shift_view(self) -> ShiftView:
+        """The shift as a snapshot shows it."""
+        return ShiftView(self.shift.name, self.executor, self.period_ms)
+
+    @property
     def ticking(self) -> bool:
         """Whether the engine must tick the run (started and not done)."""
         return self.executor.mode in (LifelongMode.RUNNING, LifelongMode.STOPPING)
@@ -211,8 +247,11 @@ class LifelongRun:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Start the shift at plan time 0 (action ids get a fresh run id)."""
+        """Start the shift at plan time 0 (action ids get a fresh run id); RunRefused unless
+        it is loaded (not started yet)."""
         e = self._engine
+        if self.status != "loaded":
+            raise RunRefused(f"cannot start while {e.status}")
         for gs in e.robots.values():
             gs.new_run()
         e.summary = None
@@ -231,6 +270,37 @@ class LifelongRun:
         self.route()
         log.info("lifelong shift started", extra={
             "run": e.run_id, "robots": self.robots, "map": self.shift.name})
+
+    def autostart(self) -> None:
+        """Start once the whole fleet is online."""
+        if self._engine.all_online(self.robots):
+            self.start()
+
+    def replan_now(self) -> str:
+        """The operator's "plan now": a planning call at once (not while paused)."""
+        e = self._engine
+        if e.paused:
+            raise RunRefused(f"cannot replan while {e.status}")
+        try:
+            self.executor.plan_now(e.now_ms())
+        except ExecutionError as exc:
+            raise RunRefused(str(exc)) from None
+        self.route()
+        return "planning a window now"
+
+    def policy_changed(self, *, replace: bool) -> None:
+        """A shift has no replanning policy; a new threshold is its slack trigger's."""
+        if not replace:
+            self.executor.set_threshold(self._engine.threshold_ms)
+
+    def solver_done(self, item: SolverDone) -> None:
+        """A shift's planner answers through the owner queue (:meth:`plan_window`), never as
+        a solver task."""
+
+    def monitor_tick(self, now_ms: float) -> None:
+        """The engine's tick: :meth:`tick`, and the fleet slack to the operators."""
+        self.tick(now_ms)
+        self._engine.feed.slack(now_ms, self.executor.fleet_slack_ms)
 
     def stop(self) -> None:
         """End the shift: nothing new is dispatched; done when every robot is idle."""
@@ -255,6 +325,47 @@ class LifelongRun:
             if task is not None:
                 task.cancel()
         self.planner.close()
+
+    # ------------------------------------------------------------------ journal
+    def resume(self) -> bool:
+        """Journal the shift from now on (its task book, and its executor's inputs), after
+        rebuilding it from the engine's journal (True if there was something to rebuild): a
+        journaled shift is replayed and goes on (:func:`~.shift_journal.resume_shift`); task
+        records alone (tasks submitted before a shift started, or a journal of a gateway that
+        journaled only its tasks) rebuild the book. A journaled one-shot run is a
+        :class:`JournalError` (``--fresh`` abandons it). Without a journal: False."""
+        e = self._engine
+        journal, pool = e.journal, self.tasks
+        if journal is None:
+            return False
+        records: list[JournalRecord] = list(journal.records())
+        if records and not isinstance(records[0], TaskRecord | ShiftRecord
+                                      | ShiftSnapshotRecord | ShiftHistoryRecord):
+            raise JournalError(f"the journal {journal.path} holds a one-shot run and the "
+                               f"gateway is in lifelong mode: start with --fresh to abandon it")
+        last = 0
+        history = HistoryLog()
+        if any(isinstance(rec, ShiftRecord | ShiftSnapshotRecord) for rec in records):
+            history = HistoryLog(resume_shift(e, self, records).history)
+            last = pool.event_seq
+        elif records:
+            last = restore_tasks(pool, records, pool.now)
+            self.executor.book.adopt()  # robots go on with their started tasks
+            log_tasks.info("task book rebuilt from the journal", extra={
+                "records": len(records), "tasks": len(pool.book), "finished": pool.finished})
+        tasks = TaskJournal(pool, journal, last)
+        self.counted_until(last)
+        e.before_commit.append(tasks.flush)
+
+        def sink(rec: JournalRecord) -> None:
+            tasks.flush()  # the task changes before the input first: the replay's order
+            journal.append(rec)
+
+        self.executor.sink = sink
+        s = e.config.lifelong
+        assert s is not None
+        self.after_adopt = partial(compact_shift, e, self, history, s.snapshot_segments)
+        return bool(records)
 
     def _count_tasks(self) -> None:
         """Before each commit: the tasks finished since the last one into the metrics (their
@@ -305,13 +416,15 @@ class LifelongRun:
         rest: list[Command] = []
         for c in self.executor.drain():
             if isinstance(c, PlanRequest):
-                self._plan(c)
+                self.plan_window(c)
             else:
                 rest.append(c)
         if rest:
             self._engine.route(rest)
 
-    def _plan(self, req: PlanRequest) -> None:
+    def plan_window(self, req: PlanRequest) -> None:
+        """Have the planner process answer ``req`` off the loop; its segment comes back
+        through the owner queue."""
         e = self._engine
 
         async def run() -> None:
@@ -359,9 +472,9 @@ class LifelongRun:
 class _WarmQueue:
     """The cells whose tables the planner process is to compute, in small requests: the
     scheduler's first (first errands and the starts of the legs of
-    :meth:`~gateway.execution.lifelong.tasks.TaskPool.length`: they are cheap, and the first planning
-    call on the event loop needs them all), then the planner's (every errand); first errands
-    first (every task's, then the later ones)."""
+    :meth:`~gateway.execution.lifelong.tasks.TaskPool.length`: they are cheap, and the first
+    planning call on the event loop needs them all), then the planner's (every errand); first
+    errands first (every task's, then the later ones)."""
 
     CHUNK = 64
     """Cells per request (a planner call waits for one: ~0.1 s)."""
@@ -411,9 +524,3 @@ def _pop(queue: deque[int], n: int, skip: Callable[[int], bool] | None = None) -
         if skip is None or not skip(cell):
             out.append(cell)
     return out
-
-
-def throughput_per_min(finished: int, elapsed_ms: float) -> float:
-    """Tasks per minute of plan time (0 before any time passed)."""
-    return finished * 60_000.0 / elapsed_ms if elapsed_ms > 0 and math.isfinite(elapsed_ms) \
-        else 0.0

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gateway.execution.actions import ActionDurations
-from gateway.execution.oneshot.blocks import BlockTracker
 from gateway.execution.commands import Command, SolveRequest
 from gateway.execution.errors import ExecutionError
+from gateway.execution.oneshot.blocks import BlockTracker
 from gateway.execution.oneshot.executor import Executor
 from gateway.execution.oneshot.policies import SlackReplan, make_policy
 from gateway.execution.trace_records import Record, intruder_record
@@ -108,23 +108,24 @@ class JournaledReports:
         self._report("refused", robot, plan, action, now_ms, reason)
         super().refused(robot, plan, action, now_ms, reason)  # type: ignore[misc]
 
-    def _time(self, kind: str, now_ms: float) -> None:
+    def journal_time(self, kind: str, now_ms: float) -> None:
+        """Hand a time input of ``kind`` (a tick, pause, resume, ...) to the journal."""
         if self.sink is not None:  # built only if journaled (ten ticks a second)
             self.sink(TimeRecord.model_construct(kind=kind, t_ms=now_ms))
 
     def tick(self, now_ms: float) -> None:
         """Journal, then apply, a monitor tick."""
-        self._time("tick", now_ms)
+        self.journal_time("tick", now_ms)
         super().tick(now_ms)  # type: ignore[misc]
 
     def pause(self, now_ms: float) -> None:
         """Journal, then apply, the operator's pause."""
-        self._time("pause", now_ms)
+        self.journal_time("pause", now_ms)
         super().pause(now_ms)  # type: ignore[misc]
 
     def resume(self, now_ms: float) -> None:
         """Journal, then apply, the operator's resume."""
-        self._time("resume", now_ms)
+        self.journal_time("resume", now_ms)
         super().resume(now_ms)  # type: ignore[misc]
 
     def replay_common(self, rec: JournalRecord,

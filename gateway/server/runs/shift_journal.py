@@ -35,7 +35,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong.executor import (
@@ -67,10 +67,8 @@ from gateway.runtime.journal import (
     ThresholdRecord,
     TimeRecord,
 )
+from gateway.server.runs.base import RunContext
 from gateway.server.runs.resume import JournaledReports
-
-if TYPE_CHECKING:
-    from gateway.server.engine import Engine
 
 log = logging.getLogger("fleetgate.lifelong")
 
@@ -80,15 +78,15 @@ class JournaledLifelong(JournaledReports, LifelongExecutor):
     (None: not journaled, e.g. while it is being replayed)."""
 
     def stop(self, now_ms: float) -> None:
-        self._time("stop", now_ms)
+        self.journal_time("stop", now_ms)
         super().stop(now_ms)
 
     def plan_now(self, now_ms: float) -> None:
-        self._time("replan", now_ms)
+        self.journal_time("replan", now_ms)
         super().plan_now(now_ms)
 
     def plan_failed(self, call: int, now_ms: float) -> None:
-        self._time("abandon", now_ms)
+        self.journal_time("abandon", now_ms)
         super().plan_failed(call, now_ms)
 
     def adopt(self, segment: Segment, now_ms: float) -> None:
@@ -260,12 +258,21 @@ def _check(pool: TaskPool, rec: JournalRecord) -> None:
                            f"{want}")
 
 
-def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftReplayed:
+class ShiftRun(Protocol):
+    """What the journal wiring needs of a shift run (:class:`~.lifelong.LifelongRun`)."""
+
+    executor: JournaledLifelong
+    started: ShiftRecord | None
+
+    def plan_window(self, req: PlanRequest) -> None:
+        """Have the planner answer ``req``."""
+
+
+def resume_shift(engine: RunContext, run: ShiftRun, records: Sequence[JournalRecord]
+                 ) -> ShiftReplayed:
     """Replay the journaled shift into the engine's fresh one and carry on: same run id,
     the clock continued, robot sessions rebuilt, the trace completed, an outstanding planner
     call planned again."""
-    run = engine.lifelong
-    assert run is not None and isinstance(run.executor, JournaledLifelong)
     ex = run.executor
     trace: list[str] = []
 
@@ -291,19 +298,19 @@ def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftRepla
             events: list[ExecutorEvent] = ["started"] * started
             events += ["stopped" if started else "blocked"] * blocked
             for event in events:
-                engine._replayed_report(ReportRecord(
+                engine.replayed_report(ReportRecord(
                     event=event, robot=r, plan=held[0].plan, index=held[0].action,
                     t_ms=ex.now_ms))
 
     ex.set_record(record)
-    engine._replayed_trace = trace  # a stopped shift's summary record goes there too
-    engine._replaying = True
+    engine.replayed_trace = trace  # a stopped shift's summary record goes there too
+    engine.replaying = True
     try:
         done = replay_shift(records, ex, on_commands=commands,
-                            on_report=engine._replayed_report, on_start=start,
+                            on_report=engine.replayed_report, on_start=start,
                             on_snapshot=restored)
     finally:
-        engine._replaying = False
+        engine.replaying = False
         ex.set_record(engine.feed.record)
     if done.shift is None:
         return done
@@ -317,7 +324,7 @@ def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftRepla
     engine.clock.reset(max(done.last_t_ms, away))
     engine.paused = ex.paused
     if ex.outstanding is not None:  # its answer was never journaled: plan it again
-        run._plan(ex.outstanding)
+        run.plan_window(ex.outstanding)
     log.info("resumed the journaled shift", extra={
         "run": engine.run_id, "records": done.records, "segments": ex.segments,
         "t_ms": round(engine.clock.now_ms()), "finished_tasks": ex.finished_tasks})
@@ -325,14 +332,14 @@ def resume_shift(engine: Engine, records: Sequence[JournalRecord]) -> ShiftRepla
     return done
 
 
-def compact_shift(engine: Engine, history: HistoryLog, every: int) -> None:
+def compact_shift(engine: RunContext, run: ShiftRun, history: HistoryLog, every: int) -> None:
     """After an adopted segment (between two owner-task items): every ``every`` segments
     (0: never) of a running shift, replace the journal's records by a snapshot of the shift.
     What is buffered is committed and the trace flushed first, then one transaction deletes
     the records and writes the snapshot: a crash before it leaves the records, one after it
     the snapshot, and both replay to the same shift."""
-    run, journal = engine.lifelong, engine.journal
-    assert run is not None and journal is not None
+    journal = engine.journal
+    assert journal is not None
     if not compaction_due(run.executor, every) or run.started is None:
         return
     engine.commit()

@@ -15,24 +15,13 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
-from functools import partial
-from typing import TYPE_CHECKING
 
-from gateway.execution.lifelong.shift_state import HistoryLog
 from gateway.execution.lifelong.tasks import NewTask, TaskEvent, TaskPool
 from gateway.runtime.journal import (
     Journal,
-    JournalError,
     JournalRecord,
-    ShiftHistoryRecord,
-    ShiftRecord,
-    ShiftSnapshotRecord,
     TaskRecord,
 )
-from gateway.server.runs.shift_journal import compact_shift, resume_shift
-
-if TYPE_CHECKING:
-    from gateway.server.engine import Engine
 
 log = logging.getLogger("fleetgate.tasks")
 
@@ -84,42 +73,3 @@ def restore_tasks(pool: TaskPool, records: Iterable[JournalRecord], now: float) 
         n = rec.seq
     pool.restored(now)
     return n
-
-
-def journal_tasks(engine: Engine) -> bool:
-    """Journal the engine's shift from now on (its task book, and its executor's inputs), after
-    rebuilding it from the journal (True if there was something to rebuild): a journaled
-    shift is replayed and goes on (:func:`~gateway.server.runs.shift_journal.resume_shift`); task
-    records alone (tasks submitted before a shift started, or a journal of a gateway that
-    journaled only its tasks) rebuild the book. A journaled one-shot run is a
-    :class:`JournalError` (``--fresh`` abandons it)."""
-    pool, journal, run = engine.tasks, engine.journal, engine.lifelong
-    assert pool is not None and journal is not None and run is not None
-    records = list(journal.records())
-    if records and not isinstance(records[0], TaskRecord | ShiftRecord | ShiftSnapshotRecord
-                                                | ShiftHistoryRecord):
-        raise JournalError(f"the journal {journal.path} holds a one-shot run and the gateway "
-                           f"is in lifelong mode: start with --fresh to abandon it")
-    last = 0
-    history = HistoryLog()
-    if any(isinstance(rec, ShiftRecord | ShiftSnapshotRecord) for rec in records):
-        history = HistoryLog(resume_shift(engine, records).history)
-        last = pool.event_seq
-    elif records:
-        last = restore_tasks(pool, records, pool.now)
-        run.executor.book.adopt()  # robots go on with their started tasks
-        log.info("task book rebuilt from the journal", extra={
-            "records": len(records), "tasks": len(pool.book), "finished": pool.finished})
-    tasks = TaskJournal(pool, journal, last)
-    run.counted_until(last)
-    engine.before_commit.append(tasks.flush)
-
-    def sink(rec: JournalRecord) -> None:
-        tasks.flush()  # the task changes before the input first: the replay's order
-        journal.append(rec)
-
-    run.executor.sink = sink
-    assert engine.config.lifelong is not None
-    run.after_adopt = partial(compact_shift, engine, history,
-                              engine.config.lifelong.snapshot_segments)
-    return bool(records)

@@ -28,7 +28,7 @@ import asyncio
 import json
 import re
 from collections.abc import AsyncIterator, Callable
-from typing import TYPE_CHECKING, Literal, TypeVar, cast
+from typing import TYPE_CHECKING, Literal, Protocol, TypeVar, cast
 from urllib.parse import parse_qs
 
 from pydantic import ValidationError
@@ -44,7 +44,8 @@ from gateway.execution.lifelong.tasks import (
     TaskPool,
     TaskState,
 )
-from gateway.server.items import OwnerCall
+from gateway.server.items import Item, OwnerCall
+from gateway.server.runs.lifelong import LifelongRun
 from gateway.server.task_api.models import (
     MAX_LIST,
     SubmitBatch,
@@ -63,7 +64,6 @@ from protocol.codec import ProtocolError, check_text
 
 if TYPE_CHECKING:
     from gateway.planning.grid import Grid
-    from gateway.server.engine import Engine
 
 _TASK_PATH = re.compile(r"^/tasks/([^/]+)(/pause|/resume)?$")
 KEEPALIVE_S = 15.0
@@ -86,12 +86,34 @@ def _reset(first: int) -> bytes:
     return f"event: reset\ndata: {json.dumps({'first': first})}\n\n".encode()
 
 
+class Owner(Protocol):
+    """What the task API talks to: the owner task's queue, the present, and the shift (the
+    gateway's engine provides them; the task API never touches the engine otherwise)."""
+
+    queue: asyncio.Queue[Item]
+
+    @property
+    def lifelong(self) -> LifelongRun | None:
+        """The shift (None: the gateway runs no shift)."""
+        ...
+
+    def now_ms(self) -> float:
+        """The shift's present."""
+        ...
+
+
+def _pool(owner: Owner) -> TaskPool | None:
+    """The shift's task pool (None: no shift)."""
+    run = owner.lifelong
+    return run.tasks if run is not None else None
+
+
 class TaskApi:
     """Answers the task API's requests for one gateway (see the module doc)."""
 
-    def __init__(self, engine: Engine, auth: Authenticator, *, tls: bool,
+    def __init__(self, owner: Owner, auth: Authenticator, *, tls: bool,
                  allowed_origins: list[str]) -> None:
-        self._engine = engine
+        self._engine = owner
         self._auth = auth
         self._tls = tls
         self._origins = allowed_origins
@@ -102,7 +124,7 @@ class TaskApi:
     async def __call__(self, req: ApiRequest) -> ApiResponse:
         """The response to one request (HttpError for a refusal)."""
         self._authorize(req)
-        pool = self._engine.tasks
+        pool = _pool(self._engine)
         if pool is None:
             raise HttpError(503, "no task pool: the gateway is not in lifelong mode")
         grid = self._grid()
@@ -208,7 +230,7 @@ class TaskApi:
         engine = self._engine
 
         def call() -> None:
-            pool = engine.tasks
+            pool = _pool(engine)
             try:
                 if pool is None:
                     raise HttpError(503, "the task pool is gone")
@@ -359,7 +381,7 @@ class TaskApi:
             yield b"retry: 1000\n\n"
             idle = 0.0
             while True:
-                pool = self._engine.tasks
+                pool = _pool(self._engine)
                 if pool is None:
                     return
                 if after > pool.event_seq:  # an id this gateway never gave (another shift's)
