@@ -25,12 +25,12 @@ import numpy as np
 from experiments.oracle import OracleRow
 from experiments.oracle_stats import (
     Judged,
-    _as_value,
-    _capture,
-    _median,
-    _share,
+    as_value,
+    capture_of,
+    median_of,
     policies_run,
     policy_soc,
+    share_of,
 )
 from experiments.stats import Experiment, describe_mean
 
@@ -91,14 +91,14 @@ def summarize_outcomes(t_n: np.ndarray, t_x: np.ndarray, t_c: np.ndarray, *, see
     shares = [float(saved[k] / possible[k]) for k in range(len(t_n)) if possible[k] > 0]
     worse = t_x > t_n
     hits, n = int(np.sum(worse)), len(t_n)
-    share = _share(hits, n)
+    share = share_of(hits, n)
     share["upper95"] = clopper_pearson_upper(hits, n)
     share["cost"] = _losses([float(c) for c in (t_x - t_n)[worse]])
     return {
-        "capture": _capture(saved, possible, seed=seed, resamples=resamples),
-        "capture_median": _median(shares, seed=seed, resamples=resamples),
+        "capture": capture_of(saved, possible, seed=seed, resamples=resamples),
+        "capture_median": median_of(shares, seed=seed, resamples=resamples),
         "worse_than_none": share,
-        "saving_ms": _as_value(describe_mean([float(v) for v in saved], seed=seed,
+        "saving_ms": as_value(describe_mean([float(v) for v in saved], seed=seed,
                                              resamples=resamples)),
     }
 
@@ -119,8 +119,8 @@ def summarize_clairvoyant(exps: Sequence[Experiment], clair: Sequence[OracleRow]
         "experiments": len(joined),
         "with_oracle": sum(1 for _, _, o in joined if o is not None),
         "clairvoyant": {
-            "saves": _share(int(np.sum(saving > 0)), len(joined)),
-            "saving_ms": _as_value(describe_mean([float(v) for v in saving], seed=seed,
+            "saves": share_of(int(np.sum(saving > 0)), len(joined)),
+            "saving_ms": as_value(describe_mean([float(v) for v in saving], seed=seed,
                                                  resamples=resamples)),
         },
         "policies": {p: summarize_outcomes(

@@ -103,14 +103,17 @@ def bootstrap(n: int, stat: Callable[[np.ndarray], float | None], *, seed: int,
     return float(lo), float(hi)
 
 
-def _share(hits: int, n: int) -> JsonDict:
+def share_of(hits: int, n: int) -> JsonDict:
+    """``hits`` of ``n`` as a share with its Wilson 95 % interval."""
     ci = wilson(hits, n)
     return {"value": hits / n if n else None, "ci95": list(ci) if ci else None, "n": n,
             "count": hits}
 
 
-def _capture(saved: np.ndarray, possible: np.ndarray, *, seed: int,
-             resamples: int) -> JsonDict:
+def capture_of(saved: np.ndarray, possible: np.ndarray, *, seed: int,
+               resamples: int) -> JsonDict:
+    """The pooled share ``sum(saved) / sum(possible)`` with its bootstrap 95 % interval."""
+
     def pooled(idx: np.ndarray) -> float | None:
         total = float(possible[idx].sum())
         return float(saved[idx].sum()) / total if total > 0 else None
@@ -120,7 +123,8 @@ def _capture(saved: np.ndarray, possible: np.ndarray, *, seed: int,
             "n": len(saved)}
 
 
-def _median(values: Sequence[float], *, seed: int, resamples: int) -> JsonDict:
+def median_of(values: Sequence[float], *, seed: int, resamples: int) -> JsonDict:
+    """The median of ``values`` with its bootstrap 95 % interval."""
     data = np.asarray(values, dtype=float)
 
     def med(idx: np.ndarray) -> float | None:
@@ -131,7 +135,7 @@ def _median(values: Sequence[float], *, seed: int, resamples: int) -> JsonDict:
             "ci95": list(ci) if ci else None, "n": len(data)}
 
 
-def _as_value(d: JsonDict) -> JsonDict:
+def as_value(d: JsonDict) -> JsonDict:
     """:func:`describe_mean`'s dict in this module's shape (``value`` is the mean)."""
     return {"value": d["mean"], "ci95": d["ci95"], "n": d["n"], "median": d["median"]}
 
@@ -165,13 +169,13 @@ def summarize_policy(judged: Sequence[Judged], policy: str, *, seed: int = 0,
         if at is not None and j.oracle.best_at_ms is not None:
             leads.append(at - j.oracle.best_at_ms)
     return {
-        "capture": _capture(t_n - t_x, possible, seed=seed, resamples=resamples),
-        "capture_median": _median(shares, seed=seed, resamples=resamples),
-        "worse_than_none": _share(int(np.sum(t_x > t_n)), len(judged)),
-        "mitigation": _as_value(describe_mean(mit_x, seed=seed, resamples=resamples)),
-        "oracle_mitigation": _as_value(describe_mean(mit_o, seed=seed, resamples=resamples)),
-        "replanned": _share(len(replanned), len(judged)),
-        "trigger_minus_best_ms": _as_value(describe_mean(leads, seed=seed,
+        "capture": capture_of(t_n - t_x, possible, seed=seed, resamples=resamples),
+        "capture_median": median_of(shares, seed=seed, resamples=resamples),
+        "worse_than_none": share_of(int(np.sum(t_x > t_n)), len(judged)),
+        "mitigation": as_value(describe_mean(mit_x, seed=seed, resamples=resamples)),
+        "oracle_mitigation": as_value(describe_mean(mit_o, seed=seed, resamples=resamples)),
+        "replanned": share_of(len(replanned), len(judged)),
+        "trigger_minus_best_ms": as_value(describe_mean(leads, seed=seed,
                                                          resamples=resamples)),
     }
 
@@ -191,14 +195,14 @@ def summarize_oracle(exps: Sequence[Experiment], oracle: Sequence[OracleRow], *,
         "experiments": len(judged),
         "step_ms": judged[0].oracle.step_ms if judged else None,
         "oracle": {
-            "saves": _share(sum(1 for s in saving if s > 0), len(judged)),
-            "saving_ms": _as_value(describe_mean(saving, seed=seed, resamples=resamples)),
-            "mitigation": _as_value(describe_mean(mit, seed=seed, resamples=resamples)),
-            "mitigation_after_appear": _as_value(describe_mean(after, seed=seed,
+            "saves": share_of(sum(1 for s in saving if s > 0), len(judged)),
+            "saving_ms": as_value(describe_mean(saving, seed=seed, resamples=resamples)),
+            "mitigation": as_value(describe_mean(mit, seed=seed, resamples=resamples)),
+            "mitigation_after_appear": as_value(describe_mean(after, seed=seed,
                                                                resamples=resamples)),
-            "best_before_appear": _share(sum(1 for t in best_at if t < appear_ms),
+            "best_before_appear": share_of(sum(1 for t in best_at if t < appear_ms),
                                          len(best_at)),
-            "best_at_minus_appear_ms": _as_value(describe_mean(
+            "best_at_minus_appear_ms": as_value(describe_mean(
                 [t - appear_ms for t in best_at], seed=seed, resamples=resamples)),
         },
         "policies": {p: summarize_policy(judged, p, seed=seed, resamples=resamples)

@@ -18,6 +18,19 @@ if [ -n "$PKGS" ]; then
   # shellcheck disable=SC2086
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q $PKGS >/dev/null
 fi
+# An independent VDA 5050 implementation for tests/vda5050/test_external.py: the npm package
+# vda-5050-lib (MIT), installed outside the repository (never committed); that test skips
+# without it.
+if command -v npm >/dev/null && [ -z "${FLEETGATE_VDA5050_LIB:-}" ]; then
+  VDA_LIB_DIR="${XDG_CACHE_HOME:-$HOME/.cache}/fleetgate/vda-5050-lib"
+  mkdir -p "$VDA_LIB_DIR"
+  if (cd "$VDA_LIB_DIR" && npm install --no-audit --no-fund --silent vda-5050-lib@1.4.0 \
+        >/dev/null 2>&1); then
+    export FLEETGATE_VDA5050_LIB="$VDA_LIB_DIR/node_modules"
+  else
+    echo "vda-5050-lib could not be installed: tests/vda5050/test_external.py skips" >&2
+  fi
+fi
 ruff check .
 mypy
 mypy bench

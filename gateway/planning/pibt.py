@@ -299,8 +299,14 @@ class WindowedPIBT:
         table = tables[r]
         rng = self.rng.random
         keyed = []
-        for c2, es, turns, rs in space.options[s]:
-            cost = table[es] + turns if table is not None else 0
+        opts = space.options[s]  # the wait first
+        costs = [table[es] + turns for _, es, turns, _ in opts] if table is not None \
+            else [0] * len(opts)
+        if space.turning and not space.exact and len(costs) > 1 and costs[0]:
+            # the cells' bound does not see that a robot must turn before it can move: waiting
+            # costs a timestep more than the best move (Bellman), as the exact tables say
+            costs[0] = max(costs[0], 1 + min(costs[1:]))
+        for (c2, _, turns, rs), cost in zip(opts, costs, strict=True):
             if c2 == c:
                 # waiting: preferred on ties (no needless motion), last resort if asked to leave
                 keyed.append((cost + (UNREACHABLE if pusher >= 0 else 0), 0, 0, rng(), c2, rs))

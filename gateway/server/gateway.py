@@ -264,6 +264,16 @@ class Gateway:
         return self.engine.status
 
     @property
+    def sessions(self) -> frozenset[Session]:
+        """The sessions of the connections open now (authenticated, websocket or memory)."""
+        return frozenset(self._sessions)
+
+    @property
+    def pending_handshakes(self) -> int:
+        """Websocket handshakes authenticated whose connection is not served (yet)."""
+        return len(self._ws_peers)
+
+    @property
     def latencies_ms(self) -> list[float]:
         """Finish-received -> dispatch-queued latency of every dispatch a finish unlocked."""
         return self.engine.latencies_ms

@@ -33,16 +33,19 @@ class MasterClient:
     """Runs the masters of the configured vehicles over one MQTT connection.
 
     ``on_effect`` receives every effect that is not a publish (reports, link changes), with
-    the master it came from. Call :meth:`flush` after feeding a master from outside (a release,
-    a cancel) so that what it sends goes out.
+    the master it came from; ``on_state`` hears of every ``state`` a master took in. Call
+    :meth:`flush` after feeding a master from outside (a release, a cancel) so that what it
+    sends goes out.
     """
 
     def __init__(self, broker: BrokerConfig, masters: list[VehicleMaster],
                  on_effect: Callable[[VehicleMaster, Effect], None], *,
+                 on_state: Callable[[VehicleMaster], None] | None = None,
                  identifier: str = "fleetgate-master") -> None:
         self.broker = broker
         self.masters = {m.topics.prefix: m for m in masters}
         self.on_effect = on_effect
+        self.on_state = on_state
         self.identifier = identifier
         self.dropped = 0
         self.connected = asyncio.Event()
@@ -104,6 +107,8 @@ class MasterClient:
             msg = parse(name, payload)
             if isinstance(msg, State):
                 master.receive_state(msg, time.time())
+                if self.on_state is not None:
+                    self.on_state(master)
             elif isinstance(msg, Connection):
                 master.receive_connection(msg)
             else:

@@ -74,7 +74,7 @@ class VdaTransport:
             masters.append(master)
             self.vehicles[id(master)] = _Vehicle(VdaRobot(v.robot_id, master, turning=turning,
                                                           plan_of=self._plan_of))
-        self.mqtt = MasterClient(config.broker, masters, self._effect)
+        self.mqtt = MasterClient(config.broker, masters, self._effect, on_state=self._state)
         self._task: asyncio.Task[None] | None = None
 
     async def __aenter__(self) -> VdaTransport:
@@ -150,6 +150,11 @@ class VdaTransport:
         vehicle.robot.vehicle(effect)
         self._flush(vehicle)
 
+    def _state(self, master: VehicleMaster) -> None:
+        vehicle = self.vehicles[id(master)]
+        vehicle.robot.state_seen()
+        self._flush(vehicle)
+
     def _flush(self, vehicle: _Vehicle) -> None:
         self.mqtt.flush(vehicle.robot.master)
         for message in vehicle.robot.drain():
@@ -166,7 +171,7 @@ class VdaTransport:
                          loop.create_task(self._read(vehicle, client)),
                          loop.create_task(self._write(vehicle, client)),
                          loop.create_task(self._states(vehicle))]
-        robot.connected()
+        robot.connected(time.time())
         self._flush(vehicle)
 
     async def _close(self, vehicle: _Vehicle) -> None:

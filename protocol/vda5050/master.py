@@ -46,6 +46,7 @@ run, plan epoch and start, so a master restarted from its journal names it again
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -64,6 +65,15 @@ from protocol.vda5050.models import (
 )
 from protocol.vda5050.nodes import NodeMap
 from protocol.vda5050.topics import Headers, TopicName, VehicleTopics
+
+_ORDER_ID = re.compile(r"^((?:[0-9a-z]{1,16}\.)?\d+\.\d+)\.(\d+)(?:r\d+)?$")
+
+
+def parse_order_id(order_id: str) -> tuple[str, int] | None:
+    """``(plan key, first action index)`` of an order id this module gives, else None."""
+    m = _ORDER_ID.match(order_id)
+    return (m[1], int(m[2])) if m else None
+
 
 REJECTIONS = frozenset({"validationError", "orderError", "orderUpdateError", "noRouteError"})
 """Error types that mean the vehicle did not take an order over (section 6.6.4)."""
@@ -134,10 +144,13 @@ class _Order:
     sent: list[_Sent] = field(default_factory=list)
     cancel_id: str | None = None
     dead: bool = False
-
-    @property
-    def update_id(self) -> int:
-        return len(self.sent) - 1
+    base_update: int = 0
+    """The ``orderUpdateId`` of ``sent[0]`` (more than 0 for an order taken over)."""
+    horizon: bool = False
+    """The vehicle holds unreleased nodes of this order."""
+    adopting: dict[int, int] = field(default_factory=dict)
+    """Taken over from the vehicle: action index -> edge sequence id, until the gateway
+    resends the action."""
 
     def decision_point(self) -> Node:
         """The last base node, as it was first sent."""
@@ -185,8 +198,7 @@ class VehicleMaster:
             plan_key(actions[0].action_id) + ".")
         if live and order is not None and order.cancel_id is not None:
             self._carry.extend(actions)  # a new order once the cancelOrder completes
-        elif live and order is not None and other_plan and order.sent and any(
-                not n.released for n in order.sent[-1].order.nodes):
+        elif live and order is not None and other_plan and order.horizon:
             # the vehicle waits for its old order's horizon: it would reject a new order
             # (figure 8), so that order is cancelled first
             self._carry.extend(actions)
@@ -236,6 +248,44 @@ class VehicleMaster:
         """Ask for the ``factsheet`` (``factsheetRequest``)."""
         self._instant_action("factsheetRequest", now_s)
 
+    def adopt(self, state: State) -> tuple[list[str], list[str]]:
+        """After a restart: take over the order ``state`` shows, if this master (or its
+        predecessor) named it (``<plan key>.<first action>``). Returns the ids of the actions
+        the vehicle finished in it and of those still in its base; :meth:`adopt_actions`
+        then takes the base's actions as the gateway resends them."""
+        self.state = state
+        parsed = parse_order_id(state.order_id)
+        if parsed is None or self._order is not None:
+            return [], []
+        key, first = parsed
+        done = state.last_node_sequence_id // 2
+        base = sorted(e.sequence_id for e in state.edge_states if e.released)
+        position = state.agv_position
+        cell = (self.nodes.cell_of(position.x, position.y) if position is not None
+                else (0, 0))
+        start = Node(node_id=state.last_node_id, sequence_id=state.last_node_sequence_id,
+                     released=True, node_position=self.nodes.position(cell, None))
+        self._order = _Order(order_id=state.order_id, start=start,
+                             base_update=state.order_update_id + 1,
+                             horizon=any(not n.released for n in state.node_states),
+                             adopting={first + (seq - 1) // 2: seq for seq in base})
+        return ([f"{key}.{first + k}" for k in range(done)],
+                [f"{key}.{first + (seq - 1) // 2}" for seq in base])
+
+    def adopt_actions(self, actions: Sequence[Action]) -> list[Action]:
+        """Of ``actions`` (resent by the gateway, in index order), take those in the base of
+        an order taken over as its steps; returns the others (to release)."""
+        order = self._order
+        rest: list[Action] = []
+        for action in actions:
+            seq = None if order is None else order.adopting.pop(action.sequence, None)
+            if (order is None or seq is None
+                    or not order.order_id.startswith(plan_key(action.action_id) + ".")):
+                rest.append(action)
+                continue
+            order.steps.append(_Step(action, seq, self._node(action, seq + 1, True)))
+        return rest
+
     def tick(self, now_s: float) -> None:
         """Send again what the vehicle has not acted on for ``resend_s``: order messages it
         does not hold, a pause or resume its ``paused`` does not show, a cancelOrder it does
@@ -254,7 +304,7 @@ class VehicleMaster:
         if order is None or order.dead or not order.sent:
             return
         held = state.order_update_id if state and state.order_id == order.order_id else -1
-        pending = [s for s in order.sent[held + 1:]]
+        pending = order.sent[max(0, held + 1 - order.base_update):]
         if pending and now_s - pending[0].sent_s >= self.resend_s:
             for sent in pending:
                 sent.sent_s = now_s
@@ -337,8 +387,9 @@ class VehicleMaster:
         h_nodes, h_edges = self._horizon(last, len(nodes) + len(edges) + nodes[0].sequence_id) \
             if last else ([], [])
         msg = Order(**self._header("order", now_s),
-                    order_id=order.order_id, order_update_id=len(order.sent),
+                    order_id=order.order_id, order_update_id=order.base_update + len(order.sent),
                     nodes=nodes + h_nodes, edges=edges + h_edges)
+        order.horizon = bool(h_nodes)
         order.sent.append(_Sent(msg, now_s, first_step))
         self._emit(Publish("order", msg))
 
@@ -378,16 +429,17 @@ class VehicleMaster:
             update = refs.get("orderUpdateId")
             held = msg.order_update_id if msg.order_id == order.order_id else -1
             index = int(update) if update and update.isdigit() else held + 1
-            if index != held + 1 or index >= len(order.sent):
+            i = index - order.base_update
+            if index != held + 1 or not 0 <= i < len(order.sent):
                 continue  # stale, or an update after a lost one: tick() resends the gap
-            first = order.sent[index].first_step
+            first = order.sent[i].first_step
             for step in order.steps[first:]:
                 if not step.finished:
                     self._emit(Report("refused", step.action.action_id,
                                       f"{error.error_type}: {error.error_description or ''}"))
             del order.steps[first:]
-            del order.sent[index:]
-            if not order.sent:
+            del order.sent[i:]
+            if not order.steps:
                 order.dead = True
             return True
         return False

@@ -70,6 +70,7 @@ class VdaRobot:
         self._finished: dict[str, None] = {}
         self._refused: tuple[str, int] | None = None
         self._release: list[Action] = []
+        self._hello_due = False
         self._ids = itertools.count()
         self._seq = 0
         self._out: list[RobotMessage] = []
@@ -96,11 +97,30 @@ class VdaRobot:
         return None
 
     # ------------------------------------------------------------------ gateway link
-    def connected(self) -> None:
-        """A gateway link is up: say hello."""
+    def connected(self, now_s: float) -> None:
+        """A gateway link is up: say hello once a fresh ``state`` of the vehicle arrives
+        (asked for with ``stateRequest``; the vehicle may have moved while it was away): after
+        a restart the vehicle's order is taken over first (:meth:`VehicleMaster.adopt`), and
+        the actions it finished meanwhile are reported."""
         self.link_up, self._seq = True, 0
+        self.master.state = None  # the vehicle was away: where it is now, it says anew
+        self._hello_due = True
+        self.master.request_state(now_s)
+
+    def state_seen(self) -> None:
+        """The master got a ``state`` message (the hello may be due)."""
+        if self._hello_due and self.link_up and self.master.state is not None:
+            self._hello()
+
+    def _hello(self) -> None:
+        self._hello_due = False
+        state = self.master.state
+        if state is not None and not self.held:
+            finished, _ = self.master.adopt(state)
+            for aid in finished:
+                self._finished[aid] = None
         self._send(Hello, robot_id=self.robot_id, pose=self.pose,
-                   acked=list(self.held)[-HISTORY:], finished=list(self._finished),
+                   acked=list(self.held)[-HISTORY:], finished=list(self._finished)[-HISTORY:],
                    current=self.activity())
 
     def disconnected(self) -> None:
@@ -127,7 +147,12 @@ class VdaRobot:
             self.master.resume(now_s)
 
     def _actions(self, actions: list[Action]) -> None:
+        fresh = self.master.adopt_actions(actions)
         for action in actions:
+            if action not in fresh and action.action_id not in self.held:
+                self.held[action.action_id] = action  # in the base of a taken-over order
+                self._send(Ack, action_id=action.action_id)
+                continue
             aid = action.action_id
             if aid in self.held or aid in self._finished:
                 self._send(Ack, action_id=aid)
@@ -205,7 +230,7 @@ class VdaRobot:
 
     # ------------------------------------------------------------------ effects
     def _send(self, kind: type[RobotMessage], **fields: Any) -> None:
-        if not self.link_up:
+        if not self.link_up or (self._hello_due and kind is not Hello):
             return
         self._out.append(kind(msg_id=f"vda{self.robot_id}-{next(self._ids)}", seq=self._seq,
                               **fields))

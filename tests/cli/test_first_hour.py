@@ -69,6 +69,23 @@ def test_ctrl_c_during_lifelong_leaves_the_previous_output_whole(tmp_path: Path)
                                                           "tasks", "wh.json"]
 
 
+@pytest.mark.parametrize("script", ["bench/fuzz.py", "bench/load.py"])
+def test_ctrl_c_in_a_busy_benchmark_ends_it_within_seconds(script: str) -> None:
+    """fuzz.py drew its hostile frames inside the event loop, which sees a signal only
+    between callbacks: Ctrl-C took 27 s. Now 5 s at most (fleetgate.userio.exits.GRACE_S)."""
+    proc = subprocess.Popen([sys.executable, script], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)
+    time.sleep(6)  # well into its work (fuzz: drawing 5,000 messages; load: the baseline run)
+    assert proc.poll() is None
+    os.killpg(proc.pid, signal.SIGINT)
+    sent = time.monotonic()
+    _, err = proc.communicate(timeout=60)
+    assert time.monotonic() - sent < 8, err
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    assert err.strip().splitlines()[-1].startswith(f"{script}: interrupted"), err
+
+
 # ---------------------------------------------------------------------------- item 11
 def test_sim_refuses_zero_robots_and_takes_one_literal_token() -> None:
     from sim_clients.cmd_sim import token_source
@@ -214,3 +231,27 @@ def test_the_run_summary_is_one_line_for_cli_and_gui_runs() -> None:
     assert done.returncode == 0, done.stderr
     (line,) = [ln for ln in done.stderr.splitlines() if ln.startswith("run complete")]
     assert SUMMARY.fullmatch(line), line
+
+
+# ---------------------------------------------------------------------------- item 12
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 0)])
+def test_the_robot_client_stops_on_ctrl_c_with_130_and_on_sigterm_with_0(
+        sig: signal.Signals, code: int) -> None:
+    import pty
+
+    controller, device = pty.openpty()  # a serial line the Kobuki driver can open
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "robot_client", "--robot-id", "0", "--token", "t",
+             "--grid-width", "2", "--grid-height", "2", "--serial-port", os.ttyname(device),
+             "--no-camera", "--gateway-url", "ws://127.0.0.1:9/ws"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            preexec_fn=_default_sigint)
+        assert proc.stderr is not None
+        assert "lost or refused" in proc.stderr.readline()  # running: no gateway there
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == code and "Traceback" not in err
+    finally:
+        os.close(controller)
+        os.close(device)

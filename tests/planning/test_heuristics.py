@@ -12,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 from gateway.execution.lifelong.errands import TaskDistances
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
-from gateway.planning.pibt import UNREACHABLE, StateSpace, goal_tables
+from gateway.planning.pibt import UNREACHABLE, StateSpace, WindowedPIBT, goal_tables
 from tests.planning.test_cbs_low_level import bfs
 
 grids = arrays(bool, st.tuples(st.integers(1, 9), st.integers(1, 9)), elements=st.booleans())
@@ -92,3 +92,14 @@ def test_the_scheduler_shares_the_planners_cell_tables(case: tuple[Grid, list[in
     assert shared([other], [goal]).tolist() == [[want]]
     with pytest.raises(ValueError, match="only tables over the free cells"):
         TaskDistances(grid, space=StateSpace(grid, True, exact=True))
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_a_robot_facing_away_turns_round_with_either_table(exact: bool) -> None:
+    """A corridor 0-1-2-3, the robot on 0 facing west (away from its goal 3): it turns twice
+    and drives on (with the cells' bound a wait looked as cheap as a turn: it waited forever)."""
+    grid = Grid(np.ones((1, 4), dtype=bool))
+    space = StateSpace(grid, True, exact=exact)
+    win = WindowedPIBT(space, 1, seed=0).plan([space.state(0, 2)], [[3]], 6)
+    assert [row[0] for row in win.states] == [2, 3, 0, 4, 8, 12, 12]  # cw, cw, 3 forward
+    assert win.reached == [[5]]

@@ -102,7 +102,7 @@ async def test_real_clock_runs_the_solver_in_a_thread() -> None:
 async def _intruder_handled_late(gw: Gateway) -> None:
     await gw.connect("demo-world")
     await gw.clock.sleep_until_ms(1250.0)  # the monitor ticked at 1200 ms
-    [world] = [s for s in gw._sessions if s.peer.role == "world"]
+    [world] = [s for s in gw.sessions if s.peer.role == "world"]
     # what a busy owner task sees: a report that arrived at 1210 ms, handled at 1250 ms
     report = IntruderReport(msg_id="i", seq=0, cell=(8, 1), state="on")
     gw.engine.queue.put_nowait(Inbound(world, report, time.perf_counter(), 1210.0))

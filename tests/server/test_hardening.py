@@ -71,8 +71,8 @@ async def test_failed_handshakes_leave_nothing_behind() -> None:
         assert set(statuses) == {400}
         await asyncio.sleep(0.1)
         gc.collect()
-        assert len(gw._ws_peers) == 0
-        assert gw._sessions == set()
+        assert gw.pending_handshakes == 0
+        assert gw.sessions == set()
 
 
 async def _closed_with(robot: Peer) -> int:
@@ -91,11 +91,11 @@ async def test_a_robot_that_never_says_hello_is_closed() -> None:
         await silent.send(State, robot_id=0)  # not a hello: the clock keeps running
         assert await _closed_with(silent) == CloseCode.HELLO_TIMEOUT
         await asyncio.sleep(0.05)
-        assert gw._sessions == set()
+        assert gw.sessions == set()
         # an operator has no hello and no such timeout
         op = Peer(await connector(gw)("demo-operator"), "op")
         await asyncio.sleep(0.4)
-        assert len(gw._sessions) == 1 and op.link is not None
+        assert len(gw.sessions) == 1 and op.link is not None
 
 
 async def test_an_idle_robot_is_closed_and_a_talking_one_is_not() -> None:
@@ -168,7 +168,7 @@ async def test_no_exception_escapes_a_handler(monkeypatch: pytest.MonkeyPatch,
         failures = [r for r in caplog.records if r.getMessage() == "connection handler failed"]
         assert len(failures) == 1 and failures[0].exc_info is None
         assert "RuntimeError('a bug')" in failures[0].__dict__["error"]
-        assert gw.metrics.handler_failures._value.get() == 1
+        assert gw.metrics.value("fleetgate_handler_failures_total") == 1
         await ok.send(State, robot_id=1)  # the others carry on
         await ok.hello()
         assert gw.engine.connected_robots() == 1

@@ -5,6 +5,8 @@ run's SOC and trace: the two transports are compared on the same plan."""
 from __future__ import annotations
 
 import asyncio
+import json
+import os
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -82,10 +84,12 @@ async def _sniff(broker: BrokerConfig, seen: list[tuple[str, bytes]],
 async def run_vda(trace: Path, broker_url: str, map_name: str, scen: str, agents: int,
                   vda_robots: list[int], timeout_s: float = 120,
                   versions: tuple[str, ...] = ("2.1.0",),
-                  during: Callable[[Gateway, World], Awaitable[None]] | None = None) -> VdaRun:
+                  during: Callable[[Gateway, World], Awaitable[None]] | None = None,
+                  external: Path | None = None) -> VdaRun:
     """Run the instance with robots ``vda_robots`` as simulated VDA 5050 vehicles through the
     broker (the others: websocket-protocol robots in memory); ``during`` runs beside it once
-    started."""
+    started. ``external``: a node_modules folder holding the npm package vda-5050-lib, whose
+    virtual AGVs (an implementation fleetgate did not write) are the vehicles instead."""
     vda = vda_config(broker_url, vda_robots, versions)
     seen: list[tuple[str, bytes]] = []
     sniffing = asyncio.Event()
@@ -103,7 +107,11 @@ async def run_vda(trace: Path, broker_url: str, map_name: str, scen: str, agents
             r: (starts[r], plan.headings[r][0] if plan.headings is not None else None)
             for r in vda_robots})
         stop = asyncio.Event()
-        vehicles_task = asyncio.create_task(run_fleet(vehicles, vda.broker, stop))
+        if external is None:
+            vehicles_task = asyncio.create_task(run_fleet(vehicles, vda.broker, stop))
+        else:
+            vehicles_task = asyncio.create_task(_external(external, vda, vehicles, stop))
+            vehicles = []
         async with VdaTransport(gw, vda):
             if others:
                 await fleet.start()
@@ -124,3 +132,23 @@ async def run_vda(trace: Path, broker_url: str, map_name: str, scen: str, agents
     await asyncio.sleep(0.2)
     sniffer.cancel()
     return VdaRun(soc, world, vehicles, seen)
+
+
+async def _external(modules: Path, vda: Vda5050Config, vehicles: list[VdaVehicle],
+                    stop: asyncio.Event) -> None:
+    """Run vda-5050-lib's virtual AGVs where ``vehicles`` stand, until ``stop``."""
+    spec = {"interface": vda.interface_name, "vehicles": [
+        {"manufacturer": v.topics.manufacturer, "serial": v.topics.serial,
+         "mapId": vda.map_id, "theta": v.theta, "speed": SPEED * vda.cell_size_m,
+         **dict(zip("xy", vda.nodes().position(v.cell, None).model_dump(
+             include={"x", "y"}).values(), strict=True))}
+        for v in vehicles]}
+    script = Path(__file__).with_name("external_agvs.js")
+    proc = await asyncio.create_subprocess_exec(
+        "node", str(script), vda.broker.url, json.dumps(spec),
+        env={**os.environ, "NODE_PATH": str(modules)}, stdout=asyncio.subprocess.PIPE)
+    try:
+        await stop.wait()
+    finally:
+        proc.terminate()
+        await proc.wait()

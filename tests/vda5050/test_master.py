@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from protocol.vda5050.master import LinkState, Report
+from protocol.vda5050.master import LinkState, Report, VehicleMaster
 from protocol.vda5050.models import VERSIONS, Connection, VdaVersion
 from sim_clients.world import INTRUDER, World
 from tests.vda5050.loop import Loop, actions_of
@@ -208,3 +208,38 @@ def test_a_new_plan_cancels_an_order_that_still_has_a_horizon() -> None:
     kinds = [json.loads(p)["actions"][0]["actionType"] for t, p in loop.traffic
              if t == "instantActions"]
     assert kinds == ["cancelOrder"]
+
+
+@pytest.mark.parametrize("lose_update", [False, True])
+def test_a_restarted_master_takes_over_the_vehicles_order(lose_update: bool) -> None:
+    loop = Loop("2.1.0", PATH[0])
+    actions = actions_of(PATH)
+    loop.master.set_plan(actions)
+    loop.master.release(actions[:4], loop.now)
+    loop.run(1.5)  # action 0 finished, action 1 running, 2 and 3 in the base
+    assert loop.kinds(actions[0].action_id) == ["started", "finished"]
+    # the master restarts (kill -9): a new one, same vehicle, nothing remembered but the
+    # vehicle's state
+    old = loop.master
+    loop.master = VehicleMaster(old.topics, "2.1.0", old.nodes)
+    assert loop.vehicle.drain() == []
+    state = old.state
+    assert state is not None
+    finished, base = loop.master.adopt(state)
+    assert finished == [actions[0].action_id]
+    assert base == [a.action_id for a in actions[1:4]]
+    # the gateway resends what it has no finish for: the base is adopted, not sent again
+    rest = loop.master.adopt_actions(actions[1:])
+    assert rest == actions[4:]
+    loop.master.set_plan(actions)
+    loop.master.release(rest, loop.now)
+    if lose_update:
+        loop.drop.add(loop._sent)
+    loop.reports.clear()
+    loop.run(10)
+    for a in actions[1:]:
+        assert loop.kinds(a.action_id) == ["started", "finished"], a.action_id
+    assert not loop.vehicle.errors and loop.vehicle.cell == (2, 4)
+    updates = [json.loads(p) for t, p in loop.traffic if t == "order"]
+    assert updates[-1]["orderUpdateId"] == state.order_update_id + 1
+    assert updates[-1]["nodes"][0]["sequenceId"] == 8  # the decision point: action 3's node

@@ -9,11 +9,13 @@ import json
 import sys
 import time
 
+import pytest
+
 from gateway.vda5050.broker import BrokerConfig
 from gateway.vda5050.driver import MasterClient
 from protocol.messages import HEADINGS
 from protocol.vda5050.master import Effect, LinkState, Report, VehicleMaster
-from protocol.vda5050.models import VdaVersion
+from protocol.vda5050.models import VdaVersion, dump
 from protocol.vda5050.nodes import THETA, NodeMap
 from protocol.vda5050.topics import VehicleTopics
 from sim_clients.vda_fleet import run_fleet
@@ -138,3 +140,31 @@ async def test_last_will_reaches_the_master(broker_url: str) -> None:
         assert time.monotonic() < deadline, links
         await asyncio.sleep(0.05)
     task.cancel()
+
+
+async def test_malformed_messages_are_dropped_and_logged(broker_url: str,
+                                                         caplog: pytest.LogCaptureFixture
+                                                         ) -> None:
+    config = BrokerConfig(url=broker_url)
+    topics = VehicleTopics("uagv", "v2", "fleetgate", "sim0")
+    master = VehicleMaster(topics, "2.1.0", NODES)
+    links: list[Effect] = []
+    client = MasterClient(config, [master], lambda _m, e: links.append(e))
+    task = asyncio.create_task(client.run())
+    await client.connected.wait()
+    good = VdaVehicle(topics, "2.1.0", NODES, (0, 0)).connect(time.time())[1].message
+    async with config.client("stranger") as stranger:
+        await stranger.publish(topics.topic("state"), b"{not json")
+        await stranger.publish(topics.topic("state"), b'{"headerId": "x"}')
+        await stranger.publish(topics.topic("connection"), b"x" * 300_000)
+        await stranger.publish("uagv/v2/fleetgate/unknown/state", b"{}")
+        await stranger.publish(topics.topic("connection"), dump(good))
+        deadline = time.monotonic() + 10
+        while not links:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.05)
+    task.cancel()
+    assert client.dropped == 3  # the unknown vehicle's topic is not even subscribed
+    assert links == [LinkState(True, "ONLINE")]  # the gateway side carried on
+    dropped = [r for r in caplog.records if r.getMessage() == "dropped a VDA 5050 message"]
+    assert len(dropped) == 3

@@ -45,6 +45,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from gateway.execution.actions import ActionDurations
 from gateway.execution.commands import Completed, Dispatch, Trigger
@@ -240,6 +241,52 @@ class LifelongExecutor:
                 # a running action ends no earlier than now
                 progress[r] = min(now_ms - t0, self._tx[head.kind])
         return self.adg.estimate(now_ms, progress, self._tx)
+
+    # ------------------------------------------------------------------ snapshot
+    def snapshot(self) -> dict[str, Any]:
+        """The executor's own state as plain data (a shift snapshot's executor fields; its
+        live ADG, errand book, task pool and outstanding call are snapshotted apart).
+        Commands not drained yet are output, not state: a driver snapshots after routing
+        them."""
+        return {
+            "mode": self.mode.value, "paused": self.paused, "now_ms": self._now,
+            "threshold_ms": self.threshold_ms, "cell": list(self.cell),
+            "heading": list(self.heading), "sent": list(self._sent),
+            "started_at": list(self._started_at), "blocked": list(self._blocked),
+            "refusing": list(self._refusing), "waiters": [sorted(w) for w in self._waiters],
+            "segment_of": [list(s) for s in self._segment_of],
+            "completion": list(self.completion), "slack0": [list(s) for s in self._slack0],
+            "slack_based": self._slack_based, "fleet_slack_ms": self.fleet_slack_ms,
+            "next_call_ms": self._next_call, "next_check_ms": self._next_check,
+            "calls": self.calls, "segments": self.segments, "triggers": self.triggers,
+            "errands_done": self.errands_done}
+
+    def restore(self, *, mode: str, paused: bool, now_ms: float, threshold_ms: float | None,
+                cell: Sequence[int], heading: Sequence[int], sent: Sequence[int],
+                started_at: Sequence[float], blocked: Sequence[int], refusing: Sequence[int],
+                waiters: Sequence[Sequence[int]], segment_of: Sequence[Sequence[Sequence[int]]],
+                completion: Sequence[float], slack0: Sequence[Sequence[float]],
+                slack_based: bool, fleet_slack_ms: float, next_call_ms: float,
+                next_check_ms: float, calls: int, segments: int, triggers: int,
+                errands_done: int, outstanding: PlanRequest | None) -> None:
+        """Take the state :meth:`snapshot` gave (and the outstanding planner call), in a
+        fresh executor of the same configuration (ExecutionError if it was started)."""
+        if self.mode is not LifelongMode.NEW:
+            raise ExecutionError("a snapshot is restored into a shift not started yet")
+        self.mode = LifelongMode(mode)
+        self.paused, self._now, self.threshold_ms = paused, now_ms, threshold_ms
+        self.cell, self.heading = list(cell), list(heading)
+        self._sent, self._started_at = list(sent), list(started_at)
+        self._blocked, self._refusing = bytearray(blocked), bytearray(refusing)
+        self._waiters = [set(w) for w in waiters]
+        self._segment_of = [deque((f, s) for f, s in seg) for seg in segment_of]
+        self.completion = list(completion)
+        self._slack0 = [deque(s) for s in slack0]
+        self._slack_based, self.fleet_slack_ms = slack_based, fleet_slack_ms
+        self._next_call, self._next_check = next_call_ms, next_check_ms
+        self.calls, self.segments = calls, segments
+        self.outstanding = outstanding
+        self.triggers, self.errands_done = triggers, errands_done
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, now_ms: float) -> None:

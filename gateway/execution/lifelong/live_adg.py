@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from gateway.execution.errors import ExecutionError
 from gateway.planning.grid import Grid
@@ -66,6 +67,33 @@ class LiveADG:
         self._order = 0
         if len(set(starts)) != n:
             raise ExecutionError("two robots start on the same cell")
+
+    # ----------------------------------------------------------------- snapshot
+    def snapshot(self) -> dict[str, Any]:
+        """The graph's state as plain data (a shift snapshot's ADG fields): each robot's end
+        pose, its committed, unfinished actions as rows, its counters, the cells' last
+        leavers ``(cell, robot, seq)`` and the append order."""
+        return {
+            "end_cell": list(self.end_cell), "end_heading": list(self.end_heading),
+            "queue": [[(a.kind, a.cell, a.heading, a.dep_robot, a.dep_seq, a.order) for a in q]
+                      for q in self.queue],
+            "done": list(self.done), "appended": list(self.appended),
+            "leavers": [(c, r, self._leaver_seq[c]) for c, r in enumerate(self._leaver_robot)
+                        if r >= 0],
+            "order": self._order}
+
+    def restore(self, *, end_cell: Sequence[int], end_heading: Sequence[int],
+                queue: Sequence[Sequence[Sequence[int]]], done: Sequence[int],
+                appended: Sequence[int], leavers: Sequence[Sequence[int]], order: int) -> None:
+        """Take the state :meth:`snapshot` gave (of a graph on the same grid and fleet)."""
+        self.end_cell, self.end_heading = list(end_cell), list(end_heading)
+        self.queue = [deque(LiveAction(*row) for row in q) for q in queue]
+        self.done, self.appended = list(done), list(appended)
+        self._leaver_robot = [-1] * self.grid.size
+        self._leaver_seq = [0] * self.grid.size
+        for c, r, s in leavers:
+            self._leaver_robot[c], self._leaver_seq[c] = r, s
+        self._order = order
 
     # ----------------------------------------------------------------- building
     def append(self, cells: Sequence[Sequence[int]],

@@ -8,7 +8,9 @@ pool
 included) into a :class:`ShiftState`, made of frozen dataclasses of ints, floats, strings and
 lists only (JSON-able: the journal validates and writes it with pydantic; no pickle).
 :func:`restore_shift` gives a fresh executor of the same configuration that state, field by
-field, so that it then behaves as the live one on the same inputs.
+field, so that it then behaves as the live one on the same inputs. Each part takes and
+restores its own state (``LifelongExecutor.snapshot``/``restore``, ``LiveADG``'s,
+``TaskPool.snapshot``/``restore_snapshot``); this module only lays them out as one record.
 
 What the task pool keeps for the task API that never changes once made (tasks that ended,
 events, idempotency keys: up to ``keep`` of each, so hours of a shift) is not in the snapshot:
@@ -32,16 +34,14 @@ task API depends on it (dicts in insertion order, the backlog's heap as a list).
 
 from __future__ import annotations
 
-import math
 from collections import OrderedDict, deque
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields
 from operator import attrgetter
 from typing import Any
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong.executor import LifelongExecutor, LifelongMode, PlanRequest
-from gateway.execution.lifelong.live_adg import LiveAction
 from gateway.execution.lifelong.tasks import NewTask, Task, TaskEvent, TaskPool, TaskState
 
 SNAPSHOT_VERSION = 3
@@ -190,31 +190,15 @@ class ShiftState:
 
 def snapshot_shift(ex: LifelongExecutor) -> ShiftState:
     """The state of ``ex`` (commands it emitted and the driver did not drain yet are output,
-    not state: a driver snapshots after routing them)."""
-    adg, book = ex.adg, ex.book
-    req = ex.outstanding
-    leaver_r, leaver_s = adg._leaver_robot, adg._leaver_seq
+    not state: a driver snapshots after routing them): each part snapshots itself."""
+    book, req = ex.book, ex.outstanding
     return ShiftState(
-        version=SNAPSHOT_VERSION, robots=ex.n, mode=ex.mode.value, paused=ex.paused,
-        now_ms=ex._now, threshold_ms=ex.threshold_ms, cell=list(ex.cell),
-        heading=list(ex.heading), sent=list(ex._sent), started_at=list(ex._started_at),
-        blocked=list(ex._blocked), refusing=list(ex._refusing),
-        waiters=[sorted(w) for w in ex._waiters],
-        segment_of=[list(s) for s in ex._segment_of], completion=list(ex.completion),
-        end_cell=list(adg.end_cell), end_heading=list(adg.end_heading),
-        queue=[[(a.kind, a.cell, a.heading, a.dep_robot, a.dep_seq, a.order) for a in q]
-               for q in adg.queue],
-        done=list(adg.done), appended=list(adg.appended),
-        leavers=[(c, r, leaver_s[c]) for c, r in enumerate(leaver_r) if r >= 0],
-        order=adg._order, slack0=[list(s) for s in ex._slack0], slack_based=ex._slack_based,
-        fleet_slack_ms=ex.fleet_slack_ms, next_call_ms=ex._next_call,
-        next_check_ms=ex._next_check, calls=ex.calls, segments=ex.segments,
+        version=SNAPSHOT_VERSION, robots=ex.n, **ex.snapshot(), **ex.adg.snapshot(),
         outstanding=None if req is None else RequestSnapshot(
             req.call, list(req.starts), [list(g) for g in req.goals], list(req.hold),
             list(req.avoid), req.steps),
-        triggers=ex.triggers, errands_done=ex.errands_done, plan_task=list(book.plan_task),
-        plan_idx=list(book.plan_idx), markers=[list(m) for m in book.markers],
-        pool=_pool_snapshot(ex.pool))
+        plan_task=list(book.plan_task), plan_idx=list(book.plan_idx),
+        markers=[list(m) for m in book.markers], pool=_pool_snapshot(ex.pool))
 
 
 _TASK_FIELDS = tuple(f.name for f in fields(Task))
@@ -246,14 +230,8 @@ def _tasks(cols: TaskColumns) -> Iterator[Task]:
 
 
 def _pool_snapshot(pool: TaskPool) -> PoolSnapshot:
-    ended = pool._ended
-    return PoolSnapshot(
-        live=_task_columns(t for i, t in pool.book.items() if i not in ended),
-        tasks=list(pool.tasks), open=list(pool.open), waiting=list(pool._waiting),
-        paused=list(pool._paused), released=list(pool._released),
-        backlog=[(-p, None if math.isinf(d) else d, i) for (p, d), i in pool._backlog],
-        event_seq=pool.event_seq, finished=pool.finished, next_id=pool.next_id,
-        listed=pool._listed, now=pool.now)
+    state = pool.snapshot()
+    return PoolSnapshot(live=_task_columns(state.pop("live")), **state)
 
 
 class HistoryLog:
@@ -285,21 +263,22 @@ class HistoryLog:
         """The pool's history since the last chunk (None: nothing new), and how many of the
         oldest chunks (this one excluded) are no longer needed."""
         events = list(_newest(pool.events, lambda e: e.seq > self._seq))
-        ended = _after(pool._ended, self._task)
-        keys = _after(pool._keys, self._key)
+        ended = _after(pool.ended, self._task)
+        keys = _after(pool.submissions, self._key)
         chunk = None
         if events or ended or keys:
             chunk = ShiftHistory(
-                _task_columns(pool._ended[i] for i in ended),
+                _task_columns(pool.ended[i] for i in ended),
                 EventColumns(**_columns(events, _EVENT_FIELDS)),
-                [(key, [(list(t.errands), t.priority, t.deadline) for t in pool._keys[key][0]],
-                  list(pool._keys[key][1])) for key in keys])
+                [(key, [(list(t.errands), t.priority, t.deadline)
+                        for t in pool.submissions[key][0]],
+                  list(pool.submissions[key][1])) for key in keys])
             self._add(chunk)
         first = pool.events[0].seq if pool.events else pool.event_seq + 1
         drop = 0
         for seq, task, key in self._last[:-1]:
-            if (seq is not None and seq >= first) or task in pool._ended \
-                    or key in pool._keys:
+            if (seq is not None and seq >= first) or task in pool.ended \
+                    or key in pool.submissions:
                 break
             drop += 1
         del self._last[:drop]
@@ -314,7 +293,7 @@ def _newest(items: Sequence[Any], new: Callable[[Any], bool]) -> Iterator[Any]:
     return (items[i] for i in range(k, len(items)))
 
 
-def _after(kept: OrderedDict[Any, Any], last: Any) -> list[Any]:
+def _after(kept: Mapping[Any, Any], last: Any) -> list[Any]:
     """The keys of ``kept`` after ``last`` (all of them if ``last`` is not there)."""
     out = []
     for key in reversed(kept):
@@ -338,37 +317,25 @@ def restore_shift(ex: LifelongExecutor, state: ShiftState,
     if state.robots != ex.n or len(state.end_cell) != ex.n:
         raise ExecutionError(f"the snapshot is of a shift of {state.robots} robots, the "
                              f"configuration has {ex.n}")
-    adg, book, n = ex.adg, ex.book, ex.n
-    ex.mode = LifelongMode(state.mode)
-    ex.paused, ex._now, ex.threshold_ms = state.paused, state.now_ms, state.threshold_ms
-    ex.cell, ex.heading = list(state.cell), list(state.heading)
-    ex._sent, ex._started_at = list(state.sent), list(state.started_at)
-    ex._blocked, ex._refusing = bytearray(state.blocked), bytearray(state.refusing)
-    ex._waiters = [set(w) for w in state.waiters]
-    ex._segment_of = [deque((f, s) for f, s in seg) for seg in state.segment_of]
-    ex.completion = list(state.completion)
-    adg.end_cell, adg.end_heading = list(state.end_cell), list(state.end_heading)
-    adg.queue = [deque(LiveAction(*row) for row in q) for q in state.queue]
-    adg.done, adg.appended = list(state.done), list(state.appended)
-    adg._leaver_robot = [-1] * adg.grid.size
-    adg._leaver_seq = [0] * adg.grid.size
-    for c, r, s in state.leavers:
-        adg._leaver_robot[c], adg._leaver_seq[c] = r, s
-    adg._order = state.order
-    ex._slack0 = [deque(s) for s in state.slack0]
-    ex._slack_based, ex.fleet_slack_ms = state.slack_based, state.fleet_slack_ms
-    ex._next_call, ex._next_check = state.next_call_ms, state.next_check_ms
-    ex.calls, ex.segments = state.calls, state.segments
+    if len(state.markers) != ex.n:
+        raise ExecutionError("the snapshot's errand book does not fit the fleet")
     req = state.outstanding
-    ex.outstanding = None if req is None else PlanRequest(
-        req.call, tuple(req.starts), tuple(tuple(g) for g in req.goals), tuple(req.hold),
-        tuple(req.avoid), req.steps)
-    ex.triggers, ex.errands_done = state.triggers, state.errands_done
+    ex.restore(**{name: getattr(state, name) for name in _EXECUTOR_FIELDS},
+               outstanding=None if req is None else PlanRequest(
+                   req.call, tuple(req.starts), tuple(tuple(g) for g in req.goals),
+                   tuple(req.hold), tuple(req.avoid), req.steps))
+    ex.adg.restore(**{name: getattr(state, name) for name in _ADG_FIELDS})
+    book = ex.book
     book.plan_task, book.plan_idx = list(state.plan_task), list(state.plan_idx)
     book.markers = [deque((c, t) for c, t in m) for m in state.markers]
-    if len(book.markers) != n:
-        raise ExecutionError("the snapshot's errand book does not fit the fleet")
     _restore_pool(ex.pool, state.pool, history)
+
+
+_ADG_FIELDS = ("end_cell", "end_heading", "queue", "done", "appended", "leavers", "order")
+_EXECUTOR_FIELDS = ("mode", "paused", "now_ms", "threshold_ms", "cell", "heading", "sent",
+                    "started_at", "blocked", "refusing", "waiters", "segment_of",
+                    "completion", "slack0", "slack_based", "fleet_slack_ms", "next_call_ms",
+                    "next_check_ms", "calls", "segments", "triggers", "errands_done")
 
 
 def _restore_pool(pool: TaskPool, snap: PoolSnapshot,
@@ -388,17 +355,8 @@ def _restore_pool(pool: TaskPool, snap: PoolSnapshot,
             if len(keys) > keep:
                 keys.popitem(last=False)
         events.extend(TaskEvent(*e) for e in _rows(chunk.events, _EVENT_FIELDS))
-    book = {t.id: t for t in _tasks(snap.live)}
-    book.update(ended)
-    pool.book = {i: book[i] for i in sorted(book)}  # the book is in id order
-    pool.tasks = {i: book[i] for i in snap.tasks}
-    pool.open = {i: book[i] for i in snap.open}
-    pool._waiting = {i: book[i] for i in snap.waiting}
-    pool._paused = {i: book[i] for i in snap.paused}
-    pool._ended = ended
-    pool._released = dict.fromkeys(snap.released)
-    pool._backlog = [((-p, math.inf if d is None else d), i) for p, d, i in snap.backlog]
-    pool._keys = keys
-    pool.events = events
-    pool.event_seq, pool.finished, pool.next_id = snap.event_seq, snap.finished, snap.next_id
-    pool._listed, pool.now = snap.listed, snap.now
+    pool.restore_snapshot(
+        _tasks(snap.live), ended=ended, keys=keys, events=events, tasks=snap.tasks,
+        open=snap.open, waiting=snap.waiting, paused=snap.paused, released=snap.released,
+        backlog=snap.backlog, event_seq=snap.event_seq, finished=snap.finished,
+        next_id=snap.next_id, listed=snap.listed, now=snap.now)

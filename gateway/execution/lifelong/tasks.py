@@ -37,7 +37,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import OrderedDict, deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import pairwise
 from typing import Any, Literal, Protocol
@@ -176,6 +176,55 @@ class TaskPool:
             raise ValueError("a task pool must reveal at least one task")
         self.events = deque(maxlen=self.keep)
         self.top_up(0)
+
+    # ------------------------------------------------------------------ snapshot
+    @property
+    def ended(self) -> Mapping[int, Task]:
+        """The kept tasks that ended (finished or cancelled), in the order they ended."""
+        return self._ended
+
+    @property
+    def submissions(self) -> Mapping[str, tuple[tuple[NewTask, ...], list[int]]]:
+        """The kept idempotency keys, in the order they were used: the submission and the
+        ids it made."""
+        return self._keys
+
+    def snapshot(self) -> dict[str, Any]:
+        """The pool's state without its history (a shift snapshot): the tasks not ended (in
+        the book's order), by id where each waits, the backlog heap as a list
+        ``(-priority, deadline or None, id)``, and the counters."""
+        ended = self._ended
+        return {
+            "live": [t for i, t in self.book.items() if i not in ended],
+            "tasks": list(self.tasks), "open": list(self.open), "waiting": list(self._waiting),
+            "paused": list(self._paused), "released": list(self._released),
+            "backlog": [(-p, None if math.isinf(d) else d, i) for (p, d), i in self._backlog],
+            "event_seq": self.event_seq, "finished": self.finished, "next_id": self.next_id,
+            "listed": self._listed, "now": self.now}
+
+    def restore_snapshot(self, live: Iterable[Task], *, ended: OrderedDict[int, Task],
+                         keys: OrderedDict[str, tuple[tuple[NewTask, ...], list[int]]],
+                         events: Iterable[TaskEvent], tasks: Sequence[int],
+                         open: Sequence[int], waiting: Sequence[int], paused: Sequence[int],
+                         released: Sequence[int],
+                         backlog: Sequence[tuple[int, float | None, int]], event_seq: int,
+                         finished: int, next_id: int, listed: int, now: float) -> None:
+        """Take the state :meth:`snapshot` gave, with the history replayed from the journal
+        (``ended``, ``keys``, ``events``: the latest ``keep`` of each)."""
+        book = {t.id: t for t in live}
+        book.update(ended)
+        self.book = {i: book[i] for i in sorted(book)}  # the book is in id order
+        self.tasks = {i: book[i] for i in tasks}
+        self.open = {i: book[i] for i in open}
+        self._waiting = {i: book[i] for i in waiting}
+        self._paused = {i: book[i] for i in paused}
+        self._ended = ended
+        self._released = dict.fromkeys(released)
+        self._backlog = [((-p, math.inf if d is None else d), i) for p, d, i in backlog]
+        self._keys = keys
+        self.events = deque(events, maxlen=self.keep)
+        self.event_seq, self.finished, self.next_id = event_seq, finished, next_id
+        self._listed, self.now = listed, now
 
     # ------------------------------------------------------------------ revealing
     def top_up(self, tick: float) -> None:

@@ -1,10 +1,85 @@
-"""The gateway's TLS: a server SSL context from :class:`~gateway.server.config.TlsConfig`."""
+"""The gateway's TLS: a server SSL context from :class:`~gateway.server.config.TlsConfig`, whose
+failed handshakes are logged.
+
+asyncio drops a failed TLS handshake silently (it logs one only in debug mode), so a client
+certificate from another CA, or plaintext sent to the TLS port, left no trace at all. The
+context's SSL objects (:class:`LoggedSSLObject`, through the documented
+``SSLContext.sslobject_class``) log each failed handshake at INFO with its reason and peer,
+at most one line per :data:`HANDSHAKE_LOG_PERIOD_S` (the next line counts those left out): a
+stranger cannot flood the log.
+"""
 
 from __future__ import annotations
 
+import logging
 import ssl
+import sys
+import time
 
 from gateway.server.config import TlsConfig
+
+log = logging.getLogger("fleetgate.tls")
+
+HANDSHAKE_LOG_PERIOD_S = 10.0
+"""At most one log line about failed TLS handshakes per this many seconds."""
+
+
+class HandshakeLog:
+    """Failed handshakes, logged at most once per ``period_s`` (then with how many were left
+    out since the last line)."""
+
+    def __init__(self, period_s: float = HANDSHAKE_LOG_PERIOD_S) -> None:
+        self.period_s = period_s
+        self.failed = 0
+        """Failed handshakes seen."""
+        self._next_at = float("-inf")
+        self._left_out = 0
+
+    def failure(self, reason: str, peer: str) -> None:
+        """One handshake failed for ``reason`` with ``peer``."""
+        self.failed += 1
+        now = time.monotonic()
+        if now < self._next_at:
+            self._left_out += 1
+            return
+        log.info("TLS handshake failed", extra={"peer": peer, "reason": reason,
+                                                "not_logged_before": self._left_out})
+        self._left_out, self._next_at = 0, now + self.period_s
+
+
+HANDSHAKES = HandshakeLog()
+"""The process's failed handshakes (one gateway per process)."""
+
+
+def _peer() -> str:
+    """The address of the connection whose handshake is being made: asyncio's SSL protocol
+    (the caller's caller) holds its transport; "unknown" where it cannot be found."""
+    frame = sys._getframe(2)
+    for _ in range(4):
+        transport = getattr(frame.f_locals.get("self"), "_transport", None)
+        if transport is not None and hasattr(transport, "get_extra_info"):
+            peer = transport.get_extra_info("peername")
+            if peer:
+                return f"{peer[0]}:{peer[1]}"
+        if frame.f_back is None:
+            break
+        frame = frame.f_back
+    return "unknown"
+
+
+class LoggedSSLObject(ssl.SSLObject):
+    """An SSL object whose failed server handshake is told to :data:`HANDSHAKES`."""
+
+    def do_handshake(self) -> None:
+        """The handshake step; a failure (not a want-read/write) is logged, then raised."""
+        try:
+            super().do_handshake()
+        except (ssl.SSLWantReadError, ssl.SSLWantWriteError):
+            raise
+        except ssl.SSLError as exc:
+            reason = getattr(exc, "verify_message", None) or exc.reason or str(exc)
+            HANDSHAKES.failure(str(reason), _peer())
+            raise
 
 
 class TlsError(ValueError):
@@ -24,4 +99,5 @@ def server_context(cfg: TlsConfig) -> ssl.SSLContext:
     except (OSError, ssl.SSLError) as exc:
         raise TlsError(f"cannot load the TLS files ({cfg.cert}, {cfg.key}, "
                        f"{cfg.client_ca}): {exc}") from None
+    ctx.sslobject_class = LoggedSSLObject
     return ctx
