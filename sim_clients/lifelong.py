@@ -182,9 +182,10 @@ def run_lifelong(cfg: LifelongConfig,
                     max_wait=cfg.max_wait)
     book = ErrandBook(pool, n)
     # LoRR's preprocessing (up to 30 s before the first tick): the scheduler's tables of the
-    # revealed tasks' first errands, which the first call would compute otherwise
+    # revealed tasks' errands but the last (their first errands and their legs), which the
+    # first call would compute otherwise
     cpu0 = time.thread_time()
-    distances.space.prefetch([task.errands[0] for task in pool.open.values()])
+    distances.space.prefetch([c for task in pool.open.values() for c in task.errands[:-1]])
     preprocess_s = time.thread_time() - cpu0
 
     cell = list(prob.starts)
