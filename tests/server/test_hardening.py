@@ -112,6 +112,27 @@ async def test_an_idle_robot_is_closed_and_a_talking_one_is_not() -> None:
         assert gw.engine.connected_robots() == 1
 
 
+async def test_the_idle_deadline_counts_from_the_last_message() -> None:
+    """One deadline per connection, moved by every message: a robot that talks for more than
+    twice the idle time stays, and once silent it is closed no sooner than the idle time after
+    its last message."""
+    async with Gateway(make_config(idle_timeout_s=0.3)) as gw:
+        await gw.listen()
+        robot = TestRobot(await connector(gw)("demo-robot-0"), 0)
+        await robot.hello()
+        loop = asyncio.get_running_loop()
+        for _ in range(8):
+            await robot.send(State, robot_id=0)
+            await asyncio.sleep(0.1)
+        assert gw.engine.connected_robots() == 1
+        await robot.send(State, robot_id=0)
+        last = loop.time()
+        assert await _closed_with(robot) == CloseCode.IDLE_TIMEOUT
+        assert loop.time() - last >= 0.3
+        await asyncio.sleep(0.05)
+        assert gw._sessions == set()
+
+
 async def test_the_error_budget_decays() -> None:
     async with Gateway(make_config(max_errors=3, error_decay_s=0.1)) as gw:
         await gw.listen()
