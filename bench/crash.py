@@ -19,6 +19,10 @@ command line; robots reconnect by themselves. Each disturbed run is checked:
   robots wait for the gateway, whose plan time goes on while it is down (``mean_down_s``:
   from the kill to the restarted process answering ``/readyz``, mostly Python's start-up).
 
+``--vda5050``: the robots are simulated VDA 5050 vehicles on a private mosquitto, driven by the
+gateway's ``[vda5050]`` master control (duplicates and losses counted from the edges the
+vehicles drove; docs/vda5050.md).
+
 Prints ONE line (``--json``: a JSON object with the keys above).
 
     .venv/bin/python bench/crash.py --kills 20 --seed 1 --json

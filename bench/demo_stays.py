@@ -32,7 +32,7 @@ from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
-from sim_clients.cmd_demo import DEFAULT_AGENTS, DEFAULT_MAP, DEFAULT_SCEN
+from sim_clients.demo_instance import DEFAULT_AGENTS, DEFAULT_MAP, DEFAULT_SCEN
 from sim_clients.fleet import fleet_for, run_in_process
 from sim_clients.intruder import IntruderConfig
 from sim_clients.stays import parse_stay
