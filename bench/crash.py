@@ -19,6 +19,10 @@ command line; robots reconnect by themselves. Each disturbed run is checked:
   robots wait for the gateway, whose plan time goes on while it is down (``mean_down_s``:
   from the kill to the restarted process answering ``/readyz``, mostly Python's start-up).
 
+``--vda5050``: the robots are simulated VDA 5050 vehicles on a private mosquitto, driven by the
+gateway's ``[vda5050]`` master control (duplicates and losses counted from the edges the
+vehicles drove; docs/vda5050.md).
+
 Prints ONE line (``--json``: a JSON object with the keys above).
 
     .venv/bin/python bench/crash.py --kills 20 --seed 1 --json
@@ -72,9 +76,17 @@ from gateway.planning.movingai import write_map
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.server.clock import LoopClock
+from gateway.vda5050.broker import BrokerConfig
+from gateway.vda5050.config import Vda5050Config, VehicleConfig
 from protocol import LoadPlan, Ok, OperatorCommand, Start, decode, encode
+from protocol.messages import parse_action_id
+from protocol.vda5050.master import parse_order_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
+from sim_clients.mosquitto import LocalBroker
+from sim_clients.vda_fleet import make_vehicles, run_fleet
+from sim_clients.vda_vehicle import VdaVehicle
+from sim_clients.world import World
 from tracecheck import check_trace, read_trace
 
 OPERATOR = "demo-operator"
@@ -97,12 +109,14 @@ def free_port() -> int:
 class GatewayProcess:
     """``python -m gateway serve`` with one fixed command line, killed and restarted."""
 
-    def __init__(self, workdir: Path, port: int, speed: float, policy: str) -> None:
+    def __init__(self, workdir: Path, port: int, speed: float, policy: str,
+                 extra: dict[str, Any] | None = None) -> None:
         self.port = port
         self.trace = workdir / "trace.jsonl"
         config = self.config = workdir / "gateway.json"
         config.write_text(json.dumps({"speed": speed, "policy": policy, "trace": str(self.trace),
-                                      "ping_interval_s": 2.0, "ping_timeout_s": 2.0}))
+                                      "ping_interval_s": 2.0, "ping_timeout_s": 2.0,
+                                      **(extra or {})}))
         self.journal = workdir / "journal.sqlite"
         self.cmd = [sys.executable, "-m", "gateway", "serve", "--config", str(config),
                     "--journal", str(self.journal), "--port", str(port),
@@ -203,10 +217,34 @@ async def _operator(port: int, *commands: OperatorCommand) -> None:
                     break
 
 
+async def _vehicles_connected(gw: GatewayProcess, robots: int) -> None:
+    """Until the gateway reports ``robots`` robots connected (VDA 5050 vehicles)."""
+    deadline = time.monotonic() + 60.0
+    while (await asyncio.to_thread(gw.health)).get("robots") != robots:
+        if time.monotonic() > deadline:
+            raise RuntimeError("the VDA 5050 vehicles did not connect")
+        await asyncio.sleep(0.1)
+
+
+def _vda_executed(vehicles: list[VdaVehicle]) -> Counter[tuple[int, int, int]]:
+    """How often the vehicles drove each action (plan, robot, index) of the gateway's orders:
+    an edge is an action (``orderId`` = ``<plan key>.<first action>``)."""
+    executed: Counter[tuple[int, int, int]] = Counter()
+    for vehicle in vehicles:
+        for order_id, seq in vehicle.driven:
+            parsed = parse_order_id(order_id)
+            if parsed is not None:
+                key, first = parsed
+                executed[parse_action_id(f"{key}.{first + (seq - 1) // 2}")] += 1
+    return executed
+
+
 async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
-               kills: list[float], rng: random.Random) -> dict[str, Any]:
+               kills: list[float], rng: random.Random,
+               vda: Vda5050Config | None = None) -> dict[str, Any]:
     """One execution of ``plan``; the gateway is killed ``len(kills)`` times, at those
-    delays (s) after the start or after the previous restart."""
+    delays (s) after the start or after the previous restart. With ``vda`` the robots are
+    simulated VDA 5050 vehicles on its broker."""
     total = sum(len(p) - 1 for p in plan.paths)
     executed: Counter[tuple[int, int, int]] = Counter()
     completed: set[tuple[int, int, int]] = set()
@@ -225,9 +263,19 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
     # loaded first: robots are welcomed with their start in this plan, not the last run's
     await _operator(gw.port, LoadPlan(msg_id="load", seq=0, map=str(map_file),
                                       paths=[list(p) for p in plan.paths]))
-    await fleet.start()
+    vehicles: list[VdaVehicle] = []
+    stop_vehicles = asyncio.Event()
+    if vda is None:
+        await fleet.start()
+    else:
+        vehicles = make_vehicles(vda, World(), speed=speed, starts={
+            r: (path[0], None) for r, path in enumerate(plan.paths)})
+        driving = asyncio.create_task(run_fleet(vehicles, vda.broker, stop_vehicles))
     try:
-        await fleet.wait_connected(timeout=60.0)
+        if vda is None:
+            await fleet.wait_connected(timeout=60.0)
+        else:
+            await _vehicles_connected(gw, len(plan.paths))
         await _operator(gw.port, Start(msg_id="start", seq=0))
         t0 = time.perf_counter()
         for delay in kills:
@@ -248,6 +296,11 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
         wall = time.perf_counter() - t0
     finally:
         await fleet.stop()
+        if vda is not None:
+            stop_vehicles.set()
+            await driving
+            executed = _vda_executed(vehicles)
+            completed = set(executed)
     records = read_trace(gw.trace)
     report = check_trace(records)
     finished = {(r["plan"], r["robot"], r["action"]) for r in records if r["type"] == "finish"}
@@ -264,26 +317,34 @@ async def _run(gw: GatewayProcess, map_file: Path, plan: Plan, speed: float,
 
 
 def run(kills: int, seed: int, robots: int, steps: int, speed: float,
-        per_run: int, policy: str = "none") -> dict[str, Any]:
-    """The baseline run, then disturbed runs until ``kills`` kills were made."""
+        per_run: int, policy: str = "none", vda5050: bool = False) -> dict[str, Any]:
+    """The baseline run, then disturbed runs until ``kills`` kills were made; ``vda5050``:
+    with simulated VDA 5050 vehicles through a private mosquitto."""
     rng = random.Random(seed)
     plan = random_plan(open_grid(max(6, robots), max(6, robots)), robots, steps, rng)
     run_s = plan.makespan / speed
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as broker:
         work = Path(tmp)
         map_file = work / "open.map"
         write_map(open_grid(max(6, robots), max(6, robots)), map_file)
-        gw = GatewayProcess(work, free_port(), speed, policy)
+        vda = None
+        if vda5050:
+            vda = Vda5050Config(broker=BrokerConfig(url=broker.enter_context(LocalBroker())),
+                                vehicles=[VehicleConfig(manufacturer="fleetgate",
+                                                        serial_number=f"sim{r}", robot_id=r)
+                                          for r in range(robots)])
+        gw = GatewayProcess(work, free_port(), speed, policy, extra=None if vda is None else {
+            "vda5050": vda.model_dump(mode="json", exclude_none=True)})
         try:
             gw.start()
-            base = asyncio.run(_run(gw, map_file, plan, speed, [], rng))
+            base = asyncio.run(_run(gw, map_file, plan, speed, [], rng, vda))
             runs: list[dict[str, Any]] = []
             left = kills
             while left > 0:
                 n = min(per_run, left)
                 # kill points spread over the run: the first after U(0.1, 1) of a share
                 delays = [rng.uniform(0.1, 1.0) * run_s / (n + 1) for _ in range(n)]
-                runs.append(asyncio.run(_run(gw, map_file, plan, speed, delays, rng)))
+                runs.append(asyncio.run(_run(gw, map_file, plan, speed, delays, rng, vda)))
                 left -= n
         finally:
             gw.stop()
@@ -508,6 +569,8 @@ def main() -> int:
                    help="kill a lifelong shift (tasks streaming) instead of one-shot runs")
     p.add_argument("--every", type=float, default=3.0,
                    help="--lifelong: seconds between kills (x U(0.5, 1.5))")
+    p.add_argument("--vda5050", action="store_true",
+                   help="the robots are simulated VDA 5050 vehicles (a private mosquitto)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON line")
     args = p.parse_args()
     if args.kills < 0 or args.robots < 1 or args.steps < 1 or args.kills_per_run < 1 \
@@ -517,7 +580,7 @@ def main() -> int:
         result = run_lifelong(args.kills, args.seed, args.robots, args.speed, args.every)
     else:
         result = run(args.kills, args.seed, args.robots, args.steps, args.speed,
-                     args.kills_per_run, args.policy)
+                     args.kills_per_run, args.policy, args.vda5050)
     if args.json:
         print(json.dumps(result))
     elif args.lifelong:

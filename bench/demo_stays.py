@@ -32,7 +32,7 @@ from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
-from sim_clients.cmd_demo import DEFAULT_AGENTS, DEFAULT_MAP, DEFAULT_SCEN
+from sim_clients.demo_instance import DEFAULT_AGENTS, DEFAULT_MAP, DEFAULT_SCEN
 from sim_clients.fleet import fleet_for, run_in_process
 from sim_clients.intruder import IntruderConfig
 from sim_clients.stays import parse_stay
@@ -70,6 +70,7 @@ def main() -> None:
     plan = solve(inst.grid, inst.starts, inst.goals, deadline=WallDeadline(60)).plan
     history: list[float] = []
     worse, total_none, total_policy, costs = 0, 0.0, 0.0, []
+    losers: list[int] = []
     for seed in range(args.runs):
         stay_ms = stay.draw_ms(seed)
         none, seen = run_once(inst, plan, seed, "none", stay_ms, [], args.solver_ms)
@@ -81,9 +82,10 @@ def main() -> None:
         if got > none:
             worse += 1
             costs.append(got - none)
+            losers.append(seed)
     print(f"demo_stays: {args.policy} worse than none in {worse}/{args.runs} gateway runs "
           f"(stay {stay.text}, virtual time, solver {args.solver_ms:g} ms; costs "
-          f"{', '.join(f'{c:.0f}' for c in costs) or 'none'} ms); SOC ratio "
+          f"{', '.join(f'{c:.0f}' for c in costs) or 'none'} ms, seeds {losers}); SOC ratio "
           f"{args.policy}/none {total_policy / total_none:.4f}")
 
 

@@ -7,7 +7,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -366,67 +366,64 @@ def _value_ci(d: JsonDict, scale: float = 100.0, fmt: str = ".1f", unit: str = "
     return f"{scale * d['value']:{fmt}}{unit}{interval}"
 
 
-def oracle_table(o: JsonDict) -> Table:
-    """Each policy against the oracle: one row per statistic, 95 % intervals."""
+def _policy_table(title: str, policies: JsonDict,
+                  rows: Sequence[tuple[str, Callable[[JsonDict], str]]]) -> Table:
+    """A table with a column per policy and a row per ``(label, cell of a policy)``."""
     from rich.table import Table
     from rich.text import Text
 
-    table = Table(title=f"oracle: {o['experiments']} experiments, one forced replan every "
-                  f"{o['step_ms']:g} ms; value [95% interval]", title_justify="left")
+    table = Table(title=title, title_justify="left")
     table.add_column("statistic", no_wrap=True)
-    policies = o["policies"]
     for name in policies:
         table.add_column(name, justify="right", no_wrap=True)
-
-    def row(label: str, cells: list[str]) -> None:
-        table.add_row(Text(label), *(Text(c) for c in cells))
-
-    for key, label in (("capture", "capture, pooled share of the oracle's saving"),
-                       ("capture_median", "capture, median per experiment"),
-                       ("worse_than_none", "worse than not replanning"),
-                       ("replanned", "replanned"),
-                       ("mitigation", "mitigation where it replanned"),
-                       ("oracle_mitigation", "  the oracle's, same experiments")):
-        row(label, [_value_ci(p[key]) for p in policies.values()])
-    row("replan time - oracle's best, median ms",
-        ["-" if (d := p["trigger_minus_best_ms"])["median"] is None
-         else f"{d['median']:+.0f} (n={d['n']})" for p in policies.values()])
+    for label, cell in rows:
+        table.add_row(Text(label), *(Text(cell(p)) for p in policies.values()))
     return table
+
+
+def _ci_of(key: str) -> Callable[[JsonDict], str]:
+    return lambda p: _value_ci(p[key])
+
+
+def oracle_table(o: JsonDict) -> Table:
+    """Each policy against the oracle: one row per statistic, 95 % intervals."""
+    rows: list[tuple[str, Callable[[JsonDict], str]]] = [
+        (label, _ci_of(key)) for key, label in (
+            ("capture", "capture, pooled share of the oracle's saving"),
+            ("capture_median", "capture, median per experiment"),
+            ("worse_than_none", "worse than not replanning"),
+            ("replanned", "replanned"),
+            ("mitigation", "mitigation where it replanned"),
+            ("oracle_mitigation", "  the oracle's, same experiments"))]
+    rows.append(("replan time - oracle's best, median ms",
+                 lambda p: "-" if (d := p["trigger_minus_best_ms"])["median"] is None
+                 else f"{d['median']:+.0f} (n={d['n']})"))
+    return _policy_table(f"oracle: {o['experiments']} experiments, one forced replan every "
+                         f"{o['step_ms']:g} ms; value [95% interval]", o["policies"], rows)
 
 
 def clairvoyant_table(c: JsonDict) -> Table:
     """Each policy against the clairvoyant, and its per-experiment outcomes."""
-    from rich.table import Table
-    from rich.text import Text
-
     me = c["clairvoyant"]
-    table = Table(title=f"clairvoyant: {c['experiments']} experiments; it saves in "
-                  f"{_value_ci(me['saves'])} of them, "
-                  f"{me['saving_ms']['value'] or 0:.0f} ms on average; value [95% interval]",
-                  title_justify="left")
-    table.add_column("statistic", no_wrap=True)
-    policies = c["policies"]
-    for name in policies:
-        table.add_column(name, justify="right", no_wrap=True)
 
-    def row(label: str, cells: list[str]) -> None:
-        table.add_row(Text(label), *(Text(x) for x in cells))
+    def upper(p: JsonDict) -> str:
+        u = p["worse_than_none"]["upper95"]
+        return "-" if u is None else f"{100 * u:.1f}%"
 
-    row("capture, pooled share of its saving", [_value_ci(p["capture"]) for p in
-                                                 policies.values()])
-    row("capture, median per experiment", [_value_ci(p["capture_median"]) for p in
-                                            policies.values()])
-    row("worse than not replanning", [_value_ci(p["worse_than_none"]) for p in
-                                       policies.values()])
-    row("  upper 95% bound (Clopper-Pearson)",
-        ["-" if (u := p["worse_than_none"]["upper95"]) is None else f"{100 * u:.1f}%"
-         for p in policies.values()])
-    row("  cost when worse, median / max ms",
-        ["-" if not (w := p["worse_than_none"]["cost"])["n"]
-         else f"{w['median_ms']:.0f} / {w['max_ms']:.0f}" for p in policies.values()])
-    row("saving, mean ms", [_value_ci(p["saving_ms"], 1.0, ".0f", "") for p in
-                            policies.values()])
-    return table
+    def cost(p: JsonDict) -> str:
+        w = p["worse_than_none"]["cost"]
+        return "-" if not w["n"] else f"{w['median_ms']:.0f} / {w['max_ms']:.0f}"
+
+    return _policy_table(
+        f"clairvoyant: {c['experiments']} experiments; it saves in {_value_ci(me['saves'])} of "
+        f"them, {me['saving_ms']['value'] or 0:.0f} ms on average; value [95% interval]",
+        c["policies"],
+        [("capture, pooled share of its saving", _ci_of("capture")),
+         ("capture, median per experiment", _ci_of("capture_median")),
+         ("worse than not replanning", _ci_of("worse_than_none")),
+         ("  upper 95% bound (Clopper-Pearson)", upper),
+         ("  cost when worse, median / max ms", cost),
+         ("saving, mean ms", lambda p: _value_ci(p["saving_ms"], 1.0, ".0f", ""))])
 
 
 def oracle_line(o: JsonDict) -> str:

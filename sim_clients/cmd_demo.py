@@ -35,6 +35,7 @@ from gateway.execution.oneshot.policies import POLICY_NAMES
 from gateway.execution.params import PAPER
 from gateway.runtime.exits import EXIT_INTERRUPTED, EXIT_NO_SOLUTION, UsageError
 from sim_clients.cmd_demo_lifelong import add_lifelong_arguments, run_lifelong_demo
+from sim_clients.demo_instance import DEFAULT_AGENTS, DEFAULT_MAP, DEFAULT_SCEN
 from sim_clients.stays import STAY_HELP, stay_option
 
 if TYPE_CHECKING:
@@ -48,10 +49,6 @@ if TYPE_CHECKING:
     from sim_clients.fleet import SimFleet
     from sim_clients.intruder import IntruderConfig
 
-DEFAULT_MAP, DEFAULT_SCEN, DEFAULT_AGENTS = "lab", "lab-random-4", 10
-"""The zero-setup demo: 10 robots on the shipped lab map. Its seed-0 intruder blocks a robot
-that others queue behind, the fleet slack passes 2 s at about 7.1 s and the replan saves about
-3 s of SOC (virtual time: 95.2 s against 98.3 s without replanning), robustly in real time too."""
 
 STATUS_PERIOD_S = 0.25
 """How often the terminal's status line is redrawn (wall time)."""

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from gateway.server.gateway import Gateway
 from gateway.server.items import OwnerCall
-from protocol import parse_action_id
+from protocol import Start, parse_action_id
 from sim_clients.fleet import SimFleet
 
 
@@ -35,8 +35,10 @@ async def start_shift(gateway: Gateway, fleet: SimFleet, timeout_s: float = 60.0
         raise ValueError("the gateway is not in lifelong mode")
     await fleet.start()
     await fleet.wait_connected(timeout_s)
-    if not gateway.config.autostart:
-        gateway.engine.queue.put_nowait(OwnerCall(lifelong.start))
+    if not gateway.config.autostart:  # the operator's start, as the GUI sends it
+        error, detail = await gateway.command(Start(msg_id="shift-start", seq=0))
+        if error is not None:
+            raise ValueError(f"the shift did not start: {detail}")
     while lifelong.status == "loaded":
         await asyncio.sleep(0.01)
 

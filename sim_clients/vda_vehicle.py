@@ -138,6 +138,8 @@ class VdaVehicle:
         self.field_violation = False
         self.drive: _Drive | None = None
         self.edges_driven = 0
+        self.driven: list[tuple[str, int]] = []
+        """``(orderId, edge sequenceId)`` of every edge driven, in order."""
         self.action_states: dict[str, ActionState] = {}
         self.errors: list[VdaError] = []
         self._busy_until = 0.0
@@ -349,6 +351,7 @@ class VdaVehicle:
         self.last_node_id, self.last_node_seq = drive.node.node_id, drive.node.sequence_id
         self.drive = None
         self.edges_driven += 1
+        self.driven.append((held.order_id, drive.edge.sequence_id))
         self._dirty = True
         self._run_node_actions(drive.node, now_s)
         if self.drive is None and self._busy_until <= now_s:

@@ -131,9 +131,8 @@ def _give_up(prog: str) -> None:
 @contextlib.contextmanager
 def _bounded_interrupts(prog: str) -> Iterator[None]:
     """Ctrl-C raises KeyboardInterrupt as usual and starts :data:`GRACE_S` of grace (only
-    where Python's own handler is in place, in the main thread). A KeyboardInterrupt that
-    Python swallows (raised inside a gc callback or a finaliser: "Exception ignored") is not
-    printed; the signal is sent again a moment later, outside it."""
+    where Python's own handler is in place, in the main thread); a swallowed one is sent
+    again (:func:`_interrupt_again`)."""
     if (threading.current_thread() is not threading.main_thread()
             or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
         yield
@@ -147,21 +146,24 @@ def _bounded_interrupts(prog: str) -> Iterator[None]:
             started[0].start()
         signal.default_int_handler(signum, frame)
 
-    def unraisable(info: Any) -> None:
-        if not isinstance(info.exc_value, KeyboardInterrupt):
-            sys.__unraisablehook__(info)
-            return
-        again = threading.Timer(0.05, signal.raise_signal, args=(signal.SIGINT,))
-        again.daemon = True
-        again.start()
-
     previous = signal.signal(signal.SIGINT, on_sigint)
-    previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
+    previous_hook, sys.unraisablehook = sys.unraisablehook, _interrupt_again
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
         sys.unraisablehook = previous_hook
+
+
+def _interrupt_again(info: Any) -> None:
+    """``sys.unraisablehook``: a KeyboardInterrupt that Python had to swallow (raised in a gc
+    callback or a finaliser) is not printed; SIGINT is sent again a moment later."""
+    if not isinstance(info.exc_value, KeyboardInterrupt):
+        sys.__unraisablehook__(info)
+        return
+    again = threading.Timer(0.05, signal.raise_signal, args=(signal.SIGINT,))
+    again.daemon = True
+    again.start()
 
 
 def call(prog: str, main: Callable[..., int | None], *args: Any) -> int:
@@ -202,3 +204,4 @@ def guard(prog: str) -> None:
         os._exit(code)
 
     sys.excepthook = last_words
+    sys.unraisablehook = _interrupt_again

@@ -57,6 +57,7 @@ from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.runs.lifelong import LifelongRun, shift_from
 from gateway.server.task_api.api import TaskApi
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
+from gateway.server.wire.deadline import IdleDeadline
 from gateway.server.wire.http import HttpRoutes, json_response, response
 from gateway.server.wire.http_api import RoutingConnection, close_all, routing_connection
 from gateway.server.wire.session import Session
@@ -398,21 +399,31 @@ class Gateway:
         self._sessions.add(session)
         queue = self.engine.queue
         queue.put_nowait(Connected(session))
-        robot = timeouts and session.peer.role == "robot"
+        deadline = None
+        if timeouts and session.peer.role == "robot":
+            task = asyncio.current_task()
+            assert task is not None
+            deadline = IdleDeadline(task, cfg.hello_timeout_s)
         greeted = False
         try:
             while not session.closing:
-                limit = (cfg.idle_timeout_s if greeted else cfg.hello_timeout_s) if robot else None
                 try:
-                    async with asyncio.timeout(limit):
-                        raw = await link.recv()
-                except TimeoutError:
+                    raw = await link.recv()
+                except asyncio.CancelledError:
+                    if deadline is None or not deadline.consume_expiry():
+                        raise
                     code = CloseCode.IDLE_TIMEOUT if greeted else CloseCode.HELLO_TIMEOUT
-                    session.close(code, f"{'idle' if greeted else 'no hello'} for {limit} s")
+                    session.close(code, f"{'idle' if greeted else 'no hello'} for "
+                                        f"{deadline.limit} s")
                     break
+                if deadline is not None:
+                    deadline.touch()
                 message = self._admit(session, raw)
                 if message is not None:
-                    greeted = greeted or isinstance(message, Hello)
+                    if not greeted and isinstance(message, Hello):
+                        greeted = True
+                        if deadline is not None:
+                            deadline.set_limit(cfg.idle_timeout_s)
                     queue.put_nowait(Inbound(session, message, time.perf_counter(),
                                              self.clock.now_ms()))
         except LinkClosed:
@@ -423,6 +434,8 @@ class Gateway:
             self.metrics.handler_failures.inc()
             session.close(CloseCode.INTERNAL, "internal error")
         finally:
+            if deadline is not None:
+                deadline.cancel()
             self._sessions.discard(session)
             queue.put_nowait(Disconnected(session))
             session.close()

@@ -69,6 +69,12 @@ class Metrics:
         """Lifelong mode: the assignment waits' ``p50``, ``p90``, ``p99`` and ``max`` (s),
         read at each :meth:`render`."""
 
+    def value(self, sample: str, **labels: str) -> float:
+        """A sample's value now (``fleetgate_actions_finished_total``, a labelled one by its
+        labels); 0 if it has none yet."""
+        found = self.registry.get_sample_value(sample, labels or None)
+        return 0.0 if found is None else found
+
     def render(self) -> bytes:
         """The Prometheus text exposition of every metric."""
         if self.task_counts is not None:

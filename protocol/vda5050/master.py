@@ -303,6 +303,8 @@ class VehicleMaster:
                 "cancelOrder", order.cancel_id, now_s)))
         if order is None or order.dead or not order.sent:
             return
+        if all(step.finished for step in order.steps):
+            return  # done: a vehicle showing another order must not get this one again
         held = state.order_update_id if state and state.order_id == order.order_id else -1
         pending = order.sent[max(0, held + 1 - order.base_update):]
         if pending and now_s - pending[0].sent_s >= self.resend_s:

@@ -98,15 +98,14 @@ class VdaRobot:
 
     # ------------------------------------------------------------------ gateway link
     def connected(self, now_s: float) -> None:
-        """A gateway link is up: say hello, once a ``state`` of the vehicle is known (asked
-        for with ``stateRequest``): after a restart the vehicle's order is taken over first
-        (:meth:`VehicleMaster.adopt`), and the actions it finished meanwhile are reported."""
+        """A gateway link is up: say hello once a fresh ``state`` of the vehicle arrives
+        (asked for with ``stateRequest``; the vehicle may have moved while it was away): after
+        a restart the vehicle's order is taken over first (:meth:`VehicleMaster.adopt`), and
+        the actions it finished meanwhile are reported."""
         self.link_up, self._seq = True, 0
-        if self.master.state is None:
-            self._hello_due = True
-            self.master.request_state(now_s)
-            return
-        self._hello()
+        self.master.state = None  # the vehicle was away: where it is now, it says anew
+        self._hello_due = True
+        self.master.request_state(now_s)
 
     def state_seen(self) -> None:
         """The master got a ``state`` message (the hello may be due)."""

@@ -21,7 +21,7 @@ LEVELS = tuple((k + 0.5) / 20 for k in range(20))
 
 
 @FAST
-@given(st.lists(st.floats(2001.0, 100_000.0), max_size=40, unique=True),
+@given(st.lists(st.integers(2001, 100_000).map(float), max_size=40, unique=True),
        st.floats(0.0, 60_000.0),
        st.floats(1.0, 2000.0))
 def test_quantiles_lie_above_what_the_block_lasted(history: list[float], lasted: float,
@@ -51,7 +51,7 @@ def test_lasting_longer_never_brings_the_end_forward(history: list[float], a: fl
 
 
 @FAST
-@given(st.lists(st.floats(1000.0, 60_000.0), min_size=200, max_size=300, unique=True),
+@given(st.lists(st.integers(1000, 60_000).map(float), min_size=200, max_size=300, unique=True),
        st.floats(0.0, 20_000.0))
 def test_a_long_history_converges_to_its_conditional_quantiles(history: list[float],
                                                                 lasted: float) -> None:

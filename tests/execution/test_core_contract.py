@@ -4,6 +4,8 @@ one-shot :class:`Executor` and the :class:`LifelongExecutor` pass the same suite
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 
 from gateway.execution.commands import Cancel, Dispatch, SolveRequest
@@ -20,6 +22,19 @@ from tests.lifelong.support import small_problem
 PLAN = Plan.of([[(0, 0), (1, 0), (2, 0), (3, 0)], [(5, 5), (5, 4), (5, 3)]])
 
 
+def settled(core: Core[object], answer: Callable[[object], None]) -> list[Dispatch]:
+    """Drain ``core`` until it is quiet, answering each command but dispatches with
+    ``answer``; the dispatches, in order."""
+    out: list[Dispatch] = []
+    while commands := core.drain():
+        for c in commands:
+            if isinstance(c, Dispatch):
+                out.append(c)
+            else:
+                answer(c)
+    return out
+
+
 class OneShotRig:
     """The one-shot executor on :data:`PLAN`; a replan is abandoned (the plan goes on)."""
 
@@ -30,16 +45,13 @@ class OneShotRig:
         self.executor.start(0.0)
 
     def settle(self, now_ms: float) -> list[Dispatch]:
-        out: list[Dispatch] = []
-        while commands := self.executor.drain():
-            for c in commands:
-                if isinstance(c, Dispatch):
-                    out.append(c)
-                elif isinstance(c, Cancel):
-                    self.executor.cancelled(c.robot, c.plan, c.action, now_ms)
-                elif isinstance(c, SolveRequest):
-                    self.executor.abandon_replan(now_ms)
-        return out
+        return settled(self.core, lambda c: self._answer(c, now_ms))
+
+    def _answer(self, c: object, now_ms: float) -> None:
+        if isinstance(c, Cancel):
+            self.executor.cancelled(c.robot, c.plan, c.action, now_ms)
+        elif isinstance(c, SolveRequest):
+            self.executor.abandon_replan(now_ms)
 
     def replan(self, now_ms: float) -> list[Dispatch]:
         self.executor.request_replan(now_ms)
@@ -60,14 +72,11 @@ class LifelongRig:
         self.executor.start(0.0)
 
     def settle(self, now_ms: float) -> list[Dispatch]:
-        out: list[Dispatch] = []
-        while commands := self.executor.drain():
-            for c in commands:
-                if isinstance(c, Dispatch):
-                    out.append(c)
-                elif isinstance(c, PlanRequest):
-                    self.executor.adopt(self.planner(c), now_ms)
-        return out
+        return settled(self.core, lambda c: self._answer(c, now_ms))
+
+    def _answer(self, c: object, now_ms: float) -> None:
+        if isinstance(c, PlanRequest):
+            self.executor.adopt(self.planner(c), now_ms)
 
     def replan(self, now_ms: float) -> list[Dispatch]:
         due = self.executor.next_wakeup_ms()

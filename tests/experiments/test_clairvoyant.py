@@ -4,7 +4,9 @@ intruder's true cell and leave time) and its statistics by hand."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,7 +23,7 @@ from experiments.campaign import (
     variant_config,
 )
 from experiments.clairvoyant_stats import binomial_cdf, clopper_pearson_upper, summarize_outcomes
-from experiments.oracle import sweep
+from experiments.oracle import read_oracle_rows, sweep
 from gateway.execution.commands import SolveRequest
 from gateway.execution.oneshot.policies import RandomReplan
 from gateway.planning.grid import Grid
@@ -29,6 +31,7 @@ from gateway.planning.plan import Plan
 from gateway.runtime.mapstore import resolve
 from sim_clients.des import Simulation
 from sim_clients.intruder import IntruderState
+from tests.planning.fleetgate_cli import call
 
 SIM = SimSettings(solver_time="zero", intruder_stay="uniform:1-30")
 SPEC = CampaignSpec(groups=(("lab", 5),), instances=2, seeds=2, sim=SIM, plan_time_limit_s=20)
@@ -112,3 +115,28 @@ def test_outcomes_by_hand() -> None:
     assert worse["upper95"] == pytest.approx(clopper_pearson_upper(1, 4))
     assert got["saving_ms"]["value"] == pytest.approx(17 / 4)
     assert math.isclose(got["saving_ms"]["median"], 5.0)
+
+
+def test_cli_clairvoyant_json(tmp_path: Path) -> None:
+    out = tmp_path / "c"
+    args = ["experiment", "--maps", "lab", "--agents", "5", "--instances", "1", "--seeds", "2",
+            "--out", str(out), "--solver-time", "zero", "--intruder-stay", "uniform:1-30",
+            "--shadow", "--clairvoyant", "--workers", "1", "--no-progress", "--json",
+            "--resamples", "50"]
+    done = call(*args)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["campaign"]["intruder_stay"] == "uniform:1-30"
+    c = summary["clairvoyant"]
+    assert c["experiments"] == 2 and c["with_oracle"] == 0
+    assert set(c["policies"]) == {"random", "slack", "shadow"}
+    worse = c["policies"]["shadow"]["worse_than_none"]
+    assert worse["upper95"] >= worse["value"] and "cost" in worse
+    rows = read_oracle_rows(out / "clairvoyant.csv")
+    assert len(rows) == 2 and all(r.best_soc_ms <= r.none_soc_ms for r in rows)
+    # a rerun reuses the sweep: nothing swept again
+    again = json.loads(call(*args).stdout)
+    assert again["clairvoyant"]["cost"]["swept_now"] == 0
+    # another stay is another campaign: the folder refuses it in one line
+    other = call(*[a if a != "uniform:1-30" else "fixed:5" for a in args])
+    assert other.returncode == 2 and "intruder_stay" in other.stderr

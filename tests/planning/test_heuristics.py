@@ -90,6 +90,11 @@ def test_the_scheduler_shares_the_planners_cell_tables(case: tuple[Grid, list[in
     want = bfs(grid, goal)[other]
     assert shared.leg(goal, other) == (want if want >= 0 else UNREACHABLE)
     assert shared([other], [goal]).tolist() == [[want]]
+    shared.charge, shared.charged = 5, {other}  # e.g. a robot in a delay there
+    moves = bfs(grid, goal)
+    expect = [[moves[c] + 5 * (c == other) if moves[c] >= 0 else -1] * 2
+              for c in (other, goal, other)]
+    assert shared([other, goal, other], [goal, goal]).tolist() == expect
     with pytest.raises(ValueError, match="only tables over the free cells"):
         TaskDistances(grid, space=StateSpace(grid, True, exact=True))
 

@@ -116,7 +116,7 @@ async def test_bad_input_gets_its_code_and_changes_nothing(fleet: Fleet, raw: st
     err = await fleet.bad.error_for(ref)
     assert err.code is code, err.detail
     assert fingerprint(fleet.gw) == before
-    assert fleet.gw.metrics.errors.labels(code.value)._value.get() == 1
+    assert fleet.gw.metrics.value("fleetgate_protocol_errors_total", code=code.value) == 1
     # the others carry on meanwhile, and robot 0 (still connected) completes its part
     worker = asyncio.create_task(fleet.bad.run(backlog=[fleet.first]))
     soc, makespan = await asyncio.wait_for(fleet.gw.wait_done(), 10)
@@ -133,12 +133,12 @@ async def test_duplicate_finish_is_applied_once(fleet: Fleet) -> None:
     nxt = await bad.expect(Action)
     assert nxt.action_id == "0.0.1"
     before = fingerprint(gw)
-    finished_before = gw.metrics.finished._value.get()
+    finished_before = gw.metrics.value("fleetgate_actions_finished_total")
     ref = await bad.send(Finished, action_id="0.0.0")
     err = await bad.error_for(ref)
     assert err.code is ErrorCode.DUPLICATE
     assert fingerprint(gw) == before
-    assert gw.metrics.finished._value.get() == finished_before
+    assert gw.metrics.value("fleetgate_actions_finished_total") == finished_before
     ref = await bad.send(Started, action_id="0.0.1")
     await bad.send(Started, action_id="0.0.1")
     assert (await bad.error_for(f"r0-{int(ref.split('-')[1]) + 1}")).code is ErrorCode.DUPLICATE
@@ -224,5 +224,5 @@ async def test_flooding_is_rate_limited() -> None:
 async def test_second_hello_on_one_connection_counts_once(fleet: Fleet) -> None:
     await fleet.bad.hello()
     await fleet.bad.hello()
-    assert fleet.gw.metrics.connected_robots._value.get() == 3
+    assert fleet.gw.metrics.value("fleetgate_connected_robots") == 3
     assert fleet.gw.engine.connected_robots() == 3

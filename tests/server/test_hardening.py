@@ -112,6 +112,27 @@ async def test_an_idle_robot_is_closed_and_a_talking_one_is_not() -> None:
         assert gw.engine.connected_robots() == 1
 
 
+async def test_the_idle_deadline_counts_from_the_last_message() -> None:
+    """One deadline per connection, moved by every message: a robot that talks for more than
+    twice the idle time stays, and once silent it is closed no sooner than the idle time after
+    its last message."""
+    async with Gateway(make_config(idle_timeout_s=0.3)) as gw:
+        await gw.listen()
+        robot = TestRobot(await connector(gw)("demo-robot-0"), 0)
+        await robot.hello()
+        loop = asyncio.get_running_loop()
+        for _ in range(8):
+            await robot.send(State, robot_id=0)
+            await asyncio.sleep(0.1)
+        assert gw.engine.connected_robots() == 1
+        await robot.send(State, robot_id=0)
+        last = loop.time()
+        assert await _closed_with(robot) == CloseCode.IDLE_TIMEOUT
+        assert loop.time() - last >= 0.3
+        await asyncio.sleep(0.05)
+        assert gw._sessions == set()
+
+
 async def test_the_error_budget_decays() -> None:
     async with Gateway(make_config(max_errors=3, error_decay_s=0.1)) as gw:
         await gw.listen()
@@ -147,7 +168,7 @@ async def test_no_exception_escapes_a_handler(monkeypatch: pytest.MonkeyPatch,
         failures = [r for r in caplog.records if r.getMessage() == "connection handler failed"]
         assert len(failures) == 1 and failures[0].exc_info is None
         assert "RuntimeError('a bug')" in failures[0].__dict__["error"]
-        assert gw.metrics.handler_failures._value.get() == 1
+        assert gw.metrics.value("fleetgate_handler_failures_total") == 1
         await ok.send(State, robot_id=1)  # the others carry on
         await ok.hello()
         assert gw.engine.connected_robots() == 1

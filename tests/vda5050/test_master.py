@@ -243,3 +243,18 @@ def test_a_restarted_master_takes_over_the_vehicles_order(lose_update: bool) -> 
     updates = [json.loads(p) for t, p in loop.traffic if t == "order"]
     assert updates[-1]["orderUpdateId"] == state.order_update_id + 1
     assert updates[-1]["nodes"][0]["sequenceId"] == 8  # the decision point: action 3's node
+
+
+def test_a_finished_order_is_not_resent_to_a_vehicle_showing_another() -> None:
+    loop = Loop("2.1.0", PATH[0])
+    actions = actions_of(PATH[:3])
+    loop.master.release(actions, loop.now)
+    loop.run(3)
+    assert loop.kinds(actions[-1].action_id) == ["started", "finished"]
+    sent = len([t for t, _ in loop.traffic if t == "order"])
+    # a new vehicle takes the serial number's place (its state shows no order at all)
+    fresh = loop.vehicle.__class__(loop.vehicle.topics, "2.1.0", loop.vehicle.nodes, (0, 5))
+    loop.vehicle = fresh
+    loop.run(6)
+    assert len([t for t, _ in loop.traffic if t == "order"]) == sent
+    assert fresh.held.order_id == "" and fresh.cell == (0, 5)

@@ -145,7 +145,9 @@ class PlannerProcess:
                     [sys.executable, "-m", "gateway.server.runs.planner_process",
                      str(to_worker_r), str(from_worker_w)],
                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                    pass_fds=(to_worker_r, from_worker_w))  # stderr: its one-line errors
+                    pass_fds=(to_worker_r, from_worker_w),  # stderr: its one-line errors
+                    process_group=0)  # Ctrl-C on a terminal is the gateway's, which ends it
+
             finally:
                 os.close(to_worker_r)
                 os.close(from_worker_w)
