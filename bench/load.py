@@ -32,6 +32,16 @@ measured at all for it. The result line says which lookahead was used.
     .venv/bin/python bench/load.py --find-max --seconds 20 --json
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --profile /tmp/gw.prof
 
+``--against DIR --pairs N``: the CPU per action against another version, measured in the same
+invocation. ``DIR`` is a checkout of that version (``git worktree add DIR 1045d02``); its own
+``bench/load.py --serve`` runs the gateway (with ``DIR`` first on the Python path), N runs of
+each side interleaved ABBA on the same plan with this version's robots. Adds
+``cpu_per_action_ratio`` (median gateway CPU per action, this / that: < 1 is leaner),
+``p99_against_ratio``, every run's figures and the load average after each run (the gateway is
+one process, so ``owner_cpu_ms_per_action`` is its CPU per action too).
+
+    .venv/bin/python bench/load.py --robots 1000 --seconds 20 --against ../base1045 --pairs 5 --json
+
 ``--lifelong``: a warehouse shift instead of one plan. The gateway (child process) runs in
 lifelong mode on a generated warehouse (about 12 free cells per robot, ``--robots`` turning
 robots) with the problem's task list OFF (``task_list = false``): its task pool is fed only by
@@ -81,7 +91,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
@@ -300,19 +310,23 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
 
 
 def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
-             profile: Path | None = None, journal: bool = False) -> dict[str, Any]:
-    """One gateway process + one fleet; the measurements as a dict."""
+             profile: Path | None = None, journal: bool = False, tree: Path | None = None
+             ) -> dict[str, Any]:
+    """One gateway process + one fleet; the measurements as a dict. With ``tree`` (a checkout
+    of another version) the gateway process is that version's (its ``bench/load.py --serve``
+    with its packages first on the path); the robots are always this version's."""
     size, plan = workload(robots, seconds, seed)
     with tempfile.TemporaryDirectory() as tmp:
         plan_file = Path(tmp) / "plan.json"
         plan_file.write_text(json.dumps({"size": size, "paths": [list(p) for p in plan.paths]}))
-        cmd = [sys.executable, __file__, "--serve", str(plan_file),
-               "--lookahead", str(lookahead)]
+        cmd = [sys.executable, str(tree / "bench" / "load.py") if tree else __file__,
+               "--serve", str(plan_file), "--lookahead", str(lookahead)]
         if profile is not None:
             cmd += ["--profile", str(profile)]
         if journal:
             cmd += ["--serve-journal", str(Path(tmp) / "journal.sqlite")]
-        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
+        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
         sleeper = subprocess.Popen([sys.executable, "-c", _SLEEPER, str(seconds)],
                                    stdout=subprocess.PIPE, text=True)
         try:
@@ -352,7 +366,8 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             "cpu_pressure_pct": cpu_pressure(), "os_wakeup_p99_ms": round(floor, 2),
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
-            "rate_ratio": round(achieved / offered, 4) if offered else None}
+            "rate_ratio": round(achieved / offered, 4) if offered else None,
+            "load_1min": round(os.getloadavg()[0], 1)}
 
 
 # ------------------------------------------------------------------ lifelong (--lifelong)
@@ -538,21 +553,11 @@ def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
     machine's load charges neither side); the median journaled run's measurements, plus
     ``p99_journal_ratio`` (median p99 with / without) and the same for the gateway's own
     p99 and its CPU per action."""
-    plain: list[dict[str, Any]] = []
-    journaled: list[dict[str, Any]] = []
-    for i in range(pairs):
-        for journal in ((False, True) if i % 2 == 0 else (True, False)):
-            res = run_once(robots, seconds, seed, jitter, lookahead,
-                           profile if journal else None, journal)
-            print(json.dumps(res), file=sys.stderr, flush=True)
-            (journaled if journal else plain).append(res)
+    plain, journaled = interleaved(pairs, lambda journal: run_once(
+        robots, seconds, seed, jitter, lookahead, profile if journal else None, journal))
 
     def ratio(key: str) -> float | None:
-        with_ = [r[key] for r in journaled if r[key] is not None]
-        without = [r[key] for r in plain if r[key] is not None]
-        if not with_ or not without or not statistics.median(without):
-            return None
-        return round(statistics.median(with_) / statistics.median(without), 3)
+        return median_ratio(key, journaled, plain)
 
     result = sorted(journaled, key=lambda r: r["p99_ms"] or math.inf)[(pairs - 1) // 2]
     return {**result, "pairs": pairs,
@@ -561,6 +566,50 @@ def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
             "p99_journal_ratio": ratio("p99_ms"),
             "gateway_p99_journal_ratio": ratio("gateway_p99_ms"),
             "cpu_per_action_journal_ratio": ratio("gateway_cpu_ms_per_action")}
+
+
+def interleaved(pairs: int, run: Callable[[bool], dict[str, Any]]
+                ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """``pairs`` runs of ``run(False)`` and ``run(True)``, interleaved ABBA (a trend in the
+    machine's load charges neither side), each result also printed to stderr; both lists."""
+    runs: dict[bool, list[dict[str, Any]]] = {False: [], True: []}
+    for i in range(pairs):
+        for side in ((False, True) if i % 2 == 0 else (True, False)):
+            res = run(side)
+            print(json.dumps(res), file=sys.stderr, flush=True)
+            runs[side].append(res)
+    return runs[False], runs[True]
+
+
+def median_ratio(key: str, these: list[dict[str, Any]], those: list[dict[str, Any]]
+                 ) -> float | None:
+    """Median of ``key`` over ``these`` / its median over ``those`` (None if unmeasured)."""
+    num = [r[key] for r in these if r[key] is not None]
+    den = [r[key] for r in those if r[key] is not None]
+    if not num or not den or not statistics.median(den):
+        return None
+    return round(statistics.median(num) / statistics.median(den), 3)
+
+
+def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
+                 pairs: int, tree: Path) -> dict[str, Any]:
+    """``pairs`` runs of this gateway and of the one in ``tree`` (another version's checkout),
+    interleaved ABBA, the same plan and this version's robots: the median run of this version
+    (by CPU per action) plus ``cpu_per_action_ratio`` = median gateway CPU per action of this
+    version / that of ``tree`` (< 1: this one is leaner), the same for p99, and the load
+    average after each run. The gateway is one process: its CPU is the owner's."""
+    ours, theirs = interleaved(pairs, lambda other: run_once(
+        robots, seconds, seed, jitter, lookahead, tree=tree if other else None))
+    key = "gateway_cpu_ms_per_action"
+    result = sorted(ours, key=lambda r: r[key])[(pairs - 1) // 2]
+    return {**result, "pairs": pairs, "against": str(tree),
+            "owner_cpu_ms_per_action": result[key],
+            "cpu_ms_per_action": [r[key] for r in ours],
+            "against_cpu_ms_per_action": [r[key] for r in theirs],
+            "load_1min_runs": [r["load_1min"] for r in ours],
+            "against_load_1min_runs": [r["load_1min"] for r in theirs],
+            "cpu_per_action_ratio": median_ratio(key, ours, theirs),
+            "p99_against_ratio": median_ratio("p99_ms", ours, theirs)}
 
 
 def holds(result: dict[str, Any]) -> bool:
@@ -618,7 +667,11 @@ def main() -> int:
                         "interleaved, and prints p99_journal_ratio; the baseline run is "
                         "journaled")
     p.add_argument("--pairs", type=int, default=1,
-                   help="with --journal: how many runs of each (default 1)")
+                   help="with --journal or --against: how many runs of each (default 1)")
+    p.add_argument("--against", type=Path, metavar="DIR",
+                   help="also run the gateway of another version's checkout DIR (e.g. `git "
+                        "worktree add DIR 1045d02`), interleaved with this one, and print "
+                        "cpu_per_action_ratio (this / that, median over --pairs)")
     p.add_argument("--lifelong", action="store_true",
                    help="a warehouse shift (lifelong mode) for --seconds of plan time: "
                         "throughput against virtual time, p99, lost, duplicated")
@@ -639,6 +692,12 @@ def main() -> int:
         p.error("--lookahead must be >= 0")
     if args.pairs < 1:
         p.error("--pairs must be >= 1")
+    if args.against is not None and not (args.against / "bench" / "load.py").is_file():
+        p.error(f"--against {args.against}: no bench/load.py there (give a checkout of "
+                "fleetgate)")
+    if args.against is not None and (args.journal or args.find_max or args.lifelong):
+        p.error("--against measures one plain run per side: not with --journal, --find-max "
+                "or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.lifelong:
@@ -660,6 +719,9 @@ def main() -> int:
                               args.max_robots)
         result = next((r for r in runs if r["robots"] == best), baseline)
         result = {"max_robots": best, **result}
+    elif args.against is not None:
+        result = against_cost(args.robots, args.seconds, args.seed, args.jitter,
+                              args.lookahead, args.pairs, args.against.resolve())
     elif args.journal:
         result = journal_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.profile, args.pairs)

@@ -570,8 +570,10 @@ class Journal:
         except (OSError, ValueError, TypeError):
             return 0
 
-    def _check_seal(self, chains: list[str]) -> None:
-        """The journal (whose records' chain values are ``chains``) holds a sealed state."""
+    def check_sealed(self) -> None:
+        """The journal holds a state its seal names (:class:`JournalError` if not: synced
+        records were lost, e.g. with a damaged or deleted WAL). Checked before anything is
+        written (a new seal would hide the loss) and by :meth:`records`."""
         try:
             raw = self._seal_path.read_bytes()
         except FileNotFoundError:
@@ -584,13 +586,16 @@ class Journal:
         except (ValueError, TypeError):
             raise JournalError(f"the seal of the journal {self.path} is damaged: start with "
                                f"--fresh to abandon the run") from None
-        if not states or any(n <= len(chains) and (chains[n - 1] if n else GENESIS) == c
-                             for n, c in states):
-            return
-        n = max(n for n, _ in states)
-        raise JournalError(f"the journal {self.path} lost synced records ({n} were committed "
-                           f"and synced, {len(chains)} are there: its WAL was damaged or "
-                           f"deleted): start with --fresh to abandon the run")
+        for n, chain in states:
+            row = self._db.execute("SELECT chain FROM records ORDER BY seq LIMIT 1 OFFSET ?",
+                                   (n - 1,)).fetchone() if n else (GENESIS,)
+            if row is not None and row[0] == chain:
+                return
+        if states:
+            raise JournalError(f"the journal {self.path} lost synced records "
+                               f"({max(n for n, _ in states)} were committed and synced, "
+                               f"{self._count} are there: its WAL was damaged or deleted): "
+                               f"start with --fresh to abandon the run")
 
     def commit(self) -> None:
         """Write the buffered records in one transaction (synced if one of them is of
@@ -708,15 +713,14 @@ class Journal:
                 "SELECT kind, body, chain FROM records ORDER BY seq").fetchall()
         except sqlite3.Error as exc:
             raise JournalError(f"cannot read the journal {self.path}: {exc}") from None
-        chain, chains = GENESIS, []
+        chain = GENESIS
         for seq, (kind, body, stored) in enumerate(rows, 1):
             chain = chain_next(chain, kind, body)
             if chain != stored:
                 raise JournalError(f"record {seq} of the journal {self.path} is damaged "
                                    f"(its checksum does not match): start with --fresh to "
                                    f"abandon the run")
-            chains.append(chain)
-        self._check_seal(chains)
+        self.check_sealed()
         for seq, (kind, body, _) in enumerate(rows, 1):
             try:
                 rec = _ADAPTER.validate_json(body)

@@ -71,6 +71,8 @@ def open_journal(cfg: GatewayConfig, fresh: bool) -> tuple[Journal, JournalLock]
         raise
     try:
         want = fingerprint(cfg)
+        if not fresh:  # before anything is written: a new seal would hide lost records
+            journal.check_sealed()
         if fresh:
             journal.discard()
             log.warning("journaled run abandoned: starting fresh",

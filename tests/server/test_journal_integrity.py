@@ -251,3 +251,9 @@ def test_a_wal_that_lost_synced_records_is_refused(tmp_path: Path, damage: str) 
         wal.write_bytes(bytes(data))
     with pytest.raises(JournalError, match="lost synced records"):
         list(Journal(dead / "j.sqlite").records())
+    # the gateway's start checks it before it writes anything (its fingerprint's synced
+    # commit would otherwise seal the loss)
+    with pytest.raises(JournalError, match="lost synced records"):
+        open_journal(_config(dead / "j.sqlite"), fresh=False)
+    with pytest.raises(JournalError, match="lost synced records"):
+        list(Journal(dead / "j.sqlite").records())

@@ -40,12 +40,13 @@ class Session:
         self._error_decay_s = error_decay_s
         self.errors = 0
         """Recent protocol errors (one forgotten per ``error_decay_s``)."""
-        self._errors_at = asyncio.get_running_loop().time()
+        self._loop = asyncio.get_running_loop()
+        self._errors_at = self._loop.time()
         self._on_error = on_error
         self._rate = rate_per_s
         self._burst = rate_burst
         self._tokens = rate_burst
-        self._last = asyncio.get_running_loop().time()
+        self._last = self._loop.time()
         self.closing = False
         self.version: ProtocolVersion = PROTOCOL_VERSION
         """The protocol version of this connection (a robot's ``hello`` fixes it)."""
@@ -73,7 +74,7 @@ class Session:
 
     def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
         """Reply ``error``; close the connection (1008) after too many in a short time."""
-        now = asyncio.get_running_loop().time()
+        now = self._loop.time()
         forgiven = int((now - self._errors_at) / self._error_decay_s)
         if forgiven >= self.errors:
             self.errors, self._errors_at = 0, now
@@ -89,7 +90,7 @@ class Session:
 
     def allow(self) -> bool:
         """Take one token of the rate limit; False if the peer sends too fast."""
-        now = asyncio.get_running_loop().time()
+        now = self._loop.time()
         self._tokens = min(self._burst, self._tokens + (now - self._last) * self._rate)
         self._last = now
         if self._tokens < 1.0:
@@ -107,7 +108,7 @@ class Session:
             self._queue.put_nowait(None)
         except asyncio.QueueFull:
             self.writer.cancel()
-            self._closer = asyncio.get_running_loop().create_task(self.link.close(code, reason))
+            self._closer = self._loop.create_task(self.link.close(code, reason))
 
     async def _write(self) -> None:
         try:
