@@ -18,6 +18,7 @@ import secrets
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from fleetgate.userio.exits import quiet_stdout
 from fleetgate.userio.files import check_writable
 from gateway.runtime.exits import UsageError
 
@@ -110,7 +111,10 @@ async def _shift(config: GatewayConfig, args: argparse.Namespace, status: Status
                   "duplicated": stats.duplicated, "collisions": stats.collisions,
                   "assignment_wait_s": wait}
         if args.json:
-            print(json.dumps(result), flush=True)
+            try:
+                print(json.dumps(result), flush=True)
+            except BrokenPipeError:  # nobody reads it: how the shift ended still sets the code
+                quiet_stdout()
         else:
             status.print(f"shift stopped: {stats.finished_tasks} tasks in "
                          f"{result['plan_s']:.1f} s ({result['tasks_per_min']:.1f}/min), "

@@ -39,7 +39,9 @@ EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141
 
 EPILOG = ("exit codes: 0 success, 1 a check failed, 2 bad input or environment (one line on "
-          "stderr), 3 no solution in time, 130 interrupted (Ctrl-C), 141 output pipe closed")
+          "stderr), 3 no solution in time, 70 internal error (the gateway's owner died), 74 "
+          "journal write failed (the gateway stopped: restart it), 130 interrupted (Ctrl-C), "
+          "141 output pipe closed")
 """The exit codes in one line, for every command's ``--help``."""
 
 
@@ -65,7 +67,7 @@ class CommandParser(argparse.ArgumentParser):
             (file or sys.stderr).write(message)
 
 
-def _quiet_stdout() -> None:
+def quiet_stdout() -> None:
     """Point standard output at /dev/null, so that nothing more (nor Python's final flush)
     fails on a closed pipe or a full device."""
     try:
@@ -91,7 +93,7 @@ def _ending(prog: str, exc: BaseException) -> int:
         _say(prog, "interrupted")
         return EXIT_INTERRUPTED
     if isinstance(exc, BrokenPipeError):
-        _quiet_stdout()
+        quiet_stdout()
         return EXIT_BROKEN_PIPE
     if isinstance(exc, OSError):
         if exc.filename is None and _flush_stdout(prog) is not None:
@@ -108,10 +110,10 @@ def _flush_stdout(prog: str) -> int | None:
     try:
         sys.stdout.flush()
     except BrokenPipeError:
-        _quiet_stdout()
+        quiet_stdout()
         return EXIT_BROKEN_PIPE
     except OSError as exc:
-        _quiet_stdout()
+        quiet_stdout()
         _say(prog, f"cannot write standard output: {exc.strerror or exc}")
         return EXIT_BAD_INPUT
     return None
