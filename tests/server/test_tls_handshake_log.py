@@ -65,3 +65,33 @@ def test_failed_handshakes_are_logged_with_peer_and_reason_rate_limited(
                 assert len([r for r in caplog.records if r.name == "fleetgate.tls"]) == 1
 
     asyncio.run(main())
+
+
+def test_plain_http_to_the_tls_port_gets_a_400_hint(tmp_path: Path) -> None:
+    """Issue 27 item 13: a browser or curl speaking plain HTTP to the TLS port is told to use
+    https:// or wss:// (it got an empty reply), and the port keeps serving TLS clients."""
+    certs = make_certs(tmp_path)
+
+    async def main() -> tuple[bytes, bytes]:
+        async with Gateway(make_config(tls=certs.tls())) as gw:
+            port = await gw.listen()
+            answers = []
+            for request in (b"GET / HTTP/1.1\r\nHost: x\r\n\r\n",
+                            b"POST /tasks HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n\r\n"):
+                reader, writer = await asyncio.open_connection("127.0.0.1", port)
+                writer.write(request)
+                await writer.drain()
+                answers.append(await asyncio.wait_for(reader.read(), 5))
+                writer.close()
+            # a TLS client still completes its handshake afterwards
+            _r, w = await asyncio.open_connection(
+                "127.0.0.1", port, ssl=client_context(certs.ca, None),
+                server_hostname="127.0.0.1")
+            w.close()
+            return answers[0], answers[1]
+
+    for answer in asyncio.run(main()):
+        head, _, body = answer.partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 400 "), answer
+        assert b"https://" in body and b"wss://" in body, answer
+        assert f"Content-Length: {len(body)}".encode() in head, answer

@@ -15,6 +15,7 @@ import logging
 import ssl
 import sys
 import time
+from typing import Any
 
 from gateway.server.config import TlsConfig
 
@@ -51,20 +52,31 @@ HANDSHAKES = HandshakeLog()
 """The process's failed handshakes (one gateway per process)."""
 
 
-def _peer() -> str:
-    """The address of the connection whose handshake is being made: asyncio's SSL protocol
-    (the caller's caller) holds its transport; "unknown" where it cannot be found."""
+def _handshake_transport() -> Any:
+    """The socket transport of the connection whose handshake is being made: asyncio's SSL
+    protocol (the caller's caller) holds it; None where it cannot be found."""
     frame = sys._getframe(2)
     for _ in range(4):
         transport = getattr(frame.f_locals.get("self"), "_transport", None)
         if transport is not None and hasattr(transport, "get_extra_info"):
-            peer = transport.get_extra_info("peername")
-            if peer:
-                return f"{peer[0]}:{peer[1]}"
+            return transport
         if frame.f_back is None:
             break
         frame = frame.f_back
-    return "unknown"
+    return None
+
+
+def _peer(transport: Any) -> str:
+    """``host:port`` of ``transport``'s peer, or "unknown"."""
+    peer = transport.get_extra_info("peername") if transport is not None else None
+    return f"{peer[0]}:{peer[1]}" if peer else "unknown"
+
+
+PLAIN_HTTP_HINT = b"this port speaks TLS: use https:// or wss://, not http:// or ws://\n"
+PLAIN_HTTP_ANSWER = (b"HTTP/1.1 400 Bad Request\r\nContent-Type: text/plain\r\n"
+                     b"Connection: close\r\nContent-Length: %d\r\n\r\n%s"
+                     % (len(PLAIN_HTTP_HINT), PLAIN_HTTP_HINT))
+"""What a plain HTTP request to the TLS port gets (instead of an empty reply)."""
 
 
 class LoggedSSLObject(ssl.SSLObject):
@@ -78,7 +90,11 @@ class LoggedSSLObject(ssl.SSLObject):
             raise
         except ssl.SSLError as exc:
             reason = getattr(exc, "verify_message", None) or exc.reason or str(exc)
-            HANDSHAKES.failure(str(reason), _peer())
+            transport = _handshake_transport()
+            HANDSHAKES.failure(str(reason), _peer(transport))
+            if exc.reason == "HTTP_REQUEST" and transport is not None:
+                # a plain HTTP request: a hint, sent at once (the buffer is empty), then closed
+                transport.write(PLAIN_HTTP_ANSWER)
             raise
 
 
