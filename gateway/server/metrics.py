@@ -55,6 +55,11 @@ class Metrics:
             "fleetgate_task_completion_seconds",
             "Lifelong mode: from a task's submission to its finish (seconds of the shift's "
             "clock)", buckets=TASK_BUCKETS, registry=r)
+        self.task_wait = Histogram(
+            "fleetgate_task_wait_seconds",
+            "Lifelong mode: each finished task's time without a robot (queued from submission "
+            "until a robot took it, spells after a hand-back included; seconds of the shift's "
+            "clock)", buckets=TASK_BUCKETS, registry=r)
         self.planner_call = Histogram(
             "fleetgate_planner_call_seconds",
             "Planner calls by purpose (window: a lifelong window; load, replan, shadow: a "

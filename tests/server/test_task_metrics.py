@@ -96,6 +96,10 @@ def test_shift_metrics_agree_with_the_task_api_and_the_dashboard_reads_them(
     assert after["fleetgate_task_completion_seconds_count"] == TASKS
     completion = sum(t["finished_ms"] - t["submitted_ms"] for t in out["tasks"]) / 1000.0
     assert abs(after["fleetgate_task_completion_seconds_sum"] - completion) < 1e-6
+    # each finished task's wait for a robot, in seconds: some, and never more than its life
+    assert after["fleetgate_task_wait_seconds_count"] == TASKS
+    assert 0.0 < after["fleetgate_task_wait_seconds_sum"] <= completion
+    assert after['fleetgate_task_wait_seconds_bucket{le="+Inf"}'] == TASKS
     low, high = out["calls"]
     assert 1 <= low <= after['fleetgate_planner_call_seconds_count{purpose="window"}'] <= high
     assert after["fleetgate_journal_commit_seconds_count"] > TASKS
@@ -155,3 +159,4 @@ def test_a_restarted_gateway_does_not_count_finishes_again(tmp_path: Path) -> No
     assert out["replayed"] >= 2
     assert out["second"]["fleetgate_tasks_finished_total"] == 0
     assert out["second"]["fleetgate_task_completion_seconds_count"] == 0
+    assert out["second"]["fleetgate_task_wait_seconds_count"] == 0

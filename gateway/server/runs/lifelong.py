@@ -369,7 +369,7 @@ class LifelongRun:
 
     def _count_tasks(self) -> None:
         """Before each commit: the tasks finished since the last one into the metrics (their
-        count, and each one's time from submission to finish)."""
+        count, each one's time from submission to finish and its time without a robot)."""
         pool = self.tasks
         if pool.event_seq == self._counted:
             return
@@ -382,6 +382,7 @@ class LifelongRun:
                 task = pool.book.get(event.task)
                 if task is not None:
                     metrics.task_completion.observe(max(0.0, event.t - task.submitted) / 1000.0)
+                    metrics.task_wait.observe(task.waited / 1000.0)
 
     # ------------------------------------------------------------------ warming
     def _warm_tasks(self) -> None:
