@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import json
+import signal
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import (
@@ -594,6 +595,17 @@ SCHEDULER_CONNECT_S = 5.0
 """How long to try reaching a Dask scheduler before giving up (Dask's default is 30 s)."""
 
 
+def _quiet_ctrl_c() -> None:
+    """A pool worker ends quietly on Ctrl-C (a terminal's SIGINT reaches the whole process
+    group: an idle worker printed its KeyboardInterrupt traceback); the campaign itself
+    drops the queued work and exits 130."""
+    signal.signal(signal.SIGINT, _exit_quietly)
+
+
+def _exit_quietly(signum: int, frame: object) -> None:
+    raise SystemExit(130)
+
+
 @contextmanager
 def open_executor(workers: int = 1,
                   scheduler: str | None = None) -> Iterator[tuple[Executor, int]]:
@@ -602,7 +614,7 @@ def open_executor(workers: int = 1,
     Yields the executor and how many tasks it runs at once (a Dask cluster's total threads).
     """
     if scheduler is None:
-        pool = ProcessPoolExecutor(max_workers=workers)
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_quiet_ctrl_c)
         try:
             yield pool, workers
         except BaseException:
