@@ -51,7 +51,7 @@ MATRIX: dict[str, tuple[Row, str]] = {
     "robot token without a client certificate": (Row("tok-r0", None, _hello(0)), "http 403"),
     "robot token with another robot's certificate": (Row("tok-r0", 1, _hello(0)), "http 403"),
     "certificate from another CA": (Row("tok-r0", "rogue", _hello(0)), "refused"),
-    "plain ws:// on the TLS port": (Row("tok-r0", 0, _hello(0), scheme="ws"), "refused"),
+    "plain ws:// on the TLS port": (Row("tok-r0", 0, _hello(0), scheme="ws"), "http 400"),
     "robot claims another robot's id": (Row("tok-r0", 0, _hello(1)), "error not_yourself"),
     "robot sends an operator command": (Row("tok-r0", 0, START), "error forbidden"),
     "world sends an operator command": (Row("tok-world", None, START), "error forbidden"),
