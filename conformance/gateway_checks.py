@@ -356,18 +356,23 @@ async def _huge(t: Target) -> None:
         await robot.conn.close()
 
 
+async def _flood(robot: Robot, text: str, times: int) -> None:
+    """Send ``text`` up to ``times`` times, or until the gateway closes the connection."""
+    for _ in range(times):
+        if robot.conn.is_closed:
+            return
+        try:
+            await robot.conn.send_raw(text)
+        except ConnectionClosed:
+            return
+
+
 @check("repeated-abuse-closes-1008", "LIMIT-4")
 async def _abuse(t: Target) -> None:
     """Repeated bad messages close the connection with 1008, after their error replies."""
     robot = await t.robot(hello=False)
     try:
-        for _ in range(200):
-            if robot.conn.is_closed:
-                break
-            try:
-                await robot.conn.send_raw("[]")
-            except ConnectionClosed:
-                break
+        await _flood(robot, "[]", 200)
         code = await robot.conn.closed()
         errors = [m for m in robot.conn.received if isinstance(m, Error)]
         if code != 1008:
@@ -385,13 +390,7 @@ async def _rate(t: Target) -> None:
     robot = await t.robot()
     try:
         text = encode(State(msg_id="flood", seq=0, robot_id=robot.id))
-        for _ in range(3000):
-            if robot.conn.is_closed:
-                break
-            try:
-                await robot.conn.send_raw(text)
-            except ConnectionClosed:
-                break
+        await _flood(robot, text, 3000)
         await robot.conn.expect_type(Error, 5.0, lambda e: e.code == ErrorCode.RATE_LIMITED,
                                      what="error rate_limited")
     finally:

@@ -16,6 +16,7 @@ from urllib.parse import urlsplit
 from websockets.sync.client import connect
 
 from protocol import Event, decode
+from tests.gui.demo_process import stop_process
 
 
 def test_a_busy_gateway_is_refused_in_one_line_touching_no_robot() -> None:
@@ -78,9 +79,4 @@ def test_a_busy_gateway_is_refused_in_one_line_touching_no_robot() -> None:
         assert getattr(snap, "status", None) == "running"
         assert all(r.connected for r in getattr(snap, "robots", []))
     finally:
-        demo.terminate()
-        try:
-            demo.wait(20)
-        except subprocess.TimeoutExpired:
-            demo.kill()
-            demo.wait()
+        stop_process(demo)

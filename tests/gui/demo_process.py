@@ -17,6 +17,18 @@ CHROMIUM_ARGS = [
 _URL = re.compile(r"GUI at (https?://\S+)")
 
 
+def stop_process(proc: subprocess.Popen[str], timeout_s: float = 20.0) -> None:
+    """SIGTERM ``proc`` (fleetgate's commands stop cleanly on it), SIGKILL after
+    ``timeout_s``."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
 class DemoProcess:
     """``fleetgate demo --port 0 ARGS`` serving the GUI; ``url`` is where (read from stderr:
     its login URL, which carries the run's operator token in the fragment)."""
@@ -45,13 +57,7 @@ class DemoProcess:
 
     def stop(self) -> None:
         """SIGTERM (the demo stops cleanly on it), SIGKILL after 10 s."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        stop_process(self.proc, 10.0)
 
     def __enter__(self) -> DemoProcess:
         return self

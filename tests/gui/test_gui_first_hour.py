@@ -21,7 +21,7 @@ import pytest
 from playwright.sync_api import Browser, Page, expect
 
 from tests.gui.conftest import ARTIFACTS
-from tests.gui.demo_process import DemoProcess
+from tests.gui.demo_process import DemoProcess, stop_process
 
 pytestmark = pytest.mark.gui
 
@@ -217,9 +217,4 @@ def test_an_empty_shift_says_where_tasks_come_from_and_takes_one_from_the_gui(
             page.get_by_role("button", name="Add task").click()
             expect(note).to_contain_text("is not a free cell")
     finally:
-        proc.terminate()
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc)

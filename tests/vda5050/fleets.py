@@ -71,8 +71,10 @@ class VdaRun:
     traffic: list[tuple[str, bytes]] = field(default_factory=list)
 
 
-async def _sniff(broker: BrokerConfig, seen: list[tuple[str, bytes]],
-                 ready: asyncio.Event) -> None:
+async def sniff(broker: BrokerConfig, seen: list[tuple[str, bytes]],
+                ready: asyncio.Event) -> None:
+    """Append every VDA 5050 message on the broker to ``seen`` (topic, payload); ``ready`` is
+    set once subscribed."""
     async with broker.client("sniffer") as client:
         await client.subscribe("uagv/#", qos=1)
         ready.set()
@@ -93,7 +95,7 @@ async def run_vda(trace: Path, broker_url: str, map_name: str, scen: str, agents
     vda = vda_config(broker_url, vda_robots, versions)
     seen: list[tuple[str, bytes]] = []
     sniffing = asyncio.Event()
-    sniffer = asyncio.create_task(_sniff(vda.broker, seen, sniffing))
+    sniffer = asyncio.create_task(sniff(vda.broker, seen, sniffing))
     await sniffing.wait()
     async with Gateway(config(trace, vda)) as gw:
         await _load(gw, map_name, scen, agents)

@@ -21,6 +21,7 @@ from protocol.vda5050.topics import VehicleTopics
 from sim_clients.vda_fleet import run_fleet
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.world import World
+from tests.vda5050.fleets import sniff
 from tests.vda5050.loop import actions_of
 from tests.vda5050.schemas import SCHEMA_DIR, assert_valid
 
@@ -31,22 +32,12 @@ PATHS = [[(0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 0, 1), (2, 1, 1)],
 VERSIONS: list[VdaVersion] = ["2.0.0", "2.1.0", "2.1.0"]
 
 
-async def _sniff(config: BrokerConfig, seen: list[tuple[str, bytes]],
-                 ready: asyncio.Event) -> None:
-    async with config.client("sniffer") as client:
-        await client.subscribe("uagv/#", qos=1)
-        ready.set()
-        async for msg in client.messages:
-            assert isinstance(msg.payload, bytes)
-            seen.append((str(msg.topic), msg.payload))
-
-
 async def test_plan_through_mosquitto(broker_url: str) -> None:
     config = BrokerConfig(url=broker_url)
     seen: list[tuple[str, bytes]] = []
     effects: list[tuple[str, Effect]] = []
     sniffing = asyncio.Event()
-    sniffer = asyncio.create_task(_sniff(config, seen, sniffing))
+    sniffer = asyncio.create_task(sniff(config, seen, sniffing))
     await sniffing.wait()
     masters, vehicles = [], []
     world = World()
