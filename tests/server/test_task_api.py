@@ -154,10 +154,11 @@ async def test_refusals_are_precise(served: tuple[Gateway, int]) -> None:
         (("GET", "/tasks/999", None, None, None), 404, "no task 999"),
         (("DELETE", "/tasks/999", None, None, None), 404, "no task 999"),
         (("GET", "/tasks?state=lost", None, None, None), 400, "unknown state 'lost'"),
-        (("GET", "/tasks?limit=0", None, None, None), 400, "limit must be an integer"),
+        (("GET", "/tasks?limit=0", None, None, None), 400,
+         "limit: Input should be greater than or equal to 1"),
         (("GET", "/tasks?colour=1", None, None, None), 400, "unknown query parameter"),
         (("PUT", "/tasks/1", None, None, b"{}"), 405, "use GET or DELETE"),
-        (("GET", "/tasks/1/pause", None, None, None), 405, "pause a task with POST"),
+        (("GET", "/tasks/1/pause", None, None, None), 405, "GET /tasks/1/pause: use POST"),
         (("GET", "/tasks/x/y", None, None, None), 404, "no route"),
     ]
     for (method, path, data, headers, raw), status, words in cases:
