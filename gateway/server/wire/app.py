@@ -23,8 +23,14 @@ from pydantic.json_schema import models_json_schema
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from gateway.execution.lifelong.tasks import TASK_STATES
-from gateway.server.task_api import api as task_routes
-from gateway.server.task_api.models import CLOCK, SubmitBatch, SubmitOne, TaskEventView
+from gateway.server.task_api import routes as task_routes
+from gateway.server.task_api.models import (
+    CLOCK,
+    ResetEvent,
+    SubmitBatch,
+    SubmitOne,
+    TaskEventView,
+)
 from gateway.server.wire import errors
 from gateway.server.wire import http as plain_routes
 from gateway.server.wire.auth import COOKIE
@@ -73,7 +79,7 @@ def _document(app: FastAPI) -> dict[str, Any]:
         doc = get_openapi(title=TITLE, version="1", openapi_version="3.1.0",
                           description=DESCRIPTION, routes=app.routes)
         _, extra = models_json_schema(
-            [(m, "validation") for m in (SubmitOne, SubmitBatch, TaskEventView)],
+            [(m, "validation") for m in (SubmitOne, SubmitBatch, TaskEventView, ResetEvent)],
             ref_template=_REF)
         schemas = doc.setdefault("components", {}).setdefault("schemas", {})
         for name, schema in extra.get("$defs", {}).items():

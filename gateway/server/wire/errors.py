@@ -67,17 +67,20 @@ def _routes(routes: Sequence[Any]) -> Iterator[Route]:
 
 
 def _allowed(request: Request) -> list[str]:
-    """The methods the routes matching the request's path take (the GUI's catch-all of
-    static files only if no other route matches)."""
-    found: dict[str, set[str]] = {}
+    """The methods the most specific routes matching the request's path take (fewest
+    parameters: ``/tasks/events`` over ``/tasks/{id}``; the GUI's catch-all of static files
+    only if no other route matches)."""
+    found: dict[str, tuple[int, set[str]]] = {}
     for route in _routes(request.app.router.routes):
         if route.path_regex.match(request.url.path):
-            found.setdefault(route.path, set()).update(route.methods or ())
+            params = 0 if route.path == "/{path:path}" else len(route.param_convertors)
+            found.setdefault(route.path, (params, set()))[1].update(route.methods or ())
     if len(found) > 1:
         found.pop("/{path:path}", None)
+    fewest = min((p for p, _ in found.values()), default=0)
+    methods = {m for p, ms in found.values() if p == fewest for m in ms} - {"HEAD"}
     order = ["GET", "POST", "PUT", "PATCH", "DELETE"]
-    return sorted({m for methods in found.values() for m in methods} - {"HEAD"},
-                  key=lambda m: order.index(m) if m in order else len(order))
+    return sorted(methods, key=lambda m: order.index(m) if m in order else len(order))
 
 
 def _method_message(request: Request, methods: list[str]) -> str:
