@@ -111,8 +111,9 @@ def _pool(owner: Owner) -> TaskPool | None:
 
 
 class TaskApi:
-    """The task API's state and logic for one gateway (the routes of :mod:`gateway.server.task_api.routes` find it as
-    ``app.state.task_api``; see the module doc)."""
+    """The task API's state and logic for one gateway (the routes of
+    :mod:`gateway.server.task_api.routes` find it as ``app.state.task_api``; see the module
+    doc)."""
 
     def __init__(self, owner: Owner, auth: Authenticator, *, tls: bool,
                  allowed_origins: list[str], body_timeout_s: float = 10.0) -> None:

@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Depends, Header, Path, Query, Request
 from fastapi.responses import JSONResponse, StreamingResponse
 from pydantic import BaseModel
+from starlette.convertors import Convertor, register_url_convertor
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from gateway.server.task_api.api import TaskApi, json_answer
@@ -28,6 +29,24 @@ from gateway.server.wire.errors import HttpError, refusal
 
 MAX_QUERY_CHARS = 2000
 """Characters of a query string."""
+
+
+class TaskIdConvertor(Convertor[str]):
+    """A task id's place in a path: any segment but ``events`` (``/tasks/events`` is the
+    stream's, whatever the method); FastAPI then checks it is a whole number (400)."""
+
+    regex = "(?!events(?:/|$))[^/]+"
+
+    def convert(self, value: str) -> str:
+        """As written."""
+        return value
+
+    def to_string(self, value: str) -> str:
+        """As written."""
+        return value
+
+
+register_url_convertor("task_id", TaskIdConvertor())
 
 
 def is_task_path(path: str) -> bool:
@@ -166,14 +185,14 @@ async def task_events(
     return api.events(after if last_event_id is None else last_event_id)
 
 
-@router.get("/tasks/{id:int}", operation_id="getTask", summary="One task", response_model=None,
+@router.get("/tasks/{id:task_id}", operation_id="getTask", summary="One task", response_model=None,
             responses={200: _ok(TaskView, "the task"), **_errors(404)})
 async def get_task(api: Api, task_id: TaskId) -> JSONResponse:
     """One task."""
     return json_answer(200, api.view(api.found(task_id)))
 
 
-@router.delete("/tasks/{id:int}", operation_id="cancelTask",
+@router.delete("/tasks/{id:task_id}", operation_id="cancelTask",
                summary="Cancel a task no errand of which is done", response_model=None,
                responses={200: _ok(TaskView, "the cancelled task"), **_errors(404, 409)})
 async def cancel_task(api: Api, task_id: TaskId) -> JSONResponse:
@@ -192,7 +211,7 @@ async def _act(api: TaskApi, task_id: int, act: Literal["pause", "resume"]) -> J
     return json_answer(200, TaskAction(action=act, task=api.view(task)))
 
 
-@router.post("/tasks/{id:int}/pause", operation_id="pauseTask",
+@router.post("/tasks/{id:task_id}/pause", operation_id="pauseTask",
              summary="Hold a task not started yet (never assigned while paused)",
              response_model=None,
              responses={200: _ok(TaskAction, "the paused task"), **_errors(404, 409)})
@@ -201,7 +220,7 @@ async def pause_task(api: Api, task_id: TaskId) -> JSONResponse:
     return await _act(api, task_id, "pause")
 
 
-@router.post("/tasks/{id:int}/resume", operation_id="resumeTask",
+@router.post("/tasks/{id:task_id}/resume", operation_id="resumeTask",
              summary="Queue a paused task again", response_model=None,
              responses={200: _ok(TaskAction, "the task"), **_errors(404, 409)})
 async def resume_task(api: Api, task_id: TaskId) -> JSONResponse:
