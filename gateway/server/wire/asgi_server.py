@@ -30,15 +30,17 @@ MAX_HEAD_BYTES = 16 * 1024
 """A request head (line and headers) longer than this is refused (400)."""
 
 
-class HeadTooLarge(Exception):
-    """The request head is over :data:`MAX_HEAD_BYTES` (raised in a parser callback: uvicorn
-    answers 400 and closes)."""
+class Refused(Exception):
+    """Raised in a parser callback: uvicorn answers 400 and closes the connection."""
 
 
 class GatewayHttpProtocol(HttpToolsProtocol):
-    """uvicorn's httptools protocol plus the two limits it lacks: a request head arrives whole
+    """uvicorn's httptools protocol plus the limits it lacks: a request head arrives whole
     within ``head_timeout_s`` of the connection (or of its first byte after a keep-alive
-    pause), else the connection is closed; and it is at most :data:`MAX_HEAD_BYTES`."""
+    pause), else the connection is closed; it is at most :data:`MAX_HEAD_BYTES`; and at most
+    one request waits behind the one being answered (uvicorn queues pipelined requests
+    without a bound while it parses what it has read: bytes a client keeps sending into an
+    event stream would pile up), else 400 and the connection is closed."""
 
     head_timeout_s = 10.0
 
@@ -56,6 +58,8 @@ class GatewayHttpProtocol(HttpToolsProtocol):
 
     def on_message_begin(self) -> None:
         """A new request: its head has ``head_timeout_s``."""
+        if self.pipeline:
+            raise Refused
         super().on_message_begin()
         self._head_bytes = 0
         if self._head_timer is None:
@@ -79,7 +83,7 @@ class GatewayHttpProtocol(HttpToolsProtocol):
     def _count(self, n: int) -> None:
         self._head_bytes += n
         if self._head_bytes > MAX_HEAD_BYTES:
-            raise HeadTooLarge
+            raise Refused
 
     def _stop_clock(self) -> None:
         if self._head_timer is not None:
