@@ -11,7 +11,7 @@ Prints ONE JSON line: this version's and that one's p50 and p99 (medians over th
 requests per second, any status but 201 counted as ``refused``, and ``p99_ratio`` (this /
 that: < 1 is faster).
 
-    .venv/bin/python -m bench.api --clients 50 --seconds 10 --against ../lead --pairs 2
+    .venv/bin/python bench/api.py --clients 50 --seconds 10 --against ../lead --pairs 2
 """
 
 from __future__ import annotations
@@ -28,9 +28,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench.crash import GatewayProcess, free_port
+from crash import GatewayProcess, free_port  # bench/crash.py
+
 from gateway.planning.lorr import warehouse_problem
-from tests.server.task_client import call
+from sim_clients.wms import http
 
 TOKEN = "bench-operator"
 WAREHOUSE = (2, 3)
@@ -53,10 +54,10 @@ async def _load(port: int, clients: int, seconds: float) -> dict[str, Any]:
     async def client() -> None:
         while (now := time.perf_counter()) - start < seconds:
             k = next(keys)
-            reply = await call(port, "POST", "/tasks", {"errands": [free[k % len(free)]]},
-                               {"Authorization": f"Bearer {TOKEN}",
-                                "Idempotency-Key": f"bench-{k}", "Connection": "close"})
-            statuses[reply.status] = statuses.get(reply.status, 0) + 1
+            status, _ = await http(port, "POST", "/tasks", TOKEN,
+                                   {"errands": [free[k % len(free)]]},
+                                   {"Idempotency-Key": f"bench-{k}"})
+            statuses[status] = statuses.get(status, 0) + 1
             if now - start >= 1.0:
                 times.append((time.perf_counter() - now) * 1000.0)
 
