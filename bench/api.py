@@ -16,13 +16,15 @@ that: < 1 is faster).
 
 from __future__ import annotations
 
-import argparse
+import fleetgate.userio.script  # noqa: F401 (first: Ctrl-C while importing is one line)
+
+# isort: split
+
 import asyncio
 import itertools
 import json
 import os
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +32,7 @@ from typing import Any
 
 from crash import GatewayProcess, free_port  # bench/crash.py
 
+from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.lorr import warehouse_problem
 from sim_clients.wms import http
 
@@ -86,7 +89,7 @@ def run_once(source: Path | None, clients: int, seconds: float) -> dict[str, Any
 
 def main() -> int:
     """Parse the arguments, run, print one JSON line."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = CommandParser(description=__doc__.splitlines()[0])
     p.add_argument("--clients", type=int, default=50)
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--against", type=Path, metavar="DIR", required=True,
@@ -94,8 +97,7 @@ def main() -> int:
     p.add_argument("--pairs", type=int, default=2)
     args = p.parse_args()
     if not (args.against / "gateway").is_dir():
-        print(f"bench/api.py: {args.against} is not a fleetgate checkout", file=sys.stderr)
-        return 2
+        p.error(f"--against {args.against}: not a fleetgate checkout")
     these: list[dict[str, Any]] = []
     those: list[dict[str, Any]] = []
     for i in range(args.pairs):  # ABBA
@@ -118,4 +120,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main("bench/api.py", main)

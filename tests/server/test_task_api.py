@@ -181,7 +181,7 @@ async def test_refusals_are_precise(served: tuple[Gateway, int]) -> None:
                          {"Cookie": cookie, "Origin": "http://evil.example"})
     assert foreign.status == 403 and "Origin" in foreign.json()["error"]
     own = await call(port, "POST", "/tasks", {"errands": [a]},
-                     {"Cookie": cookie, "Origin": "http://127.0.0.1"})
+                     {"Cookie": cookie, "Origin": f"http://127.0.0.1:{port}"})
     assert own.status == 201
     pool = gw.engine.current_run.tasks
     assert pool is not None and pool.next_id == 1  # nothing else made
