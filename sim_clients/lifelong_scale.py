@@ -8,9 +8,10 @@ delays, no following) and run for ``--ticks`` ticks, each in its own process: pl
 per call (p50, p99, max, the first call apart: it schedules every robot and computes every
 table), peak RSS of the run and of the independent validator (``tracecheck/lorr.py``) after
 it, tasks finished and first errands done, the shares of robot-ticks spent delayed, waiting
-for another robot and without committed work, and the ratio to the published winners' figures over 5,000 steps
-(WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and to the same number of
-actions (a 2026 tick is a third of an action: see the module doc of the converter).
+for another robot and without committed work, and the ratio to the published winners'
+figures over 5,000 steps (WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and
+to the same number of actions (a 2026 tick is a third of an action: see the module doc of
+the converter).
 :data:`MILLION` adds a generated 10,000-robot warehouse of 1,000,000 cells (no archive
 needed, no published figures).
 """
