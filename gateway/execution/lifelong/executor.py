@@ -95,17 +95,19 @@ class Segment:
 
 def window_request(call: int, book: ErrandBook, adg: LiveADG, scheduler: Scheduler,
                    distances: TaskDistances, now: float, *, release: bool,
-                   late: Sequence[bool], hold: Sequence[int], steps: int, turning: bool
+                   late: Sequence[bool], hold: Sequence[int], steps: int, turning: bool,
+                   release_robots: Sequence[int] | None = None
                    ) -> tuple[PlanRequest, list[tuple[int, int]]]:
     """Planning call ``call`` at ``now``: give the robots without a task one (their unstarted
-    tasks back to the scheduler first if ``release``; a ``late`` robot competes with the
+    tasks back to the scheduler first if ``release``, only those of ``release_robots`` if
+    given; a ``late`` robot competes with the
     distance charge of ``distances``) and ask for ``steps`` timesteps from where each robot's
     committed plan ends, robot r holding through ``hold[r]`` steps and nobody entering a cell a
     late robot still has to drive through. The request and the new ``(robot, task id)``
     pairs. The executor's and the LoRR simulator's call (``sim_clients.lifelong``)."""
     n = len(adg.end_cell)
     if release:
-        book.release_unstarted(now)
+        book.release_unstarted(now, release_robots)
     distances.charged = {adg.end_cell[r] for r in range(n) if late[r]}
     assigned = book.schedule(adg.end_cell, scheduler, distances, now)
     goals = tuple(book.goals())
