@@ -153,6 +153,10 @@ class Engine:
         """Called before each commit (the task journal appends the task events here)."""
         self._tick_failing = False  # the last monitor tick raised (logged once per streak)
         self._flushing: set[int] = set()  # robots whose session's effects are being carried out
+        self.cpu_s = 0.0
+        """CPU time of the owner task so far (its own work: items, ticks, commits; not the
+        connections' reading, validating and writing, which run in tasks of their own)."""
+        self._resumed = 0.0  # thread CPU time when the owner task last woke up
 
     # -------------------------------------------------------------------------- status
     @property
@@ -197,11 +201,12 @@ class Engine:
     async def run(self) -> None:
         """Process queue items forever; tick while running."""
         next_tick: float | None = None
+        self._resumed = time.thread_time()
         while True:
             if not self.current_run.ticking:
                 next_tick = None
                 self.commit()
-                item = await self.queue.get()
+                item = await self._get()
             else:
                 if next_tick is None:
                     next_tick = self._next_tick(self.now_ms())
@@ -214,7 +219,7 @@ class Engine:
                     delay = (next_tick - self.clock.now_ms()) / self.clock.speed / 1000.0
                     try:
                         async with asyncio.timeout(max(0.0, delay)):
-                            item = await self.queue.get()
+                            item = await self._get()
                     except TimeoutError:
                         await self._quiesce()
                         for hook in self.before_tick:
@@ -226,12 +231,24 @@ class Engine:
             self.metrics.queue_depth.set(self.queue.qsize())
             self._handle_safely(item)
 
+    async def _get(self) -> Item:
+        """The next queue item; the owner's CPU time is not counted while it waits."""
+        self.cpu_s += time.thread_time() - self._resumed
+        try:
+            return await self.queue.get()
+        finally:
+            self._resumed = time.thread_time()
+
     async def _quiesce(self) -> None:
         """Handle everything of the present instant, including what the replies to it cause
         (a finish -> a dispatch -> the robot's start), before a tick looks at the monitor."""
         while True:
             self.commit()
-            await self.clock.settle()
+            self.cpu_s += time.thread_time() - self._resumed
+            try:
+                await self.clock.settle()
+            finally:
+                self._resumed = time.thread_time()
             if self.queue.empty():
                 return
             while not self.queue.empty():
