@@ -175,7 +175,9 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[
                            ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING",
                            dispatch_lookahead=lookahead, journal=journal)
     pauses = GcPauses()
-    async with Gateway(config) as gw:
+    gw = Gateway(config)
+    gw.engine.meter_cpu = True  # owner_cpu_s
+    async with gw:
         def measure(status: str) -> None:  # the execution's pauses, from start to done
             if status == "running":
                 pauses.reset()
