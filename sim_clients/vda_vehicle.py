@@ -39,6 +39,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from protocol.vda5050.master import Publish
+from protocol.vda5050.models import Action as VdaAction
 from protocol.vda5050.models import (
     ActionState,
     AgvPosition,
@@ -141,6 +142,10 @@ class VdaVehicle:
         self.driven: list[tuple[str, int]] = []
         """``(orderId, edge sequenceId)`` of every edge driven, in order."""
         self.action_states: dict[str, ActionState] = {}
+        self.node_actions_run: list[str] = []
+        """The ``actionId`` of every node action started, in order."""
+        self.fail_actions: set[str] = set()
+        """Node action types that FAIL here (a broken vehicle, for tests)."""
         self.errors: list[VdaError] = []
         self._busy_until = 0.0
         self._pending_actions: list[str] = []
@@ -312,6 +317,11 @@ class VdaVehicle:
             self._recheck_at = None
             return
         edge, node = held.edges[0], held.nodes[0]
+        waiting = [a for a in edge.actions
+                   if self.action_states[a.action_id].action_status == "WAITING"]
+        if waiting:  # HARD edge actions (pick, drop) run before the vehicle drives off
+            self._run_actions(waiting, now_s)
+            return
         assert node.node_position is not None
         pos = node.node_position
         cell = self.nodes.cell_of(pos.x, pos.y)
@@ -355,21 +365,28 @@ class VdaVehicle:
         self._dirty = True
         self._run_node_actions(drive.node, now_s)
         if self.drive is None and self._busy_until <= now_s:
+            self._finish_node_actions()  # instantaneous node actions (``action_s`` 0)
             self._maybe_start(now_s)
 
     def _run_node_actions(self, node: Node, now_s: float) -> None:
-        if node.actions:
-            self._busy_until = now_s + self.action_s * len(node.actions)
-        for action in node.actions:
+        self._run_actions(node.actions, now_s)
+
+    def _run_actions(self, actions: list[VdaAction], now_s: float) -> None:
+        if actions:
+            self._busy_until = now_s + self.action_s * len(actions)
+            self._dirty = True
+        for action in actions:
+            self.node_actions_run.append(action.action_id)
             self.action_states[action.action_id] = ActionState(
                 action_id=action.action_id, action_type=action.action_type,
                 action_status="RUNNING")
-        self._pending_actions = [a.action_id for a in node.actions]
+        self._pending_actions = [a.action_id for a in actions]
 
     def _finish_node_actions(self) -> None:
         for action_id in self._pending_actions:
             state = self.action_states[action_id]
-            self.action_states[action_id] = state.model_copy(update={"action_status": "FINISHED"})
+            status = "FAILED" if state.action_type in self.fail_actions else "FINISHED"
+            self.action_states[action_id] = state.model_copy(update={"action_status": status})
             self._dirty = True
         self._pending_actions = []
 

@@ -36,6 +36,7 @@ class Loop:
     now: float = 1_700_000_000.0
     traffic: list[tuple[str, bytes]] = field(default_factory=list)
     reports: list[Report] = field(default_factory=list)
+    report_times: list[float] = field(default_factory=list)
     links: list[LinkState] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -70,6 +71,7 @@ class Loop:
                         self.vehicle.receive(effect.topic, payload, self.now)
                 elif isinstance(effect, Report):
                     self.reports.append(effect)
+                    self.report_times.append(self.now)
                 else:
                     self.links.append(effect)
             for out in self.vehicle.drain():
