@@ -57,6 +57,7 @@ from protocol.vda5050.models import (
     ActionParameter,
     Connection,
     Edge,
+    Factsheet,
     Header,
     InstantActions,
     Node,
@@ -219,6 +220,8 @@ class VehicleMaster:
         self.ids = ids
         self.online = False
         self.state: State | None = None
+        self.factsheet: Factsheet | None = None
+        """The vehicle's factsheet, once it sent one (retained, or asked for)."""
         self._order: _Order | None = None
         self._plan: list[Action] = []
         self._carry: list[Action] = []
@@ -390,6 +393,10 @@ class VehicleMaster:
         if online != self.online:
             self.online = online
             self._emit(LinkState(online, msg.connection_state))
+
+    def receive_factsheet(self, msg: Factsheet) -> None:
+        """The vehicle's ``factsheet`` (section 6.15)."""
+        self.factsheet = msg
 
     def receive_state(self, msg: State, now_s: float) -> None:
         """A ``state`` message: reports for the executor."""

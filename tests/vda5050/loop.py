@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 from protocol.messages import HEADINGS, Action, Pose, action_id
 from protocol.vda5050.master import LinkState, Publish, Report, VehicleMaster
-from protocol.vda5050.models import State, VdaVersion, dump, parse
+from protocol.vda5050.models import Factsheet, State, VdaVersion, dump, parse
 from protocol.vda5050.nodes import THETA, NodeMap
 from protocol.vda5050.topics import VehicleTopics
 from sim_clients.vda_vehicle import VdaVehicle
@@ -54,6 +54,8 @@ class Loop:
         msg = parse(topic, payload)
         if isinstance(msg, State):
             self.master.receive_state(msg, self.now)
+        elif isinstance(msg, Factsheet):
+            self.master.receive_factsheet(msg)
         elif topic == "connection":
             self.master.receive_connection(msg)  # type: ignore[arg-type]
 
