@@ -62,7 +62,9 @@ async def test_mixed_lifelong_shift_picks_and_drops(broker_url: str, tmp_path: P
     assert report.ok, report.errors
     # every action dispatched to a vehicle was driven, once, and its finish is in the trace
     driven = Counter((v.who, number) for v in vehicles for number in driven_actions(v))
-    assert driven and max(driven.values()) == 1
+    assert driven and max(driven.values()) == 1, (
+        [k for k, n in driven.items() if n > 1],
+        [(v.who, v.driven[-12:]) for v in vehicles])
     for kind in ("dispatch", "finish"):
         assert {(r["robot"], r["action"]) for r in records
                 if r["type"] == kind and r["robot"] in VDA} == set(driven), kind
