@@ -67,6 +67,15 @@ during the shift (the initial fill left out). ``--profile FILE`` profiles the ga
 loop thread (CPU time of that thread).
 
     .venv/bin/python bench/load.py --lifelong --robots 500 --seconds 90 --lookahead 1 --json
+
+``--lifelong --vda5050``: the same shift with every robot a simulated VDA 5050 vehicle
+(``sim_clients.vda_fleet``, this process, one MQTT connection each) on a private mosquitto,
+driven by the gateway's master control (docs/vda5050.md); errands are ``pick`` / ``drop``
+node actions that take no time (the virtual-time reference has none). ``lost`` = dispatched
+actions no vehicle drove, ``duplicated`` = actions driven twice (from the edges the vehicles
+drove), ``picks_and_drops`` the node actions they ran; there is no robot-side p99.
+
+    .venv/bin/python bench/load.py --lifelong --vda5050 --robots 200 --seconds 60 --json
 """
 
 from __future__ import annotations
@@ -92,6 +101,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
@@ -111,12 +121,19 @@ from gateway.server.gateway import Gateway
 from gateway.server.gc_tuning import GC_THRESHOLDS
 from gateway.server.items import OwnerCall
 from gateway.server.planner import Problem
+from gateway.vda5050.broker import BrokerConfig
+from gateway.vda5050.config import Vda5050Config, VehicleConfig
+from gateway.vda5050.transport import VdaTransport
 from protocol import parse_action_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
 from sim_clients.lean_fleet import LeanFleet, LeanStats
 from sim_clients.lifelong import LifelongConfig, run_lifelong
+from sim_clients.mosquitto import LocalBroker
+from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
+from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.wms import Wms
+from sim_clients.world import World
 from tracecheck import check_trace, read_trace
 
 P99_LIMIT_MS = 50.0
@@ -456,15 +473,28 @@ def shift_reveal(problem: LorrProblem) -> int:
     return max(1, int(problem.num_tasks_reveal * problem.team_size))
 
 
+def shift_config(robots: int, seed: int, trace: Path | None, lookahead: int, window: int,
+                 vda_broker: str | None = None) -> GatewayConfig:
+    """The gateway of a lifelong load run; ``vda_broker``: every robot is a VDA 5050 vehicle
+    ``fleetgate/sim<r>`` (2.1.0) on that broker."""
+    vda = None if vda_broker is None else Vda5050Config(
+        broker=BrokerConfig(url=vda_broker), vehicles=[
+            VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r)
+            for r in range(robots)])
+    return GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
+                         ping_timeout_s=20.0, log_level="WARNING", trace=trace,
+                         dispatch_lookahead=lookahead, vda5050=vda,
+                         lifelong=LifelongSettings(robots=robots, seed=seed, window=window,
+                                                   warehouse=warehouse_blocks(robots),
+                                                   task_list=False))
+
+
 async def _serve_shift(robots: int, seed: int, seconds: float, trace: Path, lookahead: int,
-                       window: int) -> dict[str, Any]:
-    config = GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
-                           ping_timeout_s=20.0, log_level="WARNING", trace=trace,
-                           dispatch_lookahead=lookahead,
-                           lifelong=LifelongSettings(robots=robots, seed=seed, window=window,
-                                                     warehouse=warehouse_blocks(robots),
-                                                     task_list=False))
-    async with Gateway(config) as gw:
+                       window: int, vda_broker: str | None) -> dict[str, Any]:
+    config = shift_config(robots, seed, trace, lookahead, window, vda_broker)
+    async with Gateway(config) as gw, contextlib.AsyncExitStack() as vehicles:
+        if config.vda5050 is not None:
+            await vehicles.enter_async_context(VdaTransport(gw, config.vda5050))
         run = gw.engine.lifelong
         assert run is not None
         port = await gw.listen()
@@ -501,7 +531,8 @@ def serve_shift_main(args: argparse.Namespace) -> None:
     if profiler is not None:
         profiler.enable()
     result = asyncio.run(_serve_shift(args.robots, args.seed, args.seconds,
-                                      args.serve_lifelong, args.lookahead, args.window))
+                                      args.serve_lifelong, args.lookahead, args.window,
+                                      args.vda_broker))
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(str(args.profile))
@@ -551,20 +582,48 @@ async def _drive_shift(port: int, robots: int, jitter: float, wms: Wms,
 _SHIFT_RESULT: list[str] = []
 
 
+async def _drive_vda_shift(vehicles: list[VdaVehicle], broker: str, wms: Wms,
+                           result: subprocess.Popen[str]) -> None:
+    """As :func:`_drive_shift`, with simulated VDA 5050 vehicles on ``broker`` as the fleet."""
+    await wms.fill()
+    wms.stats.post_ms.clear()
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    feeding = loop.create_task(wms.run(), name="wms")
+    driving = loop.create_task(run_fleet(vehicles, BrokerConfig(url=broker), stop))
+    try:
+        assert result.stdout is not None
+        line = await loop.run_in_executor(None, result.stdout.readline)
+        _SHIFT_RESULT.append(line)
+    finally:
+        stop.set()
+        await driving
+        feeding.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await feeding
+
+
 def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-              window: int, profile: Path | None = None) -> dict[str, Any]:
+              window: int, profile: Path | None = None, vda5050: bool = False
+              ) -> dict[str, Any]:
     """One lifelong network run fed through the task API, and its virtual-time baseline; the
-    measurements as a dict."""
+    measurements as a dict. ``vda5050``: the fleet is simulated VDA 5050 vehicles on a
+    private mosquitto (picks and drops take no time, as in the virtual-time reference)."""
     problem = shift_problem(robots, seed)
     reveal = shift_reveal(problem)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
+        broker = stack.enter_context(LocalBroker()) if vda5050 else None
         trace = Path(tmp) / "trace.jsonl"
         cmd = [sys.executable, __file__, "--serve-lifelong", str(trace), "--robots",
                str(robots), "--seed", str(seed), "--seconds", str(seconds), "--lookahead",
                str(lookahead), "--window", str(window)]
         if profile is not None:
             cmd += ["--profile", str(profile)]
+        if broker is not None:
+            cmd += ["--vda-broker", broker]
         gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        vehicles: list[VdaVehicle] = []
+        stats = FleetStats()
         try:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
@@ -572,7 +631,14 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
             wms = Wms(port, TokensConfig().operators[0],
                       [tuple(problem.grid.cell(c) for c in t) for t in problem.tasks],
                       keep=reveal, lead=max(8, reveal // 20))
-            stats = asyncio.run(_drive_shift(port, robots, jitter, wms, gw))
+            if broker is None:
+                stats = asyncio.run(_drive_shift(port, robots, jitter, wms, gw))
+            else:
+                config = shift_config(robots, seed, None, lookahead, window, broker)
+                assert config.vda5050 is not None
+                vehicles = make_vehicles(config.vda5050, World(), starts=shift_starts(config),
+                                         jitter=jitter, seed=seed, action_s=0.0)
+                asyncio.run(_drive_vda_shift(vehicles, broker, wms, gw))
             gw.wait(timeout=60)
         finally:
             if gw.poll() is None:
@@ -581,12 +647,25 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
         gateway = json.loads(_SHIFT_RESULT[0]) if _SHIFT_RESULT and _SHIFT_RESULT[0] else {}
         records = read_trace(trace)
     report = check_trace(records)
-    received = {parse_action_id(a)[1:]: t for a, t in stats.received.items()}
-    finish_sent = {parse_action_id(a)[1:]: t for a, t in stats.finish_sent.items()}
-    lat = [(received[d] - finish_sent[f]) * 1000.0 for f, d in unlocked_by_finish(records)
-           if d in received and f in finish_sent]
     dispatched = {(int(r["robot"]), int(r["action"])) for r in records
                   if r["type"] == "dispatch"}
+    lat: list[float] = []
+    if vda5050:  # what the vehicles drove: every dispatched action once
+        driven = Counter((v.who, n) for v in vehicles for n in driven_actions(v))
+        received = set(driven)
+        duplicated = sum(n - 1 for n in driven.values())
+        collisions = len(report.collisions) + len(vehicles[0].world.collisions
+                                                  if vehicles and vehicles[0].world else [])
+        picks = sum(len(v.node_actions_run) for v in vehicles)
+        lost = len({(r, a) for r, a in dispatched} - received)
+    else:
+        got = {parse_action_id(a)[1:]: t for a, t in stats.received.items()}
+        finish_sent = {parse_action_id(a)[1:]: t for a, t in stats.finish_sent.items()}
+        lat = [(got[d] - finish_sent[f]) * 1000.0 for f, d in unlocked_by_finish(records)
+               if d in got and f in finish_sent]
+        duplicated = stats.duplicates + len(stats.received) - len(got)
+        collisions, picks = len(report.collisions), 0
+        lost = len(dispatched - set(got))
     t0 = time.process_time()
     virtual = run_lifelong(LifelongConfig(problem, ticks=seconds, period=1,
                                           tick_ms=1000.0, seed=seed, window=window))
@@ -595,18 +674,17 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
     network_rate = gateway.get("finished", 0) / minutes if minutes else 0.0
     virtual_rate = virtual.finished / (seconds / 60.0)
     return {"robots": robots, "seconds": seconds, "lookahead": lookahead,
-            "window": window or 1, "jitter": jitter,
+            "window": window or 1, "jitter": jitter, "vda5050": vda5050,
             "tasks_network": gateway.get("finished"),
             "tasks_per_min_network": round(network_rate, 1),
             "tasks_virtual": virtual.finished, "tasks_per_min_virtual": round(virtual_rate, 1),
             "throughput_ratio": round(network_rate / virtual_rate, 3) if virtual_rate else None,
-            "actions": len(stats.received),
+            "actions": len(dispatched) if vda5050 else len(stats.received),
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
-            "lost": len(dispatched - set(received)),
-            "duplicated": stats.duplicates + len(stats.received) - len(received),
-            "errors": len(stats.errors), "collisions": len(report.collisions),
-            "trace_errors": len(report.errors),
+            "lost": lost, "duplicated": duplicated, "picks_and_drops": picks,
+            "errors": len(stats.errors) + sum(len(v.errors) for v in vehicles),
+            "collisions": collisions, "trace_errors": len(report.errors),
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
             "segments": gateway.get("segments"), "slack_triggers": gateway.get("triggers"),
@@ -752,6 +830,11 @@ def main() -> int:
     p.add_argument("--lifelong", action="store_true",
                    help="a warehouse shift (lifelong mode) for --seconds of plan time: "
                         "throughput against virtual time, p99, lost, duplicated")
+    p.add_argument("--vda5050", action="store_true",
+                   help="--lifelong: the fleet is simulated VDA 5050 vehicles on a private "
+                        "mosquitto, driven by the gateway's master control (lost and "
+                        "duplicated from the edges they drove; no robot-side p99)")
+    p.add_argument("--vda-broker", help=argparse.SUPPRESS)
     p.add_argument("--window", type=int, default=0,
                    help="--lifelong: timesteps planned per call (default 0: one period)")
     p.add_argument("--generators", type=int, default=-1, metavar="N",
@@ -786,9 +869,11 @@ def main() -> int:
         p.error("--against measures one run per side: not with --find-max or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
+    if args.vda5050 and not args.lifelong:
+        p.error("--vda5050 measures a lifelong shift: give --lifelong too")
     if args.lifelong:
         shift = run_shift(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                          args.window, args.profile)
+                          args.window, args.profile, args.vda5050)
         print(json.dumps(shift) if args.json else
               f"lifelong: {shift['robots']} robots, {args.seconds} s: "
               f"{shift['tasks_per_min_network']} tasks/min over the network vs "

@@ -214,7 +214,7 @@ class Engine:
                 item = await self._get()
             else:
                 if next_tick is None:
-                    next_tick = self._next_tick(self.now_ms())
+                    next_tick = self._first_tick(self.now_ms())
                 if not self.queue.empty():
                     # what ``get`` under the timeout would return at once, without arming and
                     # cancelling a timer per item (a busy fleet keeps this queue non-empty)
@@ -276,6 +276,14 @@ class Engine:
             self.journal.commit()
             self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
+
+    def _first_tick(self, now: float) -> float:
+        """When ticking begins (a start, a resume): now if the core's wake-up is already due
+        (a resumed shift's planning call is not put off to the next period), else the next
+        tick."""
+        core = self._core()
+        wake = core.next_wakeup_ms() if core is not None else None
+        return now if wake is not None and wake <= now else self._next_tick(now)
 
     def _next_tick(self, after: float) -> float:
         period = float(MONITOR_PERIOD_MS)

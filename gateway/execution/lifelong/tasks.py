@@ -45,6 +45,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from gateway.execution.lifelong.matching_kernel import greedy_groups
+
 TaskState = Literal["queued", "paused", "assigned", "started", "finished", "cancelled"]
 """Where a task is (see the module doc)."""
 TASK_STATES: tuple[TaskState, ...] = ("queued", "paused", "assigned", "started", "finished",
@@ -727,77 +729,15 @@ def _matching(free: Sequence[tuple[int, int]], pool: TaskPool, distance_from: Di
     rank = _urgency_rank(pool, ids)
     if rank is not None:
         extra += rank * _CLASS
-    big = np.iinfo(np.int64).max // 4
-
-    def costs(rows: slice) -> npt.NDArray[np.int64]:
-        part = dist[rows][:, column]
-        cost = part.astype(np.int64) + extra[None, :]
-        cost[part < 0] = big
-        return cost
-
-    return _greedy_pairs(costs, free, ids)
+    # by task cell, then robot (a view of TaskDistances' layout: no copy)
+    robots, chosen = greedy_groups(np.asarray(dist, dtype=np.int32).T,
+                                   column.astype(np.int64), extra, _UNREACHABLE)
+    return {free[r][0]: int(ids[t]) for r, t in zip(robots.tolist(), chosen.tolist(),
+                                                    strict=True)}
 
 
-SHORTLIST = 512
-"""Cheapest tasks per robot sorted ahead of the greedy matching (a robot that runs out of them
-gets the next ones of its row not taken yet, so the pairs are those of whole rows sorted)."""
-_ROWS = 256
-"""Robots whose cost rows are built at once (10,000 robots x 15,000 tasks would be 1.2 GB)."""
-
-
-def _greedy_pairs(costs: Callable[[slice], npt.NDArray[np.int64]],
-                  free: Sequence[tuple[int, int]], ids: npt.NDArray[np.int64]
-                  ) -> dict[int, int]:
-    """The greedy matching of ``costs(rows)[robot row, task column]``: pairs in increasing
-    cost (ties in row-major order), each robot and task once. Lazily, as a heap of each row's
-    cheapest task not taken yet, over a sorted shortlist per row: its :data:`SHORTLIST`
-    cheapest tasks not taken yet and every task tied with the last of them (an exact prefix of
-    those tasks stably sorted), built again from the tasks not taken when used up. The same
-    pairs as sorting all pairs, without holding or visiting every pair (thousands of robots x
-    tasks at each call)."""
-    n_rows, n_cols = len(free), ids.size
-    taken = np.zeros(n_cols, dtype=bool)
-    big = np.iinfo(np.int64).max
-
-    def shortlist(r: int, cost: npt.NDArray[np.int64]) -> None:
-        cost[taken] = big  # skipped below anyway: out of the shortlist
-        if n_cols <= SHORTLIST:
-            cols = np.argsort(cost, kind="stable")
-        else:
-            cut = np.partition(cost, SHORTLIST - 1)[SHORTLIST - 1]
-            cand = np.flatnonzero(cost <= cut)
-            cols = cand[np.argsort(cost[cand], kind="stable")]
-        lists[r], values[r], whole[r] = cols, cost[cols], cols.size == n_cols
-
-    # per row: its shortlist's columns (sorted), their costs, whether that is the whole row
-    lists: list[npt.NDArray[np.int64]] = [np.zeros(0, dtype=np.int64)] * n_rows
-    values: list[npt.NDArray[np.int64]] = [np.zeros(0, dtype=np.int64)] * n_rows
-    whole = [False] * n_rows
-    for start in range(0, n_rows, _ROWS):
-        for r, cost in enumerate(costs(slice(start, start + _ROWS)), start):
-            shortlist(r, cost)
-    ptr = [0] * n_rows
-    heap = [(int(values[r][0]), r * n_cols + int(lists[r][0])) for r in range(n_rows)]
-    heapq.heapify(heap)
-    out: dict[int, int] = {}
-    want = min(n_rows, n_cols)
-    while heap and len(out) < want:
-        _, f = heapq.heappop(heap)
-        r, t = divmod(f, n_cols)
-        if taken[t]:  # the row's next task not taken yet goes back on the heap
-            row, p = lists[r], ptr[r] + 1
-            while p < row.size and taken[row[p]]:
-                p += 1
-            if p == row.size and not whole[r]:
-                shortlist(r, costs(slice(r, r + 1))[0])
-                row, p = lists[r], 0
-            ptr[r] = p
-            if p < row.size:
-                heapq.heappush(heap, (int(values[r][p]), r * n_cols + int(row[p])))
-            continue
-        taken[t] = True
-        out[free[r][0]] = int(ids[t])
-    return out
+_UNREACHABLE = np.iinfo(np.int64).max // 4
+"""The matching's distance to a task a robot cannot reach (its pairs come after all others)."""
 
 
 SCHEDULERS: dict[str, Scheduler] = {"greedy": greedy_nearest, "mincost": min_cost,
