@@ -12,9 +12,11 @@ from websockets.asyncio.client import ClientConnection, connect
 
 from gateway.server.gateway import Gateway
 from protocol import Action, Finished, LoadPlan, Start, Started, Welcome
-from tests.server.conftest import LAB_PATHS, make_config
+from tests.server.conftest import LAB_PATHS, loop_clock, make_config
 from tests.server.robots import TestOperator, TestRobot
 from tracecheck import check_trace, read_trace
+
+pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
 
 DEPENDENT_PATHS = [
     [(1, 0), (2, 0), (3, 0)],
@@ -27,7 +29,7 @@ action 0 (a Type 2 edge). 1-robust: robot 1 is never where robot 0 was one step 
 @pytest.fixture
 async def traced(tmp_path: Path) -> AsyncIterator[Gateway]:
     """A listening gateway that writes its trace to ``tmp_path/trace.jsonl``."""
-    async with Gateway(make_config(trace=tmp_path / "trace.jsonl")) as gw:
+    async with Gateway(make_config(trace=tmp_path / "trace.jsonl"), clock=loop_clock()) as gw:
         await gw.listen()
         yield gw
 
@@ -146,7 +148,8 @@ async def _until(predicate: object) -> None:
 
 
 async def test_silent_link_is_dropped_by_ping_timeout() -> None:
-    async with Gateway(make_config(ping_interval_s=0.5, ping_timeout_s=0.5)) as gw:
+    async with Gateway(make_config(ping_interval_s=0.5, ping_timeout_s=0.5),
+                       clock=loop_clock()) as gw:
         await gw.listen()
         await _silent_robot_is_dropped(gw)
 
@@ -165,16 +168,18 @@ async def _silent_robot_is_dropped(gw: Gateway) -> None:
 
 
 async def test_autostart_when_every_robot_said_hello() -> None:
-    async with Gateway(make_config(autostart=True)) as gw:
+    async with Gateway(make_config(autostart=True), clock=loop_clock()) as gw:
         await gw.listen()
         await load(gw, LAB_PATHS)
-        robots = [TestRobot(await ws(gw, f"demo-robot-{i}"), i) for i in range(3)]
+        robots = [TestRobot(await ws(gw, f"demo-robot-{i}"), i, move_s=0.1) for i in range(3)]
         for r in robots[:2]:
             await r.hello()
         assert gw.status == "loaded"  # robot 2 is still missing
         await robots[2].hello()
         tasks = [asyncio.create_task(r.run()) for r in robots]
         soc, _ = await asyncio.wait_for(gw.wait_done(), 10)
-        assert soc > 0 and [len(r.finished) for r in robots] == [5, 3, 2]
+        # started at the last hello; 100 ms an action, none waits for another robot:
+        # 500 + 300 + 200 ms
+        assert soc == 1000.0 and [len(r.finished) for r in robots] == [5, 3, 2]
         for t in tasks:
             t.cancel()

@@ -126,6 +126,12 @@ class Run(Protocol):
         ...
 
     @property
+    def planner_busy(self) -> bool:
+        """Whether a planner call of the run is under way, or a replan waits for the fleet
+        to stop before it (a restart makes that call again, at its own time)."""
+        ...
+
+    @property
     def turning(self) -> bool:
         """Whether robots run the ``turning`` motion model (protocol v1 robots cannot)."""
         ...
