@@ -48,6 +48,7 @@ from gateway.server import gc_tuning
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
+from gateway.server.http_app import Guard, create_app
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.journal_open import open_journal
 from gateway.server.metrics import Metrics
@@ -55,7 +56,6 @@ from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.runs.lifelong import LifelongRun, shift_from
 from gateway.server.task_api.api import TaskApi
-from gateway.server.wire.app import Guard, create_app
 from gateway.server.wire.asgi_server import HttpServer
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.wire.deadline import IdleDeadline
@@ -151,7 +151,7 @@ class Gateway:
                                 allowed_origins=self.config.allowed_origins,
                                 body_timeout_s=self.config.handshake_timeout_s)
         self.app = create_app()
-        """The ASGI application (:mod:`gateway.server.wire.app`)."""
+        """The ASGI application (:mod:`gateway.server.http_app`)."""
         self.app.state.task_api = self.task_api
         self.app.state.plain = self.http
         self.port: int | None = None

@@ -1,12 +1,12 @@
 """``docs/tasks.md``: the task API's reference, rendered from the OpenAPI document FastAPI
-generates (:func:`gateway.server.wire.app.openapi_document`, served at ``GET /openapi.json``):
+generates (:func:`gateway.server.http_app.openapi_document`, served at ``GET /openapi.json``):
 nothing in it is written by hand but the routes' words in their declarations."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.server.wire.app import openapi_document
+from gateway.server.http_app import openapi_document
 
 
 def _type(schema: dict[str, Any]) -> str:
