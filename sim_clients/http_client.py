@@ -14,7 +14,8 @@ import h11
 async def exchange(port: int, method: str, path: str, headers: dict[str, str], body: bytes,
                    host: str = "127.0.0.1") -> AsyncGenerator[h11.Response | bytes, None]:
     """Send one request; yield the response's head, then each piece of its body as it
-    comes, until the response ends."""
+    comes, until the response ends. ConnectionError if the server closes the connection
+    before the response is whole (an OSError, as a reset is)."""
     reader, writer = await asyncio.open_connection(host, port)
     conn = h11.Connection(h11.CLIENT)
     sent = {"Host": f"{host}:{port}", **headers}
@@ -27,7 +28,10 @@ async def exchange(port: int, method: str, path: str, headers: dict[str, str], b
         writer.write(conn.send(h11.EndOfMessage()) or b"")
         await writer.drain()
         while True:
-            event = conn.next_event()
+            try:
+                event = conn.next_event()
+            except h11.RemoteProtocolError as exc:
+                raise ConnectionError(f"{method} {path}: {exc}") from None
             if event is h11.NEED_DATA:
                 conn.receive_data(await reader.read(65536))
             elif isinstance(event, h11.Response):

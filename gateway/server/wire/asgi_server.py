@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 import ssl
 from typing import Any
 
@@ -124,7 +123,6 @@ class HttpServer:
 
     async def start(self, host: str, port: int) -> int:
         """Listen on ``host:port``; the bound port. OSError if it cannot."""
-        sock = socket.create_server((host, port), reuse_port=False)
         config, state = self._config, self._state
 
         def protocol() -> asyncio.Protocol:
@@ -132,9 +130,9 @@ class HttpServer:
                 config=config, server_state=state, app_state={})
 
         self._server = await asyncio.get_running_loop().create_server(
-            protocol, sock=sock, ssl=self._ssl, backlog=config.backlog,
+            protocol, host, port, ssl=self._ssl, backlog=config.backlog,
             ssl_handshake_timeout=self._handshake_timeout_s if self._ssl else None)
-        return int(sock.getsockname()[1])
+        return int(self._server.sockets[0].getsockname()[1])
 
     async def stop(self, grace_s: float = 2.0) -> None:
         """Stop listening, end idle connections and requests in flight (streams are cut after
