@@ -265,13 +265,48 @@ class Visualization(Header):
     velocity: Velocity | None = None
 
 
-Message = Order | InstantActions | State | Connection | Visualization
+class AgvAction(VdaModel):
+    """An action type a vehicle supports and where (``INSTANT``, ``NODE``, ``EDGE``)."""
+
+    action_type: str
+    action_scopes: list[Literal["INSTANT", "NODE", "EDGE"]]
+    action_description: str | None = None
+
+
+class ProtocolFeatures(VdaModel):
+    """The factsheet's ``protocolFeatures``: the optional fields and the actions supported."""
+
+    optional_parameters: list[dict[str, Any]]
+    agv_actions: list[AgvAction]
+
+
+class Factsheet(Header):
+    """Topic ``factsheet`` (vehicle -> master control, section 6.15): what the vehicle is and
+    supports. The parts the master reads are modelled (``protocolFeatures``); the others are
+    kept as JSON objects. ``headerId`` and ``timestamp`` are optional in the schema but every
+    message of section 6.4 has them (fleetgate's vehicles send them)."""
+
+    type_specification: dict[str, Any]
+    physical_parameters: dict[str, Any]
+    protocol_limits: dict[str, Any]
+    protocol_features: ProtocolFeatures
+    agv_geometry: dict[str, Any]
+    load_specification: dict[str, Any]
+    vehicle_config: dict[str, Any] | None = None
+
+    def supports(self, action_type: str, scope: Literal["INSTANT", "NODE", "EDGE"]) -> bool:
+        """Whether the vehicle lists ``action_type`` with ``scope``."""
+        return any(a.action_type == action_type and scope in a.action_scopes
+                   for a in self.protocol_features.agv_actions)
+
+
+Message = Order | InstantActions | State | Connection | Visualization | Factsheet
 
 TOPIC_MODELS: dict[str, type[Header]] = {
     "order": Order, "instantActions": InstantActions, "state": State,
-    "connection": Connection, "visualization": Visualization,
+    "connection": Connection, "visualization": Visualization, "factsheet": Factsheet,
 }
-"""The model of each topic's messages (``factsheet`` is not modelled: it is only read)."""
+"""The model of each topic's messages."""
 
 
 def to_wire(message: Header) -> dict[str, Any]:
