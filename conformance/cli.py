@@ -115,12 +115,9 @@ def _robot(args: argparse.Namespace) -> int:
 def _vda5050(args: argparse.Namespace) -> int:
     import asyncio
 
-    from pydantic import ValidationError
-
     from conformance.vda5050.checks import VDA_CHECKS, run_vda_checks
     from conformance.vda5050.schemas import DEFAULT_DIR
-    from conformance.vda5050.session import VdaOptions
-    from gateway.vda5050.broker import BrokerConfig
+    from conformance.vda5050.session import Broker, VdaOptions
     from protocol.vda5050.topics import VehicleTopics
 
     if args.list:
@@ -133,12 +130,17 @@ def _vda5050(args: argparse.Namespace) -> int:
         raise UsageProblem(str(exc)) from None
     if not 0 < args.step <= 100 or args.timeout <= 0:
         raise UsageProblem("--step must be in (0, 100] metres and --timeout positive")
+    parts = urlsplit(args.broker)
     try:
-        password = os.environ.get(args.password_env) if args.password_env else None
-        broker = BrokerConfig.model_validate({"url": args.broker, "username": args.username,
-                                              "password": password, "ca_file": args.cafile})
-    except ValidationError as exc:
-        raise UsageProblem(f"--broker: {exc.errors()[0]['msg']}") from None
+        parts.port  # noqa: B018 (validates the port)
+    except ValueError:
+        raise UsageProblem(f"--broker: bad port in {args.broker!r}") from None
+    if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname or parts.path not in (
+            "", "/"):
+        raise UsageProblem(f"--broker: expected mqtt://HOST:PORT or mqtts://HOST:PORT, got "
+                           f"{args.broker!r}")
+    broker = Broker(args.broker, args.username, os.environ.get(args.password_env)
+                    if args.password_env else None, args.cafile)
     options = VdaOptions(broker=broker, manufacturer=args.manufacturer, serial=args.serial,
                          version=args.version, interface=args.interface, step_m=args.step,
                          command=args.command, timeout_s=args.timeout,

@@ -13,16 +13,17 @@ import math
 import os
 import shlex
 import signal
+import ssl
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import aiomqtt
 
 from conformance.report import CheckFailed, UsageProblem
-from gateway.vda5050.broker import BrokerConfig
 from protocol.vda5050.topics import (
     QOS,
     RETAINED,
@@ -37,13 +38,34 @@ Json = dict[str, Any]
 
 
 @dataclass(frozen=True)
+class Broker:
+    """The MQTT broker: ``mqtt://HOST:PORT`` or ``mqtts://`` (TLS, CA ``cafile`` or the
+    system's), with an optional user name and password."""
+
+    url: str
+    username: str | None = None
+    password: str | None = None
+    cafile: str | None = None
+
+    def client(self, identifier: str) -> aiomqtt.Client:
+        """An unconnected client (``async with``)."""
+        parts = urlsplit(self.url)
+        tls = parts.scheme == "mqtts"
+        return aiomqtt.Client(parts.hostname or "", parts.port or (8883 if tls else 1883),
+                              identifier=identifier, username=self.username,
+                              password=self.password, keepalive=15, clean_session=True,
+                              tls_context=ssl.create_default_context(cafile=self.cafile)
+                              if tls else None)
+
+
+@dataclass(frozen=True)
 class VdaOptions:
     """Which vehicle, on which broker, and how to move it: ``step_m`` metres along +x of its
     map (the floor there must be free for three steps); ``command`` starts it ({broker},
     {manufacturer}, {serial}, {interface}, {version} substituted) and lets the last-will check
     kill it."""
 
-    broker: BrokerConfig
+    broker: Broker
     manufacturer: str
     serial: str
     version: str = "2.1.0"

@@ -18,7 +18,7 @@ import pytest
 
 from conformance.vda5050.checks import VDA_CHECKS, run_vda_checks
 from conformance.vda5050.schemas import DEFAULT_DIR, have_schemas
-from conformance.vda5050.session import VdaOptions
+from conformance.vda5050.session import Broker, VdaOptions
 from gateway.cli import main
 from gateway.vda5050.broker import BrokerConfig
 from gateway.vda5050.config import Vda5050Config, VehicleConfig
@@ -96,7 +96,7 @@ async def _broken(url: str) -> dict[str, bool]:
     stop = asyncio.Event()
     driving = asyncio.create_task(run_fleet([broken], config.broker, stop))
     try:
-        results = await run_vda_checks(VdaOptions(broker=config.broker, manufacturer="acme",
+        results = await run_vda_checks(VdaOptions(broker=Broker(url), manufacturer="acme",
                                                   serial="bad1", timeout_s=8.0))
     finally:
         stop.set()
