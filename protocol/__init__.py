@@ -73,6 +73,7 @@ from protocol.codec import (
     ProtocolError,
     decode,
     encode,
+    encode_action,
 )
 from protocol.messages import (
     MAX_MESSAGE_BYTES,
@@ -184,6 +185,7 @@ __all__ = [
     "action_run",
     "decode",
     "encode",
+    "encode_action",
     "json_schema",
     "parse_action_id",
 ]
