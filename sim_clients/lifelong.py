@@ -5,7 +5,9 @@ ticks (the problem's ``agentCounter``); a robot in a delay (the problem's ``dela
 drawn per tick by :class:`DelayModel`) makes no progress. The planner runs periodically, every
 ``period`` ticks at the earliest (LoRR's ``planCommTimeLimit`` / ``actionMoveTimeLimit``): it
 assigns tasks to robots that have none (:mod:`gateway.execution.lifelong.tasks`), plans a window of
-``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`),
+``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`): the
+lifelong executor's own call (``window_request``, answered by its ``WindowPlanner``), given
+the simulator's holds (actions of ``agent_counter`` ticks) and its delayed robots as the late,
 and its result is appended to the live ADG (:mod:`gateway.execution.lifelong.live_adg`) when it
 arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
 measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
@@ -29,10 +31,11 @@ import numpy as np
 import numpy.typing as npt
 
 from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
+from gateway.execution.lifelong.executor import WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
-from gateway.planning.pibt import StateSpace, WindowedPIBT
+from gateway.planning.pibt import StateSpace
 
 TICK_MS = 100.0
 """LoRR's default execution tick (``actionMoveTimeLimit``)."""
@@ -148,8 +151,8 @@ class _Pending:
     """A planned window on its way: it is appended at tick ``arrival``."""
 
     arrival: int
-    states: list[list[int]]
-    reached: list[list[int]]
+    states: Sequence[Sequence[int]]
+    reached: Sequence[Sequence[int]]
     tasks_of: list[int]
 
 
@@ -172,7 +175,7 @@ def run_lifelong(cfg: LifelongConfig,
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
     space = StateSpace(grid, cfg.turning, budget_bytes=2 << 30, robots=n)
-    planner = WindowedPIBT(space, n, seed=cfg.seed)
+    planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)
@@ -215,7 +218,7 @@ def run_lifelong(cfg: LifelongConfig,
             events.append((t, r, task_id, task.done + 1))
             pool.errand_done(task_id, t)
 
-    def apply(t: int, states: list[list[int]], reached: list[list[int]],
+    def apply(t: int, states: Sequence[Sequence[int]], reached: Sequence[Sequence[int]],
               tasks_of: list[int]) -> None:
         """Append a planned window to the ADG and register its errand markers."""
         cells = [[space.cell_of[s] for s in row] for row in states]
@@ -232,28 +235,27 @@ def run_lifelong(cfg: LifelongConfig,
             pending = None
         if pending is None and t >= next_call:
             cpu0 = time.thread_time()
-            if cfg.reassign and len(planner_times) % cfg.reassign == 0:
-                # unstarted tasks go back to the scheduler, of at most reassign_batch robots
-                # in turn (the matching's work grows with the robots it places)
-                first = len(planner_times) // cfg.reassign * cfg.reassign_batch
-                book.release_unstarted(t, None if cfg.reassign_batch >= n else
-                                       ((first + i) % n for i in range(cfg.reassign_batch)))
-            distances.charged = {adg.end_cell[r] for r in range(n) if delayed[r]}
-            for _, task_id in book.schedule(adg.end_cell, schedule, distances, t):
+            # a robot's new moves start when it can make them: it waits in the window for its
+            # committed actions but one (the one it finishes while the next window arrives), so
+            # others do not plan to enter cells it leaves long after the plan says; robots in a
+            # delay compete for tasks with a charge, and others are planned around them
+            hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
+                    for r in range(n)]
+            # unstarted tasks go back to the scheduler, of at most reassign_batch robots in
+            # turn (the matching's work grows with the robots it places)
+            first = len(planner_times) // max(1, cfg.reassign) * cfg.reassign_batch
+            req, assigned = window_request(
+                len(planner_times), book, adg, schedule, distances, t,
+                release=bool(cfg.reassign) and len(planner_times) % cfg.reassign == 0,
+                release_robots=None if cfg.reassign_batch >= n else
+                [(first + i) % n for i in range(cfg.reassign_batch)],
+                late=delayed, hold=hold, steps=window, turning=cfg.turning)
+            for _, task_id in assigned:
                 if task_id not in recorded:
                     recorded.add(task_id)
                     task = pool.tasks[task_id]
                     released.append((task_id, task.release_tick, task.errands))
-            goals = book.goals()
-            starts = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
-            # a robot's new moves start when it can make them: it waits in the window for its
-            # committed actions but one (the one it finishes while the next window arrives), so
-            # others do not plan to enter cells it leaves long after the plan says
-            hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
-                    for r in range(n)]
-            # cells that robots in a delay will still drive through: plan others around them
-            avoid = [a.cell for r in range(n) if delayed[r] for a in adg.queue[r]]
-            win = planner.plan(starts, goals, window, hold, avoid)
+            win = planner(req)
             tasks_of = book.planned(win.reached)
             cpu = time.thread_time() - cpu0
             planner_times.append(cpu)

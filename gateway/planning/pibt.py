@@ -180,9 +180,10 @@ def goal_tables(grid: Grid, exact: bool, goals: Sequence[int]) -> dict[int, arra
         chunk = goals[i : i + 32]
         found = (turning_distance_tables(grid, [grid.cell(g) for g in chunk]) if exact
                  else cell_distance_rows(grid, chunk))
-        rows = np.where(found < 0, UNREACHABLE, np.minimum(found, UNREACHABLE))
-        for g, row in zip(chunk, rows.astype(np.int16), strict=True):
-            out[g] = array("h", row.tobytes())
+        found[found < 0] = UNREACHABLE  # in place, row by row below: no batch-sized copies
+        np.minimum(found, UNREACHABLE, out=found)  # (a million-cell map's batch is 75 MB)
+        for g, row in zip(chunk, found, strict=True):
+            out[g] = array("h", row.astype(np.int16).tobytes())
     return out
 
 

@@ -12,7 +12,7 @@ actions at which it stands on an errand cell). The virtual-time runner
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -82,6 +82,9 @@ class ErrandBook:
         """How many of that task's errands the committed plan reaches."""
         self.markers: list[deque[tuple[int, int]]] = [deque() for _ in range(n_robots)]
         """Per robot, in order: (finished-action count at which it stands on an errand, task)."""
+        self.on_marker: Callable[[int, int, int], None] | None = None
+        """Told ``(robot, count, task)`` of every marker :meth:`register` appends (a driver
+        that turns errands into vehicle actions, e.g. VDA 5050's pick and drop)."""
         self.adopt()
 
     def adopt(self) -> None:
@@ -162,6 +165,8 @@ class ErrandBook:
                         count += 1
                 j_prev = j
                 self.markers[r].append((before[r] + count, tasks_of[r]))
+                if self.on_marker is not None:
+                    self.on_marker(r, before[r] + count, tasks_of[r])
 
     def reach(self, robot: int, done: int) -> list[int]:
         """Robot ``robot`` has finished ``done`` actions: the tasks whose next errand that
