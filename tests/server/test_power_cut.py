@@ -8,31 +8,16 @@ valid run."""
 from __future__ import annotations
 
 import asyncio
-import sqlite3
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from gateway.runtime.journal import Journal
+from bench.faults import drop_tail
 from gateway.server.gateway import Gateway
 from tests.server.test_journal import running, workload
 from tracecheck import check_trace, read_trace
-
-
-def drop_tail(journal: Path, k: int) -> int:
-    """Drop the last ``k`` records, but none that a synced commit made durable (those survive
-    a power cut: the journal's seal says how many); returns how many were dropped."""
-    opened = Journal(journal)
-    synced = opened.synced()
-    opened.close()
-    with sqlite3.connect(journal) as db:
-        rows = db.execute("SELECT seq FROM records ORDER BY seq").fetchall()
-        cut = max(synced, len(rows) - k)
-        if cut < len(rows):
-            db.execute("DELETE FROM records WHERE seq >= ?", (rows[cut][0],))
-        return len(rows) - cut
 
 
 @pytest.mark.parametrize(("k", "seed", "stop_s"), [(1, 1, 0.20), (5, 2, 0.15), (17, 3, 0.25),
