@@ -220,6 +220,18 @@ class ThresholdRecord(_Record):
     threshold_ms: float
 
 
+class RejectedRecord(_Record):
+    """The executor refused the input journaled just before (an ``ExecutionError``: nothing
+    changed, e.g. a robot's late or out-of-order report). Replay must refuse that input too, and
+    accept every input not followed by one: anything else is a journal that does not replay
+    what happened (damage), never a silently different state."""
+
+    kind: Literal["rejected"] = "rejected"
+
+
+REJECTED = RejectedRecord()
+
+
 class SnapshotRecord(_Record):
     """A plan boundary: the run's records up to plan ``plan_id`` adopted at ``t_ms``, compacted.
     It holds what the executor carries into a new plan (the rest of its state starts afresh
@@ -285,7 +297,7 @@ class ShiftSnapshotRecord(_Record):
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
     | SpeedRecord | SnapshotRecord | ShadowRecord | TaskRecord | ShiftRecord | SegmentRecord
-    | ThresholdRecord | ShiftSnapshotRecord | ShiftHistoryRecord,
+    | ThresholdRecord | ShiftSnapshotRecord | ShiftHistoryRecord | RejectedRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 
