@@ -29,7 +29,9 @@ section 2 defines them), replays the events in order and reports
 
 and it recomputes the fleet slack (Algorithm 1 plus DESIGN's slack definitions) at any moment,
 in particular at every ``trigger`` record; an agent's ``durations_ms`` (``{"move", "turn",
-"wait"}``, each 1000 ms if absent) are its actions' expected durations ``t_x``. Run it as
+"wait"}``, each 1000 ms if absent) are its actions' expected durations ``t_x``, and its
+``skip`` lists the path indices of waits that are no actions (an informed replan's waits
+for a blocked cell: the robot moves in when the cell is free). Run it as
 ``python -m tracecheck FILE``.
 """
 
@@ -38,7 +40,7 @@ from __future__ import annotations
 import math
 import sys
 from bisect import bisect_right
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -113,16 +115,21 @@ class PlanGraph:
         longest = max((len(p) for p in self.paths), default=1)
         for i in range(longest - 1):
             for k, path in enumerate(self.paths):
-                if i < len(path) - 1:
+                if i < len(path) - 1 and (k, i) in self.preds:
                     yield k, i
 
 
 def build_graph(plan: int, release_ms: float, paths: Sequence[Sequence[Pos]],
                 headings: Sequence[Sequence[int]] | None = None,
-                durations: Sequence[Mapping[str, float]] | None = None) -> PlanGraph:
+                durations: Sequence[Mapping[str, float]] | None = None,
+                skips: Sequence[Collection[int]] | None = None) -> PlanGraph:
     """The ADG of ``paths``: a_i^k -> a_{i+1}^k, and from every action leaving a cell u to
     each other robot's first later action (j > i) entering u (a turn leaves and enters
-    nothing). ``durations[k]`` maps robot k's action kinds to t_x (1000 ms if absent)."""
+    nothing). ``durations[k]`` maps robot k's action kinds to t_x (1000 ms if absent).
+    ``skips[k]`` are path indices of robot k's waits that are no actions (a robot that
+    waits for a blocked cell moves in when it is free): they get no vertex, and the robot's
+    next action follows its previous one directly (a wait enters no cell, so no Type 2
+    edge changes); a skipped step that is no wait is kept, with the kind ``illegal``."""
     plist = [list(p) for p in paths]
     hlist = None if headings is None else [list(h) for h in headings]
     preds: dict[Act, list[Act]] = {}
@@ -132,11 +139,18 @@ def build_graph(plan: int, release_ms: float, paths: Sequence[Sequence[Pos]],
     enters: dict[Pos, dict[int, list[int]]] = {}
     for k, path in enumerate(plist):
         hs = None if hlist is None else hlist[k]
+        skip = set(skips[k]) if skips is not None and k < len(skips) else set()
+        prev = -1
         for i in range(len(path) - 1):
-            preds[(k, i)] = [(k, i - 1)] if i > 0 else []
-            type2_in[(k, i)] = []
             kind = step_kind(path[i], path[i + 1], None if hs is None else hs[i],
                              None if hs is None else hs[i + 1])
+            if i in skip:
+                if kind == "wait":
+                    continue
+                kind = f"illegal: step {i} is skipped but is no wait"
+            preds[(k, i)] = [(k, prev)] if prev >= 0 else []
+            type2_in[(k, i)] = []
+            prev = i
             kinds[(k, i)] = kind
             model = durations[k] if durations is not None else {}
             tx[(k, i)] = float(model.get(kind, ACTION_MS))
@@ -285,7 +299,8 @@ def action_slacks(graph: PlanGraph, tc: Mapping[Act, float]) -> dict[Act, float]
     """Δ(a) = max(0, max over incoming Type 2 edges of t_c(tail) - t_c(a_{j-1}))."""
     out: dict[Act, float] = {}
     for (k, j), tails in graph.type2_in.items():
-        before = tc[(k, j - 1)] if j > 0 else graph.release_ms
+        own = [p for p in graph.preds[(k, j)] if p[0] == k]
+        before = tc[own[0]] if own else graph.release_ms
         out[(k, j)] = max([0.0, *(tc[t] - before for t in tails)])
     return out
 
@@ -434,7 +449,8 @@ class _Replay:
                 self.enter(cell, k, t)
         self.heading = None if headings is None else [h[0] for h in headings]
         durations = [a.get("durations_ms", {}) for a in rec["agents"]]
-        graph = build_graph(number, t, paths, headings, durations)
+        skips = [[int(i) for i in a.get("skip", [])] for a in rec["agents"]]
+        graph = build_graph(number, t, paths, headings, durations, skips)
         if rec.get("lifelong"):
             graph.lifelong = LifelongSteps()
             self.durations = durations
@@ -480,7 +496,7 @@ class _Replay:
             if gained and a in st.dispatched and a not in st.cancelled:
                 self.error(where, f"action {a} gains predecessors {sorted(gained)} after its "
                            "dispatch")
-        preds = {(k, i): ([(k, i - 1)] if i > 0 else []) + type2_in[(k, i)] for k, i in g.preds}
+        preds = {a: [p for p in g.preds[a] if p[0] == a[0]] + type2_in[a] for a in g.preds}
         topo = _topological(preds)
         if topo is None:
             self.error(where, "the rescheduled graph has a cycle")

@@ -10,7 +10,7 @@ purpose.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import Any
 
 from gateway.planning.grid import Cell
@@ -24,16 +24,22 @@ EVENT_TYPES = ("dispatch", "start", "finish", "blocked", "unblocked", "cancel", 
 
 def plan_record(t_ms: float, plan: int, paths: Sequence[Sequence[Cell]],
                 headings: Sequence[Sequence[int]] | None = None,
-                durations_ms: Sequence[Mapping[str, float] | None] | None = None) -> Record:
+                durations_ms: Sequence[Mapping[str, float] | None] | None = None,
+                skip: Collection[tuple[int, int]] = ()) -> Record:
     """``{"t_ms", "type": "plan", "plan", "agents": [{"path": [[x, y], ...]}]}``; a turning
     plan (``headings``) adds ``"motion": "turning"`` and has ``[x, y, heading]`` entries; an
-    agent's ``durations_ms`` (``{"move", "turn", "wait"}``) is given where not None."""
+    agent's ``durations_ms`` (``{"move", "turn", "wait"}``) is given where not None, and its
+    ``skip`` (the path indices of the waits that are no actions, ascending) where ``skip``
+    (``(robot, path index)`` pairs) has any of its waits."""
     agents: list[Record] = []
     for k, path in enumerate(paths):
         agent: Record = {"path": [[x, y] for x, y in path] if headings is None else
                          [[x, y, h] for (x, y), h in zip(path, headings[k], strict=True)]}
         if durations_ms is not None and durations_ms[k] is not None:
             agent["durations_ms"] = dict(durations_ms[k] or {})
+        skipped = sorted(i for r, i in skip if r == k)
+        if skipped:
+            agent["skip"] = skipped
         agents.append(agent)
     record: Record = {"t_ms": t_ms, "type": "plan", "plan": plan, "agents": agents}
     if headings is not None:

@@ -88,3 +88,23 @@ def test_edges_match_the_all_pairs_definition(seed: int, robots: int, horizon: i
     # the topological order respects every edge
     assert all(adg.topo[p] < adg.topo[v] for v in range(adg.n_vertices)
                for p in adg.predecessors(v))
+
+
+@given(seed=st.integers(0, 10**6), robots=st.integers(1, 6), horizon=st.integers(1, 14),
+       pick=st.integers(0, 2**20))
+@settings(max_examples=60, deadline=None)
+def test_gated_waits_drop_only_those_waits_and_keep_every_ordering(
+        seed: int, robots: int, horizon: int, pick: int) -> None:
+    plan = Plan.of(random_robust_plan(seed, 5, 5, robots, horizon))
+    full = ADG(plan)
+    waits = sorted((full.robot_of[v], full.step_of[v]) for v in range(full.n_vertices)
+                   if full.kind[v] == "wait")
+    gated = frozenset(w for i, w in enumerate(waits) if pick >> (i % 20) & 1)
+    adg = ADG(plan, gated=gated)
+    assert adg.n_vertices == full.n_vertices - len(gated)
+    assert set(adg.type2_edges()) == set(full.type2_edges())
+    for r, i in gated:
+        with pytest.raises(ExecutionError, match="is a wait"):
+            adg.vertex(r, i)
+    kept = {(adg.robot_of[v], adg.step_of[v]) for v in range(adg.n_vertices)}
+    assert kept == {(full.robot_of[v], full.step_of[v]) for v in range(full.n_vertices)} - gated

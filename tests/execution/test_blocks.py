@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.execution.commands import SolveRequest
+from gateway.execution.commands import Dispatch, SolveRequest
+from gateway.execution.oneshot.adg import gated_waits
 from gateway.execution.oneshot.blocks import BlockTracker
 from gateway.execution.oneshot.executor import Executor
 from gateway.planning.plan import Plan
@@ -81,3 +82,64 @@ def test_a_robot_moving_in_clears_the_block_and_a_held_cell_is_no_block() -> Non
     # Robot 0 stands on (1,0): a robot waiting for it there waits for a planned occupant (the
     # ADG makes that impossible in a valid run, so this is checked on the helper).
     assert ex._planned_occupant((1, 0), 1) and not ex._planned_occupant((1, 0), 0)
+
+
+def test_gated_waits_by_hand() -> None:
+    plan = Plan((((0, 0), (0, 0), (0, 0), (1, 0), (2, 0)),   # waits twice, enters (1,0)
+                 ((0, 1), (0, 1), (1, 1), (1, 1), (1, 0)),   # waits for (1,1); then (1,0)
+                 ((3, 3), (3, 3), (3, 3))))                  # only waits
+    assert gated_waits(plan, {(1, 0)}) == {(0, 0), (0, 1), (1, 2)}
+    assert gated_waits(plan, {(1, 1)}) == {(1, 0)}
+    assert gated_waits(plan, ()) == frozenset()
+    # Turning: a turn before the move ends the run of waits (only the wait after it gates).
+    turning = Plan((((0, 0), (0, 0), (0, 0), (0, 0), (1, 0)),), ((1, 1, 0, 0, 0),))
+    assert gated_waits(turning, {(1, 0)}) == {(0, 2)}
+
+
+def test_an_informed_replan_moves_in_when_the_block_ends_not_when_expected() -> None:
+    ex = Executor(_two_robots(), informed=True)
+    ex.start(0.0)
+    ex.drain()
+    ex.blocked(0, 0, 0, 0.0)
+    ex.started(1, 0, 0, 0.0)
+    ex.tick(2000.0)
+    ex.request_replan(2000.0)
+    ex.drain()
+    ex.cancelled(0, 0, 0, 2000.0)
+    ex.finished(1, 0, 0, 2000.0)
+    ex.drain()
+    # The planner kept (1,0) free until 4000 ms: robot 0 waits twice on (0,0), then drives.
+    ex.adopt_plan(Plan((((0, 0), (0, 0), (0, 0), (1, 0), (2, 0)), ((4, 4), (4, 3)))), 2000.0)
+    dispatch, _ = sorted((c for c in ex.drain() if isinstance(c, Dispatch)),
+                         key=lambda c: c.robot)
+    # The waits are gone: the move into (1,0) is dispatched at once and starts when the
+    # cell is free (here at 2500 ms, before the expected 4000 ms).
+    assert (dispatch.robot, dispatch.action, dispatch.dst) == (0, 2, (1, 0))
+    ex.started(1, 1, 0, 2000.0)
+    ex.blocked(0, 1, 2, 2000.0)
+    ex.unblocked(0, 1, 2, 2500.0)
+    ex.started(0, 1, 2, 2500.0)
+    ex.finished(1, 1, 0, 3000.0)
+    ex.finished(0, 1, 2, 3500.0)
+    ex.drain()
+    ex.started(0, 1, 3, 3500.0)
+    ex.finished(0, 1, 3, 4500.0)
+    assert ex.done and ex.completions_ms[0] == 4500.0
+    assert ex.blocks.history == [2500.0]  # the block is watched to its end
+
+
+def test_an_uninformed_replan_keeps_its_waits() -> None:
+    ex = Executor(_two_robots())
+    ex.start(0.0)
+    ex.drain()
+    ex.blocked(0, 0, 0, 0.0)
+    ex.started(1, 0, 0, 0.0)
+    ex.request_replan(1000.0)
+    ex.drain()
+    ex.cancelled(0, 0, 0, 1000.0)
+    ex.finished(1, 0, 0, 1000.0)
+    ex.drain()
+    ex.adopt_plan(Plan((((0, 0), (0, 0), (1, 0), (2, 0)), ((4, 4), (4, 3)))), 1000.0)
+    dispatch, _ = sorted((c for c in ex.drain() if isinstance(c, Dispatch)),
+                         key=lambda c: c.robot)
+    assert (dispatch.action, dispatch.dst) == (0, (0, 0))

@@ -248,3 +248,24 @@ def test_the_command_reports_an_unreadable_trace_in_one_line(
     assert main([str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"tracecheck: {bad}:2: not JSON") and err.count("\n") == 1
+
+
+def test_skipped_waits_are_no_actions() -> None:
+    # Robot 1 skips its two waits: its move into (1,0) follows robot 0's move out directly.
+    g = build_graph(0, 0.0, PATHS, skips=[[], [0, 1]])
+    assert set(g.preds) == {(0, 0), (0, 1), (1, 2)} and g.preds[(1, 2)] == [(0, 1)]
+    record = plan_record(0, 0, PATHS, skip={(1, 0), (1, 1)})
+    assert record["agents"][1]["skip"] == [0, 1] and "skip" not in record["agents"][0]
+    trace = ordered(record, *run(0, 0, 0, 1000), *run(0, 1, 1000, 2000),
+                    *run(1, 2, 2000, 3000), summary_record(5000, 3000))
+    report = check_trace(trace)
+    assert report.ok, report.errors
+    # Without the skip the same trace ran robot 1's move before its waits.
+    unskipped = check_trace([plan_record(0, 0, PATHS), *trace[1:]])
+    assert any("dispatched before" in e for e in unskipped.errors)
+    # Only a wait can be skipped; and the move still waits for robot 0 to leave (1,0).
+    bad = check_trace([plan_record(0, 0, PATHS, skip={(0, 0)}), *trace[1:]])
+    assert any("skipped but is no wait" in e for e in bad.errors)
+    early = ordered(record, *run(0, 0, 0, 1000), *run(1, 2, 1000, 2000),
+                    *run(0, 1, 1000, 2000), summary_record(4000, 2000))
+    assert any("(1, 2)" in e for e in check_trace(early).errors)

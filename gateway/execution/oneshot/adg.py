@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import copy
 from bisect import bisect_right
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 
 from gateway.execution.actions import ActionKind, action_kind
 from gateway.execution.errors import ExecutionError
@@ -35,15 +35,21 @@ def _csr(n: int, pairs: list[tuple[int, int]]) -> tuple[list[int], list[int]]:
 class ADG:
     """Action Dependency Graph of a plan: one vertex per action, Type 1 and Type 2 edges.
 
-    With ``drop_waits`` the wait actions get no vertex (Hönig's original graph); the action
-    numbers seen from outside stay the path indices ``i`` of ``a_i^k`` either way.
+    With ``drop_waits`` the wait actions get no vertex (Hönig's original graph), and so do the
+    waits of ``gated`` (``(robot, path index)`` pairs; :func:`gated_waits`): those a robot
+    would make before a move into a cell that is blocked, which then starts as soon as the
+    cell is free instead. A wait is never the tail or head of a Type 2 edge, so dropping one
+    keeps every ordering of the plan. The action numbers seen from outside stay the path
+    indices ``i`` of ``a_i^k`` either way.
     A ``turning`` plan (``plan.headings``) makes its turns actions; a turn is never dropped.
     """
 
-    def __init__(self, plan: Plan, *, drop_waits: bool = False) -> None:
+    def __init__(self, plan: Plan, *, drop_waits: bool = False,
+                 gated: frozenset[tuple[int, int]] = frozenset()) -> None:
         paths = plan.paths
         self.n_robots = len(paths)
         self.drop_waits = drop_waits
+        self.gated = gated
         self.headings = plan.headings
         if self.headings is not None and len(self.headings) != len(paths):
             raise ExecutionError(f"{len(self.headings)} heading sequences for {len(paths)} "
@@ -69,7 +75,7 @@ class ADG:
                                        None if hs is None else hs[i + 1])
                 except ExecutionError as exc:
                     raise ExecutionError(f"robot {k} action {i}: {exc}") from None
-                if drop_waits and kind == "wait":
+                if kind == "wait" and (drop_waits or (k, i) in gated):
                     self._vertex_at.append(-1)
                     continue
                 self._vertex_at.append(len(self.robot_of))
@@ -212,3 +218,25 @@ class ADG:
         for v in range(self.n_vertices):
             for w in self.t2_succ[self.t2_succ_ptr[v] : self.t2_succ_ptr[v + 1]]:
                 yield self.robot_of[v], self.step_of[v], self.robot_of[w], self.step_of[w]
+
+
+def gated_waits(plan: Plan, blocked: Collection[Cell]) -> frozenset[tuple[int, int]]:
+    """The waits of ``plan`` (``(robot, path index)``) that only wait for a ``blocked`` cell:
+    each run of waits right before a move into such a cell (a turn ends a run). A plan solved
+    with the blocks as obstacles holds a robot there until the block's expected end; without
+    these waits its move starts when the block really ends, earlier or later."""
+    out: set[tuple[int, int]] = set()
+    if not blocked:
+        return frozenset()
+    for k, path in enumerate(plan.paths):
+        hs = None if plan.headings is None else plan.headings[k]
+        run: list[int] = []
+        for i in range(len(path) - 1):
+            same = path[i] == path[i + 1] and (hs is None or hs[i] == hs[i + 1])
+            if same:
+                run.append(i)
+                continue
+            if run and path[i + 1] in blocked and path[i] != path[i + 1]:
+                out.update((k, j) for j in run)
+            run = []
+    return frozenset(out)

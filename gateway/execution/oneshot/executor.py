@@ -66,7 +66,7 @@ from gateway.execution.commands import (
 )
 from gateway.execution.core import MONITOR_PERIOD_MS, check_robot, check_start, check_time
 from gateway.execution.errors import ExecutionError
-from gateway.execution.oneshot.adg import ADG
+from gateway.execution.oneshot.adg import ADG, gated_waits
 from gateway.execution.oneshot.blocks import BlockTracker
 from gateway.execution.oneshot.monitor import Monitor
 from gateway.execution.oneshot.policies import NoReplan, ReplanPolicy, Rescheduling, ShadowPolicy
@@ -302,7 +302,8 @@ class Executor:
         self._now = now_ms  # kept as given (trace t_ms)
         self._completion = [float(c) for c in completions_ms]
         self.replans, self.paused = replans, paused
-        self._install(self.plan, self.adg, plan_id, now_ms)
+        self._install(self.plan, self._adg_of(self.plan) if plan_id else self.adg, plan_id,
+                      now_ms)
         self._adopted()
 
     def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
@@ -567,7 +568,7 @@ class Executor:
             self._next_shadow_ms = now_ms  # the fleet moved on: solve again at the next tick
             return False
         self._check_plan(plan, cells, headings)
-        adg = ADG(plan, drop_waits=self.drop_waits)
+        adg = self._adg_of(plan)
         if not policy.adopts(self._shadow_gains(adg, start, policy.levels)):
             return False
         self._ready = (plan, adg)
@@ -628,9 +629,17 @@ class Executor:
         if self.mode is not Mode.SOLVING:
             raise ExecutionError(f"no plan was requested: the executor is {self.mode.value}")
         self._check_plan(plan)
-        adg = ADG(plan, drop_waits=self.drop_waits)
+        adg = self._adg_of(plan)
         self._advance(now_ms)
         self._adopt(plan, adg)
+
+    def _adg_of(self, plan: Plan) -> ADG:
+        """The ADG of a new plan. Informed, the plan was solved with the open blocks as
+        obstacles until their expected ends: the waits it makes right before a move into a
+        blocked cell are dropped (:func:`~gateway.execution.oneshot.adg.gated_waits`), so the
+        robot moves in when the block really ends, not when it was expected to."""
+        gated = gated_waits(plan, self.blocks.open) if self.informed else frozenset()
+        return ADG(plan, drop_waits=self.drop_waits, gated=gated)
 
     def _check_plan(self, plan: Plan, cells: Sequence[Cell] | None = None,
                     headings: Sequence[int] | None = None) -> None:
@@ -707,7 +716,7 @@ class Executor:
             default = ActionDurations()
             self._record(plan_record(
                 self._now, self.plan_id, self.plan.paths, adg.headings,
-                [None if d == default else d.as_dict() for d in self.durations]))
+                [None if d == default else d.as_dict() for d in self.durations], adg.gated))
         self._dispatch_ready()
 
     def _dispatch_ready(self) -> None:
