@@ -38,7 +38,8 @@ invocation. ``DIR`` is a checkout of that version (``git worktree add DIR 1045d0
 each side interleaved ABBA on the same plan with this version's robots. Adds
 ``cpu_per_action_ratio`` (median gateway CPU per action, this / that: < 1 is leaner),
 ``p99_against_ratio``, every run's figures and the load average after each run (the gateway is
-one process, so ``owner_cpu_ms_per_action`` is its CPU per action too).
+one process, so ``owner_cpu_ms_per_action`` is its CPU per action too). With ``--journal``
+both sides journal (the journal's cost on the owner's path included).
 
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --against ../base1045 --pairs 5 --json
 
@@ -592,14 +593,16 @@ def median_ratio(key: str, these: list[dict[str, Any]], those: list[dict[str, An
 
 
 def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-                 pairs: int, tree: Path) -> dict[str, Any]:
+                 pairs: int, tree: Path, journal: bool = False) -> dict[str, Any]:
     """``pairs`` runs of this gateway and of the one in ``tree`` (another version's checkout),
     interleaved ABBA, the same plan and this version's robots: the median run of this version
     (by CPU per action) plus ``cpu_per_action_ratio`` = median gateway CPU per action of this
     version / that of ``tree`` (< 1: this one is leaner), the same for p99, and the load
-    average after each run. The gateway is one process: its CPU is the owner's."""
+    average after each run. The gateway is one process: its CPU is the owner's. ``journal``:
+    both sides journal (the journal's cost included)."""
     ours, theirs = interleaved(pairs, lambda other: run_once(
-        robots, seconds, seed, jitter, lookahead, tree=tree if other else None))
+        robots, seconds, seed, jitter, lookahead, journal=journal,
+        tree=tree if other else None))
     key = "gateway_cpu_ms_per_action"
     result = sorted(ours, key=lambda r: r[key])[(pairs - 1) // 2]
     return {**result, "pairs": pairs, "against": str(tree),
@@ -671,7 +674,8 @@ def main() -> int:
     p.add_argument("--against", type=Path, metavar="DIR",
                    help="also run the gateway of another version's checkout DIR (e.g. `git "
                         "worktree add DIR 1045d02`), interleaved with this one, and print "
-                        "cpu_per_action_ratio (this / that, median over --pairs)")
+                        "cpu_per_action_ratio (this / that, median over --pairs); with "
+                        "--journal both sides journal")
     p.add_argument("--lifelong", action="store_true",
                    help="a warehouse shift (lifelong mode) for --seconds of plan time: "
                         "throughput against virtual time, p99, lost, duplicated")
@@ -695,9 +699,8 @@ def main() -> int:
     if args.against is not None and not (args.against / "bench" / "load.py").is_file():
         p.error(f"--against {args.against}: no bench/load.py there (give a checkout of "
                 "fleetgate)")
-    if args.against is not None and (args.journal or args.find_max or args.lifelong):
-        p.error("--against measures one plain run per side: not with --journal, --find-max "
-                "or --lifelong")
+    if args.against is not None and (args.find_max or args.lifelong):
+        p.error("--against measures one run per side: not with --find-max or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.lifelong:
@@ -721,7 +724,7 @@ def main() -> int:
         result = {"max_robots": best, **result}
     elif args.against is not None:
         result = against_cost(args.robots, args.seconds, args.seed, args.jitter,
-                              args.lookahead, args.pairs, args.against.resolve())
+                              args.lookahead, args.pairs, args.against.resolve(), args.journal)
     elif args.journal:
         result = journal_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.profile, args.pairs)
