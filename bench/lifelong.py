@@ -35,8 +35,9 @@ events, as after hours of a shift (the pool keeps 100,000 of each).
     .venv/bin/python bench/lifelong.py --journal --robots 100 --seconds 3600 --json
 
 ``--scale`` (instead): the LoRR archive's warehouse_large (10,000 robots) and brc202d (6,500)
-under the 2026 rules, ``--ticks`` ticks each (skipped when the archive
-copy is absent; :mod:`sim_clients.lifelong_scale`).
+under the 2026 rules, ``--ticks`` ticks each (skipped when the archive copy is absent), and
+a generated 10,000-robot warehouse of 1,000,000 cells (``--scale-only`` picks some;
+:mod:`sim_clients.lifelong_scale`).
 
     .venv/bin/python bench/lifelong.py --scale --archive DIR --ticks 600
 """
@@ -84,6 +85,7 @@ from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
 from sim_clients.lifelong_scale import (
     ARCHIVE_ENV,
     INSTANCES,
+    MILLION,
     archive_dir,
     scale_line,
     scale_one,
@@ -333,7 +335,7 @@ def main() -> None:
                          "after hours of a shift (at most 100,000 are kept)")
     ap.add_argument("--json", action="store_true",
                     help="print one JSON line (the LoRR problems, --journal's or --scale's)")
-    ap.add_argument("--schedulers", default="shortest,greedy,mincost",
+    ap.add_argument("--schedulers", default="shortest,greedy",
                     help="LoRR problems: comma-separated schedulers to run (default all)")
     ap.add_argument("--lorr", type=Path, default=SHARED,
                     help="the shared LoRR problems (default ../shared/lorr beside the repo)")
@@ -348,15 +350,23 @@ def main() -> None:
     ap.add_argument("--reassign", type=int, default=LifelongConfig.reassign,
                     help="--scale: planning calls between reassignments of unstarted tasks "
                          "(0: never)")
-    ap.add_argument("--scale-one", choices=sorted(INSTANCES), help=argparse.SUPPRESS)
+    ap.add_argument("--scale-only", default=",".join((*INSTANCES, MILLION)), metavar="NAMES",
+                    help="--scale: comma-separated instances to run (default all: "
+                         f"{', '.join((*INSTANCES, MILLION))})")
+    ap.add_argument("--scale-one", choices=sorted((*INSTANCES, MILLION)),
+                    help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.scale_one:
         print(json.dumps(scale_one(args.scale_one, archive_dir(args.archive), args.ticks,
                                    args.reassign)))
         return
     if args.scale:
+        names = [n for n in args.scale_only.split(",") if n]
+        unknown = sorted(set(names) - {*INSTANCES, MILLION})
+        if unknown:
+            ap.error(f"--scale-only: unknown instance {unknown[0]!r}")
         scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign,
-                            [sys.executable, __file__])
+                            [sys.executable, __file__], names)
         print(json.dumps(scaled) if args.json else scale_line(scaled))
         return
     if args.journal:

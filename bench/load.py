@@ -38,8 +38,7 @@ invocation. ``DIR`` is a checkout of that version (``git worktree add DIR 1045d0
 each side interleaved ABBA on the same plan with this version's robots. Adds
 ``cpu_per_action_ratio`` (median gateway CPU per action, this / that: < 1 is leaner),
 ``p99_against_ratio``, every run's figures and the load average after each run (the gateway is
-one process, so ``owner_cpu_ms_per_action`` is its CPU per action too). With ``--journal``
-both sides journal (the journal's cost on the owner's path included).
+one process, so ``owner_cpu_ms_per_action`` is its CPU per action too).
 
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --against ../base1045 --pairs 5 --json
 
@@ -68,6 +67,15 @@ during the shift (the initial fill left out). ``--profile FILE`` profiles the ga
 loop thread (CPU time of that thread).
 
     .venv/bin/python bench/load.py --lifelong --robots 500 --seconds 90 --lookahead 1 --json
+
+``--lifelong --vda5050``: the same shift with every robot a simulated VDA 5050 vehicle
+(``sim_clients.vda_fleet``, this process, one MQTT connection each) on a private mosquitto,
+driven by the gateway's master control (docs/vda5050.md); errands are ``pick`` / ``drop``
+node actions that take no time (the virtual-time reference has none). ``lost`` = dispatched
+actions no vehicle drove, ``duplicated`` = actions driven twice (from the edges the vehicles
+drove), ``picks_and_drops`` the node actions they ran; there is no robot-side p99.
+
+    .venv/bin/python bench/load.py --lifelong --vda5050 --robots 200 --seconds 60 --json
 """
 
 from __future__ import annotations
@@ -80,6 +88,7 @@ import argparse
 import asyncio
 import contextlib
 import cProfile
+import dataclasses
 import gc
 import json
 import math
@@ -92,6 +101,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
@@ -99,7 +109,7 @@ from typing import Any
 import numpy as np
 
 from fleetgate.userio.exits import CommandParser, run_main
-from fleetgate.userio.files import check_writable
+from fleetgate.userio.files import check_writable, write_text
 from gateway.execution.oneshot.adg import ADG
 from gateway.planning.grid import Grid
 from gateway.planning.instance import Instance
@@ -111,11 +121,19 @@ from gateway.server.gateway import Gateway
 from gateway.server.gc_tuning import GC_THRESHOLDS
 from gateway.server.items import OwnerCall
 from gateway.server.planner import Problem
+from gateway.vda5050.broker import BrokerConfig
+from gateway.vda5050.config import Vda5050Config, VehicleConfig
+from gateway.vda5050.transport import VdaTransport
 from protocol import parse_action_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
+from sim_clients.lean_fleet import LeanFleet, LeanStats
 from sim_clients.lifelong import LifelongConfig, run_lifelong
+from sim_clients.mosquitto import LocalBroker
+from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
+from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.wms import Wms
+from sim_clients.world import World
 from tracecheck import check_trace, read_trace
 
 P99_LIMIT_MS = 50.0
@@ -174,7 +192,9 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[
                            ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING",
                            dispatch_lookahead=lookahead, journal=journal)
     pauses = GcPauses()
-    async with Gateway(config) as gw:
+    gw = Gateway(config)
+    gw.engine.meter_cpu = True  # owner_cpu_s
+    async with gw:
         def measure(status: str) -> None:  # the execution's pauses, from start to done
             if status == "running":
                 pauses.reset()
@@ -186,10 +206,12 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[
         port = await gw.listen()
         print(port, flush=True)
         cpu0 = time.process_time()  # from here: connections and the execution, not imports
+        owner0 = gw.engine.cpu_s
         soc, _ = await gw.wait_done()
         lat = sorted(gw.latencies_ms)
         out: dict[str, Any] = {
             "soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time() - cpu0,
+            "owner_cpu_s": gw.engine.cpu_s - owner0,
             "gc_max_ms": round(pauses.max_ms, 1),
             "gateway_p50_ms": statistics.median(lat) if lat else None,
             "gateway_p99_ms": lat[int(0.99 * (len(lat) - 1))] if lat else None}
@@ -310,13 +332,72 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
         return fleet.stats, last - first, total, pauses.max_ms
 
 
+def generators_for(robots: int) -> int:
+    """How many lean generator processes load ``robots`` robots by default (one per 2,500
+    robots, at most 4): one process's event loop would add its own queueing to the latency."""
+    return min(4, max(1, math.ceil(robots / 2500)))
+
+
+def lean_main(args: argparse.Namespace) -> None:
+    """``--lean-part K/N PLAN OUT``: run the plan's robots ``r % N == K`` as a
+    :class:`~sim_clients.lean_fleet.LeanFleet` against ``--port``; write its stats to OUT."""
+    _raise_fd_limit()
+    plan_file, out = args.lean_files
+    k, n = (int(x) for x in args.lean_part.split("/"))
+    paths = json.loads(Path(plan_file).read_text())["paths"]
+    mine = {r: path for r, path in enumerate(paths) if r % n == k}
+
+    async def go() -> LeanStats:
+        fleet = LeanFleet(args.port, mine, args.jitter, args.seed)
+        return await fleet.run(3.0 * args.seconds + 60.0)
+
+    write_text(out, json.dumps(dataclasses.asdict(asyncio.run(go()))))
+
+
+def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
+                jitter: float) -> tuple[FleetStats, float, float]:
+    """Run the plan's robots in ``parts`` lean generator processes; their merged stats, the
+    execution's wall time and the processes' CPU time during it."""
+    outs = [plan_file.with_name(f"robots-{k}.json") for k in range(parts)]
+    procs = [subprocess.Popen([sys.executable, __file__, "--lean-part", f"{k}/{parts}",
+                               "--lean-files", str(plan_file), str(out), "--port", str(port),
+                               "--seconds", str(seconds), "--seed", str(seed),
+                               "--jitter", str(jitter)])
+             for k, out in enumerate(outs)]
+    stats, cpu = FleetStats(), 0.0
+    try:
+        for proc, out in zip(procs, outs, strict=True):
+            proc.wait(timeout=3.0 * seconds + 300.0)
+            if proc.returncode != 0 or not out.exists():
+                stats.errors.append(f"generator {out.name} exited {proc.returncode}")
+                continue
+            part = json.loads(out.read_text())
+            stats.received.update(part["received"])
+            stats.finish_sent.update(part["finish_sent"])
+            stats.duplicates += part["duplicates"]
+            stats.errors.extend(part["errors"])
+            cpu += part["cpu_s"]
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    first = min(stats.received.values(), default=0.0)
+    last = max(stats.finish_sent.values(), default=0.0)
+    return stats, last - first, cpu
+
+
 def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
-             profile: Path | None = None, journal: bool = False, tree: Path | None = None
-             ) -> dict[str, Any]:
+             profile: Path | None = None, journal: bool = False, tree: Path | None = None,
+             generators: int = -1) -> dict[str, Any]:
     """One gateway process + one fleet; the measurements as a dict. With ``tree`` (a checkout
     of another version) the gateway process is that version's (its ``bench/load.py --serve``
-    with its packages first on the path); the robots are always this version's."""
+    with its packages first on the path); the robots are always this version's: ``generators``
+    lean generator processes (:mod:`sim_clients.lean_fleet`; < 0: :func:`generators_for`), or
+    with 0 the full simulated robots of :mod:`sim_clients.fleet` in this process."""
     size, plan = workload(robots, seconds, seed)
+    if generators < 0:
+        generators = generators_for(robots)
     with tempfile.TemporaryDirectory() as tmp:
         plan_file = Path(tmp) / "plan.json"
         plan_file.write_text(json.dumps({"size": size, "paths": [list(p) for p in plan.paths]}))
@@ -333,10 +414,16 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
         try:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
-            cpu0 = time.process_time()
-            stats, wall_s, total, robots_gc_ms = asyncio.run(
-                _drive(port, plan, 3.0 * seconds + 60.0, jitter))
-            robots_cpu = time.process_time() - cpu0
+            total = sum(len(p) - 1 for p in plan.paths)
+            robots_gc_ms: float | None = None
+            if generators:
+                stats, wall_s, robots_cpu = _drive_lean(port, plan_file, generators, seconds,
+                                                        seed, jitter)
+            else:
+                cpu0 = time.process_time()
+                stats, wall_s, total, robots_gc_ms = asyncio.run(
+                    _drive(port, plan, 3.0 * seconds + 60.0, jitter))
+                robots_cpu = time.process_time() - cpu0
             gateway = json.loads(gw.stdout.readline() or "{}")
             gw.wait(timeout=60)
             floor = float(sleeper.communicate(timeout=60)[0] or "nan")
@@ -362,8 +449,12 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             **({"journal_stats": gateway["journal"]} if "journal" in gateway else {}),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
             "gateway_cpu_ms_per_action": round(1000.0 * gateway.get("cpu_s", 0.0) / total, 3),
+            "owner_cpu_ms_per_action": round(1000.0 * gateway["owner_cpu_s"] / total, 4)
+            if "owner_cpu_s" in gateway else None,
             "gateway_gc_max_ms": gateway.get("gc_max_ms"),
-            "robots_gc_max_ms": round(robots_gc_ms, 1),
+            "robots_gc_max_ms": None if robots_gc_ms is None else round(robots_gc_ms, 1),
+            "generators": generators,
+            "robots_cpu_ms_per_action": round(1000.0 * robots_cpu / total, 3),
             "cpu_pressure_pct": cpu_pressure(), "os_wakeup_p99_ms": round(floor, 2),
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
@@ -382,15 +473,28 @@ def shift_reveal(problem: LorrProblem) -> int:
     return max(1, int(problem.num_tasks_reveal * problem.team_size))
 
 
+def shift_config(robots: int, seed: int, trace: Path | None, lookahead: int, window: int,
+                 vda_broker: str | None = None) -> GatewayConfig:
+    """The gateway of a lifelong load run; ``vda_broker``: every robot is a VDA 5050 vehicle
+    ``fleetgate/sim<r>`` (2.1.0) on that broker."""
+    vda = None if vda_broker is None else Vda5050Config(
+        broker=BrokerConfig(url=vda_broker), vehicles=[
+            VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r)
+            for r in range(robots)])
+    return GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
+                         ping_timeout_s=20.0, log_level="WARNING", trace=trace,
+                         dispatch_lookahead=lookahead, vda5050=vda,
+                         lifelong=LifelongSettings(robots=robots, seed=seed, window=window,
+                                                   warehouse=warehouse_blocks(robots),
+                                                   task_list=False))
+
+
 async def _serve_shift(robots: int, seed: int, seconds: float, trace: Path, lookahead: int,
-                       window: int) -> dict[str, Any]:
-    config = GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
-                           ping_timeout_s=20.0, log_level="WARNING", trace=trace,
-                           dispatch_lookahead=lookahead,
-                           lifelong=LifelongSettings(robots=robots, seed=seed, window=window,
-                                                     warehouse=warehouse_blocks(robots),
-                                                     task_list=False))
-    async with Gateway(config) as gw:
+                       window: int, vda_broker: str | None) -> dict[str, Any]:
+    config = shift_config(robots, seed, trace, lookahead, window, vda_broker)
+    async with Gateway(config) as gw, contextlib.AsyncExitStack() as vehicles:
+        if config.vda5050 is not None:
+            await vehicles.enter_async_context(VdaTransport(gw, config.vda5050))
         run = gw.engine.lifelong
         assert run is not None
         port = await gw.listen()
@@ -427,7 +531,8 @@ def serve_shift_main(args: argparse.Namespace) -> None:
     if profiler is not None:
         profiler.enable()
     result = asyncio.run(_serve_shift(args.robots, args.seed, args.seconds,
-                                      args.serve_lifelong, args.lookahead, args.window))
+                                      args.serve_lifelong, args.lookahead, args.window,
+                                      args.vda_broker))
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(str(args.profile))
@@ -477,20 +582,48 @@ async def _drive_shift(port: int, robots: int, jitter: float, wms: Wms,
 _SHIFT_RESULT: list[str] = []
 
 
+async def _drive_vda_shift(vehicles: list[VdaVehicle], broker: str, wms: Wms,
+                           result: subprocess.Popen[str]) -> None:
+    """As :func:`_drive_shift`, with simulated VDA 5050 vehicles on ``broker`` as the fleet."""
+    await wms.fill()
+    wms.stats.post_ms.clear()
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    feeding = loop.create_task(wms.run(), name="wms")
+    driving = loop.create_task(run_fleet(vehicles, BrokerConfig(url=broker), stop))
+    try:
+        assert result.stdout is not None
+        line = await loop.run_in_executor(None, result.stdout.readline)
+        _SHIFT_RESULT.append(line)
+    finally:
+        stop.set()
+        await driving
+        feeding.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await feeding
+
+
 def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-              window: int, profile: Path | None = None) -> dict[str, Any]:
+              window: int, profile: Path | None = None, vda5050: bool = False
+              ) -> dict[str, Any]:
     """One lifelong network run fed through the task API, and its virtual-time baseline; the
-    measurements as a dict."""
+    measurements as a dict. ``vda5050``: the fleet is simulated VDA 5050 vehicles on a
+    private mosquitto (picks and drops take no time, as in the virtual-time reference)."""
     problem = shift_problem(robots, seed)
     reveal = shift_reveal(problem)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
+        broker = stack.enter_context(LocalBroker()) if vda5050 else None
         trace = Path(tmp) / "trace.jsonl"
         cmd = [sys.executable, __file__, "--serve-lifelong", str(trace), "--robots",
                str(robots), "--seed", str(seed), "--seconds", str(seconds), "--lookahead",
                str(lookahead), "--window", str(window)]
         if profile is not None:
             cmd += ["--profile", str(profile)]
+        if broker is not None:
+            cmd += ["--vda-broker", broker]
         gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        vehicles: list[VdaVehicle] = []
+        stats = FleetStats()
         try:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
@@ -498,7 +631,14 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
             wms = Wms(port, TokensConfig().operators[0],
                       [tuple(problem.grid.cell(c) for c in t) for t in problem.tasks],
                       keep=reveal, lead=max(8, reveal // 20))
-            stats = asyncio.run(_drive_shift(port, robots, jitter, wms, gw))
+            if broker is None:
+                stats = asyncio.run(_drive_shift(port, robots, jitter, wms, gw))
+            else:
+                config = shift_config(robots, seed, None, lookahead, window, broker)
+                assert config.vda5050 is not None
+                vehicles = make_vehicles(config.vda5050, World(), starts=shift_starts(config),
+                                         jitter=jitter, seed=seed, action_s=0.0)
+                asyncio.run(_drive_vda_shift(vehicles, broker, wms, gw))
             gw.wait(timeout=60)
         finally:
             if gw.poll() is None:
@@ -507,12 +647,25 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
         gateway = json.loads(_SHIFT_RESULT[0]) if _SHIFT_RESULT and _SHIFT_RESULT[0] else {}
         records = read_trace(trace)
     report = check_trace(records)
-    received = {parse_action_id(a)[1:]: t for a, t in stats.received.items()}
-    finish_sent = {parse_action_id(a)[1:]: t for a, t in stats.finish_sent.items()}
-    lat = [(received[d] - finish_sent[f]) * 1000.0 for f, d in unlocked_by_finish(records)
-           if d in received and f in finish_sent]
     dispatched = {(int(r["robot"]), int(r["action"])) for r in records
                   if r["type"] == "dispatch"}
+    lat: list[float] = []
+    if vda5050:  # what the vehicles drove: every dispatched action once
+        driven = Counter((v.who, n) for v in vehicles for n in driven_actions(v))
+        received = set(driven)
+        duplicated = sum(n - 1 for n in driven.values())
+        collisions = len(report.collisions) + len(vehicles[0].world.collisions
+                                                  if vehicles and vehicles[0].world else [])
+        picks = sum(len(v.node_actions_run) for v in vehicles)
+        lost = len({(r, a) for r, a in dispatched} - received)
+    else:
+        got = {parse_action_id(a)[1:]: t for a, t in stats.received.items()}
+        finish_sent = {parse_action_id(a)[1:]: t for a, t in stats.finish_sent.items()}
+        lat = [(got[d] - finish_sent[f]) * 1000.0 for f, d in unlocked_by_finish(records)
+               if d in got and f in finish_sent]
+        duplicated = stats.duplicates + len(stats.received) - len(got)
+        collisions, picks = len(report.collisions), 0
+        lost = len(dispatched - set(got))
     t0 = time.process_time()
     virtual = run_lifelong(LifelongConfig(problem, ticks=seconds, period=1,
                                           tick_ms=1000.0, seed=seed, window=window))
@@ -521,18 +674,17 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
     network_rate = gateway.get("finished", 0) / minutes if minutes else 0.0
     virtual_rate = virtual.finished / (seconds / 60.0)
     return {"robots": robots, "seconds": seconds, "lookahead": lookahead,
-            "window": window or 1, "jitter": jitter,
+            "window": window or 1, "jitter": jitter, "vda5050": vda5050,
             "tasks_network": gateway.get("finished"),
             "tasks_per_min_network": round(network_rate, 1),
             "tasks_virtual": virtual.finished, "tasks_per_min_virtual": round(virtual_rate, 1),
             "throughput_ratio": round(network_rate / virtual_rate, 3) if virtual_rate else None,
-            "actions": len(stats.received),
+            "actions": len(dispatched) if vda5050 else len(stats.received),
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
-            "lost": len(dispatched - set(received)),
-            "duplicated": stats.duplicates + len(stats.received) - len(received),
-            "errors": len(stats.errors), "collisions": len(report.collisions),
-            "trace_errors": len(report.errors),
+            "lost": lost, "duplicated": duplicated, "picks_and_drops": picks,
+            "errors": len(stats.errors) + sum(len(v.errors) for v in vehicles),
+            "collisions": collisions, "trace_errors": len(report.errors),
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
             "segments": gateway.get("segments"), "slack_triggers": gateway.get("triggers"),
@@ -549,13 +701,14 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
 
 
 def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-                 profile: Path | None, pairs: int) -> dict[str, Any]:
+                 profile: Path | None, pairs: int, generators: int = -1) -> dict[str, Any]:
     """``pairs`` runs without and with the journal, interleaved (ABBA: a trend in the
     machine's load charges neither side); the median journaled run's measurements, plus
     ``p99_journal_ratio`` (median p99 with / without) and the same for the gateway's own
     p99 and its CPU per action."""
     plain, journaled = interleaved(pairs, lambda journal: run_once(
-        robots, seconds, seed, jitter, lookahead, profile if journal else None, journal))
+        robots, seconds, seed, jitter, lookahead, profile if journal else None, journal,
+        generators=generators))
 
     def ratio(key: str) -> float | None:
         return median_ratio(key, journaled, plain)
@@ -593,20 +746,19 @@ def median_ratio(key: str, these: list[dict[str, Any]], those: list[dict[str, An
 
 
 def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-                 pairs: int, tree: Path, journal: bool = False) -> dict[str, Any]:
+                 pairs: int, tree: Path, journal: bool = False, generators: int = -1
+                 ) -> dict[str, Any]:
     """``pairs`` runs of this gateway and of the one in ``tree`` (another version's checkout),
     interleaved ABBA, the same plan and this version's robots: the median run of this version
     (by CPU per action) plus ``cpu_per_action_ratio`` = median gateway CPU per action of this
     version / that of ``tree`` (< 1: this one is leaner), the same for p99, and the load
-    average after each run. The gateway is one process: its CPU is the owner's. ``journal``:
-    both sides journal (the journal's cost included)."""
+    average after each run; with ``journal`` both sides journal (each its own way)."""
     ours, theirs = interleaved(pairs, lambda other: run_once(
         robots, seconds, seed, jitter, lookahead, journal=journal,
-        tree=tree if other else None))
+        tree=tree if other else None, generators=generators))
     key = "gateway_cpu_ms_per_action"
     result = sorted(ours, key=lambda r: r[key])[(pairs - 1) // 2]
     return {**result, "pairs": pairs, "against": str(tree),
-            "owner_cpu_ms_per_action": result[key],
             "cpu_ms_per_action": [r[key] for r in ours],
             "against_cpu_ms_per_action": [r[key] for r in theirs],
             "load_1min_runs": [r["load_1min"] for r in ours],
@@ -622,14 +774,14 @@ def holds(result: dict[str, Any]) -> bool:
             and result["duplicated"] == 0 and result["errors"] == 0)
 
 
-def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int, limit: int
-             ) -> tuple[int, list[dict[str, Any]]]:
+def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int, limit: int,
+             generators: int = -1) -> tuple[int, list[dict[str, Any]]]:
     """Largest fleet (to within 10 %) that holds: double from ``start``, then bisect."""
     runs: list[dict[str, Any]] = []
     good, bad = 0, None
     r = start
     while r <= limit:
-        res = run_once(r, seconds, seed, jitter, lookahead)
+        res = run_once(r, seconds, seed, jitter, lookahead, generators=generators)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if not holds(res):
@@ -638,7 +790,7 @@ def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int,
         good, r = r, r * 2
     while bad is not None and bad - good > max(50, good // 10):
         mid = (good + bad) // 2
-        res = run_once(mid, seconds, seed, jitter, lookahead)
+        res = run_once(mid, seconds, seed, jitter, lookahead, generators=generators)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if holds(res):
@@ -674,19 +826,33 @@ def main() -> int:
     p.add_argument("--against", type=Path, metavar="DIR",
                    help="also run the gateway of another version's checkout DIR (e.g. `git "
                         "worktree add DIR 1045d02`), interleaved with this one, and print "
-                        "cpu_per_action_ratio (this / that, median over --pairs); with "
-                        "--journal both sides journal")
+                        "cpu_per_action_ratio (this / that, median over --pairs)")
     p.add_argument("--lifelong", action="store_true",
                    help="a warehouse shift (lifelong mode) for --seconds of plan time: "
                         "throughput against virtual time, p99, lost, duplicated")
+    p.add_argument("--vda5050", action="store_true",
+                   help="--lifelong: the fleet is simulated VDA 5050 vehicles on a private "
+                        "mosquitto, driven by the gateway's master control (lost and "
+                        "duplicated from the edges they drove; no robot-side p99)")
+    p.add_argument("--vda-broker", help=argparse.SUPPRESS)
     p.add_argument("--window", type=int, default=0,
                    help="--lifelong: timesteps planned per call (default 0: one period)")
+    p.add_argument("--generators", type=int, default=-1, metavar="N",
+                   help="robots in N lean generator processes (raw websocket frames; default: "
+                        "one per 2,500 robots, at most 4); 0: the full simulated robots of "
+                        "sim_clients.fleet in this process")
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--lean-part", help=argparse.SUPPRESS)
+    p.add_argument("--lean-files", nargs=2, type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--port", type=int, help=argparse.SUPPRESS)
     p.add_argument("--serve-lifelong", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--serve-journal", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.serve is not None:
         serve_main(args.serve, args.profile, args.lookahead, args.serve_journal)
+        return 0
+    if args.lean_part is not None:
+        lean_main(args)
         return 0
     if args.serve_lifelong is not None:
         serve_shift_main(args)
@@ -703,9 +869,11 @@ def main() -> int:
         p.error("--against measures one run per side: not with --find-max or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
+    if args.vda5050 and not args.lifelong:
+        p.error("--vda5050 measures a lifelong shift: give --lifelong too")
     if args.lifelong:
         shift = run_shift(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                          args.window, args.profile)
+                          args.window, args.profile, args.vda5050)
         print(json.dumps(shift) if args.json else
               f"lifelong: {shift['robots']} robots, {args.seconds} s: "
               f"{shift['tasks_per_min_network']} tasks/min over the network vs "
@@ -715,22 +883,24 @@ def main() -> int:
               f"/tasks p99 {shift['task_api_p99_ms']} ms")
         _print_profile(args.profile)
         return 0
+    gens = args.generators
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
-                        args.lookahead, journal=args.journal)
+                        args.lookahead, journal=args.journal, generators=gens)
     if args.find_max:
         best, runs = find_max(args.seconds, args.seed, args.jitter, args.lookahead, 250,
-                              args.max_robots)
+                              args.max_robots, gens)
         result = next((r for r in runs if r["robots"] == best), baseline)
         result = {"max_robots": best, **result}
     elif args.against is not None:
         result = against_cost(args.robots, args.seconds, args.seed, args.jitter,
-                              args.lookahead, args.pairs, args.against.resolve(), args.journal)
+                              args.lookahead, args.pairs, args.against.resolve(),
+                              args.journal, gens)
     elif args.journal:
         result = journal_cost(args.robots, args.seconds, args.seed, args.jitter,
-                              args.lookahead, args.profile, args.pairs)
+                              args.lookahead, args.profile, args.pairs, gens)
     else:
         result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                          args.profile)
+                          args.profile, generators=gens)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99

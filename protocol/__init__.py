@@ -73,6 +73,7 @@ from protocol.codec import (
     ProtocolError,
     decode,
     encode,
+    encode_action,
 )
 from protocol.messages import (
     MAX_MESSAGE_BYTES,
@@ -115,6 +116,7 @@ from protocol.messages import (
     Start,
     Started,
     State,
+    StopShift,
     ToOperatorMessage,
     ToRobotMessage,
     Unblocked,
@@ -174,6 +176,7 @@ __all__ = [
     "Start",
     "Started",
     "State",
+    "StopShift",
     "ToOperatorMessage",
     "ToRobotMessage",
     "Unblocked",
@@ -184,6 +187,7 @@ __all__ = [
     "action_run",
     "decode",
     "encode",
+    "encode_action",
     "json_schema",
     "parse_action_id",
 ]

@@ -175,3 +175,12 @@ def decode(raw: str | bytes) -> AnyMessage:
 def encode(message: AnyMessage) -> str:
     """The JSON text of a message (defaults included, so peers need no schema defaults)."""
     return message.model_dump_json()
+
+
+def encode_action(v: int, msg_id: str, seq: int, fields: dict[str, Any]) -> str:
+    """The JSON text of an ``action`` message with these envelope fields and ``fields`` (its
+    own fields as plain JSON values: poses as ``{"cell": [x, y], "heading": h}``), written
+    without building the model: the gateway's hot path, for the actions its own executor
+    released. It decodes to the model that :func:`encode` of ``Action(...)`` gives."""
+    return json.dumps({"v": v, "msg_id": msg_id, "seq": seq, "type": "action", **fields},
+                      separators=(",", ":"), allow_nan=False)

@@ -5,7 +5,9 @@ ticks (the problem's ``agentCounter``); a robot in a delay (the problem's ``dela
 drawn per tick by :class:`DelayModel`) makes no progress. The planner runs periodically, every
 ``period`` ticks at the earliest (LoRR's ``planCommTimeLimit`` / ``actionMoveTimeLimit``): it
 assigns tasks to robots that have none (:mod:`gateway.execution.lifelong.tasks`), plans a window of
-``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`),
+``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`): the
+lifelong executor's own call (``window_request``, answered by its ``WindowPlanner``), given
+the simulator's holds (actions of ``agent_counter`` ticks) and its delayed robots as the late,
 and its result is appended to the live ADG (:mod:`gateway.execution.lifelong.live_adg`) when it
 arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
 measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
@@ -29,10 +31,11 @@ import numpy as np
 import numpy.typing as npt
 
 from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
+from gateway.execution.lifelong.executor import WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
-from gateway.planning.pibt import StateSpace, WindowedPIBT
+from gateway.planning.pibt import StateSpace
 
 TICK_MS = 100.0
 """LoRR's default execution tick (``actionMoveTimeLimit``)."""
@@ -49,6 +52,10 @@ at 100 ms a tick (the gateway's ``lifelong.max_wait_ms`` is 45 s). On the 600-ti
 runs (maze, room, random, 3 delay seeds, planner time zero) 600 finishes as many tasks as no
 bound (235, 342, 1410 summed, against 241, 330, 1411), 450 costs 4-7% (225, 317, 1349): aging
 from half the bound then reaches tasks the short run would not have finished anyway."""
+REASSIGN_BATCH = 1000
+"""Robots whose unstarted tasks one reassignment releases, in turn (all of a fleet up to this
+size, so the shared problems' runs are unchanged): on the competition's large maps, releasing
+all of 10,000 robots' unstarted tasks at every call made the matching 2-4 s of CPU a call."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -113,6 +120,7 @@ class LifelongConfig:
     scheduler: str = "shortest"
     max_wait: int | None = MAX_WAIT_TICKS  # fairness bound (ticks; None: none), TaskPool.max_wait
     reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
+    reassign_batch: int = REASSIGN_BATCH  # robots whose unstarted task a reassignment releases
     seed: int = 0
     output_window: int = 1000
 
@@ -143,8 +151,8 @@ class _Pending:
     """A planned window on its way: it is appended at tick ``arrival``."""
 
     arrival: int
-    states: list[list[int]]
-    reached: list[list[int]]
+    states: Sequence[Sequence[int]]
+    reached: Sequence[Sequence[int]]
     tasks_of: list[int]
 
 
@@ -167,7 +175,7 @@ def run_lifelong(cfg: LifelongConfig,
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
     space = StateSpace(grid, cfg.turning, budget_bytes=2 << 30, robots=n)
-    planner = WindowedPIBT(space, n, seed=cfg.seed)
+    planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)
@@ -177,7 +185,7 @@ def run_lifelong(cfg: LifelongConfig,
     # moves over the free cells too: one cache serves both (the robots' goals are errands)
     distances = TaskDistances(grid, charge=round(DELAY_CHARGE * prob.delay.mean_duration
                                                  / counter),
-                              space=None if space.exact else space)
+                              space=None if space.exact or space.compact else space)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
                     max_wait=cfg.max_wait)
     book = ErrandBook(pool, n)
@@ -186,6 +194,8 @@ def run_lifelong(cfg: LifelongConfig,
     # first call would compute otherwise
     cpu0 = time.thread_time()
     distances.space.prefetch([c for task in pool.open.values() for c in task.errands[:-1]])
+    if space.compact:  # and the planner's own (compact) tables of the robots' first goals
+        space.prefetch([task.errands[0] for task in pool.open.values()])
     preprocess_s = time.thread_time() - cpu0
 
     cell = list(prob.starts)
@@ -210,7 +220,7 @@ def run_lifelong(cfg: LifelongConfig,
             events.append((t, r, task_id, task.done + 1))
             pool.errand_done(task_id, t)
 
-    def apply(t: int, states: list[list[int]], reached: list[list[int]],
+    def apply(t: int, states: Sequence[Sequence[int]], reached: Sequence[Sequence[int]],
               tasks_of: list[int]) -> None:
         """Append a planned window to the ADG and register its errand markers."""
         cells = [[space.cell_of[s] for s in row] for row in states]
@@ -227,24 +237,27 @@ def run_lifelong(cfg: LifelongConfig,
             pending = None
         if pending is None and t >= next_call:
             cpu0 = time.thread_time()
-            if cfg.reassign and len(planner_times) % cfg.reassign == 0:
-                book.release_unstarted(t)  # unstarted tasks go back to the scheduler
-            distances.charged = {adg.end_cell[r] for r in range(n) if delayed[r]}
-            for _, task_id in book.schedule(adg.end_cell, schedule, distances, t):
+            # a robot's new moves start when it can make them: it waits in the window for its
+            # committed actions but one (the one it finishes while the next window arrives), so
+            # others do not plan to enter cells it leaves long after the plan says; robots in a
+            # delay compete for tasks with a charge, and others are planned around them
+            hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
+                    for r in range(n)]
+            # unstarted tasks go back to the scheduler, of at most reassign_batch robots in
+            # turn (the matching's work grows with the robots it places)
+            first = len(planner_times) // max(1, cfg.reassign) * cfg.reassign_batch
+            req, assigned = window_request(
+                len(planner_times), book, adg, schedule, distances, t,
+                release=bool(cfg.reassign) and len(planner_times) % cfg.reassign == 0,
+                release_robots=None if cfg.reassign_batch >= n else
+                [(first + i) % n for i in range(cfg.reassign_batch)],
+                late=delayed, hold=hold, steps=window, turning=cfg.turning)
+            for _, task_id in assigned:
                 if task_id not in recorded:
                     recorded.add(task_id)
                     task = pool.tasks[task_id]
                     released.append((task_id, task.release_tick, task.errands))
-            goals = book.goals()
-            starts = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
-            # a robot's new moves start when it can make them: it waits in the window for its
-            # committed actions but one (the one it finishes while the next window arrives), so
-            # others do not plan to enter cells it leaves long after the plan says
-            hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
-                    for r in range(n)]
-            # cells that robots in a delay will still drive through: plan others around them
-            avoid = [a.cell for r in range(n) if delayed[r] for a in adg.queue[r]]
-            win = planner.plan(starts, goals, window, hold, avoid)
+            win = planner(req)
             tasks_of = book.planned(win.reached)
             cpu = time.thread_time() - cpu0
             planner_times.append(cpu)

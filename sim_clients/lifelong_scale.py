@@ -7,13 +7,18 @@ cleanly when absent), converted by :mod:`gateway.planning.lorr_convert` (3 ticks
 delays, no following) and run for ``--ticks`` ticks, each in its own process: planner CPU
 per call (p50, p99, max, the first call apart: it schedules every robot and computes every
 table), peak RSS of the run and of the independent validator (``tracecheck/lorr.py``) after
-it, tasks finished, and the ratio to the published winners' figures over 5,000 steps
-(WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and to the same number of
-actions (a 2026 tick is a third of an action: see the module doc of the converter).
+it, tasks finished and first errands done, the shares of robot-ticks spent delayed, waiting
+for another robot and without committed work, and the ratio to the published winners'
+figures over 5,000 steps (WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and
+to the same number of actions (a 2026 tick is a third of an action: see the module doc of
+the converter).
+:data:`MILLION` adds a generated 10,000-robot warehouse of 1,000,000 cells (no archive
+needed, no published figures).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -24,7 +29,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gateway.planning.lorr_convert import convert
+import numpy as np
+
+from gateway.planning.generators import warehouse_map
+from gateway.planning.lorr import LorrProblem
+from gateway.planning.lorr_convert import AGENT_COUNTER_2026, DELAY_2026, REVEAL_2026, convert
 from gateway.planning.movingai import format_map
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
 from tracecheck.lorr import check_output, read_free
@@ -53,6 +62,38 @@ INSTANCES = {
 }
 
 
+MILLION = "warehouse_1m"
+"""A generated instance (no archive needed): :func:`million_warehouse`."""
+
+
+def million_warehouse(robots: int = 10_000, seed: int = 0) -> LorrProblem:
+    """10,000 robots on a generated 1000 x 1000 warehouse (1,000,000 cells, 586,660 free):
+    shelf blocks of 10 x 2 cells with aisles of 2, like warehouse_large at 14 times its area.
+    As in warehouse_large (353 emitter cells on its edges, 11,118 shelf cells), a task fetches
+    from one of 500 stations on the outer ring (every 8th cell) to a random cell beside a
+    shelf; ``4 * robots`` tasks, robots on random free cells, under the 2026 rules of
+    :mod:`gateway.planning.lorr_convert` (3 ticks an action, its delays, reveal 1.5)."""
+    grid = warehouse_map(83, 249, 10, shelf_depth=2, aisle=2, border=3,
+                         name="warehouse-1000-1000")
+    free = grid.free
+    ring = np.zeros_like(free)
+    ring[[0, -1], :] = True
+    ring[:, [0, -1]] = True
+    stations = np.flatnonzero((ring & free).ravel())[::8]
+    near = np.zeros_like(free)
+    near[1:, :] |= ~free[:-1, :]
+    near[:-1, :] |= ~free[1:, :]
+    shelves = np.flatnonzero((near & free).ravel())
+    rng = np.random.default_rng(seed)
+    starts = rng.choice(np.flatnonzero(free.ravel()), size=robots, replace=False)
+    tasks = zip(rng.choice(stations, size=4 * robots), rng.choice(shelves, size=4 * robots),
+                strict=True)
+    return LorrProblem(grid=grid, starts=tuple(int(c) for c in starts),
+                       tasks=tuple((int(a), int(b)) for a, b in tasks),
+                       num_tasks_reveal=REVEAL_2026, agent_counter=AGENT_COUNTER_2026,
+                       delay=dataclasses.replace(DELAY_2026, seed=seed), name=grid.name)
+
+
 def archive_dir(given: Path | None) -> Path:
     """The archive copy to read: ``given``, else ``$FLEETGATE_LORR_ARCHIVE``, else
     ``~/.cache/fleetgate/lorr-archive``."""
@@ -74,9 +115,12 @@ def _percentile(values: list[float], q: float) -> float:
 
 def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, Any]:
     """Run one instance in this process (see the module doc); one dict of figures."""
-    inst = INSTANCES[name]
-    conv = convert(archive / inst.path)
-    prob = conv.problem
+    changes: tuple[str, ...] = ("generated under the 2026 rules",)
+    if name == MILLION:
+        prob = million_warehouse()
+    else:
+        conv = convert(archive / INSTANCES[name].path)
+        prob, changes = conv.problem, conv.changes
     cfg = LifelongConfig(prob, ticks=ticks, reassign=reassign)
     res = run_lifelong(cfg)
     run_mb = _peak_mb()
@@ -94,8 +138,13 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, 
         "cpu_max_s": round(max(later, default=0.0), 3),
         "calls_over_1s": sum(t > 1.0 for t in later),
         "peak_rss_mb": round(run_mb), "validator_peak_rss_mb": round(_peak_mb()),
-        "valid": True, "changes": list(conv.changes),
+        "idle": {k: round(res.extra[k], 3) for k in ("delayed", "waiting", "no_work")},
+        "first_errands_done": sum(e[3] == 1 for e in res.events),
+        "valid": True, "changes": list(changes),
     }
+    if name == MILLION:
+        return out
+    inst = INSTANCES[name]
     for who, figure in (("wppl", inst.wppl), ("epibt", inst.epibt)):
         out[f"{who}_per_tick_ratio"] = round(res.finished / (figure * ticks / PUBLISHED_STEPS),
                                              3)
@@ -104,15 +153,16 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, 
     return out
 
 
-def scale_runs(archive: Path, ticks: int, reassign: int,
-               command: Sequence[str]) -> list[dict[str, Any]]:
-    """Each instance whose files are there, in its own process (its own peak RSS:
-    ``command`` followed by ``--scale-one NAME --archive --ticks --reassign`` prints
-    :func:`scale_one` as one JSON line); an instance that is absent gives
-    ``{"instance": name, "skipped": reason}``."""
+def scale_runs(archive: Path, ticks: int, reassign: int, command: Sequence[str],
+               names: Sequence[str] = (*INSTANCES, MILLION)) -> list[dict[str, Any]]:
+    """Each instance of ``names`` whose files are there (the generated one always is), in its
+    own process (its own peak RSS: ``command`` followed by ``--scale-one NAME --archive
+    --ticks --reassign`` prints :func:`scale_one` as one JSON line); an instance that is
+    absent gives ``{"instance": name, "skipped": reason}``."""
     out: list[dict[str, Any]] = []
-    for name, inst in INSTANCES.items():
-        if not (archive / inst.path).is_file():
+    for name in names:
+        inst = INSTANCES.get(name)
+        if inst is not None and not (archive / inst.path).is_file():
             out.append({"instance": name, "skipped": f"{inst.path} not under {archive}"})
             continue
         proc = subprocess.run(
@@ -139,7 +189,8 @@ def scale_line(runs: list[dict[str, Any]]) -> str:
             f"{r['cpu_max_s']} s (first {r['first_call_s']} s after {r['preprocess_s']} s of "
             f"preprocessing; {r['calls_over_1s']} of "
             f"{r['calls'] - 1} later calls over 1 s), peak RSS {r['peak_rss_mb']} MB "
-            f"(validator {r['validator_peak_rss_mb']} MB), valid; vs WPPL "
-            f"{r['wppl_per_tick_ratio']} per tick / {r['wppl_per_action_ratio']} per action, "
-            f"vs EPIBT {r['epibt_per_tick_ratio']} / {r['epibt_per_action_ratio']}")
+            f"(validator {r['validator_peak_rss_mb']} MB), valid"
+            + (f"; vs WPPL {r['wppl_per_tick_ratio']} per tick / {r['wppl_per_action_ratio']} "
+               f"per action, vs EPIBT {r['epibt_per_tick_ratio']} / "
+               f"{r['epibt_per_action_ratio']}" if "wppl_per_tick_ratio" in r else ""))
     return "lifelong scale: " + "; ".join(parts)

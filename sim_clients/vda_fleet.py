@@ -11,17 +11,20 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import random
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import aiomqtt
 
 from gateway.planning.grid import Cell
+from gateway.server.config import GatewayConfig
+from gateway.server.runs.lifelong import shift_from
 from gateway.vda5050.broker import BrokerConfig, publish, will
 from gateway.vda5050.config import Vda5050Config
 from protocol.messages import HEADINGS
-from protocol.vda5050.master import Publish
+from protocol.vda5050.master import Publish, parse_order_id
 from protocol.vda5050.nodes import THETA
 from protocol.vda5050.topics import MASTER_PUBLISHES
 from sim_clients.vda_vehicle import VdaVehicle
@@ -83,16 +86,47 @@ async def run_fleet(vehicles: list[VdaVehicle], broker: BrokerConfig,
 
 
 def make_vehicles(config: Vda5050Config, world: World | None, *, speed: float = 1.0,
-                  starts: Mapping[int, tuple[Cell, int | None]] | None = None
+                  starts: Mapping[int, tuple[Cell, int | None]] | None = None,
+                  jitter: float = 0.0, seed: int = 0, action_s: float = 1.0
                   ) -> list[VdaVehicle]:
     """A simulated vehicle for every vehicle of ``config``: 1 s per move, 90-degree turn or
-    wait divided by ``speed``; robot ``r`` stands on ``starts[r]`` (cell, plan heading) or, if
-    not given, on the first node of its first order."""
+    wait divided by ``speed`` (times U(1 - ``jitter``, 1 + ``jitter``) per edge, seeded per
+    vehicle), ``action_s`` per node action (pick, drop); robot ``r`` stands on ``starts[r]``
+    (cell, plan heading) or, if not given, on the first node of its first order."""
     vehicles = []
     for v in config.vehicles:
         cell, heading = (starts or {}).get(v.robot_id, (None, None))
         theta = THETA[HEADINGS[heading]] if heading is not None else 0.0
+        delay = None
+        if jitter:
+            rng = random.Random(seed * 1_000_003 + v.robot_id)
+            delay = _jitter(rng, jitter / speed)
         vehicles.append(VdaVehicle(config.topics(v), config.version_of(v), config.nodes(), cell,
                                    theta, move_s=1 / speed, wait_s=1 / speed,
-                                   recheck_s=0.1 / speed, world=world, who=v.robot_id))
+                                   action_s=action_s / speed, recheck_s=0.1 / speed,
+                                   world=world, who=v.robot_id, delay_s=delay))
     return vehicles
+
+
+def _jitter(rng: random.Random, spread_s: float) -> Callable[[int], float]:
+    """Per-edge extra time U(-spread, +spread) s (the edge count is not needed: a stream)."""
+    return lambda _edge: rng.uniform(-spread_s, spread_s)
+
+
+def shift_starts(config: GatewayConfig) -> dict[int, tuple[Cell, int | None]]:
+    """Where the robots of the lifelong shift ``config`` describes start: (cell, heading)."""
+    shift = shift_from(config)
+    return {r: (shift.grid.cell(c), shift.headings[r] if shift.headings else None)
+            for r, c in enumerate(shift.starts)}
+
+
+def driven_actions(vehicle: VdaVehicle) -> list[int]:
+    """The gateway's action numbers of the edges ``vehicle`` drove, in order (an order named
+    ``<plan key>.<first action>`` holds consecutive actions: a lifelong shift's, or a plan's
+    without ``drop_waits``)."""
+    out = []
+    for order_id, seq in vehicle.driven:
+        parsed = parse_order_id(order_id)
+        if parsed is not None:
+            out.append(parsed[1] + (seq - 1) // 2)
+    return out

@@ -24,7 +24,9 @@ What it does (section numbers of the 2.1.0 text):
   actions (e.g. ``pick`` / ``drop``) run for ``action_s`` each, blocking the next edge;
 * instant actions (6.8): ``startPause`` / ``stopPause`` (a running edge completes, no new edge
   starts while paused), ``cancelOrder`` (stops at the next node; ``noOrderToCancel`` when it has
-  no order), ``stateRequest``, ``factsheetRequest``; other types FAIL;
+  no order), ``stateRequest``, ``factsheetRequest`` (2.1.0: the factsheet is published again);
+  other types FAIL;
+* the factsheet (6.15) is published (retained) when the vehicle connects;
 * a state is published on every event of 6.10 and at least every ``state_period_s``;
 * a vehicle created without a start position (``fleetgate sim --vda5050``, which does not
   know the gateway's plan) reports ``positionInitialized`` false and takes the first node of
@@ -39,8 +41,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from protocol.vda5050.master import Publish
+from protocol.vda5050.models import Action as VdaAction
 from protocol.vda5050.models import (
     ActionState,
+    AgvAction,
     AgvPosition,
     BatteryState,
     Connection,
@@ -48,10 +52,12 @@ from protocol.vda5050.models import (
     Edge,
     EdgeState,
     ErrorReference,
+    Factsheet,
     InstantActions,
     Node,
     NodeState,
     Order,
+    ProtocolFeatures,
     SafetyState,
     State,
     VdaError,
@@ -141,6 +147,10 @@ class VdaVehicle:
         self.driven: list[tuple[str, int]] = []
         """``(orderId, edge sequenceId)`` of every edge driven, in order."""
         self.action_states: dict[str, ActionState] = {}
+        self.node_actions_run: list[str] = []
+        """The ``actionId`` of every node action started, in order."""
+        self.fail_actions: set[str] = set()
+        """Node action types that FAIL here (a broken vehicle, for tests)."""
         self.errors: list[VdaError] = []
         self._busy_until = 0.0
         self._pending_actions: list[str] = []
@@ -154,9 +164,37 @@ class VdaVehicle:
     # ------------------------------------------------------------------ driver API
 
     def connect(self, now_s: float) -> tuple[Publish, Publish]:
-        """The last will (``CONNECTIONBROKEN``) to register, and the ``ONLINE`` message."""
+        """The last will (``CONNECTIONBROKEN``) to register, and the ``ONLINE`` message; the
+        factsheet (retained) is queued for :meth:`drain`."""
+        self._out.append(Publish("factsheet", self.factsheet(now_s)))
         return (Publish("connection", self._connection("CONNECTIONBROKEN", now_s)),
                 Publish("connection", self._connection("ONLINE", now_s)))
+
+    def factsheet(self, now_s: float) -> Factsheet:
+        """This vehicle's factsheet (section 6.15): a differential-drive carrier that takes
+        ``move_s`` per cell and per 90-degree turn, with the actions it implements."""
+        speed = self.nodes.cell_m / self.move_s
+        instant = ["startPause", "stopPause", "cancelOrder", "stateRequest"]
+        if self.version != "2.0.0":
+            instant.append("factsheetRequest")
+        return Factsheet(
+            **self._header("factsheet", now_s),
+            type_specification={"seriesName": "fleetgate-sim", "agvKinematic": "DIFF",
+                                "agvClass": "CARRIER", "maxLoadMass": 0.0,
+                                "localizationTypes": ["GRID"],
+                                "navigationTypes": ["AUTONOMOUS"]},
+            physical_parameters={"speedMin": 0.0, "speedMax": speed, "accelerationMax": 1.0,
+                                 "decelerationMax": 1.0, "heightMax": 0.5,
+                                 "width": 0.8 * self.nodes.cell_m,
+                                 "length": 0.8 * self.nodes.cell_m},
+            protocol_limits={"maxStringLens": {}, "maxArrayLens": {}, "timing": {
+                "minOrderInterval": 0.0, "minStateInterval": 0.0,
+                "defaultStateInterval": self.state_period_s}},
+            protocol_features=ProtocolFeatures(optional_parameters=[], agv_actions=[
+                *(AgvAction(action_type=t, action_scopes=["INSTANT"]) for t in instant),
+                *(AgvAction(action_type=t, action_scopes=["NODE", "EDGE"])
+                  for t in ("pick", "drop"))]),
+            agv_geometry={}, load_specification={})
 
     def disconnect(self, now_s: float) -> Publish:
         """The ``OFFLINE`` message to send before a graceful disconnect."""
@@ -312,6 +350,11 @@ class VdaVehicle:
             self._recheck_at = None
             return
         edge, node = held.edges[0], held.nodes[0]
+        waiting = [a for a in edge.actions
+                   if self.action_states[a.action_id].action_status == "WAITING"]
+        if waiting:  # HARD edge actions (pick, drop) run before the vehicle drives off
+            self._run_actions(waiting, now_s)
+            return
         assert node.node_position is not None
         pos = node.node_position
         cell = self.nodes.cell_of(pos.x, pos.y)
@@ -355,21 +398,28 @@ class VdaVehicle:
         self._dirty = True
         self._run_node_actions(drive.node, now_s)
         if self.drive is None and self._busy_until <= now_s:
+            self._finish_node_actions()  # instantaneous node actions (``action_s`` 0)
             self._maybe_start(now_s)
 
     def _run_node_actions(self, node: Node, now_s: float) -> None:
-        if node.actions:
-            self._busy_until = now_s + self.action_s * len(node.actions)
-        for action in node.actions:
+        self._run_actions(node.actions, now_s)
+
+    def _run_actions(self, actions: list[VdaAction], now_s: float) -> None:
+        if actions:
+            self._busy_until = now_s + self.action_s * len(actions)
+            self._dirty = True
+        for action in actions:
+            self.node_actions_run.append(action.action_id)
             self.action_states[action.action_id] = ActionState(
                 action_id=action.action_id, action_type=action.action_type,
                 action_status="RUNNING")
-        self._pending_actions = [a.action_id for a in node.actions]
+        self._pending_actions = [a.action_id for a in actions]
 
     def _finish_node_actions(self) -> None:
         for action_id in self._pending_actions:
             state = self.action_states[action_id]
-            self.action_states[action_id] = state.model_copy(update={"action_status": "FINISHED"})
+            status = "FAILED" if state.action_type in self.fail_actions else "FINISHED"
+            self.action_states[action_id] = state.model_copy(update={"action_status": status})
             self._dirty = True
         self._pending_actions = []
 
@@ -391,7 +441,9 @@ class VdaVehicle:
                 self._cancel = action_id
         elif action_type == "stateRequest":
             self._dirty = True
-        elif action_type != "factsheetRequest":
+        elif action_type == "factsheetRequest" and self.version != "2.0.0":
+            self._out.append(Publish("factsheet", self.factsheet(now_s)))
+        else:
             status = "FAILED"
         self.action_states[action_id] = ActionState(action_id=action_id,
                                                     action_type=action_type,

@@ -74,6 +74,16 @@ class LoopClock:
     async def settle(self) -> None:
         """Let the work of the current instant finish before a tick (no-op in real time)."""
 
+    def wall_s(self) -> float:
+        """Seconds since the epoch, on this clock (a run's start, and how long a stopped
+        gateway was away when it resumes)."""
+        return time.time()
+
+    async def wait_for(self, fn: Callable[[], T]) -> T:
+        """Wait for ``fn`` (blocking work done elsewhere, e.g. a process starting) off the
+        loop, so that events keep arriving meanwhile."""
+        return await asyncio.to_thread(fn)
+
 
 class RealClock(LoopClock):
     """Wall-clock time; the planner runs in a worker thread."""
@@ -97,6 +107,9 @@ class VirtualClock(LoopClock):
 
     ``solver_time`` says how much virtual time a planner call costs.
     """
+
+    EPOCH_S = 1_767_225_600.0
+    """The wall time of loop time 0 (2026-01-01 UTC): virtual runs are reproducible."""
 
     SETTLE_ROUNDS = 64
     """Loop iterations a tick waits so that same-instant messages (several hops) arrive."""
@@ -123,6 +136,15 @@ class VirtualClock(LoopClock):
         """Yield enough loop iterations for every same-instant hop to complete."""
         for _ in range(self.SETTLE_ROUNDS):
             await asyncio.sleep(0)
+
+    def wall_s(self) -> float:
+        """Virtual wall time: :attr:`EPOCH_S` plus the loop's virtual seconds (a gateway
+        resumed in the same loop sees the virtual time it was away, whatever the real time)."""
+        return self.EPOCH_S + self._loop_s()
+
+    async def wait_for(self, fn: Callable[[], T]) -> T:
+        """Wait for ``fn`` inline: virtual time stands still meanwhile."""
+        return fn()
 
     async def run_solver(self, fn: Callable[[], T]) -> tuple[T, float]:
         """Run ``fn`` inline (virtual time stands still), then sleep the charged time."""

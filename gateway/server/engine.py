@@ -76,6 +76,7 @@ from gateway.server.views import FleetView, snapshot_fields
 from gateway.server.wire.session import Session
 from protocol import (
     Ack,
+    Action,
     ActionRefused,
     Blocked,
     Cancelled,
@@ -84,7 +85,6 @@ from protocol import (
     Finished,
     Hello,
     IntruderReport,
-    Pose,
     SetSpeed,
     Snapshot,
     Started,
@@ -156,6 +156,15 @@ class Engine:
         self._flushing: set[int] = set()  # robots whose session's effects are being carried out
         self._routing = False  # a batch of executor commands is being routed
         self._routed_later: deque[Command] = deque()  # commands given meanwhile
+        self.meter_cpu = False
+        """Measure :attr:`cpu_s` (set before :meth:`run` starts; a benchmark does: it costs
+        two reads of the thread's CPU clock per wake-up of the owner task)."""
+        self.cpu_s = 0.0
+        """With :attr:`meter_cpu`: CPU time of the owner task so far (its own work: items,
+        ticks, commits; not the connections' reading, validating and writing, which run in
+        tasks of their own)."""
+        self._resumed = 0.0  # thread CPU time when the owner task last woke up
+        self._handled = 0  # items handled (the queue depth gauge samples every 64th)
 
     # -------------------------------------------------------------------------- status
     @property
@@ -200,14 +209,15 @@ class Engine:
     async def run(self) -> None:
         """Process queue items forever; tick while running."""
         next_tick: float | None = None
+        self._resumed = time.thread_time()
         while True:
             if not self.current_run.ticking:
                 next_tick = None
                 self.commit()
-                item = await self.queue.get()
+                item = await self._get()
             else:
                 if next_tick is None:
-                    next_tick = self._next_tick(self.now_ms())
+                    next_tick = self._first_tick(self.now_ms())
                 if not self.queue.empty():
                     # what ``get`` under the timeout would return at once, without arming and
                     # cancelling a timer per item (a busy fleet keeps this queue non-empty)
@@ -217,7 +227,7 @@ class Engine:
                     delay = (next_tick - self.clock.now_ms()) / self.clock.speed / 1000.0
                     try:
                         async with asyncio.timeout(max(0.0, delay)):
-                            item = await self.queue.get()
+                            item = await self._get()
                     except TimeoutError:
                         await self._quiesce()
                         for hook in self.before_tick:
@@ -226,15 +236,34 @@ class Engine:
                         self._tick_safely()
                         next_tick = self._next_tick(next_tick)
                         continue
-            self.metrics.queue_depth.set(self.queue.qsize())
+            self._handled += 1
+            if not self._handled & 63:  # a gauge: a sample every 64 items is enough
+                self.metrics.queue_depth.set(self.queue.qsize())
             self._handle_safely(item)
+
+    async def _get(self) -> Item:
+        """The next queue item (the owner's CPU time is not counted while it waits)."""
+        if not self.meter_cpu:
+            return await self.queue.get()
+        self.cpu_s += time.thread_time() - self._resumed
+        try:
+            return await self.queue.get()
+        finally:
+            self._resumed = time.thread_time()
 
     async def _quiesce(self) -> None:
         """Handle everything of the present instant, including what the replies to it cause
         (a finish -> a dispatch -> the robot's start), before a tick looks at the monitor."""
         while True:
             self.commit()
-            await self.clock.settle()
+            if not self.meter_cpu:
+                await self.clock.settle()
+            else:
+                self.cpu_s += time.thread_time() - self._resumed
+                try:
+                    await self.clock.settle()
+                finally:
+                    self._resumed = time.thread_time()
             if self.queue.empty():
                 return
             while not self.queue.empty():
@@ -250,6 +279,14 @@ class Engine:
             self.journal.commit()
             self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
+
+    def _first_tick(self, now: float) -> float:
+        """When ticking begins (a start, a resume): now if the core's wake-up is already due
+        (a resumed shift's planning call is not put off to the next period), else the next
+        tick."""
+        core = self._core()
+        wake = core.next_wakeup_ms() if core is not None else None
+        return now if wake is not None and wake <= now else self._next_tick(now)
 
     def _next_tick(self, after: float) -> float:
         period = float(MONITOR_PERIOD_MS)
@@ -410,7 +447,11 @@ class Engine:
         while effects := gs.drain():
             for e in effects:
                 if isinstance(e, ToRobot):
-                    if gs.link is not None:
+                    if gs.link is None:
+                        pass
+                    elif e.kind is Action:
+                        cast(Session, gs.link).send_action(e.fields)
+                    else:
                         cast(Session, gs.link).send(e.kind, **e.fields)
                 elif isinstance(e, Refuse):
                     if sender is not None:
@@ -424,11 +465,10 @@ class Engine:
         if ex is None:
             gs.rejected(r, "no execution is running")
             return
-        handlers: dict[str, Callable[[int, int, int, float], None]] = {
-            "started": ex.started, "finished": ex.finished, "blocked": ex.blocked,
-            "stopped": ex.stopped, "unblocked": ex.unblocked, "cancelled": ex.cancelled,
-            "refused": partial(ex.refused, reason=r.reason)}
-        apply = handlers[r.kind]
+        # the core's method of the same name (refused: with the robot's reason)
+        apply: Callable[[int, int, int, float], None] = (
+            partial(ex.refused, reason=r.reason) if r.kind == "refused"
+            else getattr(ex, r.kind))
         try:  # (a catch-up applied after later inputs takes effect at the latest of them)
             apply(r.robot, r.plan, r.index, max(r.t_ms, ex.now_ms))
         except ExecutionError as exc:
@@ -515,13 +555,14 @@ class Engine:
 
     def _dispatch(self, c: Dispatch) -> None:
         aid = action_id(c.plan, c.robot, c.action, self.run_id)
+        # plain JSON values: the session writes them as they are (encode_action)
         fields: dict[str, Any] = {
-            "action_id": aid, "sequence": c.action,
-            "src": Pose(cell=c.src, heading=None if c.src_heading is None
-                        else HEADINGS[c.src_heading]),
-            "dst": Pose(cell=c.dst, heading=None if c.dst_heading is None
-                        else HEADINGS[c.dst_heading]),
-            "duration_ms": c.duration_ms,
+            "action_id": aid, "sequence": int(c.action),
+            "src": {"cell": [int(c.src[0]), int(c.src[1])],
+                    "heading": None if c.src_heading is None else HEADINGS[c.src_heading]},
+            "dst": {"cell": [int(c.dst[0]), int(c.dst[1])],
+                    "heading": None if c.dst_heading is None else HEADINGS[c.dst_heading]},
+            "duration_ms": float(c.duration_ms),
         }
         gs = self.robot(c.robot)
         gs.dispatch(fields)

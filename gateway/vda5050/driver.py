@@ -17,7 +17,7 @@ import aiomqtt
 
 from gateway.vda5050.broker import BrokerConfig, publish
 from protocol.vda5050.master import Effect, Publish, VehicleMaster
-from protocol.vda5050.models import Connection, State, parse
+from protocol.vda5050.models import Connection, Factsheet, State, parse
 from protocol.vda5050.topics import QOS, VEHICLE_PUBLISHES, split_topic
 
 log = logging.getLogger("fleetgate.vda5050")
@@ -102,10 +102,10 @@ class MasterClient:
             payload = message.payload
             if not isinstance(payload, bytes | str) or len(payload) > MAX_PAYLOAD:
                 raise ValueError("payload is not a JSON text of at most 256 KiB")
-            if name == "factsheet":
-                return  # read by the conformance check, not by the master
             msg = parse(name, payload)
-            if isinstance(msg, State):
+            if isinstance(msg, Factsheet):
+                master.receive_factsheet(msg)
+            elif isinstance(msg, State):
                 master.receive_state(msg, time.time())
                 if self.on_state is not None:
                     self.on_state(master)

@@ -23,6 +23,7 @@ from gateway.server.wire.auth import Peer
 from gateway.server.wire.transport import MemoryClient, memory_pair
 from gateway.vda5050.config import Vda5050Config
 from gateway.vda5050.driver import MasterClient
+from gateway.vda5050.errands import ShiftErrands
 from protocol.codec import ProtocolError, decode, encode
 from protocol.messages import (
     HEADINGS,
@@ -33,7 +34,7 @@ from protocol.messages import (
     action_run,
     parse_action_id,
 )
-from protocol.vda5050.master import Effect, LinkState, VehicleMaster
+from protocol.vda5050.master import Effect, LinkState, VehicleMaster, consecutive_ids
 from protocol.vda5050.robot import VdaRobot
 
 if TYPE_CHECKING:
@@ -68,9 +69,12 @@ class VdaTransport:
         nodes = config.nodes()
         self.vehicles: dict[int, _Vehicle] = {}
         masters: list[VehicleMaster] = []
+        lifelong = gateway.config.lifelong is not None
+        errands = ShiftErrands(gateway.engine, {v.robot_id for v in config.vehicles})
         for v in config.vehicles:
             master = VehicleMaster(config.topics(v), config.version_of(v), nodes,
-                                   resend_s=config.resend_s)
+                                   resend_s=config.resend_s, continuous=lifelong,
+                                   errand=errands if lifelong else None, ids=self._ids)
             masters.append(master)
             self.vehicles[id(master)] = _Vehicle(VdaRobot(v.robot_id, master, turning=turning,
                                                           plan_of=self._plan_of))
@@ -114,14 +118,23 @@ class VdaTransport:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await self._task
 
+    def _steps(self, plan: int, robot: int) -> list[int] | None:
+        """The plan steps of ``robot``'s actions (waits are none under ``drop_waits``) in the
+        executor's current plan, if that is plan ``plan``; else None."""
+        executor = self.gateway.engine.executor
+        adg = getattr(executor, "adg", None)
+        if adg is None or getattr(executor, "plan_id", None) != plan:
+            return None
+        return [adg.step_of[v] for v in range(adg.first[robot], adg.first[robot + 1])]
+
     def _plan_of(self, action: Action) -> list[Action]:
         """Every action of the robot in the executor's current plan, if ``action`` is one of
         them (the orders' horizon); empty for a lifelong shift or an older plan."""
-        executor = self.gateway.engine.executor
         plan, robot, _ = parse_action_id(action.action_id)
-        adg = getattr(executor, "adg", None)
-        if adg is None or getattr(executor, "plan_id", None) != plan:
+        if self._steps(plan, robot) is None:
             return []
+        executor = self.gateway.engine.executor
+        adg = executor.adg  # type: ignore[union-attr]
         run = action_run(action.action_id)
         tx = executor.monitor.tx  # type: ignore[union-attr]
         out = []
@@ -135,6 +148,23 @@ class VdaTransport:
                               dst=Pose(cell=adg.dst[v], heading=None if h1 is None
                                        else HEADINGS[h1]), duration_ms=tx[v]))
         return out
+
+    def _ids(self, key: str, first: int, count: int) -> list[str]:
+        """The ids of the ``count`` actions of an order named after action ``first`` of plan
+        key ``key`` (``[run.]plan.robot``): in a lifelong shift actions are numbered over the
+        run and each has its segment; in a plan the robot's actions are its plan steps (waits
+        left out under ``drop_waits``). Fewer if the plan has no more."""
+        *head, plan_s, robot_s = key.split(".")
+        run, plan, robot = (head[0] if head else ""), int(plan_s), int(robot_s)
+        shift = self.gateway.engine.lifelong
+        if shift is not None:
+            executor = shift.executor
+            return [action_id(executor.segment_of(robot, n), robot, n, run)
+                    for n in range(first, first + count)]
+        steps = self._steps(plan, robot)
+        if steps is None:
+            return consecutive_ids(key, first, count)
+        return [action_id(plan, robot, s, run) for s in steps if s >= first][:count]
 
     # ------------------------------------------------------------------ vehicle side
     def _effect(self, master: VehicleMaster, effect: Effect) -> None:

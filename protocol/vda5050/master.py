@@ -47,15 +47,17 @@ run, plan epoch and start, so a master restarted from its journal names it again
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
-from protocol.messages import Action, plan_key
+from protocol.messages import Action, action_run, plan_key
 from protocol.vda5050.models import Action as VdaAction
 from protocol.vda5050.models import (
+    ActionParameter,
     Connection,
     Edge,
+    Factsheet,
     Header,
     InstantActions,
     Node,
@@ -77,6 +79,39 @@ def parse_order_id(order_id: str) -> tuple[str, int] | None:
 
 REJECTIONS = frozenset({"validationError", "orderError", "orderUpdateError", "noRouteError"})
 """Error types that mean the vehicle did not take an order over (section 6.6.4)."""
+
+DEPART = "-depart"
+"""The suffix of the ``actionId`` of an errand done on the edge that leaves its cell."""
+
+
+@dataclass(frozen=True, slots=True)
+class Errand:
+    """A ``kind`` action (``pick`` or ``drop``, blocking HARD) for load ``load_id`` that a
+    lifelong shift's errand becomes. Normally on the end node of the action that brings the
+    vehicle onto the errand cell (``on_edge`` False), which is finished only once the node
+    action is. An errand the vehicle is already on when it is planned (its node was sent
+    before) is done on the edge of its next action instead (``on_edge``; HARD: before it
+    drives on); its ``action_id`` ends with :data:`DEPART`. ``action_id`` names the errand
+    (task and errand index), so a restarted master names it again the same way."""
+
+    kind: Literal["pick", "drop"]
+    action_id: str
+    load_id: str
+    on_edge: bool = False
+
+    def vda_action(self) -> VdaAction:
+        """The action as it goes into an order."""
+        return VdaAction(action_type=self.kind, action_id=self.action_id, blocking_type="HARD",
+                         action_parameters=[
+                             ActionParameter(key="stationType", value="floor"),
+                             ActionParameter(key="loadType", value="default"),
+                             ActionParameter(key="loadId", value=self.load_id)])
+
+
+def consecutive_ids(key: str, first: int, count: int) -> list[str]:
+    """The ids of ``count`` actions of plan key ``key`` numbered ``first``, ``first`` + 1, ..."""
+    return [f"{key}.{first + k}" for k in range(count)]
+
 
 ReportKind = Literal["started", "finished", "blocked", "unblocked", "cancelled", "refused"]
 
@@ -119,6 +154,8 @@ class _Step:
     started: bool = False
     finished: bool = False
     blocked: bool = False
+    errand: str | None = None
+    """The ``actionId`` of the pick/drop on its end node, if it has one."""
 
     @property
     def node_seq(self) -> int:
@@ -148,9 +185,9 @@ class _Order:
     """The ``orderUpdateId`` of ``sent[0]`` (more than 0 for an order taken over)."""
     horizon: bool = False
     """The vehicle holds unreleased nodes of this order."""
-    adopting: dict[int, int] = field(default_factory=dict)
-    """Taken over from the vehicle: action index -> edge sequence id, until the gateway
-    resends the action."""
+    adopting: dict[str, int] = field(default_factory=dict)
+    """Taken over from the vehicle: action id -> edge sequence id, until the gateway resends
+    the action."""
 
     def decision_point(self) -> Node:
         """The last base node, as it was first sent."""
@@ -159,16 +196,32 @@ class _Order:
 
 class VehicleMaster:
     """Drives one vehicle (see the module docstring). Feed it the gateway's releases, cancels
-    and pauses and the vehicle's messages; take what :meth:`drain` returns, in order."""
+    and pauses and the vehicle's messages; take what :meth:`drain` returns, in order.
+
+    ``continuous`` (a lifelong shift, where the actions of a robot are numbered over the whole
+    run and each planning call's segment has its own plan key): actions that continue the
+    robot's last released one extend the current order whatever their plan key; a new order
+    starts only once the vehicle finished the current one. ``errand(action)``: the picks and
+    drops (:class:`Errand`) of an action being released. ``ids(key, first, count)``: the ids
+    of ``count`` consecutive actions of an order named after action ``first`` of plan key
+    ``key`` (to take an order over after a restart; by default their indices count up by
+    one)."""
 
     def __init__(self, topics: VehicleTopics, version: VdaVersion, nodes: NodeMap, *,
-                 resend_s: float = 1.0) -> None:
+                 resend_s: float = 1.0, continuous: bool = False,
+                 errand: Callable[[Action], Sequence[Errand]] | None = None,
+                 ids: Callable[[str, int, int], list[str]] = consecutive_ids) -> None:
         self.topics = topics
         self.version = version
         self.nodes = nodes
         self.resend_s = resend_s
+        self.continuous = continuous
+        self.errand = errand
+        self.ids = ids
         self.online = False
         self.state: State | None = None
+        self.factsheet: Factsheet | None = None
+        """The vehicle's factsheet, once it sent one (retained, or asked for)."""
         self._order: _Order | None = None
         self._plan: list[Action] = []
         self._carry: list[Action] = []
@@ -194,8 +247,9 @@ class VehicleMaster:
             return
         order = self._order
         live = order is not None and not order.dead
-        other_plan = order is None or not order.order_id.startswith(
-            plan_key(actions[0].action_id) + ".")
+        other_plan = order is None or not (
+            self._continues(order, actions[0]) if self.continuous
+            else order.order_id.startswith(plan_key(actions[0].action_id) + "."))
         if live and order is not None and order.cancel_id is not None:
             self._carry.extend(actions)  # a new order once the cancelOrder completes
         elif live and order is not None and other_plan and order.horizon:
@@ -209,6 +263,17 @@ class VehicleMaster:
         else:
             assert order is not None
             self._update(order, list(actions), now_s)
+
+    @staticmethod
+    def _continues(order: _Order, action: Action) -> bool:
+        """Whether ``action`` follows the order's last step while the vehicle still drives it
+        (in a lifelong shift; once it is done a new order starts)."""
+        if not order.steps or order.steps[-1].finished:
+            return False
+        last = order.steps[-1].action
+        return (action.sequence == last.sequence + 1
+                and action_run(action.action_id) == action_run(last.action_id)
+                and tuple(action.src.cell) == tuple(last.dst.cell))
 
     def cancel(self, action_ids: Iterable[str], now_s: float) -> None:
         """The gateway cancels these released, unstarted actions (a replan)."""
@@ -252,7 +317,9 @@ class VehicleMaster:
         """After a restart: take over the order ``state`` shows, if this master (or its
         predecessor) named it (``<plan key>.<first action>``). Returns the ids of the actions
         the vehicle finished in it and of those still in its base; :meth:`adopt_actions`
-        then takes the base's actions as the gateway resends them."""
+        then takes the base's actions as the gateway resends them. An action whose end node
+        the vehicle reached while its pick or drop there has not finished is in the base (it
+        finishes with that node action, which is not sent again)."""
         self.state = state
         parsed = parse_order_id(state.order_id)
         if parsed is None or self._order is not None:
@@ -260,6 +327,14 @@ class VehicleMaster:
         key, first = parsed
         done = state.last_node_sequence_id // 2
         base = sorted(e.sequence_id for e in state.edge_states if e.released)
+        ids = self.ids(key, first, done + len(base))
+        if len(ids) < done + len(base):
+            return [], []  # not an order of the gateway's current plan
+        if done and not state.driving and any(
+                a.action_type in ("pick", "drop") and not a.action_id.endswith(DEPART)
+                and a.action_status not in ("WAITING", "FINISHED") for a in state.action_states):
+            done -= 1  # its pick or drop on the last node it reached has not finished
+            base.insert(0, 2 * done + 1)
         position = state.agv_position
         cell = (self.nodes.cell_of(position.x, position.y) if position is not None
                 else (0, 0))
@@ -268,9 +343,8 @@ class VehicleMaster:
         self._order = _Order(order_id=state.order_id, start=start,
                              base_update=state.order_update_id + 1,
                              horizon=any(not n.released for n in state.node_states),
-                             adopting={first + (seq - 1) // 2: seq for seq in base})
-        return ([f"{key}.{first + k}" for k in range(done)],
-                [f"{key}.{first + (seq - 1) // 2}" for seq in base])
+                             adopting={ids[(seq - 1) // 2]: seq for seq in base})
+        return ids[:done], [ids[(seq - 1) // 2] for seq in base]
 
     def adopt_actions(self, actions: Sequence[Action]) -> list[Action]:
         """Of ``actions`` (resent by the gateway, in index order), take those in the base of
@@ -278,12 +352,11 @@ class VehicleMaster:
         order = self._order
         rest: list[Action] = []
         for action in actions:
-            seq = None if order is None else order.adopting.pop(action.sequence, None)
-            if (order is None or seq is None
-                    or not order.order_id.startswith(plan_key(action.action_id) + ".")):
+            seq = None if order is None else order.adopting.pop(action.action_id, None)
+            if order is None or seq is None:
                 rest.append(action)
                 continue
-            order.steps.append(_Step(action, seq, self._node(action, seq + 1, True)))
+            order.steps.append(self._step(action, seq)[0])
         return rest
 
     def tick(self, now_s: float) -> None:
@@ -320,6 +393,10 @@ class VehicleMaster:
         if online != self.online:
             self.online = online
             self._emit(LinkState(online, msg.connection_state))
+
+    def receive_factsheet(self, msg: Factsheet) -> None:
+        """The vehicle's ``factsheet`` (section 6.15)."""
+        self.factsheet = msg
 
     def receive_state(self, msg: State, now_s: float) -> None:
         """A ``state`` message: reports for the executor."""
@@ -361,15 +438,30 @@ class VehicleMaster:
                               actions=[VdaAction(action_type=action_type, action_id=action_id,
                                                  blocking_type="HARD")])
 
-    def _node(self, action: Action, seq: int, released: bool) -> Node:
+    def _node(self, action: Action, seq: int, released: bool,
+              errands: Sequence[Errand] = ()) -> Node:
         dst = action.dst
         return Node(node_id=self.nodes.node_id(dst.cell), sequence_id=seq, released=released,
-                    node_position=self.nodes.position(dst.cell, dst.heading))
+                    node_position=self.nodes.position(dst.cell, dst.heading),
+                    actions=[e.vda_action() for e in errands if not e.on_edge])
 
-    def _edge(self, action: Action, seq: int, released: bool) -> Edge:
+    def _edge(self, action: Action, seq: int, released: bool,
+              errands: Sequence[Errand] = ()) -> Edge:
         src, dst = self.nodes.node_id(action.src.cell), self.nodes.node_id(action.dst.cell)
         return Edge(edge_id=self.nodes.edge_id(action.src.cell, action.dst.cell),
-                    sequence_id=seq, released=released, start_node_id=src, end_node_id=dst)
+                    sequence_id=seq, released=released, start_node_id=src, end_node_id=dst,
+                    actions=[e.vda_action() for e in errands if e.on_edge])
+
+    def _step(self, action: Action, edge_seq: int) -> tuple[_Step, Edge]:
+        """A released action as a step of the order (its node as first sent: its errand
+        included) and its edge (an errand on it only if the vehicle does not hold it yet)."""
+        errands = list(self.errand(action)) if self.errand is not None else []
+        held = {a.action_id for a in self.state.action_states} if self.state else set()
+        errands = [e for e in errands if not (e.on_edge and e.action_id in held)]
+        node = self._node(action, edge_seq + 1, True, errands)
+        step = _Step(action, edge_seq, node, errand=next(
+            (e.action_id for e in errands if not e.on_edge), None))
+        return step, self._edge(action, edge_seq, True, errands)
 
     def _horizon(self, last: Action, seq: int) -> tuple[list[Node], list[Edge]]:
         """Nodes and edges of the planned actions after ``last``, from sequence id ``seq``."""
@@ -415,10 +507,10 @@ class VehicleMaster:
         edges: list[Edge] = []
         seq = nodes[0].sequence_id + 1
         for action in actions:
-            node = self._node(action, seq + 1, True)
-            order.steps.append(_Step(action, seq, node))
-            edges.append(self._edge(action, seq, True))
-            nodes.append(node)
+            step, edge = self._step(action, seq)
+            order.steps.append(step)
+            edges.append(edge)
+            nodes.append(step.node)
             seq += 2
         self._send(order, nodes, edges, first_step, now_s)
 
@@ -451,6 +543,7 @@ class VehicleMaster:
         obstacle = msg.safety_state.field_violation or any(
             e.error_level == "WARNING" and e.error_type not in REJECTIONS for e in msg.errors)
         moving = msg.driving and not msg.paused
+        status: dict[str, str] | None = None
         for i, step in enumerate(order.steps):
             if step.finished:
                 continue
@@ -458,6 +551,18 @@ class VehicleMaster:
             if step.node_seq <= reached:
                 if not step.started:
                     self._started(step)
+                if step.errand is not None:
+                    if status is None:
+                        status = {a.action_id: a.action_status for a in msg.action_states}
+                    errand = status.get(step.errand)
+                    if errand != "FINISHED":  # the pick or drop there runs (or failed)
+                        if (errand == "FAILED") != step.blocked:
+                            step.blocked = errand == "FAILED"
+                            self._emit(Report("blocked" if step.blocked else "unblocked", aid))
+                        break
+                    if step.blocked:
+                        step.blocked = False
+                        self._emit(Report("unblocked", aid))
                 step.finished = True
                 self._emit(Report("finished", aid))
                 continue

@@ -9,9 +9,11 @@ own): they are ignored, never an error. Produced messages carry only what the sc
 Where the two versions differ on the wire, :func:`dump` writes what the configured version's
 schema wants:
 
-- 2.0.0's ``instantActions`` schema names an action's type ``actionName`` (its order schema and
-  the 2.0 text say ``actionType``); an instant action is written with both keys for 2.0.0, and
-  one read with either is accepted.
+- 2.0.0's ``instantActions`` schema names an action's type ``actionName`` and the array
+  ``actions``; the 2.0 text (and vehicles written from it, e.g. vda-5050-lib) say
+  ``actionType`` and ``instantActions``. For 2.0.0 every instant action carries both keys and
+  the message both arrays (the schema allows additional properties); one read with either
+  spelling is accepted.
 - 2.0.0 spells a node position's deviation ``allowedDeviationXy``, 2.1.0 ``allowedDeviationXY``.
 """
 
@@ -123,9 +125,10 @@ class Order(Header):
 
 
 class InstantActions(Header):
-    """Topic ``instantActions`` (master control -> vehicle)."""
+    """Topic ``instantActions`` (master control -> vehicle); read from ``actions`` or 2.0's
+    ``instantActions``."""
 
-    actions: list[Action]
+    actions: list[Action] = Field(validation_alias=AliasChoices("actions", "instantActions"))
 
 
 class NodeState(VdaModel):
@@ -265,13 +268,48 @@ class Visualization(Header):
     velocity: Velocity | None = None
 
 
-Message = Order | InstantActions | State | Connection | Visualization
+class AgvAction(VdaModel):
+    """An action type a vehicle supports and where (``INSTANT``, ``NODE``, ``EDGE``)."""
+
+    action_type: str
+    action_scopes: list[Literal["INSTANT", "NODE", "EDGE"]]
+    action_description: str | None = None
+
+
+class ProtocolFeatures(VdaModel):
+    """The factsheet's ``protocolFeatures``: the optional fields and the actions supported."""
+
+    optional_parameters: list[dict[str, Any]]
+    agv_actions: list[AgvAction]
+
+
+class Factsheet(Header):
+    """Topic ``factsheet`` (vehicle -> master control, section 6.15): what the vehicle is and
+    supports. The parts the master reads are modelled (``protocolFeatures``); the others are
+    kept as JSON objects. ``headerId`` and ``timestamp`` are optional in the schema but every
+    message of section 6.4 has them (fleetgate's vehicles send them)."""
+
+    type_specification: dict[str, Any]
+    physical_parameters: dict[str, Any]
+    protocol_limits: dict[str, Any]
+    protocol_features: ProtocolFeatures
+    agv_geometry: dict[str, Any]
+    load_specification: dict[str, Any]
+    vehicle_config: dict[str, Any] | None = None
+
+    def supports(self, action_type: str, scope: Literal["INSTANT", "NODE", "EDGE"]) -> bool:
+        """Whether the vehicle lists ``action_type`` with ``scope``."""
+        return any(a.action_type == action_type and scope in a.action_scopes
+                   for a in self.protocol_features.agv_actions)
+
+
+Message = Order | InstantActions | State | Connection | Visualization | Factsheet
 
 TOPIC_MODELS: dict[str, type[Header]] = {
     "order": Order, "instantActions": InstantActions, "state": State,
-    "connection": Connection, "visualization": Visualization,
+    "connection": Connection, "visualization": Visualization, "factsheet": Factsheet,
 }
-"""The model of each topic's messages (``factsheet`` is not modelled: it is only read)."""
+"""The model of each topic's messages."""
 
 
 def to_wire(message: Header) -> dict[str, Any]:
@@ -281,6 +319,7 @@ def to_wire(message: Header) -> dict[str, Any]:
         if isinstance(message, InstantActions):
             for action in data["actions"]:
                 action["actionName"] = action["actionType"]
+            data["instantActions"] = data["actions"]
         if isinstance(message, Order):
             for node in data["nodes"]:
                 position = node.get("nodePosition", {})

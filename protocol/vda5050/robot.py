@@ -99,13 +99,16 @@ class VdaRobot:
     # ------------------------------------------------------------------ gateway link
     def connected(self, now_s: float) -> None:
         """A gateway link is up: say hello once a fresh ``state`` of the vehicle arrives
-        (asked for with ``stateRequest``; the vehicle may have moved while it was away): after
+        (asked for with ``stateRequest``; the vehicle may have moved while it was away; a
+        2.1.0 vehicle whose factsheet has not come is asked for it too): after
         a restart the vehicle's order is taken over first (:meth:`VehicleMaster.adopt`), and
         the actions it finished meanwhile are reported."""
         self.link_up, self._seq = True, 0
         self.master.state = None  # the vehicle was away: where it is now, it says anew
         self._hello_due = True
         self.master.request_state(now_s)
+        if self.master.factsheet is None and self.master.version != "2.0.0":
+            self.master.request_factsheet(now_s)  # 2.0.0 has no factsheetRequest
 
     def state_seen(self) -> None:
         """The master got a ``state`` message (the hello may be due)."""

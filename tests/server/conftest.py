@@ -1,4 +1,9 @@
-"""Fixtures: a real gateway on 127.0.0.1 (ephemeral port) and websocket clients for it."""
+"""Fixtures: a real gateway on 127.0.0.1 (ephemeral port) and websocket clients for it.
+
+A test marked ``pytest.mark.looptime`` runs on a looptime loop: a gateway it starts itself
+with a ``VirtualClock`` runs in virtual time over the same real websockets, so the test does
+not depend on the machine's load. Fixtures run in real time (looptime makes only the test's
+own time virtual): the fixtures' gateways are real-time ones."""
 
 from __future__ import annotations
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import Action, Finished, LoadPlan, Start, Started, Welcome
 from tests.server.conftest import LAB_PATHS, make_config
@@ -145,8 +146,10 @@ async def _until(predicate: object) -> None:
         await asyncio.sleep(0.01)
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_silent_link_is_dropped_by_ping_timeout() -> None:
-    async with Gateway(make_config(ping_interval_s=0.5, ping_timeout_s=0.5)) as gw:
+    async with Gateway(make_config(ping_interval_s=0.5, ping_timeout_s=0.5),
+                       clock=VirtualClock()) as gw:
         await gw.listen()
         await _silent_robot_is_dropped(gw)
 
@@ -164,17 +167,20 @@ async def _silent_robot_is_dropped(gw: Gateway) -> None:
     assert gw.status == "running"
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_autostart_when_every_robot_said_hello() -> None:
-    async with Gateway(make_config(autostart=True)) as gw:
+    async with Gateway(make_config(autostart=True), clock=VirtualClock()) as gw:
         await gw.listen()
         await load(gw, LAB_PATHS)
-        robots = [TestRobot(await ws(gw, f"demo-robot-{i}"), i) for i in range(3)]
+        robots = [TestRobot(await ws(gw, f"demo-robot-{i}"), i, move_s=0.1) for i in range(3)]
         for r in robots[:2]:
             await r.hello()
         assert gw.status == "loaded"  # robot 2 is still missing
         await robots[2].hello()
         tasks = [asyncio.create_task(r.run()) for r in robots]
         soc, _ = await asyncio.wait_for(gw.wait_done(), 10)
-        assert soc > 0 and [len(r.finished) for r in robots] == [5, 3, 2]
+        # started at the last hello; 100 ms an action, none waits for another robot:
+        # 500 + 300 + 200 ms
+        assert soc == 1000.0 and [len(r.finished) for r in robots] == [5, 3, 2]
         for t in tasks:
             t.cancel()

@@ -28,6 +28,7 @@ from bench.crash import (
 from gateway.execution.lifelong.executor import PlanRequest, Segment
 from gateway.planning.lorr import warehouse_problem
 from gateway.runtime.journal import Journal
+from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.server.items import OwnerCall
@@ -148,8 +149,8 @@ def test_the_operators_slack_threshold_survives_a_restart(tmp_path: Path, every:
                                                      snapshot_segments=every))
     out: dict[str, Any] = {}
 
-    async def main() -> None:
-        async with Gateway(config) as gw:
+    async def main() -> None:  # in virtual time: nothing here is about the real clock
+        async with Gateway(config, clock=VirtualClock(solver_time=120.0)) as gw:
             run = gw.engine.lifelong
             assert run is not None and gw.engine.journal is not None
             assert gw.engine.threshold_ms != 1234.0
@@ -159,12 +160,12 @@ def test_the_operators_slack_threshold_survives_a_restart(tmp_path: Path, every:
             while run.executor.segments < 7:
                 await asyncio.sleep(0.02)
             out["kinds"] = [r.kind for r in gw.engine.journal.records()]
-        async with Gateway(config) as again:
+        async with Gateway(config, clock=VirtualClock(solver_time=120.0)) as again:
             assert again.resumed and again.engine.lifelong is not None
             out["shown"] = again.engine.read_model().threshold_ms
             out["used"] = again.engine.lifelong.executor.threshold_ms
 
-    asyncio.run(main())
+    run_virtual(main())
     assert out["shown"] == out["used"] == 1234.0
     assert ("threshold" in out["kinds"]) == (every == 0)
     assert (out["kinds"][0] in ("shift_history", "shift_snapshot")) == (every > 0)

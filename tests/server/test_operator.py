@@ -7,6 +7,9 @@ import asyncio
 from pathlib import Path
 from typing import Any
 
+import pytest
+
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import (
     Ack,
@@ -139,8 +142,10 @@ async def test_pause_stops_new_moves_until_resume(gateway: Gateway, ws_connect: 
         t.cancel()
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_replan_now_adopts_a_new_plan(tmp_path: Path) -> None:
-    async with Gateway(make_config(trace=tmp_path / "t.jsonl", policy="none")) as gw:
+    async with Gateway(make_config(trace=tmp_path / "t.jsonl", policy="none"),
+                       clock=VirtualClock()) as gw:
         await gw.listen()
         connect = connector(gw)
         op = await operator(connect)

@@ -8,6 +8,9 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+import pytest
+
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import Action, ActionRefused, ErrorCode, Event, LoadPlan, Start, Started
 from sim_clients.fleet import SimFleet
@@ -25,8 +28,10 @@ async def until(predicate: Any, timeout: float = 10.0) -> None:
             await asyncio.sleep(0.01)
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_a_sim_robot_facing_elsewhere_refuses_and_the_operator_sees_why() -> None:
-    async with Gateway(make_config(speed=10.0, policy="none", dispatch_lookahead=1)) as gw:
+    async with Gateway(make_config(speed=10.0, policy="none", dispatch_lookahead=1),
+                       clock=VirtualClock()) as gw:
         await gw.listen()
         connect: Connect = connector(gw)
         plan = LoadPlan(msg_id="l", seq=0, map="lab", paths=PATHS, headings=HEADINGS)

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 from protocol.messages import HEADINGS, Action, Pose, action_id
 from protocol.vda5050.master import LinkState, Publish, Report, VehicleMaster
-from protocol.vda5050.models import State, VdaVersion, dump, parse
+from protocol.vda5050.models import Factsheet, State, VdaVersion, dump, parse
 from protocol.vda5050.nodes import THETA, NodeMap
 from protocol.vda5050.topics import VehicleTopics
 from sim_clients.vda_vehicle import VdaVehicle
@@ -36,6 +36,7 @@ class Loop:
     now: float = 1_700_000_000.0
     traffic: list[tuple[str, bytes]] = field(default_factory=list)
     reports: list[Report] = field(default_factory=list)
+    report_times: list[float] = field(default_factory=list)
     links: list[LinkState] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -53,6 +54,8 @@ class Loop:
         msg = parse(topic, payload)
         if isinstance(msg, State):
             self.master.receive_state(msg, self.now)
+        elif isinstance(msg, Factsheet):
+            self.master.receive_factsheet(msg)
         elif topic == "connection":
             self.master.receive_connection(msg)  # type: ignore[arg-type]
 
@@ -70,6 +73,7 @@ class Loop:
                         self.vehicle.receive(effect.topic, payload, self.now)
                 elif isinstance(effect, Report):
                     self.reports.append(effect)
+                    self.report_times.append(self.now)
                 else:
                     self.links.append(effect)
             for out in self.vehicle.drain():

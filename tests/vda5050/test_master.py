@@ -12,7 +12,7 @@ from protocol.vda5050.master import LinkState, Report, VehicleMaster
 from protocol.vda5050.models import VERSIONS, Connection, VdaVersion
 from sim_clients.world import INTRUDER, World
 from tests.vda5050.loop import Loop, actions_of
-from tests.vda5050.schemas import assert_valid, needs_schemas
+from tests.vda5050.schemas import SCHEMA_DIR, assert_valid, needs_schemas
 
 # east 2 cells, turn left (north), north 1 cell, wait: 5 actions
 PATH = [(0, 5, 0), (1, 5, 0), (2, 5, 0), (2, 5, 3), (2, 4, 3), (2, 4, 3)]
@@ -258,3 +258,24 @@ def test_a_finished_order_is_not_resent_to_a_vehicle_showing_another() -> None:
     loop.run(6)
     assert len([t for t, _ in loop.traffic if t == "order"]) == sent
     assert fresh.held.order_id == "" and fresh.cell == (0, 5)
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_factsheet_on_connect_and_on_request(version: VdaVersion) -> None:
+    loop = Loop(version, PATH[0])
+    loop.run(0.1)
+    sheet = loop.master.factsheet
+    assert sheet is not None and sheet.version == version
+    assert sheet.supports("pick", "NODE") and sheet.supports("drop", "EDGE")
+    assert sheet.supports("cancelOrder", "INSTANT") and not sheet.supports("pick", "INSTANT")
+    # factsheetRequest is a 2.1.0 instant action: the vehicle publishes its factsheet again;
+    # a 2.0.0 vehicle fails the unknown action
+    assert sheet.supports("factsheetRequest", "INSTANT") == (version == "2.1.0")
+    loop.master.request_factsheet(loop.now)
+    loop.run(0.5)
+    sheets = [t for t, _ in loop.traffic if t == "factsheet"]
+    status = loop.vehicle.action_states["factsheetRequest-1"].action_status
+    assert (len(sheets), status) == ((2, "FINISHED") if version == "2.1.0" else (1, "FAILED"))
+    for topic, payload in loop.traffic:
+        if (SCHEMA_DIR / version).is_dir():
+            assert_valid(version, topic, payload)

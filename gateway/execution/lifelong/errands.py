@@ -12,7 +12,7 @@ actions at which it stands on an errand cell). The virtual-time runner
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -26,14 +26,15 @@ class TaskDistances:
     """The scheduler's costs: exact moves between cells (one cached table per target cell;
     the graph is undirected, so a table gives the moves from every cell to it and back), plus
     ``charge`` moves for a robot standing on a cell of :attr:`charged` (e.g. one in a delay),
-    so tasks go to robots that can go. ``space``: a state space whose tables are over the free
-    cells (not :attr:`~gateway.planning.pibt.StateSpace.exact`) to share them with, e.g. the
-    planner's on a large map, where the robots' goals are the tasks' errands."""
+    so tasks go to robots that can go. ``space``: a state space whose tables are the moves over
+    the free cells (neither :attr:`~gateway.planning.pibt.StateSpace.exact` nor ``compact``) to
+    share them with, e.g. the planner's on a large map, where the robots' goals are the tasks'
+    errands."""
 
     def __init__(self, grid: Grid, charge: int = 0, budget_bytes: int = 1 << 30,
                  space: StateSpace | None = None) -> None:
-        if space is not None and space.exact:
-            raise ValueError("the scheduler can share only tables over the free cells")
+        if space is not None and (space.exact or space.compact):
+            raise ValueError("the scheduler can share only tables over the free cells (moves)")
         self.space = space if space is not None else StateSpace(grid, turning=False,
                                                                 budget_bytes=budget_bytes)
         self.charge = charge
@@ -46,8 +47,9 @@ class TaskDistances:
 
     def __call__(self, cells: Sequence[int], targets: Sequence[int]) -> npt.NDArray[np.int32]:
         """``out[i, j]``: moves from ``cells[i]`` to ``targets[j]`` (-1: unreachable), plus
-        the charge (a :data:`~gateway.execution.lifelong.tasks.DistanceFrom`). One table per
-        distinct target, taken in blocks that fit the cache (thousands of targets at a call)."""
+        the charge (a :data:`~gateway.execution.lifelong.tasks.DistanceFrom`; a transposed view of
+        a C-contiguous ``[target, cell]`` array). One table per distinct target, taken in
+        blocks that fit the cache (thousands of targets at a call)."""
         space = self.space
         unique, inverse = np.unique(np.asarray(targets, dtype=np.int64), return_inverse=True)
         src = space.index[np.asarray(cells, dtype=np.int64)]
@@ -64,7 +66,10 @@ class TaskDistances:
             charged = by_target[:, rows]
             charged[charged >= 0] += self.charge
             by_target[:, rows] = charged
-        return np.ascontiguousarray(by_target[inverse.ravel()].T)
+        inverse = inverse.ravel()
+        if unique.size != inverse.size or (inverse != np.arange(inverse.size)).any():
+            by_target = by_target[inverse]
+        return by_target.T  # a view: the schedulers read it by target (no 200 MB copy)
 
 
 class ErrandBook:
@@ -78,6 +83,9 @@ class ErrandBook:
         """How many of that task's errands the committed plan reaches."""
         self.markers: list[deque[tuple[int, int]]] = [deque() for _ in range(n_robots)]
         """Per robot, in order: (finished-action count at which it stands on an errand, task)."""
+        self.on_marker: Callable[[int, int, int], None] | None = None
+        """Told ``(robot, count, task)`` of every marker :meth:`register` appends (a driver
+        that turns errands into vehicle actions, e.g. VDA 5050's pick and drop)."""
         self.adopt()
 
     def adopt(self) -> None:
@@ -87,13 +95,15 @@ class ErrandBook:
             if 0 <= task.robot < len(self.plan_task):
                 self.plan_task[task.robot], self.plan_idx[task.robot] = task.id, task.done
 
-    def release_unstarted(self, now: float) -> None:
+    def release_unstarted(self, now: float, robots: Iterable[int] | None = None) -> None:
         """Tasks whose first errand is not planned yet go back to the pool's open tasks,
         except overdue ones (:meth:`~gateway.execution.lifelong.tasks.TaskPool.overdue`): their
-        robot keeps them, so they are not handed from robot to robot while they wait."""
+        robot keeps them, so they are not handed from robot to robot while they wait. Only the
+        tasks of ``robots`` if given (a bounded share of a large fleet at each call)."""
         pool = self.pool
         pool.now = max(pool.now, now)
-        for r, task_id in enumerate(self.plan_task):
+        for r in range(len(self.plan_task)) if robots is None else robots:
+            task_id = self.plan_task[r]
             if task_id >= 0 and self.plan_idx[r] == 0 and not pool.overdue(pool.tasks[task_id]):
                 pool.release(task_id, now)
                 self.plan_task[r] = -1
@@ -156,6 +166,8 @@ class ErrandBook:
                         count += 1
                 j_prev = j
                 self.markers[r].append((before[r] + count, tasks_of[r]))
+                if self.on_marker is not None:
+                    self.on_marker(r, before[r] + count, tasks_of[r])
 
     def reach(self, robot: int, done: int) -> list[int]:
         """Robot ``robot`` has finished ``done`` actions: the tasks whose next errand that

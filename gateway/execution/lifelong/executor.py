@@ -53,7 +53,7 @@ from gateway.execution.core import check_robot, check_start, check_time
 from gateway.execution.errors import ExecutionError
 from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.live_adg import LiveAction, LiveADG
-from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool
+from gateway.execution.lifelong.tasks import SCHEDULERS, Scheduler, TaskPool
 from gateway.execution.trace_records import (
     Record,
     TraceSink,
@@ -91,6 +91,32 @@ class Segment:
     call: int
     states: Sequence[Sequence[int]]
     reached: Sequence[Sequence[int]]
+
+
+def window_request(call: int, book: ErrandBook, adg: LiveADG, scheduler: Scheduler,
+                   distances: TaskDistances, now: float, *, release: bool,
+                   late: Sequence[bool], hold: Sequence[int], steps: int, turning: bool,
+                   release_robots: Sequence[int] | None = None
+                   ) -> tuple[PlanRequest, list[tuple[int, int]]]:
+    """Planning call ``call`` at ``now``: give the robots without a task one (their unstarted
+    tasks back to the scheduler first if ``release``, only those of ``release_robots`` if
+    given; a ``late`` robot competes with the
+    distance charge of ``distances``) and ask for ``steps`` timesteps from where each robot's
+    committed plan ends, robot r holding through ``hold[r]`` steps and nobody entering a cell a
+    late robot still has to drive through. The request and the new ``(robot, task id)``
+    pairs. The executor's and the LoRR simulator's call (``sim_clients.lifelong``)."""
+    n = len(adg.end_cell)
+    if release:
+        book.release_unstarted(now, release_robots)
+    distances.charged = {adg.end_cell[r] for r in range(n) if late[r]}
+    assigned = book.schedule(adg.end_cell, scheduler, distances, now)
+    goals = tuple(book.goals())
+    if turning:
+        starts = tuple(4 * c + h for c, h in zip(adg.end_cell, adg.end_heading, strict=True))
+    else:
+        starts = tuple(adg.end_cell)
+    avoid = tuple(a.cell for r in range(n) if late[r] for a in adg.queue[r])
+    return PlanRequest(call, starts, goals, tuple(hold), avoid, steps), assigned
 
 
 LifelongCommand = Dispatch | Trigger | Completed | PlanRequest
@@ -387,19 +413,11 @@ class LifelongExecutor:
             for r in refusing:
                 self._fill(r)
         book.forget_gone()  # first: a task cancelled or paused is no robot's to release
-        if self.reassign and self.calls % self.reassign == 0:
-            book.release_unstarted(self._now)
-        late = self.late(self._now)
-        self.distances.charged = {adg.end_cell[r] for r in range(n) if late[r]}
-        book.schedule(adg.end_cell, self.scheduler, self.distances, self._now)
-        if self.turning:
-            starts = tuple(4 * c + h for c, h in zip(adg.end_cell, adg.end_heading, strict=True))
-        else:
-            starts = tuple(adg.end_cell)
-        hold = tuple(max(0, adg.pending(r) - 1) for r in range(n))
-        avoid = tuple(a.cell for r in range(n) if late[r] for a in adg.queue[r])
-        self.outstanding = PlanRequest(self.calls, starts, tuple(book.goals()), hold, avoid,
-                                       self.window)
+        self.outstanding, _ = window_request(
+            self.calls, book, adg, self.scheduler, self.distances, self._now,
+            release=bool(self.reassign) and self.calls % self.reassign == 0,
+            late=self.late(self._now), hold=[max(0, adg.pending(r) - 1) for r in range(n)],
+            steps=self.window, turning=self.turning)
         self._out.append(self.outstanding)
         self.calls += 1
         # fixed rate: the next call is due a period after this one was due, so a call made
@@ -695,8 +713,9 @@ class WindowPlanner:
     a driver may run it in a worker thread, one call at a time: it keeps PIBT's priorities
     between calls)."""
 
-    def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0) -> None:
-        self.space = StateSpace(grid, turning, robots=n_robots)
+    def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0,
+                 space: StateSpace | None = None) -> None:
+        self.space = space if space is not None else StateSpace(grid, turning, robots=n_robots)
         self.pibt = WindowedPIBT(self.space, n_robots, seed=seed)
 
     def __call__(self, req: PlanRequest) -> Segment:

@@ -569,7 +569,8 @@ class Executor:
             return False
         self._check_plan(plan, cells, headings)
         adg = self._adg_of(plan)
-        if not policy.adopts(self._shadow_gains(adg, start, policy.levels)):
+        evidence = min((self.blocks.evidence(c) for c in self.blocks.open), default=math.inf)
+        if not policy.adopts(self._shadow_gains(adg, start, policy.levels), evidence):
             return False
         self._ready = (plan, adg)
         self._trigger(policy.name)

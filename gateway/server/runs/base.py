@@ -126,6 +126,12 @@ class Run(Protocol):
         ...
 
     @property
+    def planner_busy(self) -> bool:
+        """Whether a planner call of the run is under way, or a replan waits for the fleet
+        to stop before it (a restart makes that call again, at its own time)."""
+        ...
+
+    @property
     def turning(self) -> bool:
         """Whether robots run the ``turning`` motion model (protocol v1 robots cannot)."""
         ...
@@ -171,6 +177,10 @@ class Run(Protocol):
 
     def replan_now(self) -> str:
         """The operator's "replan now"; the answer's detail (:class:`RunRefused`)."""
+        ...
+
+    def stop(self) -> str:
+        """The operator's "stop the shift"; the answer's detail (:class:`RunRefused`)."""
         ...
 
     def policy_changed(self, *, replace: bool) -> None:

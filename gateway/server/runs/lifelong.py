@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 from array import array
 from collections import deque
 from collections.abc import Callable
@@ -158,7 +157,7 @@ class LifelongRun:
         """Wait, off the event loop, until the planner process has built its planner
         (ValueError, one line, if it cannot): the shift's first call needs it."""
         try:
-            await asyncio.to_thread(self.planner.start)
+            await self._engine.clock.wait_for(self.planner.start)
         except PlannerDied as exc:
             raise ValueError(f"lifelong mode: {exc}") from None
 
@@ -206,6 +205,11 @@ class LifelongRun:
     def plan_id(self) -> int | None:
         """A shift names no plan in a welcome (its segments are in the action ids)."""
         return None
+
+    @property
+    def planner_busy(self) -> bool:
+        """A segment asked of the planner and not adopted yet."""
+        return self.executor.outstanding is not None
 
     @property
     def loads_plans(self) -> bool:
@@ -261,7 +265,7 @@ class LifelongRun:
         e.runs += 1
         e.run_id = new_run_id()
         e.clock.reset()
-        self.started = ShiftRecord(run_id=e.run_id, wall_start_s=time.time(),
+        self.started = ShiftRecord(run_id=e.run_id, wall_start_s=e.clock.wall_s(),
                                    speed=e.clock.speed)
         if self.executor.sink is not None:
             self.executor.sink(self.started)
@@ -302,10 +306,15 @@ class LifelongRun:
         self.tick(now_ms)
         self._engine.feed.slack(now_ms, self.executor.fleet_slack_ms)
 
-    def stop(self) -> None:
-        """End the shift: nothing new is dispatched; done when every robot is idle."""
-        self.executor.stop(self._engine.now_ms())
+    def stop(self) -> str:
+        """End the shift: nothing new is dispatched; done when every robot is idle
+        (:class:`RunRefused` unless it runs)."""
+        try:
+            self.executor.stop(self._engine.now_ms())
+        except ExecutionError as exc:
+            raise RunRefused(str(exc)) from None
         self.route()
+        return "stopping the shift"
 
     def set_paused(self, paused: bool) -> None:
         """Dispatch nothing new while paused (robots are paused by their sessions)."""

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from typing import cast
 
 from gateway.execution.actions import ActionDurations
@@ -100,6 +99,13 @@ class OneShotRun:
         """The plan being executed."""
         ex = self._ctx.executor
         return ex.plan_id if ex else None
+
+    @property
+    def planner_busy(self) -> bool:
+        """A replan under way (stopping or solving), or a shadow solve."""
+        ex = self._ctx.executor
+        return ex is not None and (ex.mode in (Mode.STOPPING, Mode.SOLVING)
+                                   or ex.shadow_pending)
 
     @property
     def loads_plans(self) -> bool:
@@ -192,7 +198,7 @@ class OneShotRun:
             hook()
         e.clock.reset()  # time 0 is now: building the ADG and the GC pass are not charged
         if journal is not None:  # the plan boundary: the previous run's records go
-            e.run_record = run.model_copy(update={"wall_start_s": time.time()})
+            e.run_record = run.model_copy(update={"wall_start_s": e.clock.wall_s()})
             journal.begin_run(e.run_record)
         e.executor.start(0.0)
         e.status_changed()
@@ -223,6 +229,10 @@ class OneShotRun:
             raise RunRefused(str(exc)) from None
         e.route(e.executor.drain())
         return "replanning"
+
+    def stop(self) -> str:
+        """A one-shot run ends with its plan: there is no shift to stop."""
+        raise RunRefused("a one-shot run has no shift to stop: it ends with its plan")
 
     def policy_changed(self, *, replace: bool) -> None:
         """Give the running executor the operator's policy (or threshold), journaled."""
@@ -328,7 +338,7 @@ class OneShotRun:
         ex.set_record(e.feed.record)
         ex.sink = e.journal.append if e.journal is not None else None
         e.clock.set_speed(done.speed)
-        away = (time.time() - run.wall_start_s) * 1000.0 * done.speed
+        away = (e.clock.wall_s() - run.wall_start_s) * 1000.0 * done.speed
         e.clock.reset(max(done.last_t_ms, away))
         log.info("resumed the journaled run", extra={
             "run": run.run_id, "records": done.records, "plan": ex.plan_id,

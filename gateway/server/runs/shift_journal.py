@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -315,7 +314,7 @@ def resume_shift(engine: RunContext, run: ShiftRun, records: Sequence[JournalRec
         engine.threshold_ms = done.threshold_ms
     speed = done.speed if done.speed is not None else done.shift.speed
     engine.clock.set_speed(speed)
-    away = (time.time() - done.shift.wall_start_s) * 1000.0 * speed
+    away = (engine.clock.wall_s() - done.shift.wall_start_s) * 1000.0 * speed
     engine.clock.reset(max(done.last_t_ms, away))
     engine.paused = ex.paused
     if ex.outstanding is not None:  # its answer was never journaled: plan it again

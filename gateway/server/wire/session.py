@@ -17,7 +17,7 @@ from typing import Any
 
 from gateway.server.wire.auth import Peer
 from gateway.server.wire.transport import Link, LinkClosed
-from protocol import PROTOCOL_VERSION, AnyMessage, Error, ErrorCode, encode
+from protocol import PROTOCOL_VERSION, AnyMessage, Error, ErrorCode, encode, encode_action
 from protocol.messages import ProtocolVersion
 
 log = logging.getLogger("fleetgate.session")
@@ -64,13 +64,25 @@ class Session:
             return None
         seq = next(self._seq)
         message = kind(v=self.version, msg_id=f"g{self.id}-{seq}", seq=seq, **fields)
+        return message if self._put(encode(message)) else None
+
+    def send_action(self, fields: dict[str, Any]) -> None:
+        """Queue an ``action`` with these fields (plain JSON values, see
+        :func:`~protocol.codec.encode_action`) and this session's next msg_id/seq, written
+        without building its model (the owner's hot path)."""
+        if not self.closing:
+            seq = next(self._seq)
+            self._put(encode_action(self.version, f"g{self.id}-{seq}", seq, fields))
+
+    def _put(self, text: str) -> bool:
+        """Queue ``text`` for the writer; False (and the session closed) if it is too slow."""
         try:
-            self._queue.put_nowait(encode(message))
+            self._queue.put_nowait(text)
         except asyncio.QueueFull:
             log.warning("send queue full, closing", extra={"peer": str(self)})
             self.close(1013, "too slow: send queue full")
-            return None
-        return message
+            return False
+        return True
 
     def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
         """Reply ``error``; close the connection (1008) after too many in a short time."""
