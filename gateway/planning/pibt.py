@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from gateway.planning.bfs_kernel import pack_mod3
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
 
@@ -219,11 +220,8 @@ def goal_tables(grid: Grid, exact: bool, goals: Sequence[int], compact: bool = F
 def compact_rows(found: npt.NDArray[np.int32]) -> list[array[int]]:
     """Each row of moves (-1: unreachable) as 2 bits an entry, four entries a byte from the
     lowest bits up: the moves modulo 3, or 3 where unreachable (a sixteenth of int32 rows)."""
-    codes = np.where(found < 0, 3, found % 3).astype(np.uint8)
-    pad = -codes.shape[1] % 4
-    if pad:
-        codes = np.pad(codes, ((0, 0), (0, pad)), constant_values=3)
-    packed = (codes[:, 0::4] | codes[:, 1::4] << 2 | codes[:, 2::4] << 4 | codes[:, 3::4] << 6)
+    packed = np.zeros((found.shape[0], (found.shape[1] + 3) // 4), dtype=np.uint8)
+    pack_mod3(found, packed)
     return [array("B", row.tobytes()) for row in packed]
 
 

@@ -135,6 +135,12 @@ async def _crash(gw: Gateway, setup: RunSetup, journal: Path, router: _Router) -
     assert plain(other.engine.current_run.core) == live
     router.gw = other
     await gw.stop()  # its links close: the robots reconnect to the resumed one
+    for _ in range(8):  # the takeover's work at this instant (no virtual time passes)
+        await other.clock.settle()
+    core = other.engine.current_run.core
+    assert core is not None
+    wake = core.next_wakeup_ms()
+    assert wake is None or wake > other.clock.now_ms()  # nothing due is put off to a tick
     return other
 
 
