@@ -6,7 +6,7 @@ dropped event stream frees its slot at once; a trickled head or body ends in bou
 
 The memory figures are the gateway process's resident set (``VmRSS``), scaled down from the
 issue's 2,500 connections to 1,000. The same scenarios against the hand-written HTTP reader
-(the commit before this one, run as ``fleetgate serve``): +84 MB for the half bodies (each
+(main at 2267e1d, run as ``fleetgate serve``): +84 MB for the half bodies (each
 answered 408 after 10 s), +1,225 MB in 3 s for the bytes sent into an event stream."""
 
 from __future__ import annotations
