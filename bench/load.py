@@ -6,8 +6,13 @@ that nobody stood on the step before, or waits; robots cross all the time, so Ty
 abound). Waits are actions too and an action lasts 1000 ms +- ``--jitter`` (default 20 %, seeded per
 robot: real robots are never in lockstep, and a lockstep fleet would send R finishes in the
 same millisecond), so the fleet offers ~R actions/s for about S seconds. The gateway runs in
-a child process (``--serve``, optionally under cProfile) and starts when every robot is there;
-the robots (``sim_clients.fleet``) run in this process.
+a child process (``--serve``, optionally under cProfile) and starts when every robot is there.
+The robots are lean ones (``sim_clients.lean_fleet``: raw websocket frames, one
+``asyncio.Protocol`` per robot) in ``--generators N`` processes of their own (default one per
+2,500 robots, at most 4), at about a quarter of the gateway's CPU per action
+(``robots_cpu_ms_per_action``); ``--generators 0`` runs the full simulated robots
+(``sim_clients.fleet``: the shared robot session, pydantic, the websockets client) in this
+process instead, which cost about as much CPU as the gateway.
 
 Latency is measured on the robot side, end to end: for every dispatched action, from the
 moment the last of its ADG predecessors' ``finished`` messages was handed to its websocket to
@@ -24,9 +29,19 @@ finishes (all robots start together, so those come in a burst of ~R / (2 x jitte
 2.5x the steady rate), and the longest garbage-collector pause of each process during the run.
 
 The gateway runs with classic dispatch (``--lookahead 0``, the default here; the gateway's own
-default is 1): with lookahead an action whose only dependency is its robot's previous action is
-released before that action finishes, so finish-to-dispatch latency would be negative or not
-measured at all for it. The result line says which lookahead was used.
+default is 1), where every dispatch after the first is released by a finish. With lookahead an
+action may be released by its robot's previous dispatch instead, so the run then writes the
+gateway's trace and measures only the dispatches a finish released (the dispatch records
+right after each finish record), from that finish sent to the action received. ``--trace``
+(implied by lookahead) also runs tracecheck on it (``trace_errors``, ``collisions``);
+``--journaled`` makes the one run journaled.
+
+CPU: ``gateway_cpu_ms_per_action`` is the whole gateway process's CPU time from listening to
+the end of the run per plan action; ``owner_cpu_ms_per_action`` only the owner task's own work
+(``Engine.cpu_s``: its items, ticks and journal commits; not the connections' framing,
+validation and writing, which run in their own tasks), the part that the single writer must do
+whatever the other cores take over. ``--uvloop --pairs N`` runs the gateway on uvloop's event
+loop (``pip install uvloop``) and on asyncio's, interleaved: ``uvloop_cpu_per_action_ratio``.
 
     .venv/bin/python bench/load.py --robots 500 --seconds 30 --json
     .venv/bin/python bench/load.py --find-max --seconds 20 --json
@@ -37,10 +52,11 @@ invocation. ``DIR`` is a checkout of that version (``git worktree add DIR 1045d0
 ``bench/load.py --serve`` runs the gateway (with ``DIR`` first on the Python path), N runs of
 each side interleaved ABBA on the same plan with this version's robots. Adds
 ``cpu_per_action_ratio`` (median gateway CPU per action, this / that: < 1 is leaner),
-``p99_against_ratio``, every run's figures and the load average after each run (the gateway is
-one process, so ``owner_cpu_ms_per_action`` is its CPU per action too).
+``p99_against_ratio``, every run's figures and the load average after each run; with
+``--journal`` both sides run journaled.
 
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --against ../base1045 --pairs 5 --json
+    .venv/bin/python bench/load.py --robots 5000 --seconds 30 --lookahead 1 --journaled --json
 
 ``--lifelong``: a warehouse shift instead of one plan. The gateway (child process) runs in
 lifelong mode on a generated warehouse (about 12 free cells per robot, ``--robots`` turning
@@ -358,6 +374,12 @@ def generators_for(robots: int) -> int:
     return min(4, max(1, math.ceil(robots / 2500)))
 
 
+def lean_deadline_s(seconds: int) -> float:
+    """How long lean robots run once connected before they give up (a run served at less than
+    a tenth of the offered rate is cut: its robots report errors, its actions are lost)."""
+    return 10.0 * seconds + 60.0
+
+
 def lean_main(args: argparse.Namespace) -> None:
     """``--lean-part K/N PLAN OUT``: run the plan's robots ``r % N == K`` as a
     :class:`~sim_clients.lean_fleet.LeanFleet` against ``--port``; write its stats to OUT."""
@@ -369,7 +391,7 @@ def lean_main(args: argparse.Namespace) -> None:
 
     async def go() -> LeanStats:
         fleet = LeanFleet(args.port, mine, args.jitter, args.seed)
-        return await fleet.run(3.0 * args.seconds + 60.0)
+        return await fleet.run(lean_deadline_s(args.seconds))
 
     write_text(out, json.dumps(dataclasses.asdict(asyncio.run(go()))))
 
@@ -387,7 +409,7 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
     stats, cpu = FleetStats(), 0.0
     try:
         for proc, out in zip(procs, outs, strict=True):
-            proc.wait(timeout=3.0 * seconds + 300.0)
+            proc.wait(timeout=lean_deadline_s(seconds) + 300.0)  # + connecting
             if proc.returncode != 0 or not out.exists():
                 stats.errors.append(f"generator {out.name} exited {proc.returncode}")
                 continue
@@ -451,8 +473,11 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
                 stats, wall_s, total, robots_gc_ms = asyncio.run(
                     _drive(port, plan, 3.0 * seconds + 60.0, jitter))
                 robots_cpu = time.process_time() - cpu0
-            gateway = json.loads(gw.stdout.readline() or "{}")
-            gw.wait(timeout=60)
+            try:
+                out, _ = gw.communicate(timeout=60)
+            except subprocess.TimeoutExpired:  # the robots gave up: the run never ends
+                out = ""
+            gateway = json.loads(out.strip() or "{}")
             floor = float(sleeper.communicate(timeout=60)[0] or "nan")
         finally:
             for proc in (gw, sleeper):
