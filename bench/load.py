@@ -777,7 +777,11 @@ def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
             "p99_journal_ms": [r["p99_ms"] for r in journaled],
             "p99_journal_ratio": ratio("p99_ms"),
             "gateway_p99_journal_ratio": ratio("gateway_p99_ms"),
-            "cpu_per_action_journal_ratio": ratio("gateway_cpu_ms_per_action")}
+            "cpu_per_action_journal_ratio": ratio("gateway_cpu_ms_per_action"),
+            "owner_cpu_journal_ratio": ratio("owner_cpu_ms_per_action"),
+            "owner_cpu_ms_per_action_plain": [r["owner_cpu_ms_per_action"] for r in plain],
+            "owner_cpu_ms_per_action_journal": [r["owner_cpu_ms_per_action"]
+                                                for r in journaled]}
 
 
 def interleaved(pairs: int, run: Callable[[bool], dict[str, Any]]
