@@ -375,8 +375,9 @@ def generators_for(robots: int) -> int:
 
 
 def lean_deadline_s(seconds: int) -> float:
-    """How long lean robots run once connected before they give up (a run served at less than
-    a tenth of the offered rate is cut: its robots report errors, its actions are lost)."""
+    """How long lean robots run from the first action before they give up (a run served at
+    less than a tenth of the offered rate is cut: its robots report errors, its actions are
+    lost)."""
     return 10.0 * seconds + 60.0
 
 
@@ -409,7 +410,7 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
     stats, cpu = FleetStats(), 0.0
     try:
         for proc, out in zip(procs, outs, strict=True):
-            proc.wait(timeout=lean_deadline_s(seconds) + 300.0)  # + connecting
+            proc.wait(timeout=lean_deadline_s(seconds) + 900.0)  # + connecting, starting
             if proc.returncode != 0 or not out.exists():
                 stats.errors.append(f"generator {out.name} exited {proc.returncode}")
                 continue
