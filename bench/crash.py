@@ -21,7 +21,8 @@ command line; robots reconnect by themselves. Each disturbed run is checked:
 
 ``--vda5050``: the robots are simulated VDA 5050 vehicles on a private mosquitto, driven by the
 gateway's ``[vda5050]`` master control (duplicates and losses counted from the edges the
-vehicles drove; docs/vda5050.md).
+vehicles drove; docs/vda5050.md); with ``--lifelong`` too, a shift of them (``errands_twice``:
+picks and drops a vehicle ran twice).
 
 Prints ONE line (``--json``: a JSON object with the keys above).
 
@@ -70,12 +71,13 @@ from pathlib import Path
 from typing import Any
 
 from fleetgate.userio.exits import CommandParser, run_main
-from gateway.planning.grid import Grid
+from gateway.planning.grid import Cell, Grid
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.server.clock import LoopClock
+from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.vda5050.broker import BrokerConfig
 from gateway.vda5050.config import Vda5050Config, VehicleConfig
 from protocol import LoadPlan, Ok, OperatorCommand, Start, decode, encode
@@ -84,7 +86,7 @@ from protocol.vda5050.master import parse_order_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.mosquitto import LocalBroker
-from sim_clients.vda_fleet import make_vehicles, run_fleet
+from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.world import World
 from tracecheck import check_trace, read_trace
@@ -428,7 +430,10 @@ def shift_defects(records: list[dict[str, Any]]) -> dict[str, int]:
 
 
 async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: list[float],
-                         run_s: float, rng: random.Random, grid: Grid) -> dict[str, Any]:
+                         run_s: float, rng: random.Random, grid: Grid,
+                         vda: Vda5050Config | None = None,
+                         starts: dict[int, tuple[Cell, int | None]] | None = None
+                         ) -> dict[str, Any]:
     """A shift of ``robots`` simulated robots on the gateway ``gw`` (started here, in lifelong
     mode, with a task list and a batch submitted through the task API), killed with SIGKILL
     after each delay (s) of ``kills`` and restarted at once; then ``run_s`` more seconds.
@@ -439,7 +444,10 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
     ``finished_twice`` and
     ``robot_changed`` (tasks that finished twice, or whose robot changed once started), the
     shift's plan time and its tasks per plan minute, and the journal's records and size at
-    the end (``journal_records``, ``journal_kb``)."""
+    the end (``journal_records``, ``journal_kb``). With ``vda`` the robots are simulated VDA
+    5050 vehicles on its broker standing on ``starts``: ``duplicated`` counts actions driven
+    twice, ``lost`` actions driven before the last kill that the trace lacks, and
+    ``errands_twice`` picks or drops run twice."""
     executed: Counter[tuple[int, int, int]] = Counter()
     completed: set[tuple[int, int]] = set()
 
@@ -459,9 +467,23 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
              "idempotency_key": "bench-1"}
     resumed = retry_created = finished_at_kill = from_snapshot = 0
     before_last_kill: set[tuple[int, int]] = set()
-    await fleet.start()
+    vehicles: list[VdaVehicle] = []
+    stop_vehicles = asyncio.Event()
+    if vda is None:
+        await fleet.start()
+    else:
+        vehicles = make_vehicles(vda, fleet.world, speed=speed, starts=starts, jitter=0.2,
+                                 seed=rng.randrange(1 << 30))
+        driving = asyncio.create_task(run_fleet(vehicles, vda.broker, stop_vehicles))
+
+    def driven() -> set[tuple[int, int]]:
+        return {(v.who, n) for v in vehicles for n in driven_actions(v)}
+
     try:
-        await fleet.wait_connected(timeout=60.0)
+        if vda is None:
+            await fleet.wait_connected(timeout=60.0)
+        else:
+            await _vehicles_connected(gw, robots)
         await asyncio.to_thread(_http, gw.port, "POST", "/tasks", batch)
         for delay in kills:
             await asyncio.sleep(delay)
@@ -469,7 +491,7 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
                 _http, gw.port, "GET", "/tasks?limit=1"))[1]["counts"]["finished"]
             gw.kill()
             from_snapshot += gw.journal_starts_with() in ("shift_history", "shift_snapshot")
-            before_last_kill = set(completed)
+            before_last_kill = set(completed) | driven()
             await asyncio.sleep(rng.uniform(0.0, 0.3))  # down for a while
             await asyncio.to_thread(gw.start)
             resumed += (await asyncio.to_thread(gw.health)).get("gateway") == "running"
@@ -480,6 +502,10 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
         counts = (await asyncio.to_thread(_http, gw.port, "GET", "/tasks?limit=1"))[1]
     finally:
         await fleet.stop()
+        if vda is not None:
+            stop_vehicles.set()
+            await driving
+            executed = Counter((0, v.who, n) for v in vehicles for n in driven_actions(v))
         gw.stop()
     records = read_trace(gw.trace)
     journal_records, journal_bytes = gw.journal_size()
@@ -495,8 +521,12 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
             "finished_at_last_kill": finished_at_kill,
             "lost": len(before_last_kill - finished),
             "duplicated": sum(n - 1 for n in executed.values() if n > 1),
-            "run_ids": len({aid.split(".")[0] for aid in fleet.stats.received}),
-            "retry_created": retry_created, "robot_errors": len(fleet.stats.errors),
+            "run_ids": len({aid.split(".")[0] for aid in fleet.stats.received}
+                           | {o.split(".")[0] for v in vehicles for o, _ in v.driven}),
+            "errands_twice": sum(len(v.node_actions_run) - len(set(v.node_actions_run))
+                                 for v in vehicles),
+            "retry_created": retry_created,
+            "robot_errors": len(fleet.stats.errors) + sum(len(v.errors) for v in vehicles),
             "event_gaps": sum(1 for i, e in enumerate(events, 1) if e["id"] != i),
             "tasks_finished": done,
             "finished_twice": sum(1 for s in tasks.values()
@@ -518,30 +548,42 @@ def lifelong_config(gw: GatewayProcess, robots: int, warehouse: tuple[int, int],
 
 
 def run_lifelong(kills: int, seed: int, robots: int, speed: float,
-                 every_s: float) -> dict[str, Any]:
+                 every_s: float, vda5050: bool = False) -> dict[str, Any]:
     """An undisturbed shift (the baseline's tasks per plan minute), then a shift killed
-    ``kills`` times, every ``every_s`` x U(0.5, 1.5) seconds."""
+    ``kills`` times, every ``every_s`` x U(0.5, 1.5) seconds; ``vda5050``: with simulated
+    VDA 5050 vehicles through a private mosquitto."""
     rng = random.Random(seed)
     warehouse = (2, 3) if robots <= 10 else (4, 6)
     grid = warehouse_problem(robots, 0, warehouse, p_delay=0.0).grid
     delays = [every_s * rng.uniform(0.5, 1.5) for _ in range(kills)]
-    with tempfile.TemporaryDirectory() as tmp:
+    starts = shift_starts(GatewayConfig(map=None, lifelong=LifelongSettings(
+        robots=robots, warehouse=warehouse)))
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as broker:
+        vda = None
+        if vda5050:
+            vda = Vda5050Config(broker=BrokerConfig(url=broker.enter_context(LocalBroker())),
+                                vehicles=[VehicleConfig(manufacturer="fleetgate",
+                                                        serial_number=f"sim{r}", robot_id=r)
+                                          for r in range(robots)])
         out = []
         for name, ks in (("base", []), ("killed", delays)):
             work = Path(tmp) / name
             work.mkdir()
-            gw = GatewayProcess(work, free_port(), speed, "none")
+            gw = GatewayProcess(work, free_port(), speed, "none", extra=None if vda is None
+                                else {"vda5050": vda.model_dump(mode="json",
+                                                                exclude_none=True)})
             lifelong_config(gw, robots, warehouse)
             # the baseline runs as long (wall) as the killed shift runs between kills
             out.append(asyncio.run(lifelong_shift(gw, robots, speed, ks,
                                                   sum(delays) if not ks else every_s,
-                                                  rng, grid)))
+                                                  rng, grid, vda, starts)))
             out[-1]["mean_down_s"] = round(statistics.mean(gw.down_s), 2) if gw.down_s \
                 else None
     base, shift = out
     keys = ("resumed", "from_snapshot", "lost", "duplicated", "collisions", "trace_errors",
             "renumbered", "dispatched_twice", "run_ids", "retry_created", "event_gaps",
-            "finished_twice", "robot_changed", "robot_errors", "tasks_finished", "actions_run",
+            "finished_twice", "robot_changed", "robot_errors", "errands_twice",
+            "tasks_finished", "actions_run",
             "mean_down_s", "plan_ms", "journal_records", "journal_kb")
     return {"kills": kills, **{k: shift[k] for k in keys},
             "throughput_ratio": round(shift["tasks_per_min"] / base["tasks_per_min"], 3)
@@ -549,7 +591,8 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
             "baseline_tasks_finished": base["tasks_finished"],
             "baseline_defects": sum(base[k] for k in ("lost", "duplicated", "collisions",
                                                        "trace_errors", "renumbered")),
-            "robots": robots, "speed": speed, "seed": seed, "lifelong": True}
+            "robots": robots, "speed": speed, "seed": seed, "lifelong": True,
+            "vda5050": vda5050}
 
 
 def main() -> int:
@@ -577,7 +620,8 @@ def main() -> int:
             or args.every <= 0:
         p.error("--kills >= 0, --robots, --steps and --kills-per-run >= 1, --every > 0")
     if args.lifelong:
-        result = run_lifelong(args.kills, args.seed, args.robots, args.speed, args.every)
+        result = run_lifelong(args.kills, args.seed, args.robots, args.speed, args.every,
+                              args.vda5050)
     else:
         result = run(args.kills, args.seed, args.robots, args.steps, args.speed,
                      args.kills_per_run, args.policy, args.vda5050)

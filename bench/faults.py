@@ -63,7 +63,10 @@ from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
-from crash import (  # bench/crash.py: the gateway process, operator and shift checks
+if not __package__:  # run as a script (python bench/faults.py): import bench.* from the root
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from bench.crash import (  # the gateway process, operator and shift checks
     OPERATOR,
     GatewayProcess,
     _http,
@@ -72,7 +75,6 @@ from crash import (  # bench/crash.py: the gateway process, operator and shift c
     lifelong_config,
     shift_defects,
 )
-
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.lorr import warehouse_problem
 from gateway.planning.movingai import write_map

@@ -7,6 +7,7 @@ target that cannot be reached (one line on stderr, never a traceback).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -111,11 +112,50 @@ def _robot(args: argparse.Namespace) -> int:
     return _output(results, args, args.command or args.url)
 
 
+def _vda5050(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from conformance.vda5050.checks import VDA_CHECKS, run_vda_checks
+    from conformance.vda5050.schemas import DEFAULT_DIR
+    from conformance.vda5050.session import Broker, VdaOptions
+    from protocol.vda5050.topics import VehicleTopics
+
+    if args.list:
+        return _list(VDA_CHECKS)
+    if args.broker is None or args.manufacturer is None or args.serial is None:
+        raise UsageProblem("give --broker, --manufacturer and --serial (see --help)")
+    try:
+        VehicleTopics(args.interface, "v2", args.manufacturer, args.serial)
+    except ValueError as exc:
+        raise UsageProblem(str(exc)) from None
+    if not 0 < args.step <= 100 or args.timeout <= 0:
+        raise UsageProblem("--step must be in (0, 100] metres and --timeout positive")
+    parts = urlsplit(args.broker)
+    try:
+        parts.port  # noqa: B018 (validates the port)
+    except ValueError:
+        raise UsageProblem(f"--broker: bad port in {args.broker!r}") from None
+    if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname or parts.path not in (
+            "", "/"):
+        raise UsageProblem(f"--broker: expected mqtt://HOST:PORT or mqtts://HOST:PORT, got "
+                           f"{args.broker!r}")
+    broker = Broker(args.broker, args.username, os.environ.get(args.password_env)
+                    if args.password_env else None, args.cafile)
+    options = VdaOptions(broker=broker, manufacturer=args.manufacturer, serial=args.serial,
+                         version=args.version, interface=args.interface, step_m=args.step,
+                         command=args.command, timeout_s=args.timeout,
+                         schemas=Path(args.schemas) if args.schemas else DEFAULT_DIR)
+    only = _only(args.only, VDA_CHECKS)
+    results = asyncio.run(run_vda_checks(options, only))
+    return _output(results, args, f"{args.manufacturer}/{args.serial} on {args.broker}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the chosen mode; UsageProblem becomes a one-line error and exit code 2 (Ctrl-C,
     a closed pipe and an unwritable output end as every command's: :mod:`fleetgate.userio`)."""
+    modes = {"gateway": _gateway, "robot": _robot, "vda5050": _vda5050}
     try:
-        return int(_gateway(args) if args.mode == "gateway" else _robot(args))
+        return int(modes[args.mode](args))
     except UsageProblem as exc:
         print(f"fleetgate conformance: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -168,3 +208,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     r.add_argument("--timeout", type=float, default=20.0,
                    help="seconds to wait for the robot to connect (default 20)")
     _common(r)
+    v = modes.add_parser(
+        "vda5050", help="check a VDA 5050 vehicle (the checker plays the master control)",
+        description="Play a VDA 5050 master control against a vehicle over an MQTT broker "
+                    "(docs/vda5050.md, 'Checking a vehicle'): orders with base and horizon, "
+                    "order updates and stitching, pause, cancel, rejections, factsheet, the "
+                    "last will, and the official schemas of every message it sends. The "
+                    "vehicle moves up to three --step along +x of its map from where it "
+                    "stands, and back.")
+    v.add_argument("--broker", help="mqtt://HOST:PORT or mqtts://HOST:PORT")
+    v.add_argument("--manufacturer", help="the vehicle's manufacturer (topic level)")
+    v.add_argument("--serial", help="the vehicle's serial number (topic level)")
+    v.add_argument("--version", choices=["2.0.0", "2.1.0"], default="2.1.0",
+                   help="the protocol version the vehicle speaks (default 2.1.0)")
+    v.add_argument("--interface", default="uagv", help="interface name (default uagv)")
+    v.add_argument("--step", type=float, default=1.0,
+                   help="metres per step of the checks' route (default 1)")
+    v.add_argument("--command", help="start the vehicle with this command ({broker}, "
+                                     "{manufacturer}, {serial}, {interface}, {version} "
+                                     "substituted); enables the last-will check")
+    v.add_argument("--schemas", metavar="DIR",
+                   help="the official JSON schemas (DIR/<version>/json_schemas; default "
+                        "$FLEETGATE_VDA5050_DIR or ../shared/vda5050)")
+    v.add_argument("--username", help="broker user name")
+    v.add_argument("--password-env", metavar="VAR",
+                   help="environment variable holding the broker password")
+    v.add_argument("--cafile", help="CA certificate of an mqtts:// broker")
+    v.add_argument("--timeout", type=float, default=20.0,
+                   help="seconds a step may take (default 20)")
+    _common(v)

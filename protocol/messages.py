@@ -411,6 +411,13 @@ class ReplanNow(Envelope):
     type: Literal["replan_now"] = "replan_now"
 
 
+class StopShift(Envelope):
+    """End the running lifelong shift: nothing new is dispatched or planned, robots finish
+    what they were dispatched, then the shift is done."""
+
+    type: Literal["stop_shift"] = "stop_shift"
+
+
 PolicyName = Literal["none", "random", "slack", "operator", "informed", "shadow", "reschedule",
                      "reschedule+slack"]
 
@@ -614,7 +621,7 @@ ToRobotMessage = Welcome | Action | CancelAction | Pause | Resume | Error
 """What the gateway sends a robot."""
 
 OperatorCommand = (
-    LoadInstance | LoadPlan | Start | Pause | Resume | ReplanNow | SetPolicy
+    LoadInstance | LoadPlan | Start | Pause | Resume | ReplanNow | StopShift | SetPolicy
     | SetThreshold | SetSpeed | PlaceIntruder | GetSnapshot
 )
 """What an operator may send."""
@@ -628,7 +635,7 @@ WorldMessage = IntruderReport
 AnyMessage = (
     Hello | Ack | Started | Finished | Blocked | Unblocked | Cancelled | ActionRefused | State
     | Welcome | Action | CancelAction | Pause | Resume | Error | Ok
-    | LoadInstance | LoadPlan | Start | Pause | Resume | ReplanNow | SetPolicy
+    | LoadInstance | LoadPlan | Start | Pause | Resume | ReplanNow | StopShift | SetPolicy
     | SetThreshold | SetSpeed | PlaceIntruder | GetSnapshot
     | IntruderReport | Snapshot | Event
 )

@@ -59,7 +59,7 @@ def main() -> int:
     if args.list:
         for r in sorted(lines, key=lambda r: str(r["test"])):
             if r["kind"] == "real":
-                print(f"{r['test']}: {', '.join(map(str, r['why']))}")  # type: ignore[call-overload]
+                print(f"{r['test']}: {', '.join(map(str, r['why']))}")
     print(summary(lines))
     return rc
 

@@ -185,7 +185,7 @@ def run_lifelong(cfg: LifelongConfig,
     # moves over the free cells too: one cache serves both (the robots' goals are errands)
     distances = TaskDistances(grid, charge=round(DELAY_CHARGE * prob.delay.mean_duration
                                                  / counter),
-                              space=None if space.exact else space)
+                              space=None if space.exact or space.compact else space)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
                     max_wait=cfg.max_wait)
     book = ErrandBook(pool, n)
@@ -194,6 +194,8 @@ def run_lifelong(cfg: LifelongConfig,
     # first call would compute otherwise
     cpu0 = time.thread_time()
     distances.space.prefetch([c for task in pool.open.values() for c in task.errands[:-1]])
+    if space.compact:  # and the planner's own (compact) tables of the robots' first goals
+        space.prefetch([task.errands[0] for task in pool.open.values()])
     preprocess_s = time.thread_time() - cpu0
 
     cell = list(prob.starts)

@@ -7,10 +7,11 @@ cleanly when absent), converted by :mod:`gateway.planning.lorr_convert` (3 ticks
 delays, no following) and run for ``--ticks`` ticks, each in its own process: planner CPU
 per call (p50, p99, max, the first call apart: it schedules every robot and computes every
 table), peak RSS of the run and of the independent validator (``tracecheck/lorr.py``) after
-it, tasks finished, the shares of robot-ticks spent delayed, waiting for another robot and
-without committed work, and the ratio to the published winners' figures over 5,000 steps
-(WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and to the same number of
-actions (a 2026 tick is a third of an action: see the module doc of the converter).
+it, tasks finished and first errands done, the shares of robot-ticks spent delayed, waiting
+for another robot and without committed work, and the ratio to the published winners'
+figures over 5,000 steps (WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and
+to the same number of actions (a 2026 tick is a third of an action: see the module doc of
+the converter).
 :data:`MILLION` adds a generated 10,000-robot warehouse of 1,000,000 cells (no archive
 needed, no published figures).
 """
@@ -138,6 +139,7 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, 
         "calls_over_1s": sum(t > 1.0 for t in later),
         "peak_rss_mb": round(run_mb), "validator_peak_rss_mb": round(_peak_mb()),
         "idle": {k: round(res.extra[k], 3) for k in ("delayed", "waiting", "no_work")},
+        "first_errands_done": sum(e[3] == 1 for e in res.events),
         "valid": True, "changes": list(changes),
     }
     if name == MILLION:

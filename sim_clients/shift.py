@@ -1,5 +1,6 @@
 """A lifelong shift of simulated robots against a gateway in lifelong mode (over websockets
-or in-memory links), for the demo, the load benchmark and the tests."""
+or in-memory links), for the demo, the load benchmark and the tests. The shift is driven as an
+operator drives it: ``start`` (unless the gateway starts it itself) and ``stop_shift``."""
 
 from __future__ import annotations
 
@@ -7,8 +8,7 @@ import asyncio
 from dataclasses import dataclass
 
 from gateway.server.gateway import Gateway
-from gateway.server.items import OwnerCall
-from protocol import Start, parse_action_id
+from protocol import Start, StopShift, parse_action_id
 from sim_clients.fleet import SimFleet
 
 
@@ -56,11 +56,14 @@ async def run_shift(gateway: Gateway, fleet: SimFleet, plan_ms: float) -> ShiftS
 
 async def stop_shift(gateway: Gateway, fleet: SimFleet, timeout_s: float = 60.0
                      ) -> ShiftStats:
-    """End the shift (robots finish what they were dispatched), then count, from both ends,
-    what was dispatched, received, executed twice or lost."""
+    """End the shift with the operator's ``stop_shift`` (robots finish what they were
+    dispatched), then count, from both ends, what was dispatched, received, executed twice
+    or lost."""
     lifelong = gateway.engine.lifelong
     assert lifelong is not None
-    gateway.engine.queue.put_nowait(OwnerCall(lifelong.stop))
+    # refused only once the shift is ending or over (an operator stopped it, its task list ran
+    # out): then it needs no stop, only the wait
+    await gateway.command(StopShift(msg_id="shift-stop", seq=1))
     await asyncio.wait_for(gateway.wait_done(), timeout_s)
     ex = lifelong.executor
     # a robot's action numbers count up over the shift and it finishes them in order: every

@@ -8,7 +8,8 @@ A test (its setup and call, and every fixture it uses, whatever that fixture's s
   browser (``serve``, ``demo`` or ``sim`` of the CLI, a ``bench/`` script, Chromium through
   Playwright), or waited for real time to pass (``time.sleep`` or ``asyncio.sleep`` for more
   than 0 s on a loop without virtual time);
-- ``virtual`` if it ran an event loop in virtual time (a ``looptime`` loop) and nothing real;
+- ``virtual`` if it ran in virtual time (created a :class:`VirtualClock` or a ``looptime`` loop)
+  and nothing real;
 - ``pure`` otherwise (no clock drives it: a computation, a parser, a subprocess that only
   computes).
 
@@ -56,9 +57,9 @@ def _runs_a_clock(argv: Iterable[str]) -> bool:
 def _patch() -> None:
     import looptime
 
-    from gateway.server.clock import RealClock
+    from gateway.server.clock import RealClock, VirtualClock
 
-    real_init = RealClock.__init__
+    real_init, virtual_init = RealClock.__init__, VirtualClock.__init__
     sleep, asleep = time.sleep, asyncio.sleep
     popen_init = subprocess.Popen.__init__
     new_loop: Callable[..., Any] = looptime.new_event_loop
@@ -66,6 +67,10 @@ def _patch() -> None:
     def clock_init(self: RealClock, *args: Any, **kwargs: Any) -> None:
         _note("real clock")
         real_init(self, *args, **kwargs)
+
+    def virtual_clock_init(self: VirtualClock, *args: Any, **kwargs: Any) -> None:
+        _note("virtual clock")
+        virtual_init(self, *args, **kwargs)
 
     def timed_sleep(secs: float) -> None:
         if secs > 0 and sys._getframe(1).f_globals.get("__name__") != "subprocess":
@@ -78,7 +83,7 @@ def _patch() -> None:
         return await asleep(delay, result)
 
     def popen(self: subprocess.Popen[Any], args: Any, *rest: Any, **kwargs: Any) -> None:
-        if _runs_a_clock([args] if isinstance(args, str | bytes) else args):
+        if _runs_a_clock([str(args)] if isinstance(args, str | bytes) else args):
             _note("real subprocess")
         popen_init(self, args, *rest, **kwargs)
 
@@ -86,11 +91,12 @@ def _patch() -> None:
         _note("virtual loop")
         return new_loop(*args, **kwargs)
 
-    RealClock.__init__ = clock_init  # type: ignore[method-assign]
-    time.sleep = timed_sleep
-    asyncio.sleep = loop_sleep  # type: ignore[assignment]
-    subprocess.Popen.__init__ = popen  # type: ignore[method-assign]
-    looptime.new_event_loop = virtual_loop
+    patches: list[tuple[object, str, object]] = [
+        (RealClock, "__init__", clock_init), (VirtualClock, "__init__", virtual_clock_init),
+        (time, "sleep", timed_sleep), (asyncio, "sleep", loop_sleep),
+        (subprocess.Popen, "__init__", popen), (looptime, "new_event_loop", virtual_loop)]
+    for owner, name, probe in patches:
+        setattr(owner, name, probe)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -138,7 +144,7 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
         return (yield)
     finally:
         reasons = _current | _setup.pop(item.nodeid, set()) | _fixture_reasons(item)
-        real = sorted(reasons - {"virtual loop"})
+        real = sorted(reasons - {"virtual loop", "virtual clock"})
         kind = "real" if real else "virtual" if reasons else "pure"
         out = os.environ.get("FLEETGATE_REALTIME_SHARE")
         if out:

@@ -51,6 +51,9 @@ class ExecutionParams:
     expected gain."""
     shadow_risk_level: float = 0.1
     """Shadow planning adopts no plan that loses at this quantile of the blocks' ends."""
+    shadow_risk_confidence: float = 0.8
+    """Shadow planning adopts a plan that may lose only if the chance of a loss is within
+    ``shadow_risk_level`` with this confidence, given how many earlier blocks it rests on."""
     shadow_scenarios: int = 20
     """The equally likely scenarios of the blocks' ends shadow planning weighs."""
     oracle_step_ms: float = 250.0

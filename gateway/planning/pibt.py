@@ -30,11 +30,15 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from gateway.planning.bfs_kernel import pack_mod3
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
 
 UNREACHABLE = 32000
 """Distance of a state that cannot reach the goal (tables are int16)."""
+COMPACT_BASE = 1 << 10
+"""What :meth:`StateSpace.costs` adds to the moves relative to the own cell (costs stay
+positive, as the moves of a robot not on its goal are)."""
 MAX_PUSH_DEPTH = 64
 """Longest chain of robots asked to move away within one timestep."""
 
@@ -52,7 +56,10 @@ class StateSpace:
     ``robots`` fit the budget; otherwise one table per goal serves the four headings: the moves
     over the free cells, a lower bound of the turning cost (a quarter of the memory or less, for
     10,000 robots on the competition's large maps). :attr:`options` name the table entry each
-    move is weighed by accordingly.
+    move is weighed by accordingly. Tables over the free cells are :attr:`compact` (2 bits a
+    cell: the moves modulo 3, :func:`compact_rows`) when one of 2 bytes a cell per robot would
+    not fit the budget (10,000 robots on a million-cell map); :meth:`costs` weighs a robot's
+    moves alike from either kind.
     """
 
     def __init__(self, grid: Grid, turning: bool, budget_bytes: int = 1 << 30,
@@ -72,7 +79,10 @@ class StateSpace:
         self.options = _Options(grid, turning, self.exact, self.index)
         self._cache: OrderedDict[int, array[int]] = OrderedDict()
         entries = self.n_states if self.exact else int(grid.free.sum())
-        self._capacity = max(16, budget_bytes // (2 * entries))
+        self.compact = not self.exact and 2 * robots * entries > budget_bytes
+        """Whether tables hold the moves modulo 3 (:func:`compact_rows`), not the moves."""
+        size = (entries + 3) // 4 if self.compact else 2 * entries
+        self._capacity = max(16, budget_bytes // size)
 
     def state(self, cell: int, heading: int = 0) -> int:
         """The state of a robot on ``cell`` (facing ``heading`` under ``turning``)."""
@@ -110,7 +120,22 @@ class StateSpace:
         """Compute the missing tables of ``goals`` together (one batched search)."""
         missing = self.missing(goals)
         if missing:
-            self.offer(goal_tables(self.grid, self.exact, missing))
+            self.offer(goal_tables(self.grid, self.exact, missing, self.compact))
+
+    def costs(self, table: array[int], opts: Sequence[tuple[int, int, int, int]]) -> list[int]:
+        """The cost of each move of :attr:`options` ``opts`` (the wait first) towards the goal
+        of ``table``: its table entry plus its turns. From a :attr:`compact` table, the moves
+        relative to the robot's own cell (neighbours differ by exactly one move on a grid), plus
+        :data:`COMPACT_BASE`: the same order and differences as the moves themselves."""
+        if not self.compact:
+            return [table[es] + turns for _, es, turns, _ in opts]
+        own = (table[opts[0][1] >> 2] >> ((opts[0][1] & 3) << 1)) & 3
+        out = []
+        for _, es, turns, _ in opts:
+            code = (table[es >> 2] >> ((es & 3) << 1)) & 3
+            out.append(UNREACHABLE + turns if code == 3
+                       else COMPACT_BASE + (code - own + 1) % 3 - 1 + turns)
+        return out
 
     def offer(self, tables: Mapping[int, array[int]]) -> None:
         """Cache tables computed elsewhere (:func:`goal_tables` of this grid and kind, e.g.
@@ -171,19 +196,33 @@ class _Options:
         return tuple(opts)
 
 
-def goal_tables(grid: Grid, exact: bool, goals: Sequence[int]) -> dict[int, array[int]]:
+def goal_tables(grid: Grid, exact: bool, goals: Sequence[int], compact: bool = False
+                ) -> dict[int, array[int]]:
     """The distance table of each goal cell (:meth:`StateSpace.distances`: int16, capped at
     :data:`UNREACHABLE`): over the ``turning`` states if ``exact``, else over the free cells
-    (exact moves, a lower bound of the turning cost), searched in batches."""
+    (exact moves, a lower bound of the turning cost), searched in batches; ``compact`` (not
+    with ``exact``): :func:`compact_rows` of those over the free cells."""
     out: dict[int, array[int]] = {}
     for i in range(0, len(goals), 32):
         chunk = goals[i : i + 32]
         found = (turning_distance_tables(grid, [grid.cell(g) for g in chunk]) if exact
                  else cell_distance_rows(grid, chunk))
-        rows = np.where(found < 0, UNREACHABLE, np.minimum(found, UNREACHABLE))
-        for g, row in zip(chunk, rows.astype(np.int16), strict=True):
-            out[g] = array("h", row.tobytes())
+        if compact:
+            out.update(zip(chunk, compact_rows(found), strict=True))
+            continue
+        found[found < 0] = UNREACHABLE  # in place, row by row below: no batch-sized copies
+        np.minimum(found, UNREACHABLE, out=found)  # (a million-cell map's batch is 75 MB)
+        for g, row in zip(chunk, found, strict=True):
+            out[g] = array("h", row.astype(np.int16).tobytes())
     return out
+
+
+def compact_rows(found: npt.NDArray[np.int32]) -> list[array[int]]:
+    """Each row of moves (-1: unreachable) as 2 bits an entry, four entries a byte from the
+    lowest bits up: the moves modulo 3, or 3 where unreachable (a sixteenth of int32 rows)."""
+    packed = np.zeros((found.shape[0], (found.shape[1] + 3) // 4), dtype=np.uint8)
+    pack_mod3(found, packed)
+    return [array("B", row.tobytes()) for row in packed]
 
 
 @dataclass
@@ -300,8 +339,7 @@ class WindowedPIBT:
         rng = self.rng.random
         keyed = []
         opts = space.options[s]  # the wait first
-        costs = [table[es] + turns for _, es, turns, _ in opts] if table is not None \
-            else [0] * len(opts)
+        costs = space.costs(table, opts) if table is not None else [0] * len(opts)
         if space.turning and not space.exact and len(costs) > 1 and costs[0]:
             # the cells' bound does not see that a robot must turn before it can move: waiting
             # costs a timestep more than the best move (Bellman), as the exact tables say

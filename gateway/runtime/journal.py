@@ -45,6 +45,7 @@ import contextlib
 import fcntl
 import hashlib
 import json
+import math
 import os
 import secrets
 import sqlite3
@@ -52,7 +53,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
@@ -220,6 +221,18 @@ class ThresholdRecord(_Record):
     threshold_ms: float
 
 
+class RejectedRecord(_Record):
+    """The executor refused the input journaled just before (an ``ExecutionError``: nothing
+    changed, e.g. a robot's late or out-of-order report). Replay must refuse that input too, and
+    accept every input not followed by one: anything else is a journal that does not replay
+    what happened (damage), never a silently different state."""
+
+    kind: Literal["rejected"] = "rejected"
+
+
+REJECTED = RejectedRecord()
+
+
 class SnapshotRecord(_Record):
     """A plan boundary: the run's records up to plan ``plan_id`` adopted at ``t_ms``, compacted.
     It holds what the executor carries into a new plan (the rest of its state starts afresh
@@ -285,9 +298,31 @@ class ShiftSnapshotRecord(_Record):
 JournalRecord = Annotated[
     RunRecord | ReportRecord | TimeRecord | AdoptRecord | PolicyRecord | IntruderRecord
     | SpeedRecord | SnapshotRecord | ShadowRecord | TaskRecord | ShiftRecord | SegmentRecord
-    | ThresholdRecord | ShiftSnapshotRecord | ShiftHistoryRecord,
+    | ThresholdRecord | ShiftSnapshotRecord | ShiftHistoryRecord | RejectedRecord,
     Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
+
+
+_EVENTS = frozenset(get_args(ExecutorEvent))
+_TIME_KINDS = frozenset(get_args(TimeRecord.model_fields["kind"].annotation))
+
+
+def _finite(x: object) -> bool:
+    return type(x) is float and math.isfinite(x)
+
+
+def plain(record: _Record) -> bool:
+    """Whether ``record`` is a report or a time record (the kinds written for every action and
+    tick) whose values round-trip by construction: a valid kind and event, exact ints, finite
+    floats, ASCII text. Its model would read its JSON back as an equal record, so
+    :meth:`Journal.encode` skips the read-back; any other record is read back."""
+    d = record.__dict__
+    if type(record) is ReportRecord:
+        reason = d["reason"]
+        return (d["event"] in _EVENTS and type(d["robot"]) is int and type(d["plan"]) is int
+                and type(d["index"]) is int and _finite(d["t_ms"]) and type(reason) is str
+                and reason.isascii())
+    return type(record) is TimeRecord and d["kind"] in _TIME_KINDS and _finite(d["t_ms"])
 
 
 class JournalError(Exception):
@@ -481,8 +516,11 @@ class Journal:
     def encode(record: _Record) -> str:
         """``record``'s JSON, read back first: a record that does not round-trip (a number
         that is not finite, a value its model refuses) is refused with a :class:`ValueError`
-        before it can reach the journal."""
+        before it can reach the journal. A report or a tick of plain values (:func:`plain`)
+        round-trips by construction and is not read back (the owner's hot path)."""
         body = record.model_dump_json()
+        if plain(record):
+            return body
         try:
             again = _ADAPTER.validate_json(body)
         except ValidationError as exc:

@@ -32,6 +32,7 @@ import json
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any, cast
@@ -153,6 +154,8 @@ class Engine:
         """Called before each commit (the task journal appends the task events here)."""
         self._tick_failing = False  # the last monitor tick raised (logged once per streak)
         self._flushing: set[int] = set()  # robots whose session's effects are being carried out
+        self._routing = False  # a batch of executor commands is being routed
+        self._routed_later: deque[Command] = deque()  # commands given meanwhile
         self.meter_cpu = False
         """Measure :attr:`cpu_s` (set before :meth:`run` starts; a benchmark does: it costs
         two reads of the thread's CPU clock per wake-up of the owner task)."""
@@ -498,38 +501,57 @@ class Engine:
 
     # -------------------------------------------------------------------------- routing
     def route(self, commands: list[Command]) -> None:
-        """Turn executor commands into messages and planner calls."""
-        for c in commands:
-            if isinstance(c, Dispatch):
-                self._dispatch(c)
-            elif isinstance(c, Cancel):
-                gs = self.robot(c.robot)
-                gs.cancel(action_id(c.plan, c.robot, c.action, self.run_id))
-                self.flush(gs)
-            elif isinstance(c, Trigger):
-                self.metrics.replans.inc()
-                log.info("replan triggered", extra={"policy": c.policy,
-                                                    "fleet_slack_ms": c.fleet_slack_ms})
-                self.status_changed()
-            elif isinstance(c, SolveRequest):
-                assert self.problem is not None
-                if self.replaying:
-                    continue  # solved once the replay is over, if still unanswered
-                hs = c.headings
-                starts: Sequence[Place] = c.starts if hs is None else [
-                    (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
-                self.solvers.spawn("shadow" if c.shadow else "replan", self.problem, starts,
-                                   c.goals, None, None, "omni" if hs is None else "turning",
-                                   c.forbidden(self.now_ms(), self.config.action_ms))
-            elif isinstance(c, Rescheduled):
-                log.info("rescheduled", extra={"switches": len(c.switches),
-                                               "gain_ms": round(c.gain_ms, 1)})
-            elif isinstance(c, PlanAdopted):
-                for gs in self.robots.values():
-                    gs.plan_adopted()
-                self.status_changed()
-            elif isinstance(c, Completed):
-                self._completed(c)
+        """Turn executor commands into messages and planner calls, in the order the executor
+        gave them. Routing one may feed the executor (a dispatch of an action the robot said
+        it finished applies that finish: a journal that lost its last records), whose new
+        commands are then routed after the rest of this batch, never before: a session gets
+        its robot's actions in dispatch order (else a robot's listed finish of an action
+        released by a nested batch would be refused as queued behind one of this batch)."""
+        if self._routing:
+            self._routed_later.extend(commands)
+            return
+        self._routing = True
+        try:
+            for c in commands:
+                self._route(c)
+            while self._routed_later:
+                self._route(self._routed_later.popleft())
+        finally:
+            self._routing = False
+            self._routed_later.clear()  # (left only by an error: its batch ends there)
+
+    def _route(self, c: Command) -> None:
+        """Carry out one executor command."""
+        if isinstance(c, Dispatch):
+            self._dispatch(c)
+        elif isinstance(c, Cancel):
+            gs = self.robot(c.robot)
+            gs.cancel(action_id(c.plan, c.robot, c.action, self.run_id))
+            self.flush(gs)
+        elif isinstance(c, Trigger):
+            self.metrics.replans.inc()
+            log.info("replan triggered", extra={"policy": c.policy,
+                                                "fleet_slack_ms": c.fleet_slack_ms})
+            self.status_changed()
+        elif isinstance(c, SolveRequest):
+            assert self.problem is not None
+            if self.replaying:
+                return  # solved once the replay is over, if still unanswered
+            hs = c.headings
+            starts: Sequence[Place] = c.starts if hs is None else [
+                (x, y, h) for (x, y), h in zip(c.starts, hs, strict=True)]
+            self.solvers.spawn("shadow" if c.shadow else "replan", self.problem, starts,
+                               c.goals, None, None, "omni" if hs is None else "turning",
+                               c.forbidden(self.now_ms(), self.config.action_ms))
+        elif isinstance(c, Rescheduled):
+            log.info("rescheduled", extra={"switches": len(c.switches),
+                                           "gain_ms": round(c.gain_ms, 1)})
+        elif isinstance(c, PlanAdopted):
+            for gs in self.robots.values():
+                gs.plan_adopted()
+            self.status_changed()
+        elif isinstance(c, Completed):
+            self._completed(c)
 
     def _dispatch(self, c: Dispatch) -> None:
         aid = action_id(c.plan, c.robot, c.action, self.run_id)

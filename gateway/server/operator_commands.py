@@ -41,6 +41,7 @@ from protocol import (
     SetSpeed,
     SetThreshold,
     Start,
+    StopShift,
 )
 
 T = TypeVar("T")
@@ -136,6 +137,8 @@ class OperatorCommands:
                 return "resumed"
             case ReplanNow():
                 return self._run(e.current_run.replan_now)
+            case StopShift():
+                return self._run(e.current_run.stop)
             case SetPolicy():
                 e.policy_name, e.policy_seed = msg.policy, msg.seed
                 e.current_run.policy_changed(replace=True)

@@ -149,22 +149,25 @@ class VdaTransport:
                                        else HEADINGS[h1]), duration_ms=tx[v]))
         return out
 
-    def _ids(self, key: str, first: int, count: int) -> list[str]:
+    def _ids(self, key: str, first: int, count: int) -> list[str | None]:
         """The ids of the ``count`` actions of an order named after action ``first`` of plan
         key ``key`` (``[run.]plan.robot``): in a lifelong shift actions are numbered over the
         run and each has its segment; in a plan the robot's actions are its plan steps (waits
-        left out under ``drop_waits``). Fewer if the plan has no more."""
+        left out under ``drop_waits``). Fewer if the plan has no more; None for a shift's
+        action whose segment the executor no longer keeps (it finished long ago)."""
         *head, plan_s, robot_s = key.split(".")
         run, plan, robot = (head[0] if head else ""), int(plan_s), int(robot_s)
         shift = self.gateway.engine.lifelong
         if shift is not None:
             executor = shift.executor
-            return [action_id(executor.segment_of(robot, n), robot, n, run)
-                    for n in range(first, first + count)]
+            segments = [executor.segment_of(robot, n) for n in range(first, first + count)]
+            return [None if seg < 0 else action_id(seg, robot, n, run)
+                    for n, seg in enumerate(segments, first)]
         steps = self._steps(plan, robot)
         if steps is None:
             return consecutive_ids(key, first, count)
-        return [action_id(plan, robot, s, run) for s in steps if s >= first][:count]
+        out: list[str | None] = [action_id(plan, robot, s, run) for s in steps if s >= first]
+        return out[:count]
 
     # ------------------------------------------------------------------ vehicle side
     def _effect(self, master: VehicleMaster, effect: Effect) -> None:

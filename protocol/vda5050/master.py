@@ -108,7 +108,7 @@ class Errand:
                              ActionParameter(key="loadId", value=self.load_id)])
 
 
-def consecutive_ids(key: str, first: int, count: int) -> list[str]:
+def consecutive_ids(key: str, first: int, count: int) -> list[str | None]:
     """The ids of ``count`` actions of plan key ``key`` numbered ``first``, ``first`` + 1, ..."""
     return [f"{key}.{first + k}" for k in range(count)]
 
@@ -205,12 +205,12 @@ class VehicleMaster:
     drops (:class:`Errand`) of an action being released. ``ids(key, first, count)``: the ids
     of ``count`` consecutive actions of an order named after action ``first`` of plan key
     ``key`` (to take an order over after a restart; by default their indices count up by
-    one)."""
+    one; None for an action the gateway has forgotten, one it finished long ago)."""
 
     def __init__(self, topics: VehicleTopics, version: VdaVersion, nodes: NodeMap, *,
                  resend_s: float = 1.0, continuous: bool = False,
                  errand: Callable[[Action], Sequence[Errand]] | None = None,
-                 ids: Callable[[str, int, int], list[str]] = consecutive_ids) -> None:
+                 ids: Callable[[str, int, int], list[str | None]] = consecutive_ids) -> None:
         self.topics = topics
         self.version = version
         self.nodes = nodes
@@ -343,8 +343,10 @@ class VehicleMaster:
         self._order = _Order(order_id=state.order_id, start=start,
                              base_update=state.order_update_id + 1,
                              horizon=any(not n.released for n in state.node_states),
-                             adopting={ids[(seq - 1) // 2]: seq for seq in base})
-        return ids[:done], [ids[(seq - 1) // 2] for seq in base]
+                             adopting={aid: seq for seq in base
+                                       if (aid := ids[(seq - 1) // 2]) is not None})
+        return ([aid for aid in ids[:done] if aid is not None],
+                [aid for seq in base if (aid := ids[(seq - 1) // 2]) is not None])
 
     def adopt_actions(self, actions: Sequence[Action]) -> list[Action]:
         """Of ``actions`` (resent by the gateway, in index order), take those in the base of

@@ -9,9 +9,11 @@ own): they are ignored, never an error. Produced messages carry only what the sc
 Where the two versions differ on the wire, :func:`dump` writes what the configured version's
 schema wants:
 
-- 2.0.0's ``instantActions`` schema names an action's type ``actionName`` (its order schema and
-  the 2.0 text say ``actionType``); an instant action is written with both keys for 2.0.0, and
-  one read with either is accepted.
+- 2.0.0's ``instantActions`` schema names an action's type ``actionName`` and the array
+  ``actions``; the 2.0 text (and vehicles written from it, e.g. vda-5050-lib) say
+  ``actionType`` and ``instantActions``. For 2.0.0 every instant action carries both keys and
+  the message both arrays (the schema allows additional properties); one read with either
+  spelling is accepted.
 - 2.0.0 spells a node position's deviation ``allowedDeviationXy``, 2.1.0 ``allowedDeviationXY``.
 """
 
@@ -123,9 +125,10 @@ class Order(Header):
 
 
 class InstantActions(Header):
-    """Topic ``instantActions`` (master control -> vehicle)."""
+    """Topic ``instantActions`` (master control -> vehicle); read from ``actions`` or 2.0's
+    ``instantActions``."""
 
-    actions: list[Action]
+    actions: list[Action] = Field(validation_alias=AliasChoices("actions", "instantActions"))
 
 
 class NodeState(VdaModel):
@@ -316,6 +319,7 @@ def to_wire(message: Header) -> dict[str, Any]:
         if isinstance(message, InstantActions):
             for action in data["actions"]:
                 action["actionName"] = action["actionType"]
+            data["instantActions"] = data["actions"]
         if isinstance(message, Order):
             for node in data["nodes"]:
                 position = node.get("nodePosition", {})

@@ -4,6 +4,8 @@ hypothesis properties and small examples derived by hand."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -12,7 +14,7 @@ from gateway.execution.commands import SolveRequest
 from gateway.execution.oneshot.adg import ADG
 from gateway.execution.oneshot.blocks import BlockTracker, duration_quantiles
 from gateway.execution.oneshot.executor import Executor
-from gateway.execution.oneshot.policies import ShadowPolicy
+from gateway.execution.oneshot.policies import ShadowPolicy, loss_bound
 from gateway.planning.plan import Plan
 
 FAST = settings(max_examples=80, deadline=None)
@@ -96,6 +98,22 @@ def test_adoption_by_hand() -> None:
     averse = ShadowPolicy(margin_ms=1000.0, risk_aversion=5.0, risk_level=0.25, scenarios=4)
     assert not averse.adopts(gains)
     assert not policy.adopts([])
+    # A plan that may lose needs the evidence: one loss in four scenarios, from four earlier
+    # blocks, may well be one in two (the bound at 80% is 46%); one that never loses does not.
+    assert not lenient.adopts(gains, evidence=4) and lenient.adopts(gains, evidence=math.inf)
+    assert loss_bound(0.25, 4, 0.8) == pytest.approx(0.46, abs=0.01)
+    assert lenient.adopts([1000.0, 3000.0, 3000.0, 3000.0], evidence=0)
+
+
+def test_loss_bound_by_hand() -> None:
+    # With no failure seen in n samples the bound is z^2 / (n + z^2), z = 0.8416 at 80%.
+    z2 = 0.8416212 ** 2
+    assert loss_bound(0.0, 1, 0.8) == pytest.approx(z2 / (1 + z2))
+    assert loss_bound(0.0, 100, 0.8) == pytest.approx(z2 / (100 + z2))
+    assert loss_bound(0.1, 0, 0.8) == 1.0 and loss_bound(0.1, math.inf, 0.8) == 0.1
+    # more samples, a tighter bound; a larger share, a larger bound
+    assert loss_bound(0.05, 10, 0.8) > loss_bound(0.05, 100, 0.8) > 0.05
+    assert loss_bound(0.1, 100, 0.8) > loss_bound(0.05, 100, 0.8)
 
 
 @FAST
@@ -157,4 +175,8 @@ def test_adopting_a_detour_by_hand() -> None:
     assert sum(gains) / 20 > 20_000 and not adopted
     bold = ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0, risk_aversion=1.0,
                         risk_level=0.2)
-    assert _decide(risky, bold)[0]
+    # 15% <= 0.2, but 20 earlier blocks cannot show it: the bound is 22.9% (Wilson, 80%)
+    assert bold.adopts(gains) and not _decide(risky, bold)[0]
+    assert loss_bound(0.15, 20, 0.8) == pytest.approx(0.229, abs=1e-3)
+    assert _decide(risky, ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0,
+                                       risk_level=0.25))[0]

@@ -73,8 +73,9 @@ def test_each_experiment_starts_from_the_blocks_of_the_earlier_ones_only(learned
             row = rows[(m, n, i, seed, variant)]
             assert (row.soc_ms, row.makespan_ms) == pytest.approx(
                 (expect.soc_ms, expect.makespan_ms), abs=1e-3), (seed, variant)
-            # (its own blocks, as often as a long history would hold such blocks)
-            wrong = simulate_variant(grid, plan, seed, variant, cold, history + mine * 20)
+            # (its own blocks, as often as a full history (100 blocks) would hold them:
+            # shadow adopts a plan that may lose only on that much evidence)
+            wrong = simulate_variant(grid, plan, seed, variant, cold, history + mine * 100)
             differs += (wrong.soc_ms, wrong.makespan_ms) != (expect.soc_ms, expect.makespan_ms)
         if not history:  # the first experiment: exactly the cold run
             assert rows[(m, n, i, seed, "shadow")].soc_ms == pytest.approx(

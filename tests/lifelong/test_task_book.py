@@ -20,7 +20,6 @@ from gateway.execution.lifelong.tasks import (
     TaskNotFound,
     TaskPool,
     greedy_nearest,
-    min_cost,
     shortest_first,
 )
 
@@ -67,13 +66,13 @@ def test_schedulers_take_the_most_urgent_first() -> None:
     pool.submit([NewTask((10,)), NewTask((90,), priority=1), NewTask((50,), deadline=5.0)],
                 now=0)
     free = [(0, 9), (1, 11)]
-    for scheduler in (greedy_nearest, min_cost, shortest_first):
+    for scheduler in (greedy_nearest, shortest_first):
         # robot 0 at 9 would take task 0 (1 away) without priorities
         chosen = scheduler(free, pool, line)
         assert sorted(chosen.values()) == [1, 2], scheduler.__name__
     assert greedy_nearest([(0, 60)], pool, line) == {0: 1}
     pool.cancel(1, now=1)
-    assert min_cost([(0, 9)], pool, line) == {0: 2}  # the deadline breaks the tie
+    assert shortest_first([(0, 9)], pool, line) == {0: 2}  # the deadline breaks the tie
 
 
 def test_unreachable_urgent_task_does_not_block_a_reachable_one() -> None:
@@ -85,7 +84,7 @@ def test_unreachable_urgent_task_does_not_block_a_reachable_one() -> None:
         out[:, [t == 99 for t in targets]] = -1
         return out
 
-    for scheduler in (greedy_nearest, min_cost, shortest_first):
+    for scheduler in (greedy_nearest, shortest_first):
         assert scheduler([(0, 9)], pool, cut) == {0: 0}, scheduler.__name__
 
 
@@ -215,7 +214,7 @@ class TaskBookMachine(RuleBasedStateMachine):
     def schedule(self, robot: int) -> None:
         if self.mine(robot) is not None or not self.pool.open:
             return
-        chosen = min_cost([(robot, robot * 5)], self.pool, line)
+        chosen = shortest_first([(robot, robot * 5)], self.pool, line)
         for r, task_id in chosen.items():
             self.pool.assign(task_id, r, self.tick())
             self.robots[r] = task_id

@@ -15,7 +15,6 @@ from gateway.execution.lifelong.tasks import (
     NewTask,
     TaskPool,
     greedy_nearest,
-    min_cost,
     shortest_first,
     wait_percentiles,
 )
@@ -38,11 +37,12 @@ def test_pool_reveals_cycles_and_finishes() -> None:
 def test_schedulers() -> None:
     # tasks: id 0 starts at 10 (long: 10 -> 40), id 1 starts at 12 (short: 12 -> 13)
     pool = TaskPool([(10, 40), (12, 13)], reveal=2, leg=lambda a, b: abs(a - b))
-    free = [(0, 9), (1, 11)]
-    assert greedy_nearest(free, pool, line) == {0: 0, 1: 1}  # robot 0 first, nearest to it
-    assert min_cost(free, pool, line) == {0: 0, 1: 1}  # pairs 9-10 and 11-12 cost 1 each
-    # by distance plus length, robot 1 (cost 1 + 1) gets the short task first and robot 0
-    # the long one; with one free robot it takes the short task although it is farther
+    free = [(0, 9), (1, 12)]
+    # robots in order, by distance plus length: robot 0 takes the short task (3 + 1 against
+    # 1 + 30) although it is farther, robot 1 the long one
+    assert greedy_nearest(free, pool, line) == {0: 1, 1: 0}
+    # the cheapest pair first: robot 1 on the short task's first errand (0 + 1), then robot 0
+    # on the long one (1 + 30)
     assert shortest_first(free, pool, line) == {1: 1, 0: 0}
     assert shortest_first([(0, 9)], pool, line) == {0: 1}
 
@@ -80,7 +80,7 @@ def test_priority_still_beats_an_overdue_task() -> None:
     old, _ = pool.submit([NewTask((10, 40))], now=0.0)
     urgent, _ = pool.submit([NewTask((30, 90), priority=1)], now=20.0)
     pool.settle(25.0)  # the old one is overdue, the urgent one is not
-    for scheduler in (greedy_nearest, min_cost, shortest_first):
+    for scheduler in (greedy_nearest, shortest_first):
         assert scheduler([(0, 11)], pool, line) == {0: urgent[0]}
     assert greedy_nearest([(0, 11), (1, 12)], pool, line) == {0: urgent[0], 1: old[0]}
 
@@ -91,8 +91,8 @@ def test_overdue_tasks_go_longest_waiting_first() -> None:
     near, _ = pool.submit([NewTask((12,))], now=5.0)
     pool.submit([NewTask((11,))], now=19.0)
     pool.settle(20.0)  # far and near are overdue, far the longest; fresh is not
-    assert min_cost([(0, 11)], pool, line) == {0: far[0]}
-    assert min_cost([(0, 11), (1, 10)], pool, line) == {0: far[0], 1: near[0]}
+    assert shortest_first([(0, 11)], pool, line) == {0: far[0]}
+    assert shortest_first([(0, 11), (1, 10)], pool, line) == {0: far[0], 1: near[0]}
 
 
 def test_wait_percentiles_by_nearest_rank() -> None:
@@ -112,7 +112,7 @@ def test_wait_percentiles_by_nearest_rank() -> None:
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 60), st.integers(0, 60)), min_size=1, max_size=30),
        st.integers(1, 4), st.integers(1, 8), st.integers(1, 20),
-       st.sampled_from(["greedy", "mincost", "shortest"]))
+       st.sampled_from(["greedy", "shortest"]))
 def test_the_bound_holds_under_a_stream_of_cheaper_tasks(
         errands: list[tuple[int, int]], free_per_step: int, reveal: int, bound: int,
         name: str) -> None:
@@ -142,4 +142,4 @@ def test_a_waiting_task_ages_before_it_is_overdue() -> None:
                for name, cell, t in (("A", 50, 0.0), ("B", 10, 50.0), ("C", 90, 50.0))}
         pool.settle(now)
         assert not pool.overdue(pool.tasks[ids["A"]])
-        assert min_cost([(0, 0)], pool, line) == {0: ids[want]}
+        assert shortest_first([(0, 0)], pool, line) == {0: ids[want]}

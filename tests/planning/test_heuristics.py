@@ -11,6 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 from gateway.execution.lifelong.errands import TaskDistances
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
+from gateway.planning.generators import warehouse_map
 from gateway.planning.grid import Grid
 from gateway.planning.pibt import UNREACHABLE, StateSpace, WindowedPIBT, goal_tables
 from tests.planning.test_cbs_low_level import bfs
@@ -108,3 +109,49 @@ def test_a_robot_facing_away_turns_round_with_either_table(exact: bool) -> None:
     win = WindowedPIBT(space, 1, seed=0).plan([space.state(0, 2)], [[3]], 6)
     assert [row[0] for row in win.states] == [2, 3, 0, 4, 8, 12, 12]  # cw, cw, 3 forward
     assert win.reached == [[5]]
+
+
+def _compact(grid: Grid, turning: bool) -> StateSpace:
+    """A space whose budget holds less than a table per robot of 2 bytes a cell: compact."""
+    space = StateSpace(grid, turning, budget_bytes=64, robots=64, exact=False)
+    assert space.compact
+    return space
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid_and_cell(), st.booleans())
+def test_compact_tables_weigh_every_move_alike(case: tuple[Grid, list[int], int],
+                                               turning: bool) -> None:
+    """From the 2-bit table, each state's moves cost what they cost from the moves, shifted by
+    one constant per state (so a robot ranks them alike), unreachable ones included."""
+    grid, cells, goal = case
+    plain, compact = StateSpace(grid, turning, exact=False), _compact(grid, turning)
+    assert not plain.compact
+    full, small = plain.distances(goal), compact.distances(goal)
+    assert len(small) == (len(cells) + 3) // 4
+    for c in cells:
+        for s in ([4 * c + h for h in range(4)] if turning else [c]):
+            want = plain.costs(full, plain.options[s])
+            got = compact.costs(small, compact.options[s])
+            if want[0] >= UNREACHABLE:
+                assert all(g >= UNREACHABLE for g in got)
+                continue
+            shift = want[0] - got[0]
+            assert [w - shift if w < UNREACHABLE else w for w in want] == got
+
+
+@pytest.mark.parametrize("turning", [True, False])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compact_tables_plan_the_same_windows(turning: bool, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    grid = warehouse_map(4, 4, 6, shelf_depth=1, aisle=2, border=1)
+    cells = np.flatnonzero(grid.free.ravel())
+    n = 24
+    starts = rng.choice(cells, size=n, replace=False).tolist()
+    goals = [[int(g) for g in rng.choice(cells, size=2)] for _ in range(n)]
+    windows = []
+    for space in (StateSpace(grid, turning, exact=False), _compact(grid, turning)):
+        planner = WindowedPIBT(space, n, seed=seed)
+        windows.append(planner.plan([space.state(c) for c in starts], goals, 30))
+    assert windows[0].states == windows[1].states and windows[0].reached == windows[1].reached
+    assert any(windows[0].reached)  # robots got somewhere

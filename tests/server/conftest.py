@@ -1,19 +1,18 @@
 """Fixtures: a real gateway on 127.0.0.1 (ephemeral port) and websocket clients for it.
 
-A test marked ``pytest.mark.looptime`` runs on a looptime loop: its gateways run in virtual
-time (:func:`loop_clock`) over the same real websockets, so it does not depend on the
-machine's load."""
+A test marked ``pytest.mark.looptime`` runs on a looptime loop: a gateway it starts itself
+with a ``VirtualClock`` runs in virtual time over the same real websockets, so the test does
+not depend on the machine's load. Fixtures run in real time (looptime makes only the test's
+own time virtual): the fixtures' gateways are real-time ones."""
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
-from gateway.server.clock import Clock, RealClock, VirtualClock
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 
@@ -37,18 +36,10 @@ def make_config(**overrides: Any) -> GatewayConfig:
                             **overrides})
 
 
-def loop_clock() -> Clock:
-    """The clock for a gateway on the running loop: virtual on a looptime loop (a test marked
-    ``pytest.mark.looptime``), real otherwise."""
-    loop = asyncio.get_running_loop()
-    return VirtualClock() if getattr(loop, "looptime_on", False) else RealClock()
-
-
 @pytest.fixture
 async def gateway() -> AsyncIterator[Gateway]:
-    """A started gateway listening on 127.0.0.1 (port in ``gateway.port``), on
-    :func:`loop_clock`."""
-    async with Gateway(make_config(), clock=loop_clock()) as gw:
+    """A started gateway listening on 127.0.0.1 (port in ``gateway.port``)."""
+    async with Gateway(make_config()) as gw:
         await gw.listen()
         yield gw
 

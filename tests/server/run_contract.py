@@ -6,11 +6,13 @@ a real gateway in virtual time with simulated robots on in-memory links: ``check
 checks go through the operators' commands only: start, start again (refused), pause (nothing
 starts any more: the count of applied finishes stops growing), resume (it grows again),
 "replan now" (accepted), and what the run reports on the way (status, its core's pause). Then
-the run goes on to its end. The suite runs twice: once uninterrupted, once with a crash after
-"replan now" (the run is journaled: a second gateway started on a copy of the journal takes
-over at the same virtual instant and the robots reconnect to it); the two runs' cores at the
-end are equal field by field (:func:`plain`). A shift's planner keeps state of its own that a
-restart does not journal (:attr:`RunSetup.exact_future`): there the resumed core equals the
+the run goes on to its end: a one-shot run's last action (then "stop the shift" is refused),
+a shift's plan time ``END_MS`` and the operator's "stop the shift" (once). The suite runs
+twice: once uninterrupted, once with a crash after "replan now" (the run is journaled: a
+second gateway started on a copy of the journal takes over at the same virtual instant and the
+robots reconnect to it); the two runs' cores at the end are equal field by field
+(:func:`plain`). A shift's planner keeps state of its own that a restart does not journal
+(:attr:`RunSetup.exact_future`): there the resumed core equals the
 live one at the crash, and the shift goes on."""
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
 from gateway.server.wire.transport import MemoryClient
-from protocol import ErrorCode, Pause, ReplanNow, Resume, Start
+from protocol import ErrorCode, Pause, ReplanNow, Resume, Start, StopShift
 from sim_clients.fleet import SimFleet
 
 
@@ -133,6 +135,12 @@ async def _crash(gw: Gateway, setup: RunSetup, journal: Path, router: _Router) -
     assert plain(other.engine.current_run.core) == live
     router.gw = other
     await gw.stop()  # its links close: the robots reconnect to the resumed one
+    for _ in range(8):  # the takeover's work at this instant (no virtual time passes)
+        await other.clock.settle()
+    core = other.engine.current_run.core
+    assert core is not None
+    wake = core.next_wakeup_ms()
+    assert wake is None or wake > other.clock.now_ms()  # nothing due is put off to a tick
     return other
 
 
@@ -183,10 +191,17 @@ async def _check(setup: RunSetup, journal: Path, crash: bool) -> Any:
         if crash:
             gw = await _crash(gw, setup, journal, router)
         at_crash = _finished(gw)
+        stop = StopShift(msg_id="x", seq=5)
         if setup.problem is not None:
             await gw.wait_done()
+            code, _ = await gw.command(stop)
+            assert code is ErrorCode.BAD_STATE  # a one-shot run has no shift to stop
         else:
             await gw.clock.sleep_until_ms(END_MS)
+            assert await gw.command(stop) == (None, "stopping the shift")
+            await gw.wait_done()  # once every robot finished what it was dispatched
+            code, _ = await gw.command(stop)
+            assert code is ErrorCode.BAD_STATE  # stopped once
         assert _finished(gw) > at_crash  # it went on
         return plain(gw.engine.current_run.core) if setup.exact_future else None
     finally:

@@ -10,13 +10,12 @@ from pathlib import Path
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import Action, Finished, LoadPlan, Start, Started, Welcome
-from tests.server.conftest import LAB_PATHS, loop_clock, make_config
+from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import TestOperator, TestRobot
 from tracecheck import check_trace, read_trace
-
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
 
 DEPENDENT_PATHS = [
     [(1, 0), (2, 0), (3, 0)],
@@ -29,7 +28,7 @@ action 0 (a Type 2 edge). 1-robust: robot 1 is never where robot 0 was one step 
 @pytest.fixture
 async def traced(tmp_path: Path) -> AsyncIterator[Gateway]:
     """A listening gateway that writes its trace to ``tmp_path/trace.jsonl``."""
-    async with Gateway(make_config(trace=tmp_path / "trace.jsonl"), clock=loop_clock()) as gw:
+    async with Gateway(make_config(trace=tmp_path / "trace.jsonl")) as gw:
         await gw.listen()
         yield gw
 
@@ -147,9 +146,10 @@ async def _until(predicate: object) -> None:
         await asyncio.sleep(0.01)
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_silent_link_is_dropped_by_ping_timeout() -> None:
     async with Gateway(make_config(ping_interval_s=0.5, ping_timeout_s=0.5),
-                       clock=loop_clock()) as gw:
+                       clock=VirtualClock()) as gw:
         await gw.listen()
         await _silent_robot_is_dropped(gw)
 
@@ -167,8 +167,9 @@ async def _silent_robot_is_dropped(gw: Gateway) -> None:
     assert gw.status == "running"
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_autostart_when_every_robot_said_hello() -> None:
-    async with Gateway(make_config(autostart=True), clock=loop_clock()) as gw:
+    async with Gateway(make_config(autostart=True), clock=VirtualClock()) as gw:
         await gw.listen()
         await load(gw, LAB_PATHS)
         robots = [TestRobot(await ws(gw, f"demo-robot-{i}"), i, move_s=0.1) for i in range(3)]

@@ -11,16 +11,17 @@ from itertools import pairwise
 
 import pytest
 
+from gateway.server.clock import VirtualClock
 from gateway.server.config import LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.server.views import PATH_AHEAD, snapshot_fields
 from protocol import Event, GetSnapshot, Snapshot
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import start_shift
-from tests.server.conftest import connector, loop_clock, make_config
+from tests.server.conftest import connector, make_config
 from tests.server.robots import Peer
 
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
+pytestmark = pytest.mark.looptime  # virtual time over real websockets
 
 ROBOTS = 6
 
@@ -28,7 +29,7 @@ ROBOTS = 6
 async def test_an_operator_sees_the_shift_live() -> None:
     config = make_config(autostart=True, speed=10.0, map=None, dispatch_lookahead=1,
                          lifelong=LifelongSettings(robots=ROBOTS, warehouse=(2, 3)))
-    async with Gateway(config, clock=loop_clock()) as gw:
+    async with Gateway(config, clock=VirtualClock()) as gw:
         await gw.listen()
         connect = connector(gw)
         operator = Peer(await connect("demo-operator"), "op")

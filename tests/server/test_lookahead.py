@@ -9,19 +9,20 @@ from pathlib import Path
 
 import pytest
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import Action, Finished, Start, Started, Welcome
-from tests.server.conftest import LAB_PATHS, loop_clock, make_config
+from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import TestOperator, TestRobot
 from tests.server.test_end_to_end import DEPENDENT_PATHS, _until, load, ws
 from tracecheck import check_trace, read_trace
 
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
+pytestmark = pytest.mark.looptime  # virtual time over real websockets
 
 
 async def test_robots_get_their_next_action_before_they_finish(tmp_path: Path) -> None:
     async with Gateway(make_config(dispatch_lookahead=1, trace=tmp_path / "t.jsonl"),
-                       clock=loop_clock()) as gw:
+                       clock=VirtualClock()) as gw:
         await gw.listen()
         await load(gw, LAB_PATHS)
         op = TestOperator(await ws(gw, "demo-operator"), "op")
@@ -51,7 +52,7 @@ async def test_robots_get_their_next_action_before_they_finish(tmp_path: Path) -
 
 async def test_a_type2_wait_is_not_released_early() -> None:
     # robot 1's action 1 enters (1, 0), which robot 0 leaves with its action 0
-    async with Gateway(make_config(dispatch_lookahead=1), clock=loop_clock()) as gw:
+    async with Gateway(make_config(dispatch_lookahead=1), clock=VirtualClock()) as gw:
         await gw.listen()
         await load(gw, DEPENDENT_PATHS)
         r0 = TestRobot(await ws(gw, "demo-robot-0"), 0)
@@ -71,7 +72,7 @@ async def test_a_type2_wait_is_not_released_early() -> None:
 
 
 async def test_reconnect_resends_both_held_actions_in_order() -> None:
-    async with Gateway(make_config(dispatch_lookahead=1), clock=loop_clock()) as gw:
+    async with Gateway(make_config(dispatch_lookahead=1), clock=VirtualClock()) as gw:
         await gw.listen()
         await load(gw, LAB_PATHS[:1])
         robot = TestRobot(await ws(gw, "demo-robot-0"), 0, ack=False)

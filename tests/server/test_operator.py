@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import (
     Ack,
@@ -32,11 +33,9 @@ from protocol import (
     Snapshot,
     Start,
 )
-from tests.server.conftest import Connect, connector, loop_clock, make_config
+from tests.server.conftest import Connect, connector, make_config
 from tests.server.robots import Peer, TestOperator, TestRobot
 from tracecheck import check_trace, read_trace
-
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
 
 
 async def operator(ws_connect: Connect) -> TestOperator:
@@ -143,9 +142,10 @@ async def test_pause_stops_new_moves_until_resume(gateway: Gateway, ws_connect: 
         t.cancel()
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_replan_now_adopts_a_new_plan(tmp_path: Path) -> None:
     async with Gateway(make_config(trace=tmp_path / "t.jsonl", policy="none"),
-                       clock=loop_clock()) as gw:
+                       clock=VirtualClock()) as gw:
         await gw.listen()
         connect = connector(gw)
         op = await operator(connect)

@@ -10,13 +10,12 @@ from typing import Any
 
 import pytest
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import Action, ActionRefused, ErrorCode, Event, LoadPlan, Start, Started
 from sim_clients.fleet import SimFleet
-from tests.server.conftest import Connect, connector, loop_clock, make_config
+from tests.server.conftest import Connect, connector, make_config
 from tests.server.robots import Peer, TestRobot
-
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
 
 # Robot 0 drives east along row 0; robot 1 turns twice on (5, 1), to west, and drives to (4, 1).
 PATHS = [[(0, 0), (1, 0), (2, 0)], [(5, 1), (5, 1), (5, 1), (4, 1)]]
@@ -29,9 +28,10 @@ async def until(predicate: Any, timeout: float = 10.0) -> None:
             await asyncio.sleep(0.01)
 
 
+@pytest.mark.looptime  # virtual time over real websockets
 async def test_a_sim_robot_facing_elsewhere_refuses_and_the_operator_sees_why() -> None:
     async with Gateway(make_config(speed=10.0, policy="none", dispatch_lookahead=1),
-                       clock=loop_clock()) as gw:
+                       clock=VirtualClock()) as gw:
         await gw.listen()
         connect: Connect = connector(gw)
         plan = LoadPlan(msg_id="l", seq=0, map="lab", paths=PATHS, headings=HEADINGS)

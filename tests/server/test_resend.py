@@ -10,13 +10,14 @@ from typing import Any
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import Ack, Action, Activity, Finished, Hello, LoadPlan, Start, Started, Welcome
 from sim_clients.fleet import SimFleet
-from tests.server.conftest import LAB_PATHS, loop_clock, make_config
+from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import Peer, TestRobot
 
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
+pytestmark = pytest.mark.looptime  # virtual time over real websockets
 
 
 async def ws(gw: Gateway, token: str) -> ClientConnection:
@@ -37,7 +38,7 @@ async def hello(peer: Peer, **fields: Any) -> Welcome:
 
 
 async def test_reconnect_resends_only_the_actions_the_robot_does_not_hold() -> None:
-    async with Gateway(make_config(dispatch_lookahead=1), clock=loop_clock()) as gw:
+    async with Gateway(make_config(dispatch_lookahead=1), clock=VirtualClock()) as gw:
         await gw.listen()
         code, detail = await gw.command(LoadPlan(msg_id="l", seq=0, map="lab",
                                                  paths=LAB_PATHS[:1]))
@@ -80,7 +81,7 @@ async def test_a_fleet_that_loses_its_links_is_resent_nothing_it_holds() -> None
     # the simulated robots (the shared robot session) over websockets, lookahead dispatch:
     # every reconnect happens while the robot holds a queued action, which is not resent
     config = make_config(dispatch_lookahead=1, speed=10.0, policy="none")
-    async with Gateway(config, clock=loop_clock()) as gw:
+    async with Gateway(config, clock=VirtualClock()) as gw:
         port = await gw.listen()
 
         async def connect_robot(token: str) -> ClientConnection:

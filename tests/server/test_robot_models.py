@@ -7,20 +7,21 @@ import asyncio
 
 import pytest
 
+from gateway.server.clock import VirtualClock
 from gateway.server.config import ConfigError, load_config
 from gateway.server.gateway import Gateway
 from protocol import Action, LoadPlan, Start
-from tests.server.conftest import connector, loop_clock, make_config
+from tests.server.conftest import connector, make_config
 from tests.server.robots import TestRobot
 from tests.server.test_versions import TURN_HEADINGS, TURN_PATHS
 
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
+pytestmark = pytest.mark.looptime  # virtual time over real websockets
 
 
 async def test_each_robot_gets_its_models_durations() -> None:
     config = make_config(robot_models={"turtlebot": {"move_ms": 1500.0, "turn_ms": 2500.0}},
                          robot_model={0: "turtlebot"}, action_ms=800.0)
-    async with Gateway(config, clock=loop_clock()) as gw:
+    async with Gateway(config, clock=VirtualClock()) as gw:
         await gw.listen()
         code, detail = await gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=TURN_PATHS,
                                                  headings=TURN_HEADINGS))

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import asyncio
 
-import pytest
-
 from gateway.planning.validate import check_plan
 from gateway.server.gateway import Gateway
 from protocol import (
@@ -23,8 +21,6 @@ from protocol import (
 )
 from tests.server.conftest import LAB_PATHS, Connect
 from tests.server.robots import TestRobot
-
-pytestmark = pytest.mark.looptime  # virtual time over real websockets (conftest)
 
 
 async def test_each_robot_is_answered_in_its_version(gateway: Gateway,

@@ -13,14 +13,16 @@ import sys
 import urllib.request
 from pathlib import Path
 
-from gateway.planning.instance import load_instance
-from gateway.planning.plan import NeverExpires
+from gateway.execution.params import PAPER
+from gateway.planning.instance import Instance, load_instance
+from gateway.planning.plan import NeverExpires, Plan
 from gateway.planning.solver import solve
 from gateway.runtime.mapstore import resolve
 from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.planner import Problem
+from protocol.messages import PolicyName
 from sim_clients.connect import websocket_connector
 from sim_clients.demo_instance import DEFAULT_AGENTS, DEFAULT_MAP, DEFAULT_SCEN
 from sim_clients.fleet import fleet_for, run_in_process
@@ -37,6 +39,34 @@ def demo(*args: str, timeout: float = 90.0) -> dict[str, object]:
     assert proc.returncode == 0, proc.stderr
     result: dict[str, object] = json.loads(proc.stdout)
     return result
+
+
+def _demo_plan() -> tuple[Instance, Plan]:
+    """The zero-setup demo's instance and its plan."""
+    inst = load_instance(resolve(DEFAULT_MAP, "map"), resolve(DEFAULT_SCEN, "scen"),
+                         DEFAULT_AGENTS)
+    return inst, solve(inst.grid, inst.starts, inst.goals, deadline=NeverExpires()).plan
+
+
+def _demo_in_virtual_time(trace: Path, *, intruder: bool, policy: PolicyName) -> RunSummary:
+    """The demo's run (its instance, gateway and simulated fleet with the seed-0 intruder if
+    ``intruder``) over real websockets on loopback, in virtual time (a replan's solver
+    charged nothing)."""
+    inst, plan = _demo_plan()
+    config = GatewayConfig(port=0, map=None, policy=policy, threshold_ms=PAPER.threshold_ms,
+                           trace=trace, log_level="WARNING")
+
+    async def main() -> RunSummary:
+        async with Gateway(config, clock=VirtualClock()) as gw:
+            port = await gw.listen()
+            fleet = fleet_for(gw, DEFAULT_AGENTS, websocket_connector(
+                f"ws://127.0.0.1:{port}/ws"), intruder=intruder)
+            try:
+                return await run_in_process(gw, Problem(inst, DEFAULT_MAP, plan), fleet)
+            finally:
+                await fleet.stop()
+
+    return run_virtual(main())
 
 
 def test_ten_robots_without_intruder_run_safely_in_real_time(tmp_path: Path) -> None:
@@ -59,23 +89,8 @@ def test_ten_robots_over_websockets_take_exactly_the_plans_time(tmp_path: Path) 
     # the demo's fleet and gateway (its instance, no intruder) over real websockets on
     # loopback, in virtual time: the gateway and the round trips add no time of their own, so
     # every action starts when the plan says and the SOC is the plan's exactly
-    inst = load_instance(resolve(DEFAULT_MAP, "map"), resolve(DEFAULT_SCEN, "scen"),
-                         DEFAULT_AGENTS)
-    plan = solve(inst.grid, inst.starts, inst.goals, deadline=NeverExpires()).plan
     trace = tmp_path / "trace.jsonl"
-    config = GatewayConfig(port=0, map=None, policy="none", trace=trace, log_level="WARNING")
-
-    async def main() -> RunSummary:
-        async with Gateway(config, clock=VirtualClock()) as gw:
-            port = await gw.listen()
-            fleet = fleet_for(gw, DEFAULT_AGENTS, websocket_connector(
-                f"ws://127.0.0.1:{port}/ws"), intruder=False)
-            try:
-                return await run_in_process(gw, Problem(inst, DEFAULT_MAP, plan), fleet)
-            finally:
-                await fleet.stop()
-
-    out = run_virtual(main())
+    out, (_, plan) = _demo_in_virtual_time(trace, intruder=False, policy="none"), _demo_plan()
     assert out.soc_ms == 1000.0 * plan.soc
     assert out.makespan_ms == 1000.0 * plan.makespan
     assert out.replans == 0 and out.collisions == 0
@@ -100,13 +115,14 @@ def test_intruder_and_slack_policy_stay_safe(tmp_path: Path) -> None:
 
 
 def test_default_demo_replans_when_the_slack_crosses_the_threshold(tmp_path: Path) -> None:
-    # The zero-setup demo (lab-random-4, 10 robots, seed-0 intruder, slack policy): in virtual
-    # time the fleet slack passes 2000 ms at 7100 ms (and 3000 ms at 8100 ms, so the crossing is
-    # not marginal) and the replan adopts plan 1; real time shifts it by milliseconds.
-    trace = tmp_path / "demo.jsonl"
-    out = demo("--speed", "5", "--trace", str(trace))
-    assert out["replans"] == 1
-    assert 7000 <= float(out["replan_at_ms"]) <= 8200  # type: ignore[arg-type]
+    # The zero-setup demo (lab-random-4, 10 robots, seed-0 intruder, slack policy), its gateway
+    # and fleet over real websockets in virtual time (in real time a loaded machine shifts the
+    # crossing): the fleet slack passes 2000 ms at 7100 ms (and 3000 ms at 8100 ms, so the
+    # crossing is not marginal) and the replan adopts plan 1.
+    trace = tmp_path / "trace.jsonl"
+    out = _demo_in_virtual_time(trace, intruder=True, policy="slack")
+    assert out.replans == 1
+    assert out.replan_at_ms is not None and 7000 <= out.replan_at_ms <= 8200
     triggers = [r for r in read_trace(trace) if r["type"] == "trigger"]
     assert [t["policy"] for t in triggers] == ["slack"]
     assert float(triggers[0]["fleet_slack_ms"]) > 2000  # type: ignore[arg-type]

@@ -279,3 +279,30 @@ def test_factsheet_on_connect_and_on_request(version: VdaVersion) -> None:
     for topic, payload in loop.traffic:
         if (SCHEMA_DIR / version).is_dir():
             assert_valid(version, topic, payload)
+
+
+def test_takeover_maps_edges_to_the_gateways_action_ids() -> None:
+    # under drop_waits the wait (action 1) has no ADG vertex: the robot's actions are 0, 2, 3
+    path = [(0, 5, 0), (1, 5, 0), (1, 5, 0), (2, 5, 0), (3, 5, 0)]
+    actions = [a for i, a in enumerate(actions_of(path)) if i != 1]
+    loop = Loop("2.1.0", path[0])
+    loop.master.release(actions, loop.now)
+    loop.run(1.5)  # action 0 finished, action 2 running
+    old = loop.master
+    state = old.state
+    assert state is not None
+
+    def steps(key: str, first: int, count: int) -> list[str | None]:
+        out: list[str | None] = [a.action_id for a in actions if a.sequence >= first]
+        return out[:count]
+
+    loop.master = VehicleMaster(old.topics, "2.1.0", old.nodes, ids=steps)
+    finished, base = loop.master.adopt(state)
+    assert finished == [actions[0].action_id]
+    assert base == [a.action_id for a in actions[1:]]  # not ".1" and ".2": no index counting
+    assert loop.master.adopt_actions(actions[1:]) == []
+    loop.reports.clear()
+    loop.run(6)
+    assert [r.kind for r in loop.reports if r.action_id == actions[-1].action_id] == [
+        "started", "finished"]
+    assert loop.vehicle.cell == (3, 5) and not loop.vehicle.errors

@@ -26,14 +26,15 @@ class TaskDistances:
     """The scheduler's costs: exact moves between cells (one cached table per target cell;
     the graph is undirected, so a table gives the moves from every cell to it and back), plus
     ``charge`` moves for a robot standing on a cell of :attr:`charged` (e.g. one in a delay),
-    so tasks go to robots that can go. ``space``: a state space whose tables are over the free
-    cells (not :attr:`~gateway.planning.pibt.StateSpace.exact`) to share them with, e.g. the
-    planner's on a large map, where the robots' goals are the tasks' errands."""
+    so tasks go to robots that can go. ``space``: a state space whose tables are the moves over
+    the free cells (neither :attr:`~gateway.planning.pibt.StateSpace.exact` nor ``compact``) to
+    share them with, e.g. the planner's on a large map, where the robots' goals are the tasks'
+    errands."""
 
     def __init__(self, grid: Grid, charge: int = 0, budget_bytes: int = 1 << 30,
                  space: StateSpace | None = None) -> None:
-        if space is not None and space.exact:
-            raise ValueError("the scheduler can share only tables over the free cells")
+        if space is not None and (space.exact or space.compact):
+            raise ValueError("the scheduler can share only tables over the free cells (moves)")
         self.space = space if space is not None else StateSpace(grid, turning=False,
                                                                 budget_bytes=budget_bytes)
         self.charge = charge

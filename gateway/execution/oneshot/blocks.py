@@ -81,6 +81,12 @@ class BlockTracker:
         return [since + d for d in duration_quantiles(self.history, lasted, self.min_ms,
                                                       levels)]
 
+    def evidence(self, cell: Cell) -> int:
+        """How many earlier blocks lasted longer than the open block on ``cell`` has so far:
+        the observations its duration's distribution rests on (beyond them, the prior)."""
+        lasted = self.seen[cell] - self.open[cell]
+        return sum(1 for d in self.history if d > lasted)
+
     def obstacles(self, now_ms: float) -> tuple[tuple[Cell, float], ...]:
         """Every open block expected to last beyond ``now_ms``, as ``(cell, expected end)``,
         in cell order."""

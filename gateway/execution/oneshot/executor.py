@@ -150,7 +150,7 @@ class Executor:
         self._shadow: tuple[tuple[Cell, ...], tuple[int, ...] | None] | None = None
         """The stop configuration an outstanding shadow solve plans from."""
         self._next_shadow_ms = 0.0
-        self._ready: tuple[Plan, ADG] | None = None
+        self._ready: Plan | None = None
         """A shadow plan to adopt once the decided stop is complete."""
         self._install(plan, adg, 0, 0.0)
 
@@ -569,9 +569,10 @@ class Executor:
             return False
         self._check_plan(plan, cells, headings)
         adg = self._adg_of(plan)
-        if not policy.adopts(self._shadow_gains(adg, start, policy.levels)):
+        evidence = min((self.blocks.evidence(c) for c in self.blocks.open), default=math.inf)
+        if not policy.adopts(self._shadow_gains(adg, start, policy.levels), evidence):
             return False
-        self._ready = (plan, adg)
+        self._ready = plan
         self._trigger(policy.name)
         return True
 
@@ -797,8 +798,9 @@ class Executor:
         if self._left == 0:
             self._complete()
             return
-        if ready is not None and self._fits(ready[0]):
-            self._adopt(*ready)
+        if ready is not None and self._fits(ready):
+            # (its waits gated by the blocks open now, as a journal's snapshot restores them)
+            self._adopt(ready, self._adg_of(ready))
             return
         self.mode = Mode.SOLVING
         self._out.append(SolveRequest(

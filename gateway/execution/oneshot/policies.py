@@ -15,8 +15,10 @@ whatever the policy.
 
 from __future__ import annotations
 
+import math
 import random
 from collections.abc import Callable, Sequence
+from statistics import NormalDist
 from typing import TYPE_CHECKING, Literal, Protocol, get_args, runtime_checkable
 
 from gateway.execution.params import PAPER
@@ -146,15 +148,19 @@ class ShadowPolicy(NoReplan):
                  min_slack_ms: float = PAPER.shadow_min_slack_ms,
                  risk_aversion: float = PAPER.shadow_risk_aversion,
                  risk_level: float = PAPER.shadow_risk_level,
-                 scenarios: int = PAPER.shadow_scenarios) -> None:
-        if not (risk_aversion >= 0 and 0 <= risk_level <= 1 and scenarios >= 1):
-            raise ValueError("need risk_aversion >= 0, 0 <= risk_level <= 1, scenarios >= 1")
+                 scenarios: int = PAPER.shadow_scenarios,
+                 risk_confidence: float = PAPER.shadow_risk_confidence) -> None:
+        if not (risk_aversion >= 0 and 0 <= risk_level <= 1 and scenarios >= 1
+                and 0.5 <= risk_confidence < 1):
+            raise ValueError("need risk_aversion >= 0, 0 <= risk_level <= 1, scenarios >= 1, "
+                             "0.5 <= risk_confidence < 1")
         self.margin_ms = float(margin_ms)
         self.period_ms = float(period_ms)
         self.min_slack_ms = float(min_slack_ms)
         self.risk_aversion = float(risk_aversion)
         self.risk_level = float(risk_level)
         self.scenarios = float(int(scenarios))  # (a journal's snapshot keeps floats)
+        self.risk_confidence = float(risk_confidence)
 
     @property
     def levels(self) -> tuple[float, ...]:
@@ -162,19 +168,39 @@ class ShadowPolicy(NoReplan):
         n = int(self.scenarios)
         return tuple((k + 0.5) / n for k in range(n))
 
-    def adopts(self, gains: Sequence[float]) -> bool:
+    def adopts(self, gains: Sequence[float], evidence: float = math.inf) -> bool:
         """Adopt a plan whose gain in the equally likely scenarios is ``gains`` (ms) if its
         expected gain, less ``risk_aversion`` times its expected regret against keeping the
         plan (the mean loss where it loses), is at least the margin, and the chance that it
-        loses (the block ending too early for it) is at most ``risk_level``."""
+        loses (the block ending too early for it) is at most ``risk_level``. ``evidence`` is
+        how many earlier blocks the scenarios rest on (those that lasted longer than the
+        block has); a plan that loses in any scenario must keep the chance of a loss within
+        ``risk_level`` with ``risk_confidence`` (:func:`loss_bound`): a short history cannot
+        show that blocks rarely end soon."""
         if not gains:
             return False
         n = len(gains)
         mean = sum(gains) / n
         regret = sum(-g for g in gains if g < 0) / n
         losing = sum(1 for g in gains if g < 0) / n
-        return mean - self.risk_aversion * regret >= self.margin_ms and \
-            losing <= self.risk_level
+        if mean - self.risk_aversion * regret < self.margin_ms:
+            return False
+        return losing == 0 or loss_bound(losing, evidence, self.risk_confidence) \
+            <= self.risk_level
+
+
+def loss_bound(share: float, samples: float, confidence: float) -> float:
+    """The one-sided Wilson upper bound at ``confidence`` of a probability estimated as
+    ``share`` from ``samples`` observations (1 with none; ``share`` itself with infinitely
+    many)."""
+    if samples == math.inf:
+        return share
+    if samples <= 0:
+        return 1.0
+    z = NormalDist().inv_cdf(confidence)
+    z2n = z * z / samples
+    spread = z * math.sqrt(share * (1 - share) / samples + z2n / (4 * samples))
+    return min(1.0, (share + z2n / 2 + spread) / (1 + z2n))
 
 
 @runtime_checkable

@@ -179,6 +179,10 @@ class Run(Protocol):
         """The operator's "replan now"; the answer's detail (:class:`RunRefused`)."""
         ...
 
+    def stop(self) -> str:
+        """The operator's "stop the shift"; the answer's detail (:class:`RunRefused`)."""
+        ...
+
     def policy_changed(self, *, replace: bool) -> None:
         """The operator set the policy (``replace``) or the threshold."""
 

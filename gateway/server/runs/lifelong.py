@@ -306,10 +306,15 @@ class LifelongRun:
         self.tick(now_ms)
         self._engine.feed.slack(now_ms, self.executor.fleet_slack_ms)
 
-    def stop(self) -> None:
-        """End the shift: nothing new is dispatched; done when every robot is idle."""
-        self.executor.stop(self._engine.now_ms())
+    def stop(self) -> str:
+        """End the shift: nothing new is dispatched; done when every robot is idle
+        (:class:`RunRefused` unless it runs)."""
+        try:
+            self.executor.stop(self._engine.now_ms())
+        except ExecutionError as exc:
+            raise RunRefused(str(exc)) from None
         self.route()
+        return "stopping the shift"
 
     def set_paused(self, paused: bool) -> None:
         """Dispatch nothing new while paused (robots are paused by their sessions)."""

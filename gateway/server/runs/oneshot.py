@@ -230,6 +230,10 @@ class OneShotRun:
         e.route(e.executor.drain())
         return "replanning"
 
+    def stop(self) -> str:
+        """A one-shot run ends with its plan: there is no shift to stop."""
+        raise RunRefused("a one-shot run has no shift to stop: it ends with its plan")
+
     def policy_changed(self, *, replace: bool) -> None:
         """Give the running executor the operator's policy (or threshold), journaled."""
         e = self._ctx

@@ -15,9 +15,9 @@ which is the state the records it replaced would have rebuilt.
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from gateway.execution.actions import ActionDurations
@@ -30,12 +30,14 @@ from gateway.execution.trace_records import Record, intruder_record
 from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
 from gateway.runtime.journal import (
+    REJECTED,
     AdoptRecord,
     ExecutorEvent,
     IntruderRecord,
     JournalError,
     JournalRecord,
     PolicyRecord,
+    RejectedRecord,
     ReportRecord,
     RunRecord,
     ShadowRecord,
@@ -66,67 +68,78 @@ class JournaledReports:
         """Where trace records go from now on (a resumed run's trace)."""
         self._record = record
 
-    def _report(self, event: ExecutorEvent, robot: int, plan: int, action: int,
-                now_ms: float, reason: str = "") -> None:
-        if self.sink is not None:  # built only if journaled (the hot path of a big fleet)
-            self.sink(ReportRecord.model_construct(event=event, robot=robot, plan=plan,
-                                                   index=action, t_ms=now_ms, reason=reason))
+    def journaled(self, record: Any, apply: Callable[..., Any], *args: Any) -> Any:
+        """Hand ``record`` to :attr:`sink` (if journaled), then ``apply(*args)``. A refusal
+        (:class:`ExecutionError`: nothing changed) is journaled right after it (``rejected``),
+        so replay refuses that input again and accepts every other one."""
+        sink = self.sink
+        if sink is None:
+            return apply(*args)
+        sink(record)
+        try:
+            return apply(*args)
+        except ExecutionError:
+            sink(REJECTED)
+            raise
+
+    def _report(self, apply: Callable[..., None], event: ExecutorEvent, robot: int, plan: int,
+                action: int, now_ms: float, *reason: str) -> None:
+        """Journal, then apply, a robot report (the record is built only if journaled: the hot
+        path of a big fleet)."""
+        record = None if self.sink is None else ReportRecord.model_construct(
+            event=event, robot=robot, plan=plan, index=action, t_ms=now_ms,
+            reason=reason[0] if reason else "")
+        self.journaled(record, apply, robot, plan, action, now_ms, *reason)
 
     def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """Journal, then apply, a robot's ``started``."""
-        self._report("started", robot, plan, action, now_ms)
-        super().started(robot, plan, action, now_ms)  # type: ignore[misc]
+        self._report(super().started, "started", robot, plan, action, now_ms)  # type: ignore[misc]
 
     def finished(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """Journal, then apply, a robot's ``finished``."""
-        self._report("finished", robot, plan, action, now_ms)
-        super().finished(robot, plan, action, now_ms)  # type: ignore[misc]
+        self._report(super().finished, "finished", robot, plan, action,  # type: ignore[misc]
+                     now_ms)
 
     def blocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """Journal, then apply, a robot's ``blocked`` before it starts."""
-        self._report("blocked", robot, plan, action, now_ms)
-        super().blocked(robot, plan, action, now_ms)  # type: ignore[misc]
+        self._report(super().blocked, "blocked", robot, plan, action, now_ms)  # type: ignore[misc]
 
     def stopped(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """Journal, then apply, a robot's ``blocked`` on the way."""
-        self._report("stopped", robot, plan, action, now_ms)
-        super().stopped(robot, plan, action, now_ms)  # type: ignore[misc]
+        self._report(super().stopped, "stopped", robot, plan, action, now_ms)  # type: ignore[misc]
 
     def unblocked(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """Journal, then apply, a robot's ``unblocked``."""
-        self._report("unblocked", robot, plan, action, now_ms)
-        super().unblocked(robot, plan, action, now_ms)  # type: ignore[misc]
+        self._report(super().unblocked, "unblocked", robot, plan, action,  # type: ignore[misc]
+                     now_ms)
 
     def cancelled(self, robot: int, plan: int, action: int, now_ms: float) -> None:
         """Journal, then apply, a robot's ``cancelled``."""
-        self._report("cancelled", robot, plan, action, now_ms)
-        super().cancelled(robot, plan, action, now_ms)  # type: ignore[misc]
+        self._report(super().cancelled, "cancelled", robot, plan, action,  # type: ignore[misc]
+                     now_ms)
 
     def refused(self, robot: int, plan: int, action: int, now_ms: float,
                 reason: str = "") -> None:
         """Journal, then apply, a robot's refusal."""
-        self._report("refused", robot, plan, action, now_ms, reason)
-        super().refused(robot, plan, action, now_ms, reason)  # type: ignore[misc]
+        self._report(super().refused, "refused", robot, plan, action,  # type: ignore[misc]
+                     now_ms, reason)
 
-    def journal_time(self, kind: str, now_ms: float) -> None:
-        """Hand a time input of ``kind`` (a tick, pause, resume, ...) to the journal."""
-        if self.sink is not None:  # built only if journaled (ten ticks a second)
-            self.sink(TimeRecord.model_construct(kind=kind, t_ms=now_ms))
+    def journal_time(self, kind: str, apply: Callable[[float], Any], now_ms: float) -> None:
+        """Journal a time input of ``kind`` (a tick, pause, resume, ...), then apply it."""
+        record = None if self.sink is None else TimeRecord.model_construct(kind=kind, t_ms=now_ms)
+        self.journaled(record, apply, now_ms)
 
     def tick(self, now_ms: float) -> None:
         """Journal, then apply, a monitor tick."""
-        self.journal_time("tick", now_ms)
-        super().tick(now_ms)  # type: ignore[misc]
+        self.journal_time("tick", super().tick, now_ms)  # type: ignore[misc]
 
     def pause(self, now_ms: float) -> None:
         """Journal, then apply, the operator's pause."""
-        self.journal_time("pause", now_ms)
-        super().pause(now_ms)  # type: ignore[misc]
+        self.journal_time("pause", super().pause, now_ms)  # type: ignore[misc]
 
     def resume(self, now_ms: float) -> None:
         """Journal, then apply, the operator's resume."""
-        self.journal_time("resume", now_ms)
-        super().resume(now_ms)  # type: ignore[misc]
+        self.journal_time("resume", super().resume, now_ms)  # type: ignore[misc]
 
     def replay_common(self, rec: JournalRecord,
                       on_report: Callable[[ReportRecord], None]) -> bool:
@@ -153,35 +166,29 @@ class JournaledExecutor(JournaledReports, Executor):
         super().__init__(plan, **kwargs)
         self.sink = sink
 
-    def _log(self, record: Any) -> None:
-        if self.sink is not None:
-            self.sink(record)
-
     def request_replan(self, now_ms: float) -> None:
-        self._log(TimeRecord(kind="replan", t_ms=now_ms))
-        super().request_replan(now_ms)
+        self.journal_time("replan", super().request_replan, now_ms)
 
     def abandon_replan(self, now_ms: float) -> None:
-        self._log(TimeRecord(kind="abandon", t_ms=now_ms))
-        super().abandon_replan(now_ms)
+        self.journal_time("abandon", super().abandon_replan, now_ms)
 
     def adopt_plan(self, plan: Plan, now_ms: float, solver_ms: float = 0.0) -> None:
         """Adopt ``plan``; ``solver_ms`` is the run's solver time charged so far."""
-        self._log(AdoptRecord(
+        self.journaled(AdoptRecord(
             t_ms=now_ms, paths=[list(p) for p in plan.paths], solver_ms=solver_ms,
-            headings=None if plan.headings is None else [list(h) for h in plan.headings]))
-        super().adopt_plan(plan, now_ms)
+            headings=None if plan.headings is None else [list(h) for h in plan.headings]),
+            super().adopt_plan, plan, now_ms)
 
     def shadow_solved(self, plan: Plan | None, now_ms: float) -> bool:
-        self._log(ShadowRecord(
+        return bool(self.journaled(ShadowRecord(
             t_ms=now_ms, paths=None if plan is None else [list(p) for p in plan.paths],
             headings=None if plan is None or plan.headings is None
-            else [list(h) for h in plan.headings]))
-        return super().shadow_solved(plan, now_ms)
+            else [list(h) for h in plan.headings]), super().shadow_solved, plan, now_ms))
 
     def set_policy(self, rec: PolicyRecord) -> None:
         """The operator's policy (``rec.replace``) or slack threshold, journaled."""
-        self._log(rec)
+        if self.sink is not None:
+            self.sink(rec)
         if rec.replace:
             self.policy = make_policy(rec.policy, seed=rec.policy_seed,
                                       threshold_ms=rec.threshold_ms,
@@ -308,15 +315,51 @@ def replay(records: Iterable[JournalRecord], *,
         raise JournalError(f"the journal starts with a {first.kind} record, not a run")
     ex = out.executor
     _commands(ex, out, on_commands)
-    for rec in it:
-        out.records += 1
+    for number, rec, rejected in inputs(list(it), 2):
+        out.records = number + rejected
         t = getattr(rec, "t_ms", None)
         if t is not None:
             out.last_t_ms = max(out.last_t_ms, t)
-        with contextlib.suppress(ExecutionError):  # refused live as well: nothing changed
-            _apply(ex, out, rec, on_report, trace)
+        as_live(number, rec, rejected, partial(_apply, ex, out, rec, on_report, trace))
         _commands(ex, out, on_commands)
     return out
+
+
+def inputs(records: Sequence[JournalRecord], first: int
+           ) -> Iterator[tuple[int, JournalRecord, bool]]:
+    """``(number, record, rejected)`` for each of ``records`` (the journal's from record number
+    ``first`` on), a ``rejected`` record folded into the input before it: that input was
+    refused live. JournalError for one that follows no input."""
+    i = 0
+    while i < len(records):
+        rec = records[i]
+        if isinstance(rec, RejectedRecord):
+            raise JournalError(f"record {first + i} of the journal is damaged (a refusal that "
+                               f"follows no input): start with --fresh to abandon the run")
+        rejected = i + 1 < len(records) and isinstance(records[i + 1], RejectedRecord)
+        yield first + i, rec, rejected
+        i += 1 + rejected
+
+
+def as_live(number: int, rec: JournalRecord, rejected: bool, apply: Callable[[], object]
+            ) -> None:
+    """Apply the journal's record ``number`` as it was applied live: accepted again, or refused
+    again (``rejected``: nothing changes). JournalError naming it if replay decides otherwise:
+    the journal does not hold what happened (an edited record whose checksum was recomputed,
+    or a fleetgate that decides otherwise), and the state it would rebuild is not the one the
+    robots and clients were told of."""
+    try:
+        apply()
+    except ExecutionError as exc:
+        if rejected:
+            return
+        raise JournalError(f"record {number} of the journal does not replay: its {rec.kind} "
+                           f"was accepted, but replay refuses it ({exc}): start with --fresh "
+                           f"to abandon the run") from None
+    if rejected:
+        raise JournalError(f"record {number} of the journal does not replay: its {rec.kind} "
+                           f"was refused, but replay accepts it: start with --fresh to "
+                           f"abandon the run")
 
 
 def _commands(ex: Executor, out: Replayed, on_commands: Callable[[list[Command]], None]

@@ -34,6 +34,7 @@ import json
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, Protocol
 
 from gateway.execution.errors import ExecutionError
@@ -67,7 +68,7 @@ from gateway.runtime.journal import (
     TimeRecord,
 )
 from gateway.server.runs.base import RunContext
-from gateway.server.runs.resume import JournaledReports
+from gateway.server.runs.resume import JournaledReports, as_live, inputs
 
 log = logging.getLogger("fleetgate.lifelong")
 
@@ -77,23 +78,18 @@ class JournaledLifelong(JournaledReports, LifelongExecutor):
     (None: not journaled, e.g. while it is being replayed)."""
 
     def stop(self, now_ms: float) -> None:
-        self.journal_time("stop", now_ms)
-        super().stop(now_ms)
+        self.journal_time("stop", super().stop, now_ms)
 
     def plan_now(self, now_ms: float) -> None:
-        self.journal_time("replan", now_ms)
-        super().plan_now(now_ms)
+        self.journal_time("replan", super().plan_now, now_ms)
 
     def plan_failed(self, call: int, now_ms: float) -> None:
-        self.journal_time("abandon", now_ms)
-        super().plan_failed(call, now_ms)
+        self.journal_time("abandon", partial(super().plan_failed, call), now_ms)
 
     def adopt(self, segment: Segment, now_ms: float) -> None:
-        if self.sink is not None:
-            self.sink(SegmentRecord(
-                call=segment.call, t_ms=now_ms, states=[list(s) for s in segment.states],
-                reached=[list(r) for r in segment.reached]))
-        super().adopt(segment, now_ms)
+        self.journaled(None if self.sink is None else SegmentRecord(
+            call=segment.call, t_ms=now_ms, states=[list(s) for s in segment.states],
+            reached=[list(r) for r in segment.reached]), super().adopt, segment, now_ms)
 
     def set_threshold(self, threshold_ms: float) -> None:
         """The operator's slack threshold."""
@@ -155,20 +151,19 @@ def replay_shift(records: Sequence[JournalRecord], ex: JournaledLifelong, *,
     out.records = i
     while i < len(records):
         rec = records[i]
-        i += 1
-        out.records += 1
         t = getattr(rec, "t_ms", None)
         if t is not None:
             out.last_t_ms = max(out.last_t_ms, t)
         if isinstance(rec, TaskRecord):
-            i = _task_change(pool, records, i - 1)
+            i = _task_change(pool, records, i)
+            out.records = i
             continue
+        number, rec, rejected = next(inputs(records[i:i + 2], i + 1))
+        i = out.records = number + rejected
         try:
-            _apply(ex, out, rec, on_report, on_start)
+            as_live(number, rec, rejected, partial(_apply, ex, out, rec, on_report, on_start))
         except JournalError:
             raise
-        except ExecutionError:  # refused live as well: nothing changed
-            pass
         except Exception:  # an internal error live too (the engine logged it and went on)
             log.exception("replaying a %s record raised, as it did live", rec.kind)
         commands = ex.drain()

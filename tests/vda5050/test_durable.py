@@ -1,0 +1,38 @@
+"""A lifelong shift of simulated VDA 5050 vehicles survives SIGKILL of the gateway: ``fleetgate
+serve`` (its own process, a ``[vda5050]`` section, a private mosquitto) is killed twice
+mid-shift and restarted with the same command line; the vehicles keep their orders meanwhile,
+the restarted master takes them over from their states, and the same shift goes on: no action
+driven twice, no pick or drop run twice, nothing a vehicle drove before a kill missing from the
+trace, tracecheck clean (``bench.crash.lifelong_shift``, the crash benchmark's shift)."""
+
+from __future__ import annotations
+
+import asyncio
+import random
+from pathlib import Path
+
+from bench.crash import GatewayProcess, free_port, lifelong_config, lifelong_shift
+from gateway.planning.lorr import warehouse_problem
+from gateway.server.config import GatewayConfig, LifelongSettings
+from sim_clients.vda_fleet import shift_starts
+from tests.vda5050.fleets import vda_config
+
+ROBOTS, WAREHOUSE = 6, (2, 3)
+
+
+def test_a_killed_gateway_resynchronises_its_vehicles(broker_url: str, tmp_path: Path) -> None:
+    vda = vda_config(broker_url, list(range(ROBOTS)), ("2.0.0", "2.1.0"))
+    gw = GatewayProcess(tmp_path, free_port(), 5.0, "none",
+                        extra={"vda5050": vda.model_dump(mode="json", exclude_none=True)})
+    lifelong_config(gw, ROBOTS, WAREHOUSE)
+    starts = shift_starts(GatewayConfig(map=None, lifelong=LifelongSettings(
+        robots=ROBOTS, warehouse=WAREHOUSE)))
+    rng = random.Random(3)
+    grid = warehouse_problem(ROBOTS, 0, WAREHOUSE, p_delay=0.0).grid
+    out = asyncio.run(lifelong_shift(gw, ROBOTS, 5.0, [rng.uniform(2.0, 3.0) for _ in range(2)],
+                                     4.0, rng, grid, vda, starts))
+    assert out["resumed"] == 2 and out["run_ids"] == 1
+    for key in ("collisions", "trace_errors", "renumbered", "dispatched_twice", "duplicated",
+                "lost", "errands_twice", "finished_twice", "robot_changed", "robot_errors"):
+        assert out[key] == 0, (key, out)
+    assert out["actions_run"] > 30  # the shift went on after the kills
