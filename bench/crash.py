@@ -80,15 +80,20 @@ from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.server.clock import LoopClock
 from gateway.server.config import GatewayConfig, LifelongSettings
-from gateway.vda5050.broker import BrokerConfig
-from gateway.vda5050.config import Vda5050Config, VehicleConfig
+from gateway.vda5050.config import Vda5050Config
 from protocol import LoadPlan, Ok, OperatorCommand, Start, decode, encode
 from protocol.messages import parse_action_id
 from protocol.vda5050.master import parse_order_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.mosquitto import LocalBroker
-from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
+from sim_clients.vda_fleet import (
+    driven_actions,
+    make_vehicles,
+    run_fleet,
+    shift_starts,
+    vda_config,
+)
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.world import World
 from tracecheck import check_trace, read_trace
@@ -331,12 +336,8 @@ def run(kills: int, seed: int, robots: int, steps: int, speed: float,
         work = Path(tmp)
         map_file = work / "open.map"
         write_map(open_grid(max(6, robots), max(6, robots)), map_file)
-        vda = None
-        if vda5050:
-            vda = Vda5050Config(broker=BrokerConfig(url=broker.enter_context(LocalBroker())),
-                                vehicles=[VehicleConfig(manufacturer="fleetgate",
-                                                        serial_number=f"sim{r}", robot_id=r)
-                                          for r in range(robots)])
+        vda = vda_config(broker.enter_context(LocalBroker()), range(robots)) if vda5050 \
+            else None
         gw = GatewayProcess(work, free_port(), speed, policy, extra=None if vda is None else {
             "vda5050": vda.model_dump(mode="json", exclude_none=True)})
         try:
@@ -596,12 +597,8 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
     starts = shift_starts(GatewayConfig(map=None, lifelong=LifelongSettings(
         robots=robots, warehouse=warehouse)))
     with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as broker:
-        vda = None
-        if vda5050:
-            vda = Vda5050Config(broker=BrokerConfig(url=broker.enter_context(LocalBroker())),
-                                vehicles=[VehicleConfig(manufacturer="fleetgate",
-                                                        serial_number=f"sim{r}", robot_id=r)
-                                          for r in range(robots)])
+        vda = vda_config(broker.enter_context(LocalBroker()), range(robots)) if vda5050 \
+            else None
         out = []
         for name, ks in (("base", []), ("killed", delays)):
             work = Path(tmp) / name

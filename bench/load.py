@@ -122,7 +122,6 @@ from gateway.server.gc_tuning import GC_THRESHOLDS
 from gateway.server.items import OwnerCall
 from gateway.server.planner import Problem
 from gateway.vda5050.broker import BrokerConfig
-from gateway.vda5050.config import Vda5050Config, VehicleConfig
 from gateway.vda5050.transport import VdaTransport
 from protocol import parse_action_id
 from sim_clients.connect import websocket_connector
@@ -130,7 +129,13 @@ from sim_clients.fleet import FleetStats, SimFleet
 from sim_clients.lean_fleet import LeanFleet, LeanStats
 from sim_clients.lifelong import LifelongConfig, run_lifelong
 from sim_clients.mosquitto import LocalBroker
-from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
+from sim_clients.vda_fleet import (
+    driven_actions,
+    make_vehicles,
+    run_fleet,
+    shift_starts,
+    vda_config,
+)
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.wms import Wms
 from sim_clients.world import World
@@ -477,10 +482,7 @@ def shift_config(robots: int, seed: int, trace: Path | None, lookahead: int, win
                  vda_broker: str | None = None) -> GatewayConfig:
     """The gateway of a lifelong load run; ``vda_broker``: every robot is a VDA 5050 vehicle
     ``fleetgate/sim<r>`` (2.1.0) on that broker."""
-    vda = None if vda_broker is None else Vda5050Config(
-        broker=BrokerConfig(url=vda_broker), vehicles=[
-            VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r)
-            for r in range(robots)])
+    vda = None if vda_broker is None else vda_config(vda_broker, range(robots))
     return GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
                          ping_timeout_s=20.0, log_level="WARNING", trace=trace,
                          dispatch_lookahead=lookahead, vda5050=vda,
