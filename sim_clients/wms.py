@@ -10,8 +10,8 @@ the gateway's backlog, topping up in batches each time tasks end. With ``keep`` 
 Start-Kit's task stream (the backlog is first in, first out among equal priorities) while the
 lead absorbs the WMS's reaction time.
 
-The HTTP client is deliberately small (one request per connection, as the gateway answers with
-``Connection: close``); every POST's round trip is recorded in :attr:`WmsStats.post_ms`.
+The HTTP client is :mod:`sim_clients.http_client` (one request per connection); every POST's
+round trip is recorded in :attr:`WmsStats.post_ms`.
 """
 
 from __future__ import annotations
@@ -22,6 +22,11 @@ import time
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+import h11
+
+from sim_clients.http_client import events as sse_events
+from sim_clients.http_client import exchange, request
 
 Cell = tuple[int, int]
 
@@ -54,52 +59,25 @@ async def http(port: int, method: str, path: str, token: str, body: Any = None,
                ) -> tuple[int, Any]:
     """One request on its own connection: ``(status, JSON body)``."""
     payload = b"" if body is None else json.dumps(body, separators=(",", ":")).encode()
-    lines = [f"{method} {path} HTTP/1.1", f"Host: {host}:{port}",
-             f"Authorization: Bearer {token}", f"Content-Length: {len(payload)}",
-             *(f"{k}: {v}" for k, v in (headers or {}).items())]
+    sent = {"Authorization": f"Bearer {token}", "Connection": "close", **(headers or {})}
     if body is not None:
-        lines.append("Content-Type: application/json")
-    reader, writer = await asyncio.open_connection(host, port)
-    try:
-        writer.write("\r\n".join(lines).encode() + b"\r\n\r\n" + payload)
-        await writer.drain()
-        status_line = await reader.readline()
-        length = None
-        while (line := await reader.readline()) not in (b"\r\n", b""):
-            name, _, value = line.decode("latin-1").partition(":")
-            if name.strip().lower() == "content-length":
-                length = int(value)
-        content = await (reader.readexactly(length) if length is not None else reader.read())
-    finally:
-        writer.close()
-    return int(status_line.split()[1]), json.loads(content) if content else None
+        sent["Content-Type"] = "application/json"
+    status, _, content = await request(port, method, path, sent, payload, host)
+    return status, json.loads(content) if content else None
 
 
 async def events(port: int, token: str, after: int = 0, host: str = "127.0.0.1"
                  ) -> AsyncIterator[tuple[str, Any]]:
     """``(event, data)`` of the task event stream after event ``after``, until it closes."""
-    reader, writer = await asyncio.open_connection(host, port)
-    try:
-        writer.write(f"GET /tasks/events?after={after} HTTP/1.1\r\nHost: {host}:{port}\r\n"
-                     f"Authorization: Bearer {token}\r\n\r\n".encode())
-        await writer.drain()
-        status = int((await reader.readline()).split()[1])
-        while (await reader.readline()) not in (b"\r\n", b""):
-            pass
-        if status != 200:
-            raise WmsError(f"GET /tasks/events: {status}")
-        kind, data = "message", ""
-        while line := await reader.readline():
-            text = line.decode().rstrip("\r\n")
-            if text.startswith("event:"):
-                kind = text[6:].strip()
-            elif text.startswith("data:"):
-                data = text[5:].strip()
-            elif not text and data:
-                yield kind, json.loads(data)
-                kind, data = "message", ""
-    finally:
-        writer.close()
+    parts = exchange(port, "GET", f"/tasks/events?after={after}",
+                     {"Authorization": f"Bearer {token}"}, b"", host)
+    head = await anext(parts)
+    assert isinstance(head, h11.Response)
+    if head.status_code != 200:
+        await parts.aclose()
+        raise WmsError(f"GET /tasks/events: {head.status_code}")
+    async for kind, _, data in sse_events(parts):
+        yield kind, json.loads(data)
 
 
 class Wms:

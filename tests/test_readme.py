@@ -45,7 +45,7 @@ def test_the_named_check_count_is_the_checklists() -> None:
     from conformance.gateway_checks import GATEWAY_CHECKS
     from conformance.robot_checks import ROBOT_CHECKS
 
-    (claimed,) = re.findall(r"\((\d+) named\s+checks", README)
+    (claimed,) = re.findall(r"against it \((\d+) named\s+checks", README)
     assert int(claimed) == len(GATEWAY_CHECKS.checks) + len(ROBOT_CHECKS.checks)
 
 

@@ -205,13 +205,19 @@ class GatewayConfig(BaseSettings):
     ping_timeout_s: float = Field(default=5.0, gt=0)
     close_timeout_s: float = Field(default=2.0, gt=0)
     handshake_timeout_s: float = Field(default=10.0, gt=0)
-    """TLS plus HTTP upgrade must be done within this."""
+    """TLS plus an HTTP request's head (and, for the task API, its body; for a websocket, the
+    upgrade) must be done within this."""
+    keep_alive_s: float = Field(default=5.0, gt=0)
+    """An idle HTTP keep-alive connection is closed after this."""
     hello_timeout_s: float = Field(default=10.0, gt=0)
     """A robot's websocket must say hello within this (else closed 4001)."""
     idle_timeout_s: float = Field(default=60.0, gt=0)
     """A robot's websocket that sends nothing for this long is closed (4002)."""
     max_connections: int = Field(default=10000, ge=1)
     """Open websocket connections at most (more get HTTP 503); also capped by the fd limit."""
+    max_http_connections: int = Field(default=1000, ge=1)
+    """Open HTTP connections at most (websockets not counted): each is unauthenticated until
+    its request's head is read; a request on a connection over this gets 503."""
     send_queue: int = Field(default=4096, ge=1)
     max_errors: int = Field(default=20, ge=1)
     error_decay_s: float = Field(default=1.0, gt=0)

@@ -38,9 +38,8 @@ import time
 import weakref
 from collections.abc import Callable
 from types import TracebackType
-from urllib.parse import urlsplit
 
-from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.asyncio.server import ServerConnection
 from websockets.http11 import Request, Response
 
 from gateway.runtime.exits import EXIT_JOURNAL, EXIT_SOFTWARE, fatal
@@ -49,6 +48,7 @@ from gateway.server import gc_tuning
 from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
+from gateway.server.http_app import Guard, create_app
 from gateway.server.items import Connected, Disconnected, Inbound, InternalCommand
 from gateway.server.journal_open import open_journal
 from gateway.server.metrics import Metrics
@@ -56,10 +56,10 @@ from gateway.server.operator_commands import CommandError
 from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.runs.lifelong import LifelongRun, shift_from
 from gateway.server.task_api.api import TaskApi
+from gateway.server.wire.asgi_server import HttpServer
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.wire.deadline import IdleDeadline
-from gateway.server.wire.http import HttpRoutes, json_response, response
-from gateway.server.wire.http_api import RoutingConnection, close_all, routing_connection
+from gateway.server.wire.http import PlainRoutes
 from gateway.server.wire.session import Session
 from gateway.server.wire.tls import server_context
 from gateway.server.wire.transport import (
@@ -70,6 +70,7 @@ from gateway.server.wire.transport import (
     WebSocketLink,
     memory_pair,
 )
+from gateway.server.wire.ws_endpoint import WsEndpoint
 from protocol import (
     OPERATOR_TYPES,
     ROBOT_TYPES,
@@ -107,6 +108,15 @@ def raise_fd_limit() -> int:
     return soft if soft != resource.RLIM_INFINITY else 1 << 20
 
 
+def _refuse(connection: ServerConnection, status: int, text: str,
+            header: tuple[str, str] | None = None) -> Response:
+    """A websocket upgrade's refusal: ``status``, one line of text, and ``header``."""
+    answer = connection.respond(status, f"{text}\n")
+    if header is not None:
+        answer.headers[header[0]] = header[1]
+    return answer
+
+
 def _restore_gc_when_done(status: str) -> None:
     if status == "done":
         gc_tuning.restore_defaults()
@@ -128,17 +138,22 @@ class Gateway:
         self.engine.before_start.append(gc_tuning.tune_for_run)
         self.engine.status_listeners.append(_restore_gc_when_done)
         self._owner: asyncio.Task[None] | None = None
-        self._server: Server | None = None
+        self._server: HttpServer | None = None
+        self._ws: WsEndpoint | None = None
         self._ws_peers: weakref.WeakKeyDictionary[ServerConnection, Peer] = (
             weakref.WeakKeyDictionary())
         self._links: set[asyncio.Task[None]] = set()
         self._sessions: set[Session] = set()
         self._max_connections = self.config.max_connections
-        self.http = HttpRoutes(self.metrics.render, self._health, self._ready, self.auth,
-                               tls=tls is not None, static_dir=self.config.static_dir)
+        self.http = PlainRoutes(self.metrics.render, self._health, self._ready, self.auth,
+                                tls=tls is not None, static_dir=self.config.static_dir)
         self.task_api = TaskApi(self.engine, self.auth, tls=tls is not None,
-                                allowed_origins=self.config.allowed_origins)
-        self._api_conns: set[RoutingConnection] = set()
+                                allowed_origins=self.config.allowed_origins,
+                                body_timeout_s=self.config.handshake_timeout_s)
+        self.app = create_app()
+        """The ASGI application (:mod:`gateway.server.http_app`)."""
+        self.app.state.task_api = self.task_api
+        self.app.state.plain = self.http
         self.port: int | None = None
         """The bound port once :meth:`listen` returned."""
         self._fresh = fresh
@@ -231,11 +246,13 @@ class Gateway:
 
     async def stop(self) -> None:
         """Close every connection and stop the owner task."""
+        self.task_api.closing = True
         if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
+            await self._server.stop()
             self._server = None
-        await close_all(self._api_conns)
+        if self._ws is not None:
+            await self._ws.close()
+            self._ws = None
         for session in list(self._sessions):
             session.close(1001, "gateway shutting down")
         for task in list(self._links):
@@ -301,23 +318,22 @@ class Gateway:
         return client
 
     async def listen(self, host: str | None = None, port: int | None = None) -> int:
-        """Serve websockets and HTTP on ``host:port`` (config by default), over TLS if
-        configured; returns the port. TlsError (a ValueError) if the TLS files are bad."""
+        """Serve HTTP (the ASGI app on uvicorn) and websockets on ``host:port`` (config by
+        default), over TLS if configured; returns the port. TlsError (a ValueError) if the TLS
+        files are bad, OSError if the port cannot be bound."""
         cfg = self.config
         ssl = server_context(cfg.tls) if cfg.tls is not None else None
         fds = raise_fd_limit()
         self._max_connections = max(1, min(cfg.max_connections, fds - FD_RESERVE))
-        self._server = await serve(
-            self._ws_handler, host or cfg.host, cfg.port if port is None else port,
-            process_request=self._process_request, max_size=HARD_MAX_BYTES, compression=None,
-            ping_interval=cfg.ping_interval_s, ping_timeout=cfg.ping_timeout_s,
-            close_timeout=cfg.close_timeout_s, open_timeout=cfg.handshake_timeout_s,
-            max_queue=64, ssl=ssl,
-            create_connection=routing_connection(
-                self.task_api, timeout_s=cfg.handshake_timeout_s, tls=ssl is not None,
-                live=self._api_conns),
-            ssl_handshake_timeout=cfg.handshake_timeout_s if ssl is not None else None)
-        self.port = int(self._server.sockets[0].getsockname()[1])
+        self._ws = WsEndpoint(
+            self._ws_handler, self._process_request, max_size=HARD_MAX_BYTES,
+            open_timeout=cfg.handshake_timeout_s, ping_interval=cfg.ping_interval_s,
+            ping_timeout=cfg.ping_timeout_s, close_timeout=cfg.close_timeout_s, max_queue=64)
+        self._server = HttpServer(
+            Guard(self.app), self._ws, ssl_context=ssl, head_timeout_s=cfg.handshake_timeout_s,
+            keep_alive_s=cfg.keep_alive_s,
+            max_connections=max(1, min(cfg.max_http_connections, fds - FD_RESERVE)))
+        self.port = await self._server.start(host or cfg.host, cfg.port if port is None else port)
         log.info("listening", extra={"host": host or cfg.host, "port": self.port,
                                      "tls": ssl is not None,
                                      "max_connections": self._max_connections})
@@ -342,34 +358,27 @@ class Gateway:
 
     def _process_request(self, connection: ServerConnection, request: Request
                          ) -> Response | None:
-        """HTTP routes, or the checks of a websocket upgrade (None accepts it). Never raises:
-        a malformed request gets 400, refused credentials 401/403, anything unexpected 500
-        with one log line."""
+        """The checks of a websocket upgrade (None accepts it). Never raises: a malformed
+        request gets 400, refused credentials 401/403, too many connections 503, anything
+        unexpected 500 with one log line."""
         try:
-            upgrade = single_header(request.headers, "Upgrade")
-            if upgrade is None or upgrade.lower() != "websocket":
-                if urlsplit(request.path).path == "/ws":
-                    # a plain GET of /ws: how a browser learns why its websocket failed
-                    self.auth.handshake(request.headers, request.path, None)
-                    return response(426, b"websocket upgrade required\n",
-                                    extra=[("Upgrade", "websocket")])
-                return self.http(request)
             if len(self._sessions) >= self._max_connections:
-                return response(503, b"too many connections\n", extra=[("Retry-After", "5")])
+                return _refuse(connection, 503, "too many connections", ("Retry-After", "5"))
             tls = self.config.tls is not None
             if not origin_allowed(request.headers, tls, self.config.allowed_origins):
                 raise AuthError(403, "foreign Origin")
+            single_header(request.headers, "Upgrade")
             cert = connection.transport.get_extra_info("peercert") if tls else None
             self._ws_peers[connection] = self.auth.handshake(request.headers, request.path,
                                                              cert)
         except AuthError as exc:
             log.warning("handshake refused", extra={"status": exc.status, "why": exc.reason})
             self.metrics.refused.labels(str(exc.status)).inc()
-            extra = [("WWW-Authenticate", "Bearer")] if exc.status == 401 else []
-            return response(exc.status, f"{exc.reason}\n".encode(), extra=extra)
+            extra = ("WWW-Authenticate", "Bearer") if exc.status == 401 else None
+            return _refuse(connection, exc.status, exc.reason, extra)
         except Exception as exc:
             log.error("request failed", extra={"path": request.path[:200], "error": repr(exc)})
-            return json_response(500, {"error": "internal error"})
+            return _refuse(connection, 500, "internal error")
         return None
 
     async def _ws_handler(self, connection: ServerConnection) -> None:

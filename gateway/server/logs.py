@@ -38,18 +38,33 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(out, default=str)
 
 
+_CONTROL = {c: f"\\x{c:02x}" for c in [*range(32), 127]}
+
+
+def escape(text: str) -> str:
+    """``text`` with every control character (line feeds too) written as ``\\xNN``: bytes
+    a stranger sent cannot start a line of their own in the log."""
+    return text.translate(_CONTROL)
+
+
 class TextFormatter(logging.Formatter):
-    """Formats a record as ``HH:MM:SS WARNING fleetgate.x: message (key=value ...)``."""
+    """Formats a record as ``HH:MM:SS WARNING fleetgate.x: message (key=value ...)``; the
+    message and the fields are escaped (:func:`escape`), a traceback is not."""
 
     def __init__(self) -> None:
         super().__init__("%(asctime)s %(levelname)s %(name)s: %(message)s", "%H:%M:%S")
 
     def format(self, record: logging.LogRecord) -> str:
         """The record as one readable line (plus a traceback, if any)."""
-        text = super().format(record)
+        saved = record.msg, record.args
+        record.msg, record.args = escape(record.getMessage()), ()
+        try:
+            text = super().format(record)
+        finally:
+            record.msg, record.args = saved
         extra = _extra(record)
         if extra:
-            fields = " ".join(f"{k}={v}" for k, v in extra.items())
+            fields = " ".join(f"{k}={escape(str(v))}" for k, v in extra.items())
             head, sep, rest = text.partition("\n")
             text = f"{head} ({fields}){sep}{rest}"
         return text
@@ -107,7 +122,8 @@ class LibraryOneLine(logging.Filter):
 
 def configure_logging(level: str = "INFO", fmt: LogFormat = "text", file: Path | None = None,
                       stream: Any = None) -> None:
-    """Send every ``fleetgate.*`` log record (and warnings of ``asyncio`` and ``websockets``)
+    """Send every ``fleetgate.*`` log record (and warnings of ``asyncio``, ``websockets`` and
+    ``uvicorn``)
     to ``file`` (appended), else to ``stream`` (default stderr), as readable lines or JSON
     lines, rate-limited. Raises OSError if ``file`` cannot be opened."""
     handler: logging.Handler
@@ -123,7 +139,7 @@ def configure_logging(level: str = "INFO", fmt: LogFormat = "text", file: Path |
     root.handlers[:] = [handler]
     root.setLevel(level)
     root.propagate = False
-    for name in ("asyncio", "websockets"):
+    for name in ("asyncio", "websockets", "uvicorn"):
         other = logging.getLogger(name)
         other.handlers[:] = [handler]
         other.setLevel(max(logging.WARNING, logging.getLevelName(level)))

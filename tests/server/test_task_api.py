@@ -154,10 +154,11 @@ async def test_refusals_are_precise(served: tuple[Gateway, int]) -> None:
         (("GET", "/tasks/999", None, None, None), 404, "no task 999"),
         (("DELETE", "/tasks/999", None, None, None), 404, "no task 999"),
         (("GET", "/tasks?state=lost", None, None, None), 400, "unknown state 'lost'"),
-        (("GET", "/tasks?limit=0", None, None, None), 400, "limit must be an integer"),
+        (("GET", "/tasks?limit=0", None, None, None), 400,
+         "limit: Input should be greater than or equal to 1"),
         (("GET", "/tasks?colour=1", None, None, None), 400, "unknown query parameter"),
         (("PUT", "/tasks/1", None, None, b"{}"), 405, "use GET or DELETE"),
-        (("GET", "/tasks/1/pause", None, None, None), 405, "pause a task with POST"),
+        (("GET", "/tasks/1/pause", None, None, None), 405, "GET /tasks/1/pause: use POST"),
         (("GET", "/tasks/x/y", None, None, None), 404, "no route"),
     ]
     for (method, path, data, headers, raw), status, words in cases:
@@ -180,7 +181,7 @@ async def test_refusals_are_precise(served: tuple[Gateway, int]) -> None:
                          {"Cookie": cookie, "Origin": "http://evil.example"})
     assert foreign.status == 403 and "Origin" in foreign.json()["error"]
     own = await call(port, "POST", "/tasks", {"errands": [a]},
-                     {"Cookie": cookie, "Origin": "http://127.0.0.1"})
+                     {"Cookie": cookie, "Origin": f"http://127.0.0.1:{port}"})
     assert own.status == 201
     pool = gw.engine.current_run.tasks
     assert pool is not None and pool.next_id == 1  # nothing else made

@@ -7,7 +7,8 @@ types, bodies valid and not); each answer must be one the document describes for
 and a submission must be accepted exactly when its body is valid under the document's request
 schema (integers strictly integers) and its cells are free cells of the map, with the
 idempotency key behaving as a model of it says (same request: the same ids; another: 409).
-Around it: the plain routes take only GET, ``Expect: 100-continue`` is honoured, concurrent
+Around it: the plain routes take only GET, ``Expect: 100-continue`` is honoured (after the
+credentials, before the body), a stranger's body is never read, concurrent
 retries of one key create its tasks once, and no page or answer an unauthenticated client can
 read, nor the gateway's log, holds the operator's token.
 """
@@ -34,7 +35,6 @@ from openapi_spec_validator import validate as validate_spec
 
 from bench.crash import GatewayProcess, free_port
 from gateway.planning.lorr import warehouse_problem
-from gateway.server.wire.http_api import _Dechunker
 from gateway.web import __file__ as web_init
 from tests.server.task_client import Reply, Sse, call, sse
 
@@ -298,7 +298,8 @@ def _raw_exchange(port: int, head: str, body: bytes) -> tuple[bytes, bytes]:
 def test_expect_100_continue_is_answered_before_the_body(served: Served) -> None:
     body = json.dumps({"errands": [FREE[3]]}).encode()
     head = (f"POST /tasks HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {TOKEN}\r\n"
-            f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n")
+            f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n"
+            "Connection: close\r\n")
     early, rest = _raw_exchange(served.port, head + "Expect: 100-continue\r\n\r\n", body)
     assert early == b"HTTP/1.1 100 Continue\r\n\r\n"  # not after a timeout
     assert rest.startswith(b"HTTP/1.1 201 Created\r\n")
@@ -353,7 +354,8 @@ def test_the_event_stream_is_as_described(served: Served) -> None:
     """Every event so far comes once, in order, with its id, and conforms to the schema the
     document names for the stream's data; a bad Last-Event-ID is a described 400."""
     stream = served.spec["paths"]["/tasks/events"]["get"]["responses"]["200"]["content"]
-    validator = _strict_validator(stream["text/event-stream"]["x-event-data"], served.spec)
+    validator = _strict_validator(
+        stream["text/event-stream"]["schema"]["properties"]["data"]["contentSchema"], served.spec)
 
     async def main() -> tuple[int, list[Sse], Reply]:
         assert (await call(served.port, "POST", "/tasks", {"errands": [FREE[2]]},
@@ -391,7 +393,7 @@ def _exchange(port: int, pieces: list[bytes]) -> bytes:
 
 
 CHUNKED_HEAD = (f"POST /tasks HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {TOKEN}\r\n"
-                f"Content-Type: application/json\r\n").encode()
+                f"Content-Type: application/json\r\nConnection: close\r\n").encode()
 
 
 @settings(max_examples=20, deadline=None)
@@ -411,34 +413,42 @@ def test_a_chunked_body_is_read_as_a_whole(served: Served, cuts: list[int], spli
     served.errands[made[0]["id"]] = made[0]["errands"]
 
 
-def test_a_body_of_tiny_chunks_is_parsed_once_as_it_arrives() -> None:
-    """A stranger's body of 50,000 one-byte chunks trickled in small reads: each read takes
-    the complete chunks out of the buffer (what is left is at most the read and one chunk),
-    so no byte is parsed twice (parsing the whole buffer on every read was quadratic)."""
-    wire = b"1\r\nX\r\n" * 50_000 + b"0\r\n\r\n"
-    buffer, dechunk, body = bytearray(), _Dechunker(), None
-    for i in range(0, len(wire), 100):
-        buffer += wire[i:i + 100]
-        body = dechunk(buffer)
-        assert len(buffer) < 100 + 6, (i, len(buffer))
-    assert body == b"X" * 50_000
+def test_a_strangers_trickled_body_is_never_read(served: Served) -> None:
+    """A chunked body of one-byte chunks without credentials (it cost minutes of event-loop
+    CPU when bodies were read before authorisation): refused 401 on its head, at once."""
+    head = (b"POST /tasks HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+            b"Transfer-Encoding: chunked\r\n\r\n")
+    with socket.create_connection(("127.0.0.1", served.port), timeout=10) as sock:
+        sock.sendall(head + b"1\r\nX\r\n" * 10)
+        t0 = time.monotonic()
+        answer = sock.recv(4096)
+        waited = time.monotonic() - t0
+        assert answer.startswith(b"HTTP/1.1 401 Unauthorized\r\n"), answer[:200]
+        assert waited < 2.0
+        for _ in range(50):  # what it sends next is never answered again
+            try:
+                sock.sendall(b"1\r\nX\r\n")
+            except OSError:
+                break
+            time.sleep(0.001)
 
 
 @pytest.mark.parametrize(("coding", "body", "status", "error"), [
-    ("chunked", b"zz\r\n{}\r\n0\r\n\r\n", 400, "malformed chunk size line"),
-    ("chunked", b"2\r\n{}}\r\n0\r\n\r\n", 400, "a chunk does not end with CRLF"),
-    ("chunked", b"80000\r\n", 413, "the body has more than 262144 bytes"),
-    ("gzip, chunked", b"0\r\n\r\n", 501, "Transfer-Encoding gzip, chunked: only chunked is "
-                                         "supported"),
-    ("chunked\r\nContent-Length: 2", b"{}", 400, "Transfer-Encoding and Content-Length both "
-                                                  "given"),
+    ("chunked", b"zz\r\n{}\r\n0\r\n\r\n", 400, None),
+    ("chunked", b"2\r\n{}}\r\n0\r\n\r\n", 400, None),
+    ("chunked", b"40001\r\n" + b" " * 0x40001 + b"\r\n0\r\n\r\n", 413,
+     "the body has more than 262144 bytes"),
+    ("chunked\r\nContent-Length: 2", b"{}", 400, None),
 ])
-def test_a_bad_transfer_coding_is_refused_precisely(served: Served, coding: str, body: bytes,
-                                                     status: int, error: str) -> None:
+def test_a_bad_transfer_coding_is_refused(served: Served, coding: str, body: bytes,
+                                          status: int, error: str | None) -> None:
+    """Malformed chunks and a body with both lengths are the HTTP server's 400 (httptools);
+    a body over the limit is the API's 413."""
     answer = _exchange(served.port, [CHUNKED_HEAD + f"Transfer-Encoding: {coding}\r\n\r\n"
                                      .encode() + body])
     assert answer.startswith(f"HTTP/1.1 {status} ".encode()), answer[:200]
-    assert json.loads(answer.split(b"\r\n\r\n", 1)[1]) == {"error": error}
+    if error is not None:
+        assert json.loads(answer.split(b"\r\n\r\n", 1)[1]) == {"error": error}
 
 
 def test_an_event_id_the_gateway_never_gave_resets_the_stream(served: Served) -> None:

@@ -2,7 +2,8 @@
 operator (``Authorization: Bearer <operator token>``, or the GUI's login cookie with a
 same-origin ``Origin`` for changes).
 
-Routes (models: :mod:`gateway.server.task_api.models`; the document: ``GET /openapi.json``):
+Routes (:mod:`gateway.server.task_api.routes`; models: :mod:`gateway.server.task_api.models`; the
+OpenAPI document FastAPI generates from them: ``GET /openapi.json``, interactive at ``/docs``):
 
 * ``POST /tasks``: one task or a batch, with an idempotency key (``Idempotency-Key`` header or
   ``idempotency_key`` field): 201 with the new tasks, 200 with the same ones for a retry,
@@ -19,19 +20,21 @@ Routes (models: :mod:`gateway.server.task_api.models`; the document: ``GET /open
 Changes run in the engine's owner task (an :class:`~gateway.server.items.OwnerCall`: the single
 writer), are journaled there (:mod:`gateway.server.runs.task_journal`) and are answered only after
 the owner task committed the journal. Reads look at the pool between owner steps, so they see
-only committed state. Refusals are 4xx with ``{"error": "<one line>"}``.
+only committed state. Refusals are 4xx with ``{"error": "<one line>"}``. Credentials are
+checked before a body is read; a body is read within ``body_timeout_s`` (408) and at most
+``MAX_BODY_BYTES`` (413).
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
-import re
 from collections.abc import AsyncIterator, Callable
-from typing import TYPE_CHECKING, Literal, Protocol, TypeVar, cast
-from urllib.parse import parse_qs
+from typing import TYPE_CHECKING, Protocol, TypeVar, cast
 
-from pydantic import ValidationError
+from fastapi import Request
+from fastapi.responses import JSONResponse, StreamingResponse
+from pydantic import BaseModel, ValidationError
 
 from gateway.execution.lifelong.executor import LifelongMode
 from gateway.execution.lifelong.tasks import (
@@ -47,11 +50,12 @@ from gateway.execution.lifelong.tasks import (
 from gateway.server.items import Item, OwnerCall
 from gateway.server.runs.lifelong import LifelongRun
 from gateway.server.task_api.models import (
+    MAX_BODY_BYTES,
     MAX_LIST,
+    ResetEvent,
     SubmitBatch,
     SubmitOne,
     SubmitResponse,
-    TaskAction,
     TaskList,
     TaskView,
     event_view,
@@ -59,13 +63,12 @@ from gateway.server.task_api.models import (
     task_view,
 )
 from gateway.server.wire.auth import COOKIE, Authenticator, AuthError, cookie_value, origin_allowed
-from gateway.server.wire.http_api import ApiRequest, ApiResponse, HttpError, json_answer
+from gateway.server.wire.errors import HttpError, JsonAnswer, first_error
 from protocol.codec import ProtocolError, check_text
 
 if TYPE_CHECKING:
     from gateway.planning.grid import Grid
 
-_TASK_PATH = re.compile(r"^/tasks/([^/]+)(/pause|/resume)?$")
 KEEPALIVE_S = 15.0
 """A comment line on an idle event stream this often (proxies keep it open)."""
 POLL_S = 0.1
@@ -75,15 +78,14 @@ MAX_STREAMS = 32
 T = TypeVar("T")
 
 
-def _first_error(exc: ValidationError) -> str:
-    err = exc.errors(include_url=False)[0]
-    where = ".".join(str(p) for p in err["loc"] if not str(p).startswith("function-"))
-    return f"{where}: {err['msg']}" if where else str(err["msg"])
-
-
 def _reset(first: int) -> bytes:
     """The ``reset`` event: the stream goes on with event ``first``; re-read the tasks."""
-    return f"event: reset\ndata: {json.dumps({'first': first})}\n\n".encode()
+    return f"event: reset\ndata: {ResetEvent(first=first).model_dump_json()}\n\n".encode()
+
+
+def json_answer(status: int, model: BaseModel) -> JSONResponse:
+    """A model as the JSON answer."""
+    return JsonAnswer(model.model_dump(mode="json"), status)
 
 
 class Owner(Protocol):
@@ -109,62 +111,21 @@ def _pool(owner: Owner) -> TaskPool | None:
 
 
 class TaskApi:
-    """Answers the task API's requests for one gateway (see the module doc)."""
+    """The task API's state and logic for one gateway (the routes of
+    :mod:`gateway.server.task_api.routes` find it as ``app.state.task_api``; see the module
+    doc)."""
 
     def __init__(self, owner: Owner, auth: Authenticator, *, tls: bool,
-                 allowed_origins: list[str]) -> None:
+                 allowed_origins: list[str], body_timeout_s: float = 10.0) -> None:
         self._engine = owner
         self._auth = auth
         self._tls = tls
         self._origins = allowed_origins
+        self.body_timeout_s = body_timeout_s
         self.streams = 0
         """Event streams open now."""
-
-    # ------------------------------------------------------------------ entry
-    async def __call__(self, req: ApiRequest) -> ApiResponse:
-        """The response to one request (HttpError for a refusal)."""
-        self._authorize(req)
-        pool = _pool(self._engine)
-        if pool is None:
-            raise HttpError(503, "no task pool: the gateway is not in lifelong mode")
-        grid = self._grid()
-        if req.method == "POST" and (req.path == "/tasks" or req.path.endswith("/resume")) \
-                and self._ended():
-            raise HttpError(409, "the shift has ended: no new task would run")
-        if req.path == "/tasks":
-            if req.method == "POST":
-                return await self._submit(req, grid)
-            if req.method == "GET":
-                return self._list(req, pool, grid)
-            raise HttpError(405, f"{req.method} /tasks: use GET or POST",
-                            [("Allow", "GET, POST")])
-        if req.path == "/tasks/events":
-            if req.method != "GET":
-                raise HttpError(405, "the event stream is read with GET", [("Allow", "GET")])
-            return self._events(req, pool)
-        m = _TASK_PATH.match(req.path)
-        if m is None:
-            raise HttpError(404, f"no route {req.path[:100]}")
-        action = m.group(2)
-        if action is not None and req.method != "POST":
-            raise HttpError(405, f"{action[1:]} a task with POST", [("Allow", "POST")])
-        if action is None and req.method not in ("GET", "DELETE"):
-            raise HttpError(405, f"{req.method} /tasks/{{id}}: use GET or DELETE",
-                            [("Allow", "GET, DELETE")])
-        if not (m.group(1).isdigit() and len(m.group(1)) <= 18):
-            raise HttpError(404, f"no task {m.group(1)[:40]!r}: a task id is a whole number")
-        task_id = int(m.group(1))
-        if action is not None:
-            act: Literal["pause", "resume"] = "pause" if action == "/pause" else "resume"
-            task = await self._change(lambda p, now: (p.pause if act == "pause"
-                                                      else p.resume)(task_id, now))
-            return json_answer(200, TaskAction(action=act, task=self._view(task, grid))
-                               .model_dump(mode="json"))
-        if req.method == "GET":
-            return json_answer(200, self._view(self._found(pool, task_id), grid)
-                               .model_dump(mode="json"))
-        task = await self._change(lambda p, now: p.cancel(task_id, now))  # DELETE
-        return json_answer(200, self._view(task, grid).model_dump(mode="json"))
+        self.closing = False
+        """Set when the gateway stops: event streams end."""
 
     def now_ms(self) -> float:
         """The one clock of the task API: plan ms since the shift started, 0 before it (a
@@ -180,49 +141,56 @@ class TaskApi:
         return None if start is None else iso_utc(start.wall_start_s
                                                   + t_ms / 1000.0 / start.speed)
 
-    def _view(self, task: Task, grid: Grid) -> TaskView:
-        return task_view(task, grid, self.wall_time)
+    def view(self, task: Task) -> TaskView:
+        """What the API shows of a task."""
+        return task_view(task, self.grid(), self.wall_time)
 
-    def _grid(self) -> Grid:
+    def grid(self) -> Grid:
+        """The shift's map."""
         run = self._engine.lifelong
         assert run is not None
         return run.shift.grid
 
-    def _ended(self) -> bool:
-        """Whether the shift is stopping or over (robots take no new task)."""
+    def pool(self) -> TaskPool:
+        """The shift's task pool; HttpError(503) if the gateway runs no shift."""
+        pool = _pool(self._engine)
+        if pool is None:
+            raise HttpError(503, "no task pool: the gateway is not in lifelong mode")
+        return pool
+
+    def check_open(self) -> None:
+        """HttpError(409) if the shift is stopping or over (robots take no new task)."""
         run = self._engine.lifelong
         assert run is not None
-        return run.executor.mode in (LifelongMode.STOPPING, LifelongMode.DONE)
+        if run.executor.mode in (LifelongMode.STOPPING, LifelongMode.DONE):
+            raise HttpError(409, "the shift has ended: no new task would run")
 
-    def _authorize(self, req: ApiRequest) -> None:
-        """An operator's token, or the GUI's login (same origin for changes); HttpError."""
+    def authorize(self, request: Request) -> None:
+        """An operator's token, or the GUI's login (same origin for changes); HttpError.
+        Called before anything of the body is read."""
+        headers = request.headers
         try:
-            authorization = req.headers.get_all("Authorization")
+            authorization = headers.getlist("Authorization")
             if len(authorization) > 1:
                 raise AuthError(400, "Authorization header given more than once")
             if authorization:
                 self._auth.operator_token(authorization[0])
-                return
-            if self._auth.logins.valid(cookie_value(req.headers, COOKIE)):
-                if req.method != "GET" and (
-                        "Origin" not in req.headers
-                        or not origin_allowed(req.headers, self._tls, self._origins)):
+            elif self._auth.logins.valid(cookie_value(headers, COOKIE)):
+                if request.method != "GET" and (
+                        "Origin" not in headers
+                        or not origin_allowed(headers, self._tls, self._origins)):
                     raise AuthError(403, "a change by the GUI's login needs its own Origin")
-                return
-            raise AuthError(401, "missing token (Authorization: Bearer <operator token>)")
+            else:
+                raise AuthError(401, "missing token (Authorization: Bearer <operator token>)")
         except AuthError as exc:
             extra = [("WWW-Authenticate", "Bearer")] if exc.status == 401 else []
             raise HttpError(exc.status, exc.reason, extra) from None
+        expect = [e.lower() for e in headers.getlist("Expect")]
+        if expect and expect != ["100-continue"]:
+            raise HttpError(417, f"unsupported Expect: {', '.join(expect)[:60]} (only "
+                                 "100-continue)")
 
-    @staticmethod
-    def _found(pool: TaskPool, task_id: int) -> Task:
-        try:
-            return pool.task(task_id)
-        except TaskNotFound as exc:
-            raise HttpError(404, str(exc)) from None
-
-    # ------------------------------------------------------------------ changes
-    async def _change(self, fn: Callable[[TaskPool, float], T]) -> T:
+    async def change(self, fn: Callable[[TaskPool, float], T]) -> T:
         """Run ``fn(pool, now)`` in the owner task; its result once the owner task committed
         the journal (it commits before it yields, and the result is seen only then)."""
         loop = asyncio.get_running_loop()
@@ -235,7 +203,7 @@ class TaskApi:
                 if pool is None:
                     raise HttpError(503, "the task pool is gone")
                 done.set_result(fn(pool, self.now_ms()))
-            except Exception as exc:  # refusals, and bugs (logged by the HTTP layer)
+            except Exception as exc:  # refusals, and bugs (answered 500 by the app)
                 done.set_exception(exc)
 
         engine.queue.put_nowait(OwnerCall(call))
@@ -248,21 +216,38 @@ class TaskApi:
         except TaskError as exc:
             raise HttpError(422, str(exc)) from None
 
-    async def _submit(self, req: ApiRequest, grid: Grid) -> ApiResponse:
-        body = self._parse(req)
-        keys = req.headers.get_all("Idempotency-Key")
-        if len(keys) > 1:
+    async def body(self, request: Request) -> bytes:
+        """The request's body: at most MAX_BODY_BYTES (413), within ``body_timeout_s``
+        (408)."""
+        length = request.headers.get("Content-Length")
+        if length is not None and length.isdigit() and int(length) > MAX_BODY_BYTES:
+            raise HttpError(413, f"the body has {length} bytes, more than {MAX_BODY_BYTES}")
+        data = bytearray()
+        try:
+            async with asyncio.timeout(self.body_timeout_s):
+                async for chunk in request.stream():
+                    data += chunk
+                    if len(data) > MAX_BODY_BYTES:
+                        raise HttpError(413, f"the body has more than {MAX_BODY_BYTES} bytes")
+        except TimeoutError:
+            raise HttpError(408, f"no complete body within {self.body_timeout_s} s") from None
+        return bytes(data)
+
+    async def submit(self, request: Request, header_key: str | None) -> JSONResponse:
+        """``POST /tasks``."""
+        self.pool()
+        self.check_open()
+        body = _parse(request.headers.get("Content-Type", ""), await self.body(request))
+        if len(request.headers.getlist("Idempotency-Key")) > 1:
             raise HttpError(400, "Idempotency-Key header given more than once")
         key = body.idempotency_key
-        if keys:
-            if key is not None and key != keys[0]:
+        if header_key is not None:
+            if key is not None and key != header_key:
                 raise HttpError(400, "the Idempotency-Key header and the idempotency_key "
                                      "field differ")
-            key = keys[0]
-            try:
-                body = type(body).model_validate({**body.model_dump(), "idempotency_key": key})
-            except ValidationError as exc:
-                raise HttpError(400, f"Idempotency-Key: {_first_error(exc)}") from None
+            key = header_key
+            body = type(body).model_validate({**body.model_dump(), "idempotency_key": key})
+        grid = self.grid()
         specs = body.tasks if isinstance(body, SubmitBatch) else [body]
         new = []
         for i, spec in enumerate(specs):
@@ -279,50 +264,30 @@ class TaskApi:
             ids, created = pool.submit(new, now, key)
             return [pool.task(i) for i in ids], created
 
-        tasks, created = await self._change(submit)
-        answer = SubmitResponse(created=created, tasks=[self._view(t, grid) for t in tasks])
-        return json_answer(201 if created else 200, answer.model_dump(mode="json"))
+        tasks, created = await self.change(submit)
+        return json_answer(201 if created else 200,
+                     SubmitResponse(created=created, tasks=[self.view(t) for t in tasks]))
 
-    @staticmethod
-    def _parse(req: ApiRequest) -> SubmitOne | SubmitBatch:
-        ctype = req.headers.get("Content-Type", "")
-        if ctype.split(";")[0].strip().lower() != "application/json":
-            raise HttpError(415, "the body must be application/json")
+    def found(self, task_id: int) -> Task:
+        """The task; HttpError(404) if there is none."""
         try:
-            text = req.body.decode("utf-8")
-        except UnicodeDecodeError:
-            raise HttpError(400, "the body is not UTF-8") from None
-        try:
-            check_text(text)
-        except ProtocolError as exc:
-            raise HttpError(413 if exc.code.value == "too_large" else 400, exc.detail) from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise HttpError(400, f"not JSON: {exc}") from None
-        if not isinstance(data, dict):
-            raise HttpError(400, "the body must be a JSON object: a task or {\"tasks\": [...]}")
-        model: type[SubmitOne] | type[SubmitBatch] = SubmitBatch if "tasks" in data \
-            else SubmitOne
-        try:  # strict: "5", true and 1.0 are no integers, "100" is no number
-            return model.model_validate_json(text, strict=True)
-        except ValidationError as exc:
-            raise HttpError(400, _first_error(exc)) from None
+            return self.pool().task(task_id)
+        except TaskNotFound as exc:
+            raise HttpError(404, str(exc)) from None
 
-    # ------------------------------------------------------------------ reads
-    def _list(self, req: ApiRequest, pool: TaskPool, grid: Grid) -> ApiResponse:
-        query = self._query(req, {"state", "robot", "after", "limit"})
+    def page(self, request: Request, robot: int | None, after: int | None,
+             limit: int | None) -> TaskList:
+        """``GET /tasks``."""
+        pool = self.pool()
         states: frozenset[TaskState] | None = None
-        if "state" in query:
-            names = [s for v in query["state"] for s in v.split(",")]
+        given = request.query_params.getlist("state")
+        if given:
+            names = [s for v in given for s in v.split(",")]
             bad = [s for s in names if s not in TASK_STATES]
             if bad:
                 raise HttpError(400, f"unknown state {bad[0]!r} (one of "
                                      f"{', '.join(TASK_STATES)})")
             states = frozenset(cast(list[TaskState], names))
-        robot = self._int(query, "robot", 0, 1 << 30)
-        after = self._int(query, "after", -1, 1 << 62)
-        limit = self._int(query, "limit", 1, MAX_LIST)
         limit = MAX_LIST if limit is None else limit
         page: list[Task] = []
         more = False
@@ -332,55 +297,28 @@ class TaskApi:
                 break
             page.append(task)
         now = self.now_ms()
-        answer = TaskList(now_ms=now, now_at=self.wall_time(now),
-                          tasks=[self._view(t, grid) for t in page],
-                          next_after=page[-1].id if more else None, counts=pool.counts(),
-                          last_event=pool.event_seq)
-        return json_answer(200, answer.model_dump(mode="json"))
+        return TaskList(now_ms=now, now_at=self.wall_time(now),
+                        tasks=[self.view(t) for t in page],
+                        next_after=page[-1].id if more else None, counts=pool.counts(),
+                        last_event=pool.event_seq)
 
-    @staticmethod
-    def _query(req: ApiRequest, allowed: set[str]) -> dict[str, list[str]]:
-        if len(req.query) > 2000:
-            raise HttpError(414, "the query is longer than 2000 characters")
-        query = parse_qs(req.query, keep_blank_values=True)
-        for name, values in query.items():
-            if name not in allowed:
-                raise HttpError(400, f"unknown query parameter {name[:40]!r} (known: "
-                                     f"{', '.join(sorted(allowed))})")
-            if len(values) > 1 and name != "state":
-                raise HttpError(400, f"query parameter {name!r} given {len(values)} times")
-        return query
-
-    @staticmethod
-    def _int(query: dict[str, list[str]], name: str, low: int, high: int) -> int | None:
-        if name not in query:
-            return None
-        text = query[name][0]
-        if not (text.lstrip("-").isdigit() and len(text) < 20) or not low <= int(text) <= high:
-            raise HttpError(400, f"{name} must be an integer from {low} to {high}")
-        return int(text)
-
-    def _events(self, req: ApiRequest, pool: TaskPool) -> ApiResponse:
-        query = self._query(req, {"after"})
-        after = self._int(query, "after", 0, 1 << 62)
-        last = req.headers.get_all("Last-Event-ID")
-        if last:
-            if len(last) > 1 or not last[0].isdigit() or len(last[0]) > 18:
-                raise HttpError(400, "Last-Event-ID must be one event id (an integer)")
-            after = int(last[0])
+    def events(self, after: int | None) -> StreamingResponse:
+        """``GET /tasks/events``."""
+        pool = self.pool()
         if self.streams >= MAX_STREAMS:
             raise HttpError(503, f"{MAX_STREAMS} event streams are open", [("Retry-After", "5")])
         start = pool.event_seq if after is None else after
-        return ApiResponse(200, content_type="text/event-stream",
-                           stream=self._stream(start))
+        return StreamingResponse(self._stream(start),
+                                 headers={"Content-Type": "text/event-stream"})
 
     async def _stream(self, after: int) -> AsyncIterator[bytes]:
-        """Server-sent events after event ``after`` until the client goes."""
+        """Server-sent events after event ``after`` until the client goes (the server then
+        cancels this) or the gateway stops."""
         self.streams += 1
         try:
             yield b"retry: 1000\n\n"
             idle = 0.0
-            while True:
+            while not self.closing:
                 pool = _pool(self._engine)
                 if pool is None:
                     return
@@ -405,3 +343,30 @@ class TaskApi:
                 idle += POLL_S
         finally:
             self.streams -= 1
+
+
+def _parse(content_type: str, raw: bytes) -> SubmitOne | SubmitBatch:
+    """A submission's body, strictly ("5", true and 1.0 are no integers); HttpError."""
+    if content_type.split(";")[0].strip().lower() != "application/json":
+        raise HttpError(415, "the body must be application/json")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise HttpError(400, "the body is not UTF-8") from None
+    try:
+        check_text(text)
+    except ProtocolError as exc:
+        raise HttpError(413 if exc.code.value == "too_large" else 400, exc.detail) from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise HttpError(400, f"not JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise HttpError(400, "the body must be a JSON object: a task or {\"tasks\": [...]}")
+    model: type[SubmitOne] | type[SubmitBatch] = SubmitBatch if "tasks" in data else SubmitOne
+    try:
+        return model.model_validate_json(text, strict=True)
+    except ValidationError as exc:
+        raise HttpError(400, first_error(exc.errors(include_url=False))) from None
+
+

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema
 
 from gateway.execution.lifelong.tasks import Task as PoolTask
 from gateway.execution.lifelong.tasks import TaskEvent, TaskState
@@ -45,8 +45,13 @@ def iso_utc(wall_s: float) -> str:
     return datetime.fromtimestamp(wall_s, UTC).isoformat(timespec="milliseconds") \
         .replace("+00:00", "Z")
 
-Coordinate = Annotated[int, Field(ge=0, le=1_000_000)]
-Cell = tuple[Coordinate, Coordinate]
+MAX_COORDINATE = 1_000_000
+Coordinate = Annotated[int, Field(ge=0, le=MAX_COORDINATE)]
+Cell = Annotated[tuple[Coordinate, Coordinate], WithJsonSchema({
+    "type": "array", "minItems": 2, "maxItems": 2,
+    "items": {"type": "integer", "minimum": 0, "maximum": MAX_COORDINATE}})]
+"""``[x, y]``. Its JSON schema says "two integers" without ``prefixItems`` (the same
+values: both items have one schema), which every OpenAPI tool reads."""
 KEY_PATTERN = r"^[!-~]+$"
 """An idempotency key: printable ASCII, no spaces."""
 Key = Annotated[str, Field(min_length=1, max_length=MAX_KEY_CHARS, pattern=KEY_PATTERN)]
@@ -142,6 +147,13 @@ class TaskEventView(_Model):
     errands_done: int
     t_ms: float
     at: str | None
+
+
+class ResetEvent(_Model):
+    """The data of an ``event: reset`` of ``GET /tasks/events``: events were dropped (or the
+    client's id is another shift's); the stream goes on with event ``first``."""
+
+    first: int
 
 
 class ApiError(_Model):

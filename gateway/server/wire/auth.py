@@ -15,12 +15,15 @@ from dataclasses import dataclass
 from typing import Any, Literal
 from urllib.parse import parse_qs, urlsplit
 
-from websockets.datastructures import Headers
+from starlette.datastructures import Headers as RequestHeaders
+from websockets.datastructures import Headers as WsHeaders
 
 from gateway.server.config import TokensConfig
 from protocol.tls import ROBOT_IDENTITY
 
 Role = Literal["robot", "operator", "world"]
+Headers = WsHeaders | RequestHeaders
+"""A request's headers: of a websocket handshake, or of an HTTP request."""
 
 COOKIE = "fleetgate_session"
 """Name of the GUI's login cookie (HttpOnly, SameSite=Strict, Secure under TLS)."""
@@ -77,9 +80,14 @@ def _check_token(token: str) -> str:
     return token
 
 
+def header_values(headers: Headers, name: str) -> list[str]:
+    """Every value of header ``name``, in order."""
+    return headers.get_all(name) if isinstance(headers, WsHeaders) else headers.getlist(name)
+
+
 def single_header(headers: Headers, name: str) -> str | None:
     """The value of a header that may appear at most once; AuthError(400) if repeated."""
-    values = headers.get_all(name)
+    values = header_values(headers, name)
     if len(values) > 1:
         raise AuthError(400, f"{name} header given {len(values)} times")
     return values[0] if values else None
@@ -99,7 +107,7 @@ def request_token(authorization: str | None, path: str) -> str | None:
 
 def cookie_value(headers: Headers, name: str = COOKIE) -> str | None:
     """The value of cookie ``name`` in the request (None if absent or repeated)."""
-    found = [v.strip() for header in headers.get_all("Cookie") for part in header.split(";")
+    found = [v.strip() for header in header_values(headers, "Cookie") for part in header.split(";")
              for k, _, v in [part.partition("=")] if k.strip() == name]
     return found[0] if len(found) == 1 else None
 
