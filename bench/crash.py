@@ -66,6 +66,8 @@ import time
 import urllib.error
 import urllib.request
 from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -78,15 +80,20 @@ from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
 from gateway.server.clock import LoopClock
 from gateway.server.config import GatewayConfig, LifelongSettings
-from gateway.vda5050.broker import BrokerConfig
-from gateway.vda5050.config import Vda5050Config, VehicleConfig
+from gateway.vda5050.config import Vda5050Config
 from protocol import LoadPlan, Ok, OperatorCommand, Start, decode, encode
 from protocol.messages import parse_action_id
 from protocol.vda5050.master import parse_order_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from sim_clients.mosquitto import LocalBroker
-from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
+from sim_clients.vda_fleet import (
+    driven_actions,
+    make_vehicles,
+    run_fleet,
+    shift_starts,
+    vda_config,
+)
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.world import World
 from tracecheck import check_trace, read_trace
@@ -333,12 +340,8 @@ def run(kills: int, seed: int, robots: int, steps: int, speed: float,
         work = Path(tmp)
         map_file = work / "open.map"
         write_map(open_grid(max(6, robots), max(6, robots)), map_file)
-        vda = None
-        if vda5050:
-            vda = Vda5050Config(broker=BrokerConfig(url=broker.enter_context(LocalBroker())),
-                                vehicles=[VehicleConfig(manufacturer="fleetgate",
-                                                        serial_number=f"sim{r}", robot_id=r)
-                                          for r in range(robots)])
+        vda = vda_config(broker.enter_context(LocalBroker()), range(robots)) if vda5050 \
+            else None
         gw = GatewayProcess(work, free_port(), speed, policy, extra=None if vda is None else {
             "vda5050": vda.model_dump(mode="json", exclude_none=True)})
         try:
@@ -433,15 +436,28 @@ def shift_defects(records: list[dict[str, Any]]) -> dict[str, int]:
             "actions_run": report.actions_run}
 
 
-async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: list[float],
-                         run_s: float, rng: random.Random, grid: Grid,
+@dataclass(frozen=True)
+class Progress:
+    """A point in a shift by what it did, not by the wall clock (a loaded machine gets there
+    later): ``actions`` more robot actions completed and ``tasks`` more tasks finished since
+    the shift's start or its last restart."""
+
+    actions: int
+    tasks: int = 0
+
+
+async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float,
+                         kills: Sequence[float | Progress], run_s: float | Progress,
+                         rng: random.Random, grid: Grid,
                          vda: Vda5050Config | None = None,
-                         starts: dict[int, tuple[Cell, int | None]] | None = None
-                         ) -> dict[str, Any]:
+                         starts: dict[int, tuple[Cell, int | None]] | None = None,
+                         *, progress_timeout_s: float = 300.0) -> dict[str, Any]:
     """A shift of ``robots`` simulated robots on the gateway ``gw`` (started here, in lifelong
     mode, with a task list and a batch submitted through the task API), killed with SIGKILL
-    after each delay (s) of ``kills`` and restarted at once; then ``run_s`` more seconds.
-    Returns the counts of :func:`shift_defects` and ``resumed``, ``lost`` (completions robots
+    after each delay (s) of ``kills`` and restarted at once; then ``run_s`` more seconds. A
+    :class:`Progress` instead of a delay waits until the shift got that far (at most
+    ``progress_timeout_s``; ``stalled`` counts the waits that ran out, a shift that did not go
+    on). Returns the counts of :func:`shift_defects` and ``resumed``, ``lost`` (completions robots
     made before the last kill that the trace lacks), ``duplicated`` (actions a robot executed
     twice), ``run_ids`` (distinct run ids robots were sent), ``retry_created`` (a retried
     submission that made tasks again), ``tasks_finished`` (and ``finished_at_last_kill``),
@@ -469,7 +485,7 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
     free = [list(c) for c in grid.free_cells()]
     batch = {"tasks": [{"errands": rng.sample(free, 2)} for _ in range(robots)],
              "idempotency_key": "bench-1"}
-    resumed = retry_created = finished_at_kill = from_snapshot = 0
+    resumed = retry_created = finished_at_kill = from_snapshot = stalled = 0
     before_last_kill: set[tuple[int, int]] = set()
     vehicles: list[VdaVehicle] = []
     stop_vehicles = asyncio.Event()
@@ -483,16 +499,37 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
     def driven() -> set[tuple[int, int]]:
         return {(v.who, n) for v in vehicles for n in driven_actions(v)}
 
+    def actions_done() -> int:
+        return len(completed) + len(driven())
+
+    async def tasks_finished() -> int:
+        return int((await asyncio.to_thread(
+            _http, gw.port, "GET", "/tasks?limit=1"))[1]["counts"]["finished"])
+
+    async def until(point: float | Progress) -> None:
+        """Wait ``point`` seconds, or until the shift made that progress since ``mark``."""
+        nonlocal stalled
+        if not isinstance(point, Progress):
+            await asyncio.sleep(point)
+            return
+        deadline = time.monotonic() + progress_timeout_s
+        while actions_done() - mark[0] < point.actions \
+                or (point.tasks and await tasks_finished() - mark[1] < point.tasks):
+            if time.monotonic() > deadline:
+                stalled += 1
+                return
+            await asyncio.sleep(0.1)
+
     try:
         if vda is None:
             await fleet.wait_connected(timeout=60.0)
         else:
             await _vehicles_connected(gw, robots)
         await asyncio.to_thread(_http, gw.port, "POST", "/tasks", batch)
-        for delay in kills:
-            await asyncio.sleep(delay)
-            finished_at_kill = (await asyncio.to_thread(
-                _http, gw.port, "GET", "/tasks?limit=1"))[1]["counts"]["finished"]
+        mark = (actions_done(), await tasks_finished())
+        for point in kills:
+            await until(point)
+            finished_at_kill = await tasks_finished()
             gw.kill()
             from_snapshot += gw.journal_starts_with() in ("shift_history", "shift_snapshot")
             before_last_kill = set(completed) | driven()
@@ -501,7 +538,8 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
             resumed += (await asyncio.to_thread(gw.health)).get("gateway") == "running"
             status, _ = await asyncio.to_thread(_http, gw.port, "POST", "/tasks", batch)
             retry_created += status != 200
-        await asyncio.sleep(run_s)
+            mark = (actions_done(), await tasks_finished())
+        await until(run_s)
         events = await asyncio.to_thread(_task_events, gw.port)
         counts = (await asyncio.to_thread(_http, gw.port, "GET", "/tasks?limit=1"))[1]
     finally:
@@ -529,7 +567,7 @@ async def lifelong_shift(gw: GatewayProcess, robots: int, speed: float, kills: l
                            | {o.split(".")[0] for v in vehicles for o, _ in v.driven}),
             "errands_twice": sum(len(v.node_actions_run) - len(set(v.node_actions_run))
                                  for v in vehicles),
-            "retry_created": retry_created,
+            "retry_created": retry_created, "stalled": stalled,
             "robot_errors": len(fleet.stats.errors) + sum(len(v.errors) for v in vehicles),
             "event_gaps": sum(1 for i, e in enumerate(events, 1) if e["id"] != i),
             "tasks_finished": done,
@@ -563,12 +601,8 @@ def run_lifelong(kills: int, seed: int, robots: int, speed: float,
     starts = shift_starts(GatewayConfig(map=None, lifelong=LifelongSettings(
         robots=robots, warehouse=warehouse)))
     with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as broker:
-        vda = None
-        if vda5050:
-            vda = Vda5050Config(broker=BrokerConfig(url=broker.enter_context(LocalBroker())),
-                                vehicles=[VehicleConfig(manufacturer="fleetgate",
-                                                        serial_number=f"sim{r}", robot_id=r)
-                                          for r in range(robots)])
+        vda = vda_config(broker.enter_context(LocalBroker()), range(robots)) if vda5050 \
+            else None
         out = []
         for name, ks in (("base", []), ("killed", delays)):
             work = Path(tmp) / name

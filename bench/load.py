@@ -6,8 +6,13 @@ that nobody stood on the step before, or waits; robots cross all the time, so Ty
 abound). Waits are actions too and an action lasts 1000 ms +- ``--jitter`` (default 20 %, seeded per
 robot: real robots are never in lockstep, and a lockstep fleet would send R finishes in the
 same millisecond), so the fleet offers ~R actions/s for about S seconds. The gateway runs in
-a child process (``--serve``, optionally under cProfile) and starts when every robot is there;
-the robots (``sim_clients.fleet``) run in this process.
+a child process (``--serve``, optionally under cProfile) and starts when every robot is there.
+The robots are lean ones (``sim_clients.lean_fleet``: raw websocket frames, one
+``asyncio.Protocol`` per robot) in ``--generators N`` processes of their own (default one per
+2,500 robots, at most 4), at about a quarter of the gateway's CPU per action
+(``robots_cpu_ms_per_action``); ``--generators 0`` runs the full simulated robots
+(``sim_clients.fleet``: the shared robot session, pydantic, the websockets client) in this
+process instead, which cost about as much CPU as the gateway.
 
 Latency is measured on the robot side, end to end: for every dispatched action, from the
 moment the last of its ADG predecessors' ``finished`` messages was handed to its websocket to
@@ -24,9 +29,19 @@ finishes (all robots start together, so those come in a burst of ~R / (2 x jitte
 2.5x the steady rate), and the longest garbage-collector pause of each process during the run.
 
 The gateway runs with classic dispatch (``--lookahead 0``, the default here; the gateway's own
-default is 1): with lookahead an action whose only dependency is its robot's previous action is
-released before that action finishes, so finish-to-dispatch latency would be negative or not
-measured at all for it. The result line says which lookahead was used.
+default is 1), where every dispatch after the first is released by a finish. With lookahead an
+action may be released by its robot's previous dispatch instead, so the run then writes the
+gateway's trace and measures only the dispatches a finish released (the dispatch records
+right after each finish record), from that finish sent to the action received. ``--trace``
+(implied by lookahead) also runs tracecheck on it (``trace_errors``, ``collisions``);
+``--journaled`` makes the one run journaled.
+
+CPU: ``gateway_cpu_ms_per_action`` is the whole gateway process's CPU time from listening to
+the end of the run per plan action; ``owner_cpu_ms_per_action`` only the owner task's own work
+(``Engine.cpu_s``: its items, ticks and journal commits; not the connections' framing,
+validation and writing, which run in their own tasks), the part that the single writer must do
+whatever the other cores take over. ``--uvloop --pairs N`` runs the gateway on uvloop's event
+loop (``pip install uvloop``) and on asyncio's, interleaved: ``uvloop_cpu_per_action_ratio``.
 
     .venv/bin/python bench/load.py --robots 500 --seconds 30 --json
     .venv/bin/python bench/load.py --find-max --seconds 20 --json
@@ -37,10 +52,11 @@ invocation. ``DIR`` is a checkout of that version (``git worktree add DIR 1045d0
 ``bench/load.py --serve`` runs the gateway (with ``DIR`` first on the Python path), N runs of
 each side interleaved ABBA on the same plan with this version's robots. Adds
 ``cpu_per_action_ratio`` (median gateway CPU per action, this / that: < 1 is leaner),
-``p99_against_ratio``, every run's figures and the load average after each run (the gateway is
-one process, so ``owner_cpu_ms_per_action`` is its CPU per action too).
+``p99_against_ratio``, every run's figures and the load average after each run; with
+``--journal`` both sides run journaled.
 
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --against ../base1045 --pairs 5 --json
+    .venv/bin/python bench/load.py --robots 5000 --seconds 30 --lookahead 1 --journaled --json
 
 ``--lifelong``: a warehouse shift instead of one plan. The gateway (child process) runs in
 lifelong mode on a generated warehouse (about 12 free cells per robot, ``--robots`` turning
@@ -90,6 +106,8 @@ import contextlib
 import cProfile
 import dataclasses
 import gc
+import importlib
+import importlib.util
 import json
 import math
 import os
@@ -122,7 +140,6 @@ from gateway.server.gc_tuning import GC_THRESHOLDS
 from gateway.server.items import OwnerCall
 from gateway.server.planner import Problem
 from gateway.vda5050.broker import BrokerConfig
-from gateway.vda5050.config import Vda5050Config, VehicleConfig
 from gateway.vda5050.transport import VdaTransport
 from protocol import parse_action_id
 from sim_clients.connect import websocket_connector
@@ -130,7 +147,13 @@ from sim_clients.fleet import FleetStats, SimFleet
 from sim_clients.lean_fleet import LeanFleet, LeanStats
 from sim_clients.lifelong import LifelongConfig, run_lifelong
 from sim_clients.mosquitto import LocalBroker
-from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
+from sim_clients.vda_fleet import (
+    driven_actions,
+    make_vehicles,
+    run_fleet,
+    shift_starts,
+    vda_config,
+)
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.wms import Wms
 from sim_clients.world import World
@@ -181,7 +204,8 @@ class GcPauses:
 
 
 # ------------------------------------------------------------------ the gateway process
-async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[str, Any]:
+async def _serve(plan_file: Path, lookahead: int, journal: Path | None,
+                 trace: Path | None = None) -> dict[str, Any]:
     data = json.loads(plan_file.read_text())
     plan = Plan.of(data["paths"])
     size = int(data["size"])
@@ -190,7 +214,7 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[
                     "load")
     config = GatewayConfig(port=0, map=None, autostart=True, policy="none",
                            ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING",
-                           dispatch_lookahead=lookahead, journal=journal)
+                           dispatch_lookahead=lookahead, journal=journal, trace=trace)
     pauses = GcPauses()
     gw = Gateway(config)
     gw.engine.meter_cpu = True  # owner_cpu_s
@@ -227,16 +251,21 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None) -> dict[
 
 
 def serve_main(plan_file: Path, profile: Path | None, lookahead: int,
-               journal: Path | None) -> None:
-    """``--serve``: run the gateway until the plan is executed; print its port, then a
-    JSON line of its own measurements."""
+               journal: Path | None, uvloop: bool = False, trace: Path | None = None) -> None:
+    """``--serve``: run the gateway until the plan is executed (``uvloop``: on uvloop's event
+    loop); print its port, then a JSON line of its own measurements."""
     _raise_fd_limit()
     # CPU time, not wall time: on a shared machine wall time would charge preemptions to
     # whatever function happened to run
     profiler = cProfile.Profile(time.process_time) if profile is not None else None
     if profiler is not None:
         profiler.enable()
-    result = asyncio.run(_serve(plan_file, lookahead, journal))
+    factory = None
+    if uvloop:
+        # optional (pip install uvloop): main() checked that it is there
+        factory = importlib.import_module("uvloop").new_event_loop
+    with asyncio.Runner(loop_factory=factory) as runner:
+        result = runner.run(_serve(plan_file, lookahead, journal, trace))
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(str(profile))
@@ -246,7 +275,7 @@ def serve_main(plan_file: Path, profile: Path | None, lookahead: int,
 # ------------------------------------------------------------------ the robots (this process)
 def latencies_ms(plan: Plan, stats: FleetStats, from_step: int = 0) -> list[float]:
     """Per dispatched action with predecessors (at plan step ``from_step`` or later): last
-    predecessor's finish sent -> received."""
+    predecessor's finish sent -> received (classic dispatch: lookahead 0)."""
     adg = ADG(plan)
     # by (plan, robot, index): a journaled run's ids carry its run id as well
     received = {parse_action_id(a): t for a, t in stats.received.items()}
@@ -264,6 +293,18 @@ def latencies_ms(plan: Plan, stats: FleetStats, from_step: int = 0) -> list[floa
             continue
         out.append((got - max(s for s in sent if s is not None)) * 1000.0)
     return out
+
+
+def traced_latencies_ms(records: list[dict[str, Any]], stats: FleetStats, from_step: int = 0
+                        ) -> list[float]:
+    """Per dispatch a finish released (the gateway's trace has it right after that finish; at
+    plan step ``from_step`` or later): that finish sent -> the action received. Exact with
+    lookahead too, where an action may be released by its robot's previous dispatch instead
+    (then no finish released it and it is not counted)."""
+    received = {parse_action_id(a)[1:]: t for a, t in stats.received.items()}
+    finish_sent = {parse_action_id(a)[1:]: t for a, t in stats.finish_sent.items()}
+    return [(received[d] - finish_sent[f]) * 1000.0 for f, d in unlocked_by_finish(records)
+            if d[1] >= from_step and d in received and f in finish_sent]
 
 
 def cpu_pressure() -> float | None:
@@ -338,6 +379,13 @@ def generators_for(robots: int) -> int:
     return min(4, max(1, math.ceil(robots / 2500)))
 
 
+def lean_deadline_s(seconds: int) -> float:
+    """How long lean robots run from the first action before they give up (a run served at
+    less than a tenth of the offered rate is cut: its robots report errors, its actions are
+    lost)."""
+    return 10.0 * seconds + 60.0
+
+
 def lean_main(args: argparse.Namespace) -> None:
     """``--lean-part K/N PLAN OUT``: run the plan's robots ``r % N == K`` as a
     :class:`~sim_clients.lean_fleet.LeanFleet` against ``--port``; write its stats to OUT."""
@@ -349,7 +397,7 @@ def lean_main(args: argparse.Namespace) -> None:
 
     async def go() -> LeanStats:
         fleet = LeanFleet(args.port, mine, args.jitter, args.seed)
-        return await fleet.run(3.0 * args.seconds + 60.0)
+        return await fleet.run(lean_deadline_s(args.seconds))
 
     write_text(out, json.dumps(dataclasses.asdict(asyncio.run(go()))))
 
@@ -367,7 +415,7 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
     stats, cpu = FleetStats(), 0.0
     try:
         for proc, out in zip(procs, outs, strict=True):
-            proc.wait(timeout=3.0 * seconds + 300.0)
+            proc.wait(timeout=lean_deadline_s(seconds) + 900.0)  # + connecting, starting
             if proc.returncode != 0 or not out.exists():
                 stats.errors.append(f"generator {out.name} exited {proc.returncode}")
                 continue
@@ -389,7 +437,8 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
 
 def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
              profile: Path | None = None, journal: bool = False, tree: Path | None = None,
-             generators: int = -1) -> dict[str, Any]:
+             generators: int = -1, uvloop: bool = False, trace: bool = False
+             ) -> dict[str, Any]:
     """One gateway process + one fleet; the measurements as a dict. With ``tree`` (a checkout
     of another version) the gateway process is that version's (its ``bench/load.py --serve``
     with its packages first on the path); the robots are always this version's: ``generators``
@@ -407,6 +456,12 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             cmd += ["--profile", str(profile)]
         if journal:
             cmd += ["--serve-journal", str(Path(tmp) / "journal.sqlite")]
+        if uvloop:
+            cmd += ["--serve-uvloop"]
+        trace_file = Path(tmp) / "trace.jsonl"
+        trace = trace or lookahead > 0  # what a finish released is read from the trace
+        if trace:
+            cmd += ["--serve-trace", str(trace_file)]
         env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
         gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
         sleeper = subprocess.Popen([sys.executable, "-c", _SLEEPER, str(seconds)],
@@ -424,27 +479,38 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
                 stats, wall_s, total, robots_gc_ms = asyncio.run(
                     _drive(port, plan, 3.0 * seconds + 60.0, jitter))
                 robots_cpu = time.process_time() - cpu0
-            gateway = json.loads(gw.stdout.readline() or "{}")
-            gw.wait(timeout=60)
+            try:
+                out, _ = gw.communicate(timeout=60)
+            except subprocess.TimeoutExpired:  # the robots gave up: the run never ends
+                out = ""
+            gateway = json.loads(out.strip() or "{}")
             floor = float(sleeper.communicate(timeout=60)[0] or "nan")
         finally:
             for proc in (gw, sleeper):
                 if proc.poll() is None:
                     proc.kill()
                     proc.wait()
-    lat = latencies_ms(plan, stats)
+        records = read_trace(trace_file) if trace else []
+        checked = check_trace(records) if trace else None
+    if checked is not None:  # the dispatches each finish released, as the gateway traced them
+        lat = traced_latencies_ms(records, stats)
+        steady = traced_latencies_ms(records, stats, from_step=2)
+    else:
+        lat = latencies_ms(plan, stats)
+        steady = latencies_ms(plan, stats, from_step=2)
     # every robot starts at 0, so the first finishes come within +-jitter of 1 s: a burst of
     # ~R / (2 jitter) per s; later steps spread out to the fleet's steady ~R actions/s
-    steady = latencies_ms(plan, stats, from_step=2)
     offered = total / plan.makespan  # actions per second if nobody is ever late
     achieved = total / wall_s if wall_s > 0 else 0.0
-    return {"robots": robots, "lookahead": lookahead, "journal": journal,
+    return {"robots": robots, "lookahead": lookahead, "journal": journal, "uvloop": uvloop,
             "actions": len(stats.received),
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
             "p99_after_step1_ms": round(_percentile(steady, 0.99), 3) if steady else None,
             "lost": total - len(stats.received), "duplicated": stats.duplicates,
-            "errors": len(stats.errors),
+            "errors": len(stats.errors), "error_samples": stats.errors[:3],
+            **({"trace_errors": len(checked.errors), "collisions": len(checked.collisions)}
+               if checked is not None else {}),
             "gateway_p99_ms": gateway.get("gateway_p99_ms"),
             **({"journal_stats": gateway["journal"]} if "journal" in gateway else {}),
             "gateway_cpu_s": round(gateway.get("cpu_s", 0.0), 1),
@@ -477,10 +543,7 @@ def shift_config(robots: int, seed: int, trace: Path | None, lookahead: int, win
                  vda_broker: str | None = None) -> GatewayConfig:
     """The gateway of a lifelong load run; ``vda_broker``: every robot is a VDA 5050 vehicle
     ``fleetgate/sim<r>`` (2.1.0) on that broker."""
-    vda = None if vda_broker is None else Vda5050Config(
-        broker=BrokerConfig(url=vda_broker), vehicles=[
-            VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r)
-            for r in range(robots)])
+    vda = None if vda_broker is None else vda_config(vda_broker, range(robots))
     return GatewayConfig(port=0, map=None, autostart=True, ping_interval_s=20.0,
                          ping_timeout_s=20.0, log_level="WARNING", trace=trace,
                          dispatch_lookahead=lookahead, vda5050=vda,
@@ -659,10 +722,8 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
         picks = sum(len(v.node_actions_run) for v in vehicles)
         lost = len({(r, a) for r, a in dispatched} - received)
     else:
-        got = {parse_action_id(a)[1:]: t for a, t in stats.received.items()}
-        finish_sent = {parse_action_id(a)[1:]: t for a, t in stats.finish_sent.items()}
-        lat = [(got[d] - finish_sent[f]) * 1000.0 for f, d in unlocked_by_finish(records)
-               if d in got and f in finish_sent]
+        got = {parse_action_id(a)[1:] for a in stats.received}
+        lat = traced_latencies_ms(records, stats)
         duplicated = stats.duplicates + len(stats.received) - len(got)
         collisions, picks = len(report.collisions), 0
         lost = len(dispatched - set(got))
@@ -719,7 +780,11 @@ def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
             "p99_journal_ms": [r["p99_ms"] for r in journaled],
             "p99_journal_ratio": ratio("p99_ms"),
             "gateway_p99_journal_ratio": ratio("gateway_p99_ms"),
-            "cpu_per_action_journal_ratio": ratio("gateway_cpu_ms_per_action")}
+            "cpu_per_action_journal_ratio": ratio("gateway_cpu_ms_per_action"),
+            "owner_cpu_journal_ratio": ratio("owner_cpu_ms_per_action"),
+            "owner_cpu_ms_per_action_plain": [r["owner_cpu_ms_per_action"] for r in plain],
+            "owner_cpu_ms_per_action_journal": [r["owner_cpu_ms_per_action"]
+                                                for r in journaled]}
 
 
 def interleaved(pairs: int, run: Callable[[bool], dict[str, Any]]
@@ -765,6 +830,24 @@ def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
             "against_load_1min_runs": [r["load_1min"] for r in theirs],
             "cpu_per_action_ratio": median_ratio(key, ours, theirs),
             "p99_against_ratio": median_ratio("p99_ms", ours, theirs)}
+
+
+def uvloop_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
+                pairs: int, journal: bool, generators: int) -> dict[str, Any]:
+    """``pairs`` runs of the gateway on asyncio's own event loop and on uvloop's, interleaved
+    ABBA: the median uvloop run plus ``uvloop_cpu_per_action_ratio`` (median gateway CPU per
+    action, uvloop / asyncio: < 1 is leaner) and the same for the owner and for p99."""
+    plain, fast = interleaved(pairs, lambda uv: run_once(
+        robots, seconds, seed, jitter, lookahead, journal=journal, generators=generators,
+        uvloop=uv))
+    key = "gateway_cpu_ms_per_action"
+    result = sorted(fast, key=lambda r: r[key])[(pairs - 1) // 2]
+    return {**result, "pairs": pairs,
+            "uvloop_cpu_per_action_ratio": median_ratio(key, fast, plain),
+            "uvloop_owner_cpu_ratio": median_ratio("owner_cpu_ms_per_action", fast, plain),
+            "uvloop_p99_ratio": median_ratio("p99_ms", fast, plain),
+            "load_1min_runs": [r["load_1min"] for r in fast],
+            "asyncio_load_1min_runs": [r["load_1min"] for r in plain]}
 
 
 def holds(result: dict[str, Any]) -> bool:
@@ -841,7 +924,17 @@ def main() -> int:
                    help="robots in N lean generator processes (raw websocket frames; default: "
                         "one per 2,500 robots, at most 4); 0: the full simulated robots of "
                         "sim_clients.fleet in this process")
+    p.add_argument("--uvloop", action="store_true",
+                   help="the gateway on uvloop's event loop (pip install uvloop) and on "
+                        "asyncio's, interleaved (--pairs): uvloop_cpu_per_action_ratio")
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--serve-uvloop", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--serve-trace", type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--trace", action="store_true",
+                   help="one run: the gateway writes its trace and tracecheck checks it "
+                        "(trace_errors, collisions)")
+    p.add_argument("--journaled", action="store_true",
+                   help="one run: with the journal on (no run without it)")
     p.add_argument("--lean-part", help=argparse.SUPPRESS)
     p.add_argument("--lean-files", nargs=2, type=Path, help=argparse.SUPPRESS)
     p.add_argument("--port", type=int, help=argparse.SUPPRESS)
@@ -849,7 +942,8 @@ def main() -> int:
     p.add_argument("--serve-journal", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.serve is not None:
-        serve_main(args.serve, args.profile, args.lookahead, args.serve_journal)
+        serve_main(args.serve, args.profile, args.lookahead, args.serve_journal,
+                   args.serve_uvloop, args.serve_trace)
         return 0
     if args.lean_part is not None:
         lean_main(args)
@@ -867,6 +961,15 @@ def main() -> int:
                 "fleetgate)")
     if args.against is not None and (args.find_max or args.lifelong):
         p.error("--against measures one run per side: not with --find-max or --lifelong")
+    if args.uvloop and (args.against or args.find_max or args.lifelong):
+        p.error("--uvloop measures one run per loop: not with --against, --find-max or "
+                "--lifelong")
+    if args.uvloop and importlib.util.find_spec("uvloop") is None:
+        p.error("--uvloop: uvloop is not installed (pip install uvloop)")
+    if (args.trace or args.journaled) and (args.against or args.journal or args.uvloop
+                                           or args.find_max or args.lifelong):
+        p.error("--trace and --journaled are for one run: not with --against, --journal, "
+                "--uvloop, --find-max or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.vda5050 and not args.lifelong:
@@ -885,7 +988,8 @@ def main() -> int:
         return 0
     gens = args.generators
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
-                        args.lookahead, journal=args.journal, generators=gens)
+                        args.lookahead, journal=args.journal or args.journaled,
+                        generators=gens)
     if args.find_max:
         best, runs = find_max(args.seconds, args.seed, args.jitter, args.lookahead, 250,
                               args.max_robots, gens)
@@ -895,12 +999,16 @@ def main() -> int:
         result = against_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.pairs, args.against.resolve(),
                               args.journal, gens)
+    elif args.uvloop:
+        result = uvloop_cost(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
+                             args.pairs, args.journal, gens)
     elif args.journal:
         result = journal_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.profile, args.pairs, gens)
     else:
         result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                          args.profile, generators=gens)
+                          args.profile, journal=args.journaled, generators=gens,
+                          trace=args.trace)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99

@@ -197,7 +197,10 @@ class LeanRobot(asyncio.Protocol):
 
     def _action(self, msg: dict[str, Any]) -> None:
         aid: str = msg["action_id"]
-        stats = self.fleet.stats
+        fleet = self.fleet
+        if not fleet.started.done():
+            fleet.started.set_result(None)
+        stats = fleet.stats
         if aid in stats.received:
             stats.duplicates += 1
         else:
@@ -260,6 +263,8 @@ class LeanFleet:
         self.stopping = False
         self._busy = len(paths)
         self._done = asyncio.get_running_loop().create_future()
+        self.started = asyncio.get_running_loop().create_future()
+        """Set when the first action arrives (the gateway started the run)."""
         self.robots: list[LeanRobot] = []
 
     def robot_done(self) -> None:
@@ -287,14 +292,16 @@ class LeanFleet:
                     self.robot_done()
                 return
 
-    async def run(self, deadline_s: float) -> LeanStats:
-        """Connect every robot, run until all are done or ``deadline_s`` after the last
-        connected; close the links."""
+    async def run(self, deadline_s: float, start_s: float = 600.0) -> LeanStats:
+        """Connect every robot, run until all are done or ``deadline_s`` after the first
+        action arrived (at most ``start_s`` after the last robot connected: the gateway starts
+        once every robot of every process is there); close the links."""
         gate = asyncio.Semaphore(CONNECTING_AT_ONCE)
         await asyncio.gather(*(self._connect(r, p, gate) for r, p in self.paths.items()))
         gc.freeze()  # the robots live until the end: keep full passes off them
         cpu0 = time.process_time()
         try:
+            await asyncio.wait_for(asyncio.shield(self.started), start_s)
             await asyncio.wait_for(asyncio.shield(self._done), deadline_s)
         except TimeoutError:
             self.stats.errors.append(f"deadline: {self._busy} robots not done")

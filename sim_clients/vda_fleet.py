@@ -22,7 +22,7 @@ from gateway.planning.grid import Cell
 from gateway.server.config import GatewayConfig
 from gateway.server.runs.lifelong import shift_from
 from gateway.vda5050.broker import BrokerConfig, publish, will
-from gateway.vda5050.config import Vda5050Config
+from gateway.vda5050.config import Vda5050Config, VehicleConfig
 from protocol.messages import HEADINGS
 from protocol.vda5050.master import Publish, parse_order_id
 from protocol.vda5050.nodes import THETA
@@ -83,6 +83,16 @@ async def run_fleet(vehicles: list[VdaVehicle], broker: BrokerConfig,
     async with asyncio.TaskGroup() as group:
         for vehicle in vehicles:
             group.create_task(run_vehicle(vehicle, broker, stop))
+
+
+def vda_config(broker_url: str, robots: Iterable[int], versions: tuple[str, ...] = ("2.1.0",)
+               ) -> Vda5050Config:
+    """Vehicles ``fleetgate``/``sim<r>`` as robots ``r`` on the broker at ``broker_url``, their
+    versions alternating over ``versions``."""
+    return Vda5050Config(broker=BrokerConfig(url=broker_url), vehicles=[
+        VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r,
+                      version=versions[i % len(versions)])  # type: ignore[arg-type]
+        for i, r in enumerate(robots)])
 
 
 def make_vehicles(config: Vda5050Config, world: World | None, *, speed: float = 1.0,

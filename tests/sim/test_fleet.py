@@ -198,9 +198,10 @@ def test_fleetgate_sim_drives_a_gateway_over_websockets() -> None:
     soc, code = asyncio.run(main())
     assert code == 130  # stopped by Ctrl-C (SIGINT), cleanly: the documented exit code
     # speed 20 (the robots learn it on the world connection): an action takes 50 ms of wall
-    # time plus loopback round trips (each ms of those is 20 ms of plan time on a loaded
-    # machine); at the wrong speed (1) it would be 20x the plan's cost
-    assert 1000 * CORRIDOR.soc <= soc <= 3 * 1000 * CORRIDOR.soc
+    # time plus loopback round trips (each ms of those is 20 ms of plan time, more on a loaded
+    # machine); at the wrong speed (1) each action would take 1000 ms of wall time, 20000 ms
+    # of plan time: at least 20x the plan's cost, whatever the load
+    assert 1000 * CORRIDOR.soc <= soc < 20 * 1000 * CORRIDOR.soc
 
 
 def test_the_shadow_policy_goes_around_a_reported_block_through_the_gateway(

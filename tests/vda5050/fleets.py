@@ -15,11 +15,11 @@ from pathlib import Path
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.vda5050.broker import BrokerConfig
-from gateway.vda5050.config import Vda5050Config, VehicleConfig
+from gateway.vda5050.config import Vda5050Config
 from gateway.vda5050.transport import VdaTransport
 from protocol.messages import LoadInstance, Start
 from sim_clients.fleet import SimFleet
-from sim_clients.vda_fleet import make_vehicles, run_fleet
+from sim_clients.vda_fleet import make_vehicles, run_fleet, vda_config
 from sim_clients.vda_vehicle import VdaVehicle
 from sim_clients.world import World
 
@@ -50,15 +50,6 @@ async def run_websocket(trace: Path, map_name: str, scen: str, agents: int,
         soc, _ = await asyncio.wait_for(gw.wait_done(), timeout_s)
         await fleet.stop()
         return soc
-
-
-def vda_config(broker_url: str, robots: list[int], versions: tuple[str, ...] = ("2.1.0",)
-               ) -> Vda5050Config:
-    """Vehicles ``sim<r>`` as robots ``r``, their versions alternating over ``versions``."""
-    return Vda5050Config(broker=BrokerConfig(url=broker_url), vehicles=[
-        VehicleConfig(manufacturer="fleetgate", serial_number=f"sim{r}", robot_id=r,
-                      version=versions[i % len(versions)])  # type: ignore[arg-type]
-        for i, r in enumerate(robots)])
 
 
 @dataclass

@@ -14,8 +14,7 @@ from pathlib import Path
 from bench.crash import GatewayProcess, free_port, lifelong_config, lifelong_shift
 from gateway.planning.lorr import warehouse_problem
 from gateway.server.config import GatewayConfig, LifelongSettings
-from sim_clients.vda_fleet import shift_starts
-from tests.vda5050.fleets import vda_config
+from sim_clients.vda_fleet import shift_starts, vda_config
 
 ROBOTS, WAREHOUSE = 6, (2, 3)
 

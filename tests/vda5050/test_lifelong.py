@@ -17,8 +17,14 @@ from gateway.server.gateway import Gateway
 from gateway.vda5050.transport import VdaTransport
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import stop_shift
-from sim_clients.vda_fleet import driven_actions, make_vehicles, run_fleet, shift_starts
-from tests.vda5050.fleets import sniff, vda_config
+from sim_clients.vda_fleet import (
+    driven_actions,
+    make_vehicles,
+    run_fleet,
+    shift_starts,
+    vda_config,
+)
+from tests.vda5050.fleets import sniff
 from tests.vda5050.schemas import SCHEMA_DIR, assert_valid
 from tracecheck import check_trace, read_trace
 

@@ -160,6 +160,7 @@ class Monitor:
         self._queued = bytearray(nv)
         self._tc = array("d", [math.nan]) * nv  # every vertex "changes" at first evaluation
         self._layer_cache: list[_Layer] | None = None
+        self._done_layers = 0  # leading layers of the cache that a full pass leaves alone
         self._hold: dict[int, float] = {}  # see with_holds
         self._hold_np: npt.NDArray[np.float64] | None = None
         # seeds of starts and finishes not yet propagated: the work is deferred to the next
@@ -194,6 +195,7 @@ class Monitor:
         out._active = set(self._active)
         out._queued = bytearray(len(self._queued))
         out._layer_cache = None
+        out._done_layers = 0
         out._pending = []
         changed = [v for v in range(adg.n_vertices)
                    if adg.predecessors(v) != old.predecessors(v)]
@@ -326,14 +328,23 @@ class Monitor:
 
     def _recompute(self) -> None:
         """Every estimate and Δ from scratch, vectorised step by step: the same operations as
-        :meth:`_propagate` on every vertex (so the same values), for when most would move."""
+        :meth:`_propagate` on every vertex (so the same values), for when most would move.
+
+        Except the leading layers that are done: once every action of a layer and of all the
+        layers before it is done, one pass computed its values from real times only (a done
+        action's t_c is its finish, its Δ depends on done tails' t_c), so later passes would
+        write the same values again and leave it out. A large fleet's tick then costs the
+        plan's future, not the whole plan."""
         if self._layer_cache is None:
             self._layer_cache = _layers(self.adg)
+            self._done_layers = 0
+        layers = self._layer_cache
         state, remaining = self._np_state, self._np_remaining
         ts, tc, delta = self._np_ts, self._np_tc, self._np_delta
         release = np.asarray(self.release_ms, dtype=np.float64)
         now, tx = self.now_ms, self._np_tx
-        for layer in self._layer_cache:
+        done = self._done_layers
+        for layer in layers[done:]:
             for verts, start in (
                     (layer.with_pred, np.maximum.reduceat(tc[layer.pred_flat], layer.pred_off)
                      if layer.with_pred.size else None),
@@ -356,6 +367,10 @@ class Monitor:
                 prev = np.where(layer.t2_first, release[layer.t2_robot], tc[layer.t2_prev])
                 d = np.maximum.reduceat(tc[layer.t2_flat], layer.t2_off) - prev
                 delta[layer.with_t2] = np.maximum(d, 0.0)
+        while done < len(layers) and (state[layers[done].with_pred] == DONE).all() \
+                and (state[layers[done].no_pred] == DONE).all():
+            done += 1  # computed in this pass with it and every layer before it done
+        self._done_layers = done
 
     def _max_growth(self, lo: int, hi: int) -> float:
         """Largest Δ̄ over the not-started vertices ``lo..hi-1`` (0 if there is none)."""
