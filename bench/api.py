@@ -78,8 +78,9 @@ def run_once(source: Path | None, clients: int, seconds: float) -> dict[str, Any
             **json.loads(gw.config.read_text()), "map": None, "autostart": False,
             "tokens": {"operators": [TOKEN]}, "max_connections": 10000,
             "lifelong": {"robots": 3, "warehouse": list(WAREHOUSE), "task_list": False}}))
-        if source is not None:
+        if source is not None:  # its gateway first on the path
             gw.env = {**os.environ, "PYTHONPATH": str(source.resolve())}
+            gw.cwd = source.resolve()
         gw.start()
         try:
             return asyncio.run(_load(gw.port, clients, seconds))

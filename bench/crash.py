@@ -134,6 +134,9 @@ class GatewayProcess:
         self.log = self.log_path.open("a")
         self.env: dict[str, str] | None = None
         """The process's environment (None: this one's)."""
+        self.cwd: Path | None = None
+        """The process's working directory (None: this one's); ``-m gateway`` imports the
+        gateway found there first (another version's checkout, for a comparison)."""
         self.proc: subprocess.Popen[bytes] | None = None
         self.starts = 0
         self.down_s: list[float] = []
@@ -145,6 +148,7 @@ class GatewayProcess:
         writes may grow beyond that many bytes (``RLIMIT_FSIZE``: a write beyond fails with
         ``EFBIG``, as a full disk fails with ``ENOSPC``)."""
         self.proc = subprocess.Popen(self.cmd, stdout=self.log, stderr=self.log, env=self.env,
+                                     cwd=self.cwd,
                                      preexec_fn=None if file_limit is None
                                      else partial(limit_files, file_limit))
         self.starts += 1

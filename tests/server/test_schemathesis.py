@@ -68,6 +68,8 @@ def test_schemathesis_finds_no_fault(gateway: GatewayProcess, tmp_path: Path) ->
         capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-6000:]
     assert "Selected: 7/7" in run.stdout and "Tested: 7" in run.stdout, run.stdout[-2000:]
+    links = re.search(r"API Links:\s+(\d+) covered / (\d+) selected", run.stdout)
+    assert links is not None and int(links[1]) >= 4, run.stdout[-3000:]  # the document's 8
     entries = json.loads(har.read_text())["log"]["entries"]
     assert len(entries) >= MIN_REQUESTS, len(entries)
     statuses = [e["response"]["status"] for e in entries]

@@ -110,8 +110,16 @@ def _errors(*codes: int) -> dict[int | str, dict[str, Any]]:
                                                           "wrong method, 500 internal error)"}}
 
 
-def _ok(model: type[BaseModel], description: str) -> dict[str, Any]:
-    return {"model": model, "description": description}
+def _ok(model: type[BaseModel], description: str, links: dict[str, Any] | None = None
+        ) -> dict[str, Any]:
+    return {"model": model, "description": description, **({"links": links} if links else {})}
+
+
+FIRST_TASK = {op: {"operationId": op, "parameters": {"id": "$response.body#/tasks/0/id"},
+                   "description": "the first task submitted"}
+              for op in ("getTask", "cancelTask", "pauseTask", "resumeTask")}
+"""The document's links from a submission to what can be done with its first task (what
+Schemathesis' stateful phase follows)."""
 
 
 router = APIRouter()
@@ -138,8 +146,9 @@ SUBMIT_BODY = {"required": True, "content": {"application/json": {"schema": {"on
 
 @router.post("/tasks", operation_id="submitTasks", summary="Submit one task or a batch",
              status_code=201, response_model=None,
-             responses={201: _ok(SubmitResponse, "the tasks were created"),
-                        200: _ok(SubmitResponse, "a retry: the tasks of the first request"),
+             responses={201: _ok(SubmitResponse, "the tasks were created", FIRST_TASK),
+                        200: _ok(SubmitResponse, "a retry: the tasks of the first request",
+                                 FIRST_TASK),
                         **_errors(408, 409, 413, 415, 422)},
              openapi_extra={"requestBody": SUBMIT_BODY})
 async def submit_tasks(
