@@ -33,6 +33,21 @@ def _fleetgate(*args: str, cwd: Path = ROOT, timeout: float = 120) -> subprocess
                           timeout=timeout, check=False, env={**os.environ, "FLEETGATE_MAPS": ""})
 
 
+def _cpu_s(pid: int) -> float:
+    """CPU seconds the process has used so far (user + system, from /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _until_busy(proc: subprocess.Popen[str], wall_s: float, cpu_s: float = 1.0) -> None:
+    """Waits ``wall_s`` and until the process has used ``cpu_s`` of CPU: past its start-up
+    (the interpreter and imports take about 0.5 s of CPU) and into its work, however loaded
+    the machine is (at load 20 the start-up alone took more than 3 s of wall time)."""
+    deadline = time.monotonic() + wall_s
+    while (time.monotonic() < deadline or _cpu_s(proc.pid) < cpu_s) and proc.poll() is None:
+        time.sleep(0.05)
+
+
 def _problem(directory: Path) -> Path:
     from gateway.planning.lorr import warehouse_blocks, warehouse_problem, write_problem
 
@@ -59,7 +74,7 @@ def test_ctrl_c_during_lifelong_leaves_the_previous_output_whole(tmp_path: Path)
                              "--ticks", "200000", "--output", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=_default_sigint)
-    time.sleep(3)
+    _until_busy(proc, 3)
     assert proc.poll() is None  # still running: 200,000 ticks take minutes
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
@@ -76,7 +91,7 @@ def test_ctrl_c_in_a_busy_benchmark_ends_it_within_seconds(script: str) -> None:
     proc = subprocess.Popen([sys.executable, script], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
                             preexec_fn=_default_sigint)
-    time.sleep(6)  # well into its work (fuzz: drawing 5,000 messages; load: the baseline run)
+    _until_busy(proc, 6)  # well into its work (fuzz: drawing 5,000 messages; load: the baseline)
     assert proc.poll() is None
     os.killpg(proc.pid, signal.SIGINT)
     sent = time.monotonic()
