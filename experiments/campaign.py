@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import signal
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -603,7 +604,10 @@ def _quiet_ctrl_c() -> None:
 
 
 def _exit_quietly(signum: int, frame: object) -> None:
-    raise SystemExit(130)
+    # os._exit, not SystemExit: a handler's exception raised while numba's compiler is in a
+    # ctypes callback is "ignored" with its traceback printed; the worker holds nothing the
+    # user asked for (the campaign writes the results)
+    os._exit(130)
 
 
 @contextmanager
