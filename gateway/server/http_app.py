@@ -1,7 +1,8 @@
 """The gateway's ASGI application (FastAPI): the task API (:mod:`gateway.server.task_api.api`),
 the operator's plain routes (:mod:`gateway.server.wire.http`), the OpenAPI document FastAPI
 generates from the routes and the pydantic models (``/openapi.json``, interactive at
-``/docs``).
+``/docs``: ``fastapi-offline`` serves the Swagger UI files from the gateway itself, so a
+warehouse network without internet access still gets working docs).
 
 FastAPI rather than bare Starlette: it writes the OpenAPI document from the routes'
 declared parameters, models and responses, which is the document integrators and
@@ -19,6 +20,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
+from fastapi_offline import FastAPIOffline
 from pydantic.json_schema import models_json_schema
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -98,9 +100,9 @@ def create_app() -> FastAPI:
     """The application; the gateway sets ``app.state.task_api`` (a
     :class:`~gateway.server.task_api.api.TaskApi`) and ``app.state.plain`` (a
     :class:`~gateway.server.wire.http.PlainRoutes`) before it serves."""
-    app = FastAPI(title=TITLE, version="1", description=DESCRIPTION, docs_url="/docs",
-                  redoc_url=None, openapi_url="/openapi.json",
-                  default_response_class=errors.JsonAnswer)
+    app = FastAPIOffline(title=TITLE, version="1", description=DESCRIPTION, docs_url="/docs",
+                         redoc_url=None, openapi_url="/openapi.json",
+                         static_url="/docs/assets", default_response_class=errors.JsonAnswer)
     app.add_middleware(task_routes.TaskAuth)
     app.include_router(task_routes.router)
     app.include_router(plain_routes.router)

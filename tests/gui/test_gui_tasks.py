@@ -257,3 +257,30 @@ def test_a_reloaded_page_shows_every_open_task_and_the_recent_finishes(
     assert finished >= before["finished"]
     for task in held:
         assert api_change(page, "DELETE", f"/tasks/{task}")[0] == 200
+
+
+def test_the_interactive_docs_work_without_internet(browser: Browser, shift: DemoProcess) -> None:
+    # /docs renders the task API's operations from the gateway's own files: every request the
+    # page makes goes to the gateway (anything else is aborted and recorded, as on a warehouse
+    # network without internet access)
+    origin = re.match(r"https?://[^/#]+", shift.url)
+    assert origin is not None
+    context = browser.new_context()
+    outside: list[str] = []
+
+    def only_the_gateway(route: Any) -> None:
+        if route.request.url.startswith(origin[0]):
+            route.continue_()
+        else:
+            outside.append(route.request.url)
+            route.abort()
+
+    context.route("**/*", only_the_gateway)
+    pg = context.new_page()
+    pg.goto(origin[0] + "/docs")
+    expect(pg.locator(".opblock-summary-path", has_text="/tasks").first).to_be_visible(
+        timeout=20_000)
+    paths = {t.strip() for t in pg.locator(".opblock-summary-path").all_inner_texts()}
+    context.close()
+    assert outside == []
+    assert {"/tasks", "/tasks/{id}", "/tasks/events"} <= {p.replace("\u200b", "") for p in paths}
