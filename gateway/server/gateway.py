@@ -205,6 +205,8 @@ class Gateway:
         if task.cancelled() or task is not self._owner:
             return
         exc = task.exception()
+        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
+            return  # Ctrl-C or an exit inside the owner: it leaves the loop on its own way out
         self.fatal(f"the gateway's owner task ended: {type(exc).__name__}: {exc}"
                    if exc is not None else "the gateway's owner task ended", EXIT_SOFTWARE)
 
