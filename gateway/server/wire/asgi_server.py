@@ -26,6 +26,10 @@ from uvicorn.server import ServerState
 from gateway.server.wire.ws_endpoint import WsEndpoint
 
 MAX_HEAD_BYTES = 16 * 1024
+READ_BYTES = 32 * 1024
+"""What one read of a connection takes at most (asyncio's default is 256 KiB): with reading
+paused once a head is in, what a request's connection holds before its credentials are
+checked."""
 """A request head (line and headers) longer than this is refused (400)."""
 
 
@@ -46,6 +50,8 @@ class GatewayHttpProtocol(HttpToolsProtocol):
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         """Start the clock for the first request's head."""
         super().connection_made(transport)
+        if hasattr(transport, "max_size"):  # asyncio's socket transport: what one recv takes
+            transport.max_size = READ_BYTES
         self._head_bytes = 0
         self._head_timer: asyncio.TimerHandle | None = self.loop.call_later(
             self.head_timeout_s, self._too_slow)
@@ -75,9 +81,13 @@ class GatewayHttpProtocol(HttpToolsProtocol):
         super().on_header(name, value)
 
     def on_headers_complete(self) -> None:
-        """The head is in: no more clock (the application bounds the body's time)."""
+        """The head is in: no more clock (the application bounds the body's time), and no
+        more reading until the application asks for the body (uvicorn would read on up to
+        its 64 KiB high-water mark before the credentials are checked)."""
         self._stop_clock()
         super().on_headers_complete()
+        if not self.parser.should_upgrade():
+            self.flow.pause_reading()
 
     def _count(self, n: int) -> None:
         self._head_bytes += n
