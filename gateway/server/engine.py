@@ -33,9 +33,9 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from functools import partial
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 from gateway.execution.commands import (
     Cancel,
@@ -99,6 +99,15 @@ log = logging.getLogger("fleetgate.engine")
 
 
 # ------------------------------------------------------------------------------ the engine
+_T = TypeVar("_T")
+
+
+def _pose(cell: tuple[int, int], heading: int | None) -> dict[str, Any]:
+    """A pose as the plain JSON values an action carries (:func:`protocol.encode_action`)."""
+    return {"cell": [int(cell[0]), int(cell[1])],
+            "heading": None if heading is None else HEADINGS[heading]}
+
+
 class Engine:
     """Executor owner: routes queue items, robot sessions' effects and executor commands;
     ticks the monitor. Operator commands: :attr:`operator`; planner tasks: :attr:`solvers`."""
@@ -242,12 +251,17 @@ class Engine:
             self._handle_safely(item)
 
     async def _get(self) -> Item:
-        """The next queue item (the owner's CPU time is not counted while it waits)."""
+        """The next queue item."""
+        return await self._waiting(self.queue.get())
+
+    async def _waiting(self, awaited: Awaitable[_T]) -> _T:
+        """``await awaited``; with :attr:`meter_cpu`, the owner's CPU time is not counted
+        while it waits."""
         if not self.meter_cpu:
-            return await self.queue.get()
+            return await awaited
         self.cpu_s += time.thread_time() - self._resumed
         try:
-            return await self.queue.get()
+            return await awaited
         finally:
             self._resumed = time.thread_time()
 
@@ -256,14 +270,7 @@ class Engine:
         (a finish -> a dispatch -> the robot's start), before a tick looks at the monitor."""
         while True:
             self.commit()
-            if not self.meter_cpu:
-                await self.clock.settle()
-            else:
-                self.cpu_s += time.thread_time() - self._resumed
-                try:
-                    await self.clock.settle()
-                finally:
-                    self._resumed = time.thread_time()
+            await self._waiting(self.clock.settle())
             if self.queue.empty():
                 return
             while not self.queue.empty():
@@ -447,12 +454,11 @@ class Engine:
         while effects := gs.drain():
             for e in effects:
                 if isinstance(e, ToRobot):
-                    if gs.link is None:
-                        pass
-                    elif e.kind is Action:
-                        cast(Session, gs.link).send_action(e.fields)
-                    else:
-                        cast(Session, gs.link).send(e.kind, **e.fields)
+                    link = cast(Session | None, gs.link)
+                    if link is not None and e.kind is Action:
+                        link.send_action(e.fields)
+                    elif link is not None:
+                        link.send(e.kind, **e.fields)
                 elif isinstance(e, Refuse):
                     if sender is not None:
                         sender.error(e.code, e.ref, e.detail)
@@ -558,10 +564,7 @@ class Engine:
         # plain JSON values: the session writes them as they are (encode_action)
         fields: dict[str, Any] = {
             "action_id": aid, "sequence": int(c.action),
-            "src": {"cell": [int(c.src[0]), int(c.src[1])],
-                    "heading": None if c.src_heading is None else HEADINGS[c.src_heading]},
-            "dst": {"cell": [int(c.dst[0]), int(c.dst[1])],
-                    "heading": None if c.dst_heading is None else HEADINGS[c.dst_heading]},
+            "src": _pose(c.src, c.src_heading), "dst": _pose(c.dst, c.dst_heading),
             "duration_ms": float(c.duration_ms),
         }
         gs = self.robot(c.robot)
