@@ -185,6 +185,9 @@ def main() -> None:
                     help="the shared LoRR problems (default ../shared/lorr beside the repo)")
     ap.add_argument("--json", action="store_true", help="print one JSON line")
     args = ap.parse_args()
+    blocking = next((q for q in (args.lorr, *args.lorr.parents) if q.exists()), None)
+    if blocking is not None and not blocking.is_dir():
+        ap.error(f"--lorr: {blocking} is not a folder")
     if not (args.lorr / PROBLEM).is_file():
         print(json.dumps({"skipped": f"{args.lorr / PROBLEM} absent"}) if args.json
               else f"following: skipped ({args.lorr / PROBLEM} absent)")
