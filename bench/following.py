@@ -37,7 +37,6 @@ from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool
 from gateway.planning.lorr import LorrProblem, read_problem
 from gateway.planning.pibt import (
     MAX_PUSH_DEPTH,
-    UNREACHABLE,
     StateSpace,
     Window,
     WindowedPIBT,
@@ -54,52 +53,21 @@ class FollowingPIBT(WindowedPIBT):
     whose robot moves out in the same step (asking an undecided one to move first, as PIBT
     does); turns, waits, priorities and costs unchanged; no swaps, no rotations."""
 
-    def _decide(self, r: int, pusher: int, cur: list[int], nxt: list[int],
-                tables: list[array[int] | None], depth: int) -> None:
-        stamp = self._stamp
-        self._planned[r] = stamp
-        space = self.space
-        cell_of, occupant, reserved = space.cell_of, self._occupant, self._reserved
-        s = cur[r]
-        c = cell_of[s]
-        table = tables[r]
-        rng = self.rng.random
-        opts = space.options[s]
-        costs = space.costs(table, opts) if table is not None else [0] * len(opts)
-        if space.turning and not space.exact and len(costs) > 1 and costs[0]:
-            costs[0] = max(costs[0], 1 + min(costs[1:]))
-        keyed = []
-        for (c2, _, turns, rs), cost in zip(opts, costs, strict=True):
-            if c2 == c:
-                keyed.append((cost + (UNREACHABLE if pusher >= 0 else 0), 0, 0, rng(), c2, rs))
-            else:
-                keyed.append((cost, 1 if occupant[c2] < 0 else 2, turns, rng(), c2, rs))
-        keyed.sort()
-        for _, _, _, _, c2, rs in keyed:
-            if c2 == c:
-                nxt[r] = rs
-                reserved[c] = stamp
-                return
-            if reserved[c2] == stamp:
-                continue
-            o = occupant[c2]
-            if o >= 0:
-                if cell_of[rs] != c2 or o == pusher:  # a turn towards it, or a swap
-                    if o != pusher and self._planned[o] != stamp and depth < MAX_PUSH_DEPTH:
-                        self._decide(o, r, cur, nxt, tables, depth + 1)
-                    continue
-                if self._planned[o] != stamp:
-                    if depth >= MAX_PUSH_DEPTH:
-                        continue
-                    reserved[c2] = stamp  # o must not turn in place: it moves or waits
-                    self._decide(o, r, cur, nxt, tables, depth + 1)
-                if cell_of[nxt[o]] in (c2, c):  # it stays (or would swap)
-                    continue
-            nxt[r] = rs
-            reserved[cell_of[rs]] = stamp
-            return
-        nxt[r] = s
-        reserved[c] = stamp
+    def _enter_held(self, r: int, o: int, pusher: int, rs: int, cur: list[int],
+                    nxt: list[int], tables: list[array[int] | None], depth: int) -> bool:
+        """Forward into ``o``'s cell if ``o`` moves out in this step (asked first if it has
+        not decided; it may not turn in place then); a turn towards it, or a swap, as
+        1-robust."""
+        cell_of = self.space.cell_of
+        c, c2 = cell_of[cur[r]], cell_of[cur[o]]
+        if cell_of[rs] != c2 or o == pusher:
+            return super()._enter_held(r, o, pusher, rs, cur, nxt, tables, depth)
+        if self._planned[o] != self._stamp:
+            if depth >= MAX_PUSH_DEPTH:
+                return False
+            self._reserved[c2] = self._stamp
+            self._decide(o, r, cur, nxt, tables, depth + 1)
+        return cell_of[nxt[o]] not in (c2, c)
 
 
 class GhostPIBT(WindowedPIBT):
