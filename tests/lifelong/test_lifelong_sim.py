@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.execution.lifelong.tasks import SCHEDULERS
 from gateway.planning.lorr import read_problem
 from gateway.planning.movingai import format_map
-from gateway.execution.lifelong.tasks import SCHEDULERS
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
 from tests.lifelong.support import small_problem
 from tracecheck.lorr import check_output, read_free
