@@ -9,6 +9,7 @@ from typing import Annotated
 from urllib.parse import urlsplit
 
 import aiomqtt
+import paho.mqtt.client as paho
 from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator
 
 from protocol.vda5050.models import Header, dump
@@ -86,8 +87,15 @@ def will(topic: str, message: Header) -> aiomqtt.Will:
     return aiomqtt.Will(topic, dump(message), qos=QOS["connection"], retain=True)
 
 
-async def publish(client: aiomqtt.Client, topic: str, name: TopicName,
-                  message: Header) -> None:
-    """Publish ``message`` on ``topic`` with the QoS and retain flag the standard sets for
-    topic ``name``."""
-    await client.publish(topic, dump(message), qos=QOS[name], retain=name in RETAINED)
+def publish(client: aiomqtt.Client, topic: str, name: TopicName, message: Header) -> None:
+    """Queue ``message`` for ``topic`` with the QoS and retain flag the standard sets for topic
+    ``name``; the client's socket writer sends it (in order, with whatever else is queued).
+
+    Not awaited: ``aiomqtt.Client.publish`` waits until paho has written each message, even
+    at QoS 0, one event-loop round trip and a task per message; a master sending hundreds a
+    second fell behind and its queue grew with the run's length. paho's own publish queues
+    the packet and aiomqtt's writer callback flushes the queue when the socket is writable
+    (QoS 1 is retried by paho). MqttCodeError if the client is not connected."""
+    info = client._client.publish(topic, dump(message), QOS[name], name in RETAINED)
+    if info.rc != paho.MQTT_ERR_SUCCESS:
+        raise aiomqtt.MqttCodeError(info.rc, "Could not publish message")

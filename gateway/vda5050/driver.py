@@ -80,9 +80,16 @@ class MasterClient:
                         await task
 
     async def _write(self, client: aiomqtt.Client) -> None:
+        """Hand everything queued to the client at each wake-up (one batch, not one loop
+        round trip per message)."""
+        out = self._out
         while True:
-            master, item = await self._out.get()
-            await publish(client, master.topics.topic(item.topic), item.topic, item.message)
+            master, item = await out.get()
+            while True:
+                publish(client, master.topics.topic(item.topic), item.topic, item.message)
+                if out.empty():
+                    break
+                master, item = out.get_nowait()
 
     async def _tick(self) -> None:
         while True:
