@@ -42,8 +42,6 @@ async def run_vehicle(vehicle: VdaVehicle, broker: BrokerConfig, stop: asyncio.E
     wait per step: hundreds of vehicles share the process with the benchmark's WMS)."""
     topics = vehicle.topics
     broken, online = vehicle.connect(time.time())
-    client = broker.client(f"{topics.manufacturer}-{topics.serial}",
-                           will(topics.topic("connection"), broken.message))
     loop = asyncio.get_running_loop()
     timer: asyncio.TimerHandle | None = None
     timer_at = math.inf
@@ -65,12 +63,17 @@ async def run_vehicle(vehicle: VdaVehicle, broker: BrokerConfig, stop: asyncio.E
         timer = None
         wake()
 
-    async def read() -> None:
-        async for msg in client.messages:
-            payload = msg.payload if isinstance(msg.payload, bytes | str) else b""
-            vehicle.receive(str(msg.topic).rsplit("/", 1)[-1], payload, time.time())
-            wake()
+    def receive(msg: aiomqtt.Message) -> None:
+        payload = msg.payload if isinstance(msg.payload, bytes | str) else b""
+        vehicle.receive(msg.topic.value.rsplit("/", 1)[-1], payload, time.time())
+        wake()
 
+    async def read() -> None:
+        async for _ in client.messages:  # ends with the connection (messages go to receive)
+            pass
+
+    client = broker.client(f"{topics.manufacturer}-{topics.serial}",
+                           will(topics.topic("connection"), broken.message), receive)
     async with client:
         for name in MASTER_PUBLISHES:
             await client.subscribe(topics.topic(name), qos=0)

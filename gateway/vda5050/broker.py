@@ -3,7 +3,9 @@ TLS, ``mqtts://host:port``, with optional username and password (see docs/vda505
 
 from __future__ import annotations
 
+import asyncio
 import ssl
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 from urllib.parse import urlsplit
@@ -73,13 +75,32 @@ class BrokerConfig(BaseModel):
                                     str(self.key_file) if self.key_file else None)
         return context
 
-    def client(self, identifier: str, will: aiomqtt.Will | None = None) -> aiomqtt.Client:
-        """An (unconnected) client; use it as ``async with``."""
+    def client(self, identifier: str, will: aiomqtt.Will | None = None,
+               on_message: Callable[[aiomqtt.Message], None] | None = None) -> aiomqtt.Client:
+        """An (unconnected) client; use it as ``async with``. ``on_message``: every message
+        received goes to it as it is read (see :func:`dispatching`), not to
+        ``client.messages``."""
         return aiomqtt.Client(
             self.host, self.port, identifier=identifier, username=self.username,
             password=self.password.get_secret_value() if self.password else None,
             will=will, keepalive=self.keepalive_s, tls_context=self.tls_context(),
-            clean_session=True)
+            clean_session=True,
+            queue_type=None if on_message is None else dispatching(on_message))
+
+
+def dispatching(handler: Callable[[aiomqtt.Message], None]
+                ) -> type[asyncio.Queue[aiomqtt.Message]]:
+    """A ``queue_type`` for ``aiomqtt.Client`` that hands each received message to
+    ``handler`` at once instead of queueing it. Iterating ``client.messages`` costs a task and
+    an ``asyncio.wait`` per message; with this queue it yields nothing and only ends (with
+    MqttError) when the connection is lost, so ``async for _ in client.messages: pass`` waits
+    for that."""
+
+    class Dispatch(asyncio.Queue[aiomqtt.Message]):
+        def put_nowait(self, item: aiomqtt.Message) -> None:
+            handler(item)
+
+    return Dispatch
 
 
 def will(topic: str, message: Header) -> aiomqtt.Will:
