@@ -36,10 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from experiments.oracle import ExperimentKey, _Memo, _OracleSimulation
-from gateway.execution.commands import SolveRequest
-from gateway.planning.plan import Plan
-from sim_clients.des import SimConfig, Simulation
+from experiments.oracle import ExperimentKey, _ClairvoyantSimulation, _Memo
+from sim_clients.des import SimConfig
 from sim_clients.intruder import IntruderState
 from sim_clients.stays import StaySpec
 
@@ -56,7 +54,7 @@ def stay_grid(spec: StaySpec, points: int, samples: int = 100_000) -> tuple[floa
                  for k in range(points))
 
 
-class _Assumed(_OracleSimulation):
+class _Assumed(_ClairvoyantSimulation):
     """A sweep fork whose forced replan keeps the intruder's cell free until its robot's
     need plus ``assumed_ms`` (the true stay when None: the clairvoyant)."""
 
@@ -68,22 +66,12 @@ class _Assumed(_OracleSimulation):
         stay = None if intr is None else intr.config.stay_ms
         return (*super()._fingerprint(now), stay if self.assumed_ms is None else self.assumed_ms)
 
-    def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
+    def held_until(self, now: float) -> float:
         intr = self.intruder
-        if (intr is None or intr.cell is None or request.shadow
-                or intr.state not in (IntruderState.WAITING, IntruderState.PRESENT)
-                or intr.cell in request.starts):
-            return super().plan_for(request, now)
-        until = intr.leave_ms
-        if self.assumed_ms is not None and intr.config.stay_ms is not None:
-            until = max(now + 1.0, until - intr.config.stay_ms + self.assumed_ms)
-        request = dataclasses.replace(request, obstacles=((intr.cell, until),), start_ms=None)
-        key = (request.starts, request.headings,
-               tuple(request.forbidden(now, self.cfg.action_ms)))
-        got = self.memo.solves.get(key)
-        if got is None:
-            got = self.memo.solves[key] = Simulation.plan_for(self, request, now)
-        return got
+        assert intr is not None
+        if self.assumed_ms is None or intr.config.stay_ms is None:
+            return intr.leave_ms
+        return max(now + 1.0, intr.leave_ms - intr.config.stay_ms + self.assumed_ms)
 
 
 @dataclass(frozen=True)
