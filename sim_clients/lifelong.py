@@ -7,11 +7,14 @@ drawn per tick by :class:`DelayModel`) makes no progress. The planner runs perio
 assigns tasks to robots that have none (:mod:`gateway.execution.lifelong.tasks`), plans a window of
 ``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`): the
 lifelong executor's own call (``window_request``, answered by its ``WindowPlanner``), given
-the simulator's holds (actions of ``agent_counter`` ticks) and its delayed robots as the late,
-and its result is appended to the live ADG (:mod:`gateway.execution.lifelong.live_adg`) when it
-arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
-measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
-exactly reproducible). Meanwhile robots keep executing what is committed, so they never stop
+the simulator's holds (actions of ``agent_counter`` ticks) and its delayed robots as the late
+(whose actions not started yet are taken back first, with every action waiting on them:
+:meth:`~gateway.execution.lifelong.live_adg.LiveADG.retract`, as the LoRR Start-Kit's executor
+drops staged actions that cannot run), and its result is appended to the live ADG
+(:mod:`gateway.execution.lifelong.live_adg`) when it arrives: ``ceil(planner time / tick)``
+ticks after the call, its compute time charged as measured CPU time
+(``planner_time="measured"``), as zero, or as a fixed number of ms (both exactly
+reproducible). Meanwhile robots keep executing what is committed, so they never stop
 for a replan. A robot starts its next committed action at a tick only if the action's Type 2
 dependency finished at an earlier tick, so no two robots ever hold a cell at the same tick
 (a moving robot holds both cells of its move).
@@ -237,6 +240,12 @@ def run_lifelong(cfg: LifelongConfig,
             pending = None
         if pending is None and t >= next_call:
             cpu0 = time.thread_time()
+            # a delayed robot's actions not started yet are taken back, with every action
+            # that waits on them (a robot behind it), so the window plans those robots anew
+            # around it instead of leaving them queued behind it for the whole delay
+            adg.retract([(1 if progress[r] else 0) if delayed[r] else adg.pending(r)
+                         for r in range(n)], cell, heading)
+            book.retract(adg.appended, t)
             # a robot's new moves start when it can make them: it waits in the window for its
             # committed actions but one (the one it finishes while the next window arrives), so
             # others do not plan to enter cells it leaves long after the plan says; robots in a

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.execution.lifelong.errands import ErrandBook
 from gateway.execution.lifelong.tasks import (
     SCHEDULERS,
     NewTask,
@@ -143,3 +144,26 @@ def test_a_waiting_task_ages_before_it_is_overdue() -> None:
         pool.settle(now)
         assert not pool.overdue(pool.tasks[ids["A"]])
         assert shortest_first([(0, 0)], pool, line) == {0: ids[want]}
+
+
+def test_retracted_errands_go_back_to_the_plan_view() -> None:
+    """Robot 0's committed plan reaches both errands of task 0 (after its 2nd and 4th action)
+    and the first of task 1 (6th); its actions beyond the 3rd are taken back: the markers
+    beyond go, task 0 is planned again from its second errand, task 1 goes back to the pool;
+    then the robot does its 2nd action and the first errand is done as planned."""
+    pool = TaskPool([(10, 12), (20, 21), (30,)], reveal=3)
+    book = ErrandBook(pool, 1)
+    pool.assign(0, 0)
+    book.plan_task[0] = 0
+    states = [[s] for s in (9, 10, 11, 12)]  # one action a step, errands after steps 1 and 3
+    book.register([1], states, [[1, 3]], book.planned([[1, 3]]))
+    assert book.plan_task == [-1]  # the plan reaches the whole task
+    pool.assign(1, 0)
+    book.plan_task[0] = 1
+    book.register([4], [[12], [19], [20]], [[2]], book.planned([[2]]))
+    assert [m for m, _ in book.markers[0]] == [2, 4, 6]
+    book.retract([3], now=5)
+    assert list(book.markers[0]) == [(2, 0)]
+    assert (book.plan_task, book.plan_idx) == ([0], [1])
+    assert 1 in pool.open and pool.tasks[1].robot == -1
+    assert book.reach(0, 2) == [0] and book.goals() == [(12,)]
