@@ -345,7 +345,7 @@ def main() -> None:
                          "after hours of a shift (at most 100,000 are kept)")
     ap.add_argument("--json", action="store_true",
                     help="print one JSON line (the LoRR problems, --journal's or --scale's)")
-    ap.add_argument("--schedulers", default="shortest,greedy",
+    ap.add_argument("--schedulers", default="shortest",
                     help="LoRR problems: comma-separated schedulers to run (default all)")
     ap.add_argument("--lorr", type=Path, default=SHARED,
                     help="the shared LoRR problems (default ../shared/lorr beside the repo)")

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.execution.lifelong.tasks import SCHEDULERS
 from gateway.planning.lorr import read_problem
 from gateway.planning.movingai import format_map
 from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
@@ -22,8 +23,7 @@ SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "lorr"
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10_000), turning=st.booleans(), counter=st.integers(1, 3),
        p_delay=st.sampled_from([0.0, 0.05, 0.3]),
-       scheduler=st.sampled_from(["shortest", "greedy"]),
-       max_wait=st.sampled_from([None, 6, 30]))
+       scheduler=st.sampled_from(sorted(SCHEDULERS)), max_wait=st.sampled_from([None, 6, 30]))
 def test_no_robot_enters_a_held_cell_under_any_delays(seed: int, turning: bool, counter: int,
                                                       p_delay: float, scheduler: str,
                                                       max_wait: int | None) -> None:

@@ -15,7 +15,6 @@ from gateway.execution.lifelong.tasks import (
     SCHEDULERS,
     NewTask,
     TaskPool,
-    greedy_nearest,
     shortest_first,
     wait_percentiles,
 )
@@ -39,9 +38,6 @@ def test_schedulers() -> None:
     # tasks: id 0 starts at 10 (long: 10 -> 40), id 1 starts at 12 (short: 12 -> 13)
     pool = TaskPool([(10, 40), (12, 13)], reveal=2, leg=lambda a, b: abs(a - b))
     free = [(0, 9), (1, 12)]
-    # robots in order, by distance plus length: robot 0 takes the short task (3 + 1 against
-    # 1 + 30) although it is farther, robot 1 the long one
-    assert greedy_nearest(free, pool, line) == {0: 1, 1: 0}
     # the cheapest pair first: robot 1 on the short task's first errand (0 + 1), then robot 0
     # on the long one (1 + 30)
     assert shortest_first(free, pool, line) == {1: 1, 0: 0}
@@ -81,9 +77,9 @@ def test_priority_still_beats_an_overdue_task() -> None:
     old, _ = pool.submit([NewTask((10, 40))], now=0.0)
     urgent, _ = pool.submit([NewTask((30, 90), priority=1)], now=20.0)
     pool.settle(25.0)  # the old one is overdue, the urgent one is not
-    for scheduler in (greedy_nearest, shortest_first):
-        assert scheduler([(0, 11)], pool, line) == {0: urgent[0]}
-    assert greedy_nearest([(0, 11), (1, 12)], pool, line) == {0: urgent[0], 1: old[0]}
+    assert shortest_first([(0, 11)], pool, line) == {0: urgent[0]}
+    # the urgent task's pairs first: robot 1 is nearer to its first errand (18 against 19)
+    assert shortest_first([(0, 11), (1, 12)], pool, line) == {1: urgent[0], 0: old[0]}
 
 
 def test_overdue_tasks_go_longest_waiting_first() -> None:
@@ -113,7 +109,7 @@ def test_wait_percentiles_by_nearest_rank() -> None:
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 60), st.integers(0, 60)), min_size=1, max_size=30),
        st.integers(1, 4), st.integers(1, 8), st.integers(1, 20),
-       st.sampled_from(["greedy", "shortest"]))
+       st.sampled_from(sorted(SCHEDULERS)))
 def test_the_bound_holds_under_a_stream_of_cheaper_tasks(
         errands: list[tuple[int, int]], free_per_step: int, reveal: int, bound: int,
         name: str) -> None:

@@ -664,42 +664,6 @@ def _aging(pool: TaskPool, ids: npt.NDArray[np.int64], span: int) -> npt.NDArray
     return np.rint(frac * span).astype(np.int64)
 
 
-def greedy_nearest(free: Sequence[tuple[int, int]], pool: TaskPool,
-                   distance_from: DistanceFrom) -> dict[int, int]:
-    """Each free robot in turn takes the open task it would finish soonest: the distance to
-    the task's first errand plus the task's own length (among the most urgent open tasks
-    left). Weighing the distance alone took tasks whose length the robot then spent on: on
-    the shared LoRR problems (600 ticks, 3 delay seeds) random-400 finished 342 tasks
-    against 423 by the whole task, room-150 81 against 93."""
-    if not free or not pool.open:
-        return {}
-    ids = np.fromiter(pool.open, np.int64, len(pool.open))
-    first = [pool.open[int(i)].errands[0] for i in ids]
-    cost = distance_from([cell for _, cell in free], first).astype(np.int64)
-    unreachable = cost < 0
-    # after distance_from: its tables may serve ``leg``
-    cost += np.fromiter((pool.length(pool.open[int(i)]) for i in ids), np.int64,
-                        ids.size)[None, :]
-    reach = cost[~unreachable]
-    if reach.size:
-        cost -= _aging(pool, ids, int(reach.max() - reach.min()))[None, :]
-    cost[unreachable] = np.iinfo(np.int32).max
-    rank = _urgency_rank(pool, ids)
-    if rank is not None:
-        cost += rank[None, :] * _CLASS
-        cost[unreachable] = (int(rank.max()) + 1) * _CLASS
-    out: dict[int, int] = {}
-    taken = np.zeros(ids.size, dtype=bool)
-    for row, (robot, _) in enumerate(free):
-        if taken.all():
-            break
-        c = np.where(taken, np.iinfo(np.int64).max, cost[row])
-        j = int(np.argmin(c))
-        taken[j] = True
-        out[robot] = int(ids[j])
-    return out
-
-
 def shortest_first(free: Sequence[tuple[int, int]], pool: TaskPool,
                    distance_from: DistanceFrom) -> dict[int, int]:
     """Globally cheapest pairs first (a greedy matching, better than robot order), a pair
@@ -734,9 +698,10 @@ _UNREACHABLE = np.iinfo(np.int64).max // 4
 """The matching's distance to a task a robot cannot reach (its pairs come after all others)."""
 
 
-SCHEDULERS: dict[str, Scheduler] = {"greedy": greedy_nearest, "shortest": shortest_first}
-"""Schedulers by name (``fleetgate lifelong --scheduler``). There was a ``mincost``: the
-greedy matching by the distance to the first errand alone. It cost as much as ``shortest``
-and finished fewer tasks on every shared LoRR problem (600 ticks, 3 delay seeds: room
-64-82 against 114-122, random 330-355 against 442-460, below the Start-Kit's 107 and 409), so
-it was dropped (issue 28)."""
+SCHEDULERS: dict[str, Scheduler] = {"shortest": shortest_first}
+"""Schedulers by name (``fleetgate lifelong --scheduler``). Two were dropped (issue 28), each
+below ``shortest`` on every shared LoRR problem (600 ticks, 3 delay seeds): ``mincost`` (the
+greedy matching by the distance to the first errand alone: room 64-82 against 114-122, random
+330-355 against 442-460) and ``greedy`` (each free robot in turn takes the task it would
+finish soonest, the Start-Kit's default scheduler: maze 1.12, room 0.99 (one seed 0.87),
+random 1.05, city 4.4 of the Start-Kit against 1.40, 1.11, 1.12, 6.0)."""
