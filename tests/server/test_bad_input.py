@@ -14,7 +14,6 @@ from typing import Any
 import pytest
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import (
     MAX_MESSAGE_BYTES,
@@ -28,7 +27,7 @@ from protocol import (
     Started,
     State,
 )
-from tests.server.conftest import LAB_PATHS, Connect, connector, make_config
+from tests.server.conftest import LAB_PATHS, virtual_gateway
 from tests.server.robots import Peer, TestRobot
 
 pytestmark = pytest.mark.looptime  # virtual time over real websockets
@@ -43,14 +42,6 @@ class Fleet:
     first: Action
     others: list[TestRobot]
     tasks: list[asyncio.Task[None]]
-
-
-@contextlib.asynccontextmanager
-async def virtual_gateway(**config: Any) -> AsyncIterator[tuple[Gateway, Connect]]:
-    """A listening gateway on the test's virtual time, and its websocket connector."""
-    async with Gateway(make_config(**config), clock=VirtualClock()) as gw:
-        await gw.listen()
-        yield gw, connector(gw)
 
 
 @contextlib.asynccontextmanager
