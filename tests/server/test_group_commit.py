@@ -1,10 +1,12 @@
-"""Group commit: what the owner task finds queued together is committed in one transaction
-(at most ``GROUP_COMMIT_ITEMS`` items), and nothing is answered before its commit. The oracle
-for "durable" is the journal file read through a SQLite connection of its own."""
+"""What makes a WMS's submissions cheap: a group commit (what the owner task finds queued
+together is committed in one transaction, at most ``GROUP_COMMIT_ITEMS`` items, and nothing is
+answered before its commit: the oracle for "durable" is the journal file read through a SQLite
+connection of its own), and the run's collector settings from a lifelong gateway's start."""
 
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import math
 import sqlite3
@@ -13,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from gateway.execution.lifelong.tasks import KEEP, NewTask, TaskPool
+from gateway.server import gc_tuning
 from gateway.server.engine import GROUP_COMMIT_ITEMS
 from gateway.server.gateway import Gateway
 from gateway.server.task_api.models import MAX_BATCH
@@ -77,3 +80,17 @@ async def test_concurrent_http_submissions_are_answered_only_once_durable(
             assert reply.json()["tasks"][0]["id"] in on_disk(journal)
 
         await asyncio.gather(*(submit(k) for k in range(30)))
+
+
+async def test_a_lifelong_gateway_collects_rarely_before_its_shift_starts() -> None:
+    """A WMS filling a shift that has not started is served with the run's collector
+    settings: the startup heap frozen, young passes rarely (not every 700 allocations)."""
+    gc_tuning.restore_defaults()
+    try:
+        assert gc.get_threshold() == gc_tuning.GC_DEFAULT_THRESHOLDS
+        async with Gateway(lifelong_config()) as gw:
+            assert gw.engine.lifelong is not None and not gw.engine.current_run.ticking
+            assert gc.get_threshold() == gc_tuning.GC_THRESHOLDS
+            assert gc.get_freeze_count() > 0
+    finally:
+        gc_tuning.restore_defaults()
