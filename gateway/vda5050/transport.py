@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import secrets
 import time
 from types import TracebackType
 from typing import TYPE_CHECKING
@@ -71,10 +72,12 @@ class VdaTransport:
         masters: list[VehicleMaster] = []
         lifelong = gateway.config.lifelong is not None
         errands = ShiftErrands(gateway.engine, {v.robot_id for v in config.vehicles})
+        instance = secrets.token_hex(4) + "."  # this start's instant action ids are new
         for v in config.vehicles:
             master = VehicleMaster(config.topics(v), config.version_of(v), nodes,
                                    resend_s=config.resend_s, continuous=lifelong,
-                                   errand=errands if lifelong else None, ids=self._ids)
+                                   errand=errands if lifelong else None, ids=self._ids,
+                                   instance=instance)
             masters.append(master)
             self.vehicles[id(master)] = _Vehicle(VdaRobot(v.robot_id, master, turning=turning,
                                                           plan_of=self._plan_of))

@@ -63,6 +63,7 @@ from protocol.vda5050.models import (
     Node,
     Order,
     State,
+    VdaError,
     VdaVersion,
 )
 from protocol.vda5050.nodes import NodeMap
@@ -106,6 +107,16 @@ class Errand:
                              ActionParameter(key="stationType", value="floor"),
                              ActionParameter(key="loadType", value="default"),
                              ActionParameter(key="loadId", value=self.load_id)])
+
+
+def _stops(error: VdaError) -> bool:
+    """Whether ``error`` keeps the vehicle from driving on: a WARNING (an obstacle, section
+    6.10.5) or a FATAL error (it waits for a human), but not an order's rejection (a refusal)
+    nor a complaint about an instant action (``noOrderToCancel`` refers to its actionId; the
+    vehicle is not stopped by it)."""
+    if error.error_type in REJECTIONS:
+        return False
+    return not any(r.reference_key == "actionId" for r in error.error_references or ())
 
 
 def consecutive_ids(key: str, first: int, count: int) -> list[str | None]:
@@ -210,8 +221,14 @@ class VehicleMaster:
     def __init__(self, topics: VehicleTopics, version: VdaVersion, nodes: NodeMap, *,
                  resend_s: float = 1.0, continuous: bool = False,
                  errand: Callable[[Action], Sequence[Errand]] | None = None,
-                 ids: Callable[[str, int, int], list[str | None]] = consecutive_ids) -> None:
+                 ids: Callable[[str, int, int], list[str | None]] = consecutive_ids,
+                 instance: str = "") -> None:
         self.topics = topics
+        self.instance = instance
+        """Part of every instant action's ``actionId``: one per master instance (the gateway
+        gives a fresh one each start), so that a restarted master never reuses an id the
+        vehicle still lists (``actionId`` is unique, section 6.8; a reused ``cancelOrder-1``
+        would look FINISHED at once)."""
         self.version = version
         self.nodes = nodes
         self.resend_s = resend_s
@@ -429,7 +446,7 @@ class VehicleMaster:
 
     def _instant_action(self, action_type: str, now_s: float) -> str:
         self._instant += 1
-        action_id = f"{action_type}-{self._instant}"
+        action_id = f"{action_type}-{self.instance}{self._instant}"
         self._emit(Publish("instantActions",
                            self._instant_message(action_type, action_id, now_s)))
         return action_id
@@ -542,8 +559,7 @@ class VehicleMaster:
 
     def _progress(self, order: _Order, msg: State) -> None:
         reached = msg.last_node_sequence_id
-        obstacle = msg.safety_state.field_violation or any(
-            e.error_level == "WARNING" and e.error_type not in REJECTIONS for e in msg.errors)
+        obstacle = msg.safety_state.field_violation or any(map(_stops, msg.errors))
         moving = msg.driving and not msg.paused
         status: dict[str, str] | None = None
         for i, step in enumerate(order.steps):
