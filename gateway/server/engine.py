@@ -28,7 +28,6 @@ collector (:mod:`gateway.server.gc_tuning`, hooked by the :class:`~gateway.serve
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import math
 import time
@@ -52,6 +51,7 @@ from gateway.execution.errors import ExecutionError
 from gateway.execution.trace_records import summary_record
 from gateway.planning.solver import Place
 from gateway.runtime.journal import IntruderRecord, Journal, ReportRecord, RunRecord
+from gateway.runtime.trace import trace_line
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
@@ -581,7 +581,7 @@ class Engine:
         summary = summary_record(c.soc_ms, c.makespan_ms)
         self.feed.write_trace(summary)
         if self.replaying:
-            self.replayed_trace.append(json.dumps(summary) + "\n")
+            self.replayed_trace.append(trace_line(summary))
             self.finished_event.set()
             return
         self.feed.close_trace()
