@@ -304,6 +304,7 @@ _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 
 
 _EVENTS = frozenset(get_args(ExecutorEvent))
+_EMPTY = '""'  # the JSON of an empty reason (every report but a refusal)
 _TIME_KINDS = frozenset(get_args(TimeRecord.model_fields["kind"].annotation))
 
 
@@ -346,8 +347,9 @@ def report_json(event: str, robot: int, plan: int, index: int, t_ms: float,
             and type(index) is int and _finite(t_ms) and type(reason) is str
             and reason.isascii()):
         return None
+    why = json.dumps(reason) if reason else _EMPTY
     return (f'{{"kind":"report","event":"{event}","robot":{robot},"plan":{plan},'
-            f'"index":{index},"t_ms":{t_ms!r},"reason":{json.dumps(reason)}}}')
+            f'"index":{index},"t_ms":{t_ms!r},"reason":{why}}}')
 
 
 class JournalError(Exception):
