@@ -484,7 +484,7 @@ class Engine:
             return
         gs.accepted(r)
         if r.kind == "finished":
-            self.metrics.finished.inc()
+            self.metrics.finished_pending += 1
         elif r.kind == "refused":
             log.warning("robot refused an action", extra={
                 "robot": r.robot, "action": r.action_id, "reason": r.reason})
@@ -570,7 +570,7 @@ class Engine:
         gs = self.robot(c.robot)
         gs.dispatch(fields)
         self.flush(gs)
-        self.metrics.dispatched.inc()
+        self.metrics.dispatched_pending += 1
         if self._unlocked_at is not None:
             latency = (time.perf_counter() - self._unlocked_at) * 1000.0
             self.latencies_ms.append(latency)
