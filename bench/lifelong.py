@@ -88,6 +88,7 @@ from sim_clients.lifelong_scale import (
     ARCHIVE_ENV,
     INSTANCES,
     MILLION,
+    STATION_CAP,
     archive_dir,
     scale_line,
     scale_one,
@@ -345,7 +346,7 @@ def main() -> None:
                          "after hours of a shift (at most 100,000 are kept)")
     ap.add_argument("--json", action="store_true",
                     help="print one JSON line (the LoRR problems, --journal's or --scale's)")
-    ap.add_argument("--schedulers", default="shortest,greedy",
+    ap.add_argument("--schedulers", default="shortest",
                     help="LoRR problems: comma-separated schedulers to run (default all)")
     ap.add_argument("--lorr", type=Path, default=SHARED,
                     help="the shared LoRR problems (default ../shared/lorr beside the repo)")
@@ -361,6 +362,9 @@ def main() -> None:
     ap.add_argument("--reassign", type=int, default=LifelongConfig.reassign,
                     help="--scale: planning calls between reassignments of unstarted tasks "
                          "(0: never)")
+    ap.add_argument("--station-cap", type=int, default=STATION_CAP,
+                    help="--scale: robots sent to one first-errand cell at a time (0: no "
+                         "bound)")
     ap.add_argument("--scale-only", default=",".join((*INSTANCES, MILLION)), metavar="NAMES",
                     help="--scale: comma-separated instances to run (default all: "
                          f"{', '.join((*INSTANCES, MILLION))})")
@@ -369,7 +373,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.scale_one:
         print(json.dumps(scale_one(args.scale_one, archive_dir(args.archive), args.ticks,
-                                   args.reassign)))
+                                   args.reassign, args.station_cap or None)))
         return
     if args.scale:
         names = [n for n in args.scale_only.split(",") if n]
@@ -377,7 +381,7 @@ def main() -> None:
         if unknown:
             ap.error(f"--scale-only: unknown instance {unknown[0]!r}")
         scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign,
-                            [sys.executable, __file__], names)
+                            [sys.executable, __file__], names, args.station_cap or None)
         print(json.dumps(scaled) if args.json else scale_line(scaled))
         return
     if args.journal:

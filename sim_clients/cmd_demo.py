@@ -177,6 +177,7 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
     import asyncio
 
     from fleetgate.userio.signals import StopSignals
+    from gateway.server.clock import RealClock, VirtualClock
     from gateway.server.gateway import Gateway
     from sim_clients.connect import websocket_connector
     from sim_clients.fleet import fleet_for, run_in_process
@@ -184,7 +185,9 @@ async def _demo(config: GatewayConfig, problem: Problem, args: argparse.Namespac
 
     stop = StopSignals()
     agents = problem.instance.num_agents
-    async with Gateway(config) as gateway, contextlib.AsyncExitStack() as vehicles:
+    clock = VirtualClock(config.speed) if args.virtual_time else RealClock(config.speed)
+    async with Gateway(config, clock=clock) as gateway, \
+            contextlib.AsyncExitStack() as vehicles:
         port = await gateway.listen()
         host = config.host
         token = config.tokens.operators[0]
@@ -240,10 +243,14 @@ def _run(args: argparse.Namespace) -> int:
     from gateway.commands.instance_args import instance_from_args, starts_from_args
     from gateway.planning.plan import NoSolution
     from gateway.planning.seeds import run_seed
+    from gateway.server.clock import run_paced
     from gateway.server.config import ConfigError, load_config
     from gateway.server.logs import configure_logging
     from gateway.server.planner import Problem
 
+    if args.virtual_time and (args.lifelong or args.vda5050):
+        raise UsageError("--virtual-time runs a one-shot demo over websockets, not "
+                         f"{'--lifelong' if args.lifelong else '--vda5050'}")
     if args.lifelong:
         if args.vda5050:
             raise UsageError("--vda5050 runs one-shot plans, not --lifelong (yet)")
@@ -288,7 +295,8 @@ def _run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as broker:
         vda = demo_vda_settings(args, instance.num_agents, broker)
         try:
-            return asyncio.run(_demo(config, problem, args, status, vda))
+            demo = _demo(config, problem, args, status, vda)
+            return run_paced(demo) if args.virtual_time else asyncio.run(demo)
         except OSError as exc:
             raise UsageError(f"cannot listen on {config.host}:{config.port}: {exc.strerror}"
                              ) from None
@@ -346,6 +354,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         '"makespan_ms", "plan_soc", "replans", "replan_at_ms", "solver_ms", '
                         '"collisions"}')
     p.add_argument("--trace", metavar="FILE.jsonl", help="write the JSON-lines trace here")
+    p.add_argument("--virtual-time", action="store_true",
+                   help="simulated time held to the wall clock's pace: every run of a seed "
+                        "has the same times whatever else the machine runs (a starved "
+                        "process runs slower instead of late); a replan takes no plan time")
     add_lifelong_arguments(p)
     add_instance_arguments(p)
     add_motion_arguments(p, default="omni")

@@ -10,7 +10,7 @@ import sys
 from fleetgate.userio.files import check_writable, write_text
 from gateway.runtime.exits import EXIT_OK, UsageError
 
-SCHEDULER_CHOICES = ("greedy", "shortest")
+SCHEDULER_CHOICES = ("shortest",)
 """``gateway.execution.lifelong.tasks.SCHEDULERS`` (a test checks), named here so --help stays
 light."""
 MAX_WAIT_TICKS = 600

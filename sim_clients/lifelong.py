@@ -7,11 +7,14 @@ drawn per tick by :class:`DelayModel`) makes no progress. The planner runs perio
 assigns tasks to robots that have none (:mod:`gateway.execution.lifelong.tasks`), plans a window of
 ``window`` timesteps from the robots' committed end states (:mod:`gateway.planning.pibt`): the
 lifelong executor's own call (``window_request``, answered by its ``WindowPlanner``), given
-the simulator's holds (actions of ``agent_counter`` ticks) and its delayed robots as the late,
-and its result is appended to the live ADG (:mod:`gateway.execution.lifelong.live_adg`) when it
-arrives: ``ceil(planner time / tick)`` ticks after the call, its compute time charged as
-measured CPU time (``planner_time="measured"``), as zero, or as a fixed number of ms (both
-exactly reproducible). Meanwhile robots keep executing what is committed, so they never stop
+the simulator's holds (actions of ``agent_counter`` ticks) and its delayed robots as the late
+(whose actions not started yet are taken back first, with every action waiting on them:
+:meth:`~gateway.execution.lifelong.live_adg.LiveADG.retract`, as the LoRR Start-Kit's executor
+drops staged actions that cannot run), and its result is appended to the live ADG
+(:mod:`gateway.execution.lifelong.live_adg`) when it arrives: ``ceil(planner time / tick)``
+ticks after the call, its compute time charged as measured CPU time
+(``planner_time="measured"``), as zero, or as a fixed number of ms (both exactly
+reproducible). Meanwhile robots keep executing what is committed, so they never stop
 for a replan. A robot starts its next committed action at a tick only if the action's Type 2
 dependency finished at an earlier tick, so no two robots ever hold a cell at the same tick
 (a moving robot holds both cells of its move).
@@ -121,6 +124,8 @@ class LifelongConfig:
     max_wait: int | None = MAX_WAIT_TICKS  # fairness bound (ticks; None: none), TaskPool.max_wait
     reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
     reassign_batch: int = REASSIGN_BATCH  # robots whose unstarted task a reassignment releases
+    station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
+    warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     seed: int = 0
     output_window: int = 1000
 
@@ -143,6 +148,10 @@ class LifelongResult:
     max_pending: int = 0
     calls: int = 0
     waits: list[float] = field(default_factory=list)
+    warm_times: list[float] = field(default_factory=list)
+    """CPU seconds after each call computing the tables of the robots' later errands (the
+    gateway's planner worker does this between calls, :class:`~gateway.server.runs.
+    planner_process.Warm`; here on the second core: not charged to the call)."""
     extra: dict[str, float] = field(default_factory=dict)
 
 
@@ -187,7 +196,7 @@ def run_lifelong(cfg: LifelongConfig,
                                                  / counter),
                               space=None if space.exact or space.compact else space)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
-                    max_wait=cfg.max_wait)
+                    max_wait=cfg.max_wait, station_cap=cfg.station_cap)
     book = ErrandBook(pool, n)
     # LoRR's preprocessing (up to 30 s before the first tick): the scheduler's tables of the
     # revealed tasks' errands but the last (their first errands and their legs), which the
@@ -207,6 +216,7 @@ def run_lifelong(cfg: LifelongConfig,
     released: list[tuple[int, int, tuple[int, ...]]] = []
     recorded: set[int] = set()
     planner_times: list[float] = []
+    warm_times: list[float] = []
     pending: _Pending | None = None
     next_call = 0
     sum_of_cost = 0
@@ -237,6 +247,12 @@ def run_lifelong(cfg: LifelongConfig,
             pending = None
         if pending is None and t >= next_call:
             cpu0 = time.thread_time()
+            # a delayed robot's actions not started yet are taken back, with every action
+            # that waits on them (a robot behind it), so the window plans those robots anew
+            # around it instead of leaving them queued behind it for the whole delay
+            adg.retract([(1 if progress[r] else 0) if delayed[r] else adg.pending(r)
+                         for r in range(n)], cell, heading)
+            book.retract(adg.appended, t)
             # a robot's new moves start when it can make them: it waits in the window for its
             # committed actions but one (the one it finishes while the next window arrives), so
             # others do not plan to enter cells it leaves long after the plan says; robots in a
@@ -261,6 +277,10 @@ def run_lifelong(cfg: LifelongConfig,
             tasks_of = book.planned(win.reached)
             cpu = time.thread_time() - cpu0
             planner_times.append(cpu)
+            if cfg.warm:  # tables for after the robots' present errands, before they are due
+                cpu0 = time.thread_time()
+                space.prefetch([c for g in book.goals() for c in g[1:]])
+                warm_times.append(time.thread_time() - cpu0)
             delay_ticks = math.ceil(_planner_ms(cfg.planner_time, cpu) / cfg.tick_ms)
             pending = _Pending(t + delay_ticks, win.states, win.reached, tasks_of)
             next_call = t + cfg.period
@@ -311,6 +331,7 @@ def run_lifelong(cfg: LifelongConfig,
         events=events, tasks=released, planner_times=planner_times,
         delay_intervals=delays.intervals, starts=starts_out, sum_of_cost=sum_of_cost,
         max_pending=max_pending, calls=len(planner_times), waits=pool.waits(cfg.ticks),
+        warm_times=warm_times,
         extra={"delayed": idle[0] / (n * cfg.ticks), "waiting": idle[1] / (n * cfg.ticks),
                "no_work": idle[2] / (n * cfg.ticks), "preprocess_s": preprocess_s})
 

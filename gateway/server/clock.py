@@ -15,6 +15,9 @@ virtual time. ``run_measured`` is the same for a planner that runs in another pr
 reports its own CPU time (the lifelong planner process): a thread waits for it in real time;
 under virtual time the loop waits for it inline and charges the CPU time it reported.
 Plan time can run ``speed`` times faster than the loop clock (the demo's ``--speed``).
+:func:`run_paced` is virtual time held back to the wall clock: what runs in the loop sees
+exactly the times of a virtual run, whatever the machine's load, and a person watching sees it
+at the wall clock's pace (slower, never faster, when the process is starved of CPU).
 """
 
 from __future__ import annotations
@@ -171,3 +174,34 @@ def run_virtual(main: Coroutine[Any, Any, T]) -> T:
 
     with asyncio.Runner(loop_factory=lambda: looptime.new_event_loop(start=0.0)) as runner:
         return runner.run(main)
+
+
+PACE_PERIOD_S = 0.01
+"""How often (loop time) :func:`run_paced` holds virtual time back to the wall clock."""
+
+
+async def _pace() -> None:
+    """Keep the loop's virtual time from running ahead of the wall clock: each
+    :data:`PACE_PERIOD_S` of loop time lasts at least as long on the wall clock (the loop is
+    blocked for the rest: virtual time cannot move meanwhile). A period the starved process
+    took longer for is not made up by running faster later."""
+    while True:
+        wall_0 = time.monotonic()
+        await asyncio.sleep(PACE_PERIOD_S)
+        rest = PACE_PERIOD_S - (time.monotonic() - wall_0)
+        if rest > 0:
+            time.sleep(rest)
+
+
+def run_paced(main: Coroutine[Any, Any, T]) -> T:
+    """Run ``main`` like :func:`run_virtual`, its virtual time paced by the wall clock."""
+
+    async def paced() -> T:
+        pacer = asyncio.ensure_future(_pace())
+        try:
+            return await main
+        finally:
+            pacer.cancel()
+            await asyncio.gather(pacer, return_exceptions=True)
+
+    return run_virtual(paced())

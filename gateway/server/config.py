@@ -100,7 +100,7 @@ class LifelongSettings(BaseModel):
     """Shelf blocks (x, y) of the generated warehouse; (13, 25) is about 10,000 free cells."""
     seed: int = 0
     """Seed of the generated warehouse and of the planner's tie-breaks."""
-    scheduler: Literal["greedy", "shortest"] = "shortest"
+    scheduler: Literal["shortest"] = "shortest"
     max_wait_ms: float | None = Field(default=45_000.0, gt=0)
     """Fairness bound: a task that has waited this long for a robot goes before the tasks of
     its priority that have not, and waiting tasks age towards it (None: no bound; then a far

@@ -3,12 +3,15 @@ TLS, ``mqtts://host:port``, with optional username and password (see docs/vda505
 
 from __future__ import annotations
 
+import asyncio
 import ssl
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 from urllib.parse import urlsplit
 
 import aiomqtt
+import paho.mqtt.client as paho
 from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator
 
 from protocol.vda5050.models import Header, dump
@@ -72,13 +75,32 @@ class BrokerConfig(BaseModel):
                                     str(self.key_file) if self.key_file else None)
         return context
 
-    def client(self, identifier: str, will: aiomqtt.Will | None = None) -> aiomqtt.Client:
-        """An (unconnected) client; use it as ``async with``."""
+    def client(self, identifier: str, will: aiomqtt.Will | None = None,
+               on_message: Callable[[aiomqtt.Message], None] | None = None) -> aiomqtt.Client:
+        """An (unconnected) client; use it as ``async with``. ``on_message``: every message
+        received goes to it as it is read (see :func:`dispatching`), not to
+        ``client.messages``."""
         return aiomqtt.Client(
             self.host, self.port, identifier=identifier, username=self.username,
             password=self.password.get_secret_value() if self.password else None,
             will=will, keepalive=self.keepalive_s, tls_context=self.tls_context(),
-            clean_session=True)
+            clean_session=True,
+            queue_type=None if on_message is None else dispatching(on_message))
+
+
+def dispatching(handler: Callable[[aiomqtt.Message], None]
+                ) -> type[asyncio.Queue[aiomqtt.Message]]:
+    """A ``queue_type`` for ``aiomqtt.Client`` that hands each received message to
+    ``handler`` at once instead of queueing it. Iterating ``client.messages`` costs a task and
+    an ``asyncio.wait`` per message; with this queue it yields nothing and only ends (with
+    MqttError) when the connection is lost, so ``async for _ in client.messages: pass`` waits
+    for that."""
+
+    class Dispatch(asyncio.Queue[aiomqtt.Message]):
+        def put_nowait(self, item: aiomqtt.Message) -> None:
+            handler(item)
+
+    return Dispatch
 
 
 def will(topic: str, message: Header) -> aiomqtt.Will:
@@ -86,8 +108,15 @@ def will(topic: str, message: Header) -> aiomqtt.Will:
     return aiomqtt.Will(topic, dump(message), qos=QOS["connection"], retain=True)
 
 
-async def publish(client: aiomqtt.Client, topic: str, name: TopicName,
-                  message: Header) -> None:
-    """Publish ``message`` on ``topic`` with the QoS and retain flag the standard sets for
-    topic ``name``."""
-    await client.publish(topic, dump(message), qos=QOS[name], retain=name in RETAINED)
+def publish(client: aiomqtt.Client, topic: str, name: TopicName, message: Header) -> None:
+    """Queue ``message`` for ``topic`` with the QoS and retain flag the standard sets for topic
+    ``name``; the client's socket writer sends it (in order, with whatever else is queued).
+
+    Not awaited: ``aiomqtt.Client.publish`` waits until paho has written each message, even
+    at QoS 0, one event-loop round trip and a task per message; a master sending hundreds a
+    second fell behind and its queue grew with the run's length. paho's own publish queues
+    the packet and aiomqtt's writer callback flushes the queue when the socket is writable
+    (QoS 1 is retried by paho). MqttCodeError if the client is not connected."""
+    info = client._client.publish(topic, dump(message), QOS[name], name in RETAINED)
+    if info.rc != paho.MQTT_ERR_SUCCESS:
+        raise aiomqtt.MqttCodeError(info.rc, "Could not publish message")

@@ -61,7 +61,7 @@ class MasterClient:
 
     async def run(self) -> None:
         """Connect, subscribe and serve until cancelled."""
-        async with self.broker.client(self.identifier) as client:
+        async with self.broker.client(self.identifier, on_message=self._receive) as client:
             for master in self.masters.values():
                 for name in VEHICLE_PUBLISHES:
                     if name != "visualization":
@@ -70,8 +70,8 @@ class MasterClient:
             writer = asyncio.create_task(self._write(client))
             ticker = asyncio.create_task(self._tick())
             try:
-                async for message in client.messages:
-                    self._receive(message)
+                async for _ in client.messages:  # ends with the connection: messages go
+                    pass  # to _receive as they are read (BrokerConfig.client's on_message)
             finally:
                 writer.cancel()
                 ticker.cancel()
@@ -80,9 +80,16 @@ class MasterClient:
                         await task
 
     async def _write(self, client: aiomqtt.Client) -> None:
+        """Hand everything queued to the client at each wake-up (one batch, not one loop
+        round trip per message)."""
+        out = self._out
         while True:
-            master, item = await self._out.get()
-            await publish(client, master.topics.topic(item.topic), item.topic, item.message)
+            master, item = await out.get()
+            while True:
+                publish(client, master.topics.topic(item.topic), item.topic, item.message)
+                if out.empty():
+                    break
+                master, item = out.get_nowait()
 
     async def _tick(self) -> None:
         while True:

@@ -120,13 +120,43 @@ def test_held_robot_moves_after_its_hold() -> None:
     LiveADG(grid, [0, 9]).append([list(row) for row in win.states])
 
 
+def test_retract_takes_back_what_waits_on_it() -> None:
+    """Robot 1 follows robot 0 along the line: taking back robot 0's moves takes back robot
+    1's too (they wait on them), both end where they stand, and a new window's entry into a
+    cell depends on the new leaver, not on an action taken back."""
+    adg = LiveADG(LINE, [1, 0])
+    adg.append([[1, 0], [2, 0], [3, 1], [4, 2]])
+    assert [len(q) for q in adg.queue] == [3, 2]
+    assert adg.retract([0, 5], [1, 0]) == [0, 0]
+    assert adg.end_cell == [1, 0] and adg.appended == [0, 0] and adg.n_pending() == 0
+    adg.append([[1, 0], [1, 0], [2, 0], [2, 1]])  # robot 0 leaves 1 again, robot 1 enters
+    entering = adg.queue[1][0]
+    assert (entering.cell, entering.dep_robot, entering.dep_seq) == (1, 0, 0)
+
+
+def test_retract_keeps_started_work_and_repairs_leavers() -> None:
+    """Robot 0 drives 1 -> 2 -> 1 -> 2 and keeps only its started first move: cell 1's last
+    leaver becomes that kept move again (not its third move, taken back), so robot 1's new
+    entry into cell 1 waits on the kept move; nothing taken back, nothing changes."""
+    adg = LiveADG(LINE, [1, 0])
+    adg.append([[1, 0], [2, 0], [1, 0], [2, 0]])
+    assert adg.retract([1, 5], [1, 0]) == [1, 0]
+    assert adg.end_cell == [2, 0] and adg.appended == [1, 0]
+    adg.append([[2, 0], [2, 1], [3, 1]])
+    entering = adg.queue[1][0]
+    assert (entering.cell, entering.dep_robot, entering.dep_seq) == (1, 0, 0)
+    assert adg.retract([5, 5], [1, 0]) == [2, 1]  # nothing to take back: unchanged
+    assert adg.n_pending() == 3
+
+
 @settings(max_examples=15, deadline=None)
 @given(seed=st.integers(0, 10_000), turning=st.booleans(), k=st.integers(1, 3),
-       p_delay=st.sampled_from([0.0, 0.1, 0.4]), exact=st.booleans())
+       p_delay=st.sampled_from([0.0, 0.1, 0.4]), exact=st.booleans(), retract=st.booleans())
 def test_appending_while_executing_stays_acyclic_and_collision_free(
-        seed: int, turning: bool, k: int, p_delay: float, exact: bool) -> None:
+        seed: int, turning: bool, k: int, p_delay: float, exact: bool, retract: bool) -> None:
     """Windows planned from the committed end states (held for the backlog) and appended while
-    the fleet executes under random delays: every dependency points to an earlier action (the
+    the fleet executes under random delays (``retract``: before each window, a random share of
+    the actions not started is taken back): every dependency points to an earlier action (the
     graph is acyclic), and no two robots ever hold a cell at the same tick (a moving robot
     holds both cells of its move); with exact turning tables or the cells' lower bound."""
     n = 8
@@ -137,9 +167,15 @@ def test_appending_while_executing_stays_acyclic_and_collision_free(
     adg = LiveADG(problem.grid, problem.starts, [0] * n if turning else None)
     goals = [list(problem.tasks[r]) for r in range(n)]
     cell = list(problem.starts)
+    heading = [0] * n
     progress = [0] * n
     for t in range(120):
         if t % 4 == 0:
+            if retract:
+                keep = [(progress[r] > 0) + int(rng.integers(0, 3)) for r in range(n)]
+                kept = adg.retract(keep, cell, heading)
+                assert all(kept[r] >= (progress[r] > 0) for r in range(n))  # started stay
+                goals = [list(problem.tasks[r]) for r in range(n)]
             states = [space.state(adg.end_cell[r], adg.end_heading[r]) for r in range(n)]
             hold = [adg.pending(r) - 1 for r in range(n)]
             win = planner.plan(states, goals, 3, hold)
@@ -169,5 +205,6 @@ def test_appending_while_executing_stays_acyclic_and_collision_free(
             if progress[r] or starting[r]:
                 progress[r] += 1
                 if progress[r] == k:
-                    cell[r] = adg.finish(r).cell
+                    done = adg.finish(r)
+                    cell[r], heading[r] = done.cell, done.heading
                     progress[r] = 0

@@ -19,7 +19,6 @@ from gateway.execution.lifelong.tasks import (
     TaskError,
     TaskNotFound,
     TaskPool,
-    greedy_nearest,
     shortest_first,
 )
 
@@ -66,11 +65,9 @@ def test_schedulers_take_the_most_urgent_first() -> None:
     pool.submit([NewTask((10,)), NewTask((90,), priority=1), NewTask((50,), deadline=5.0)],
                 now=0)
     free = [(0, 9), (1, 11)]
-    for scheduler in (greedy_nearest, shortest_first):
-        # robot 0 at 9 would take task 0 (1 away) without priorities
-        chosen = scheduler(free, pool, line)
-        assert sorted(chosen.values()) == [1, 2], scheduler.__name__
-    assert greedy_nearest([(0, 60)], pool, line) == {0: 1}
+    # robot 0 at 9 would take task 0 (1 away) without priorities
+    assert sorted(shortest_first(free, pool, line).values()) == [1, 2]
+    assert shortest_first([(0, 60)], pool, line) == {0: 1}
     pool.cancel(1, now=1)
     assert shortest_first([(0, 9)], pool, line) == {0: 2}  # the deadline breaks the tie
 
@@ -84,8 +81,7 @@ def test_unreachable_urgent_task_does_not_block_a_reachable_one() -> None:
         out[:, [t == 99 for t in targets]] = -1
         return out
 
-    for scheduler in (greedy_nearest, shortest_first):
-        assert scheduler([(0, 9)], pool, cut) == {0: 0}, scheduler.__name__
+    assert shortest_first([(0, 9)], pool, cut) == {0: 0}
 
 
 def test_reassignment_to_the_same_robot_makes_no_event() -> None:

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.execution.lifelong.errands import ErrandBook
 from gateway.execution.lifelong.tasks import (
     SCHEDULERS,
     NewTask,
     TaskPool,
-    greedy_nearest,
     shortest_first,
     wait_percentiles,
 )
@@ -38,9 +38,6 @@ def test_schedulers() -> None:
     # tasks: id 0 starts at 10 (long: 10 -> 40), id 1 starts at 12 (short: 12 -> 13)
     pool = TaskPool([(10, 40), (12, 13)], reveal=2, leg=lambda a, b: abs(a - b))
     free = [(0, 9), (1, 12)]
-    # robots in order, by distance plus length: robot 0 takes the short task (3 + 1 against
-    # 1 + 30) although it is farther, robot 1 the long one
-    assert greedy_nearest(free, pool, line) == {0: 1, 1: 0}
     # the cheapest pair first: robot 1 on the short task's first errand (0 + 1), then robot 0
     # on the long one (1 + 30)
     assert shortest_first(free, pool, line) == {1: 1, 0: 0}
@@ -80,9 +77,9 @@ def test_priority_still_beats_an_overdue_task() -> None:
     old, _ = pool.submit([NewTask((10, 40))], now=0.0)
     urgent, _ = pool.submit([NewTask((30, 90), priority=1)], now=20.0)
     pool.settle(25.0)  # the old one is overdue, the urgent one is not
-    for scheduler in (greedy_nearest, shortest_first):
-        assert scheduler([(0, 11)], pool, line) == {0: urgent[0]}
-    assert greedy_nearest([(0, 11), (1, 12)], pool, line) == {0: urgent[0], 1: old[0]}
+    assert shortest_first([(0, 11)], pool, line) == {0: urgent[0]}
+    # the urgent task's pairs first: robot 1 is nearer to its first errand (18 against 19)
+    assert shortest_first([(0, 11), (1, 12)], pool, line) == {1: urgent[0], 0: old[0]}
 
 
 def test_overdue_tasks_go_longest_waiting_first() -> None:
@@ -112,7 +109,7 @@ def test_wait_percentiles_by_nearest_rank() -> None:
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 60), st.integers(0, 60)), min_size=1, max_size=30),
        st.integers(1, 4), st.integers(1, 8), st.integers(1, 20),
-       st.sampled_from(["greedy", "shortest"]))
+       st.sampled_from(sorted(SCHEDULERS)))
 def test_the_bound_holds_under_a_stream_of_cheaper_tasks(
         errands: list[tuple[int, int]], free_per_step: int, reveal: int, bound: int,
         name: str) -> None:
@@ -143,3 +140,66 @@ def test_a_waiting_task_ages_before_it_is_overdue() -> None:
         pool.settle(now)
         assert not pool.overdue(pool.tasks[ids["A"]])
         assert shortest_first([(0, 0)], pool, line) == {0: ids[want]}
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 9)), min_size=1, max_size=30),
+       st.integers(1, 4), st.data())
+def test_a_station_cap_offers_each_first_cell_what_its_queue_leaves(
+        errands: list[tuple[int, int]], cap: int, data: st.DataObject) -> None:
+    """Per first-errand cell: offered = min(open there, cap - robots on their way there), the
+    shortest first; robots past the first errand do not count; no cap offers all open tasks."""
+    leg = lambda a, b: abs(a - b)  # noqa: E731
+    pool = TaskPool(errands, reveal=len(errands), leg=leg, station_cap=cap)
+    plain = TaskPool(errands, reveal=len(errands), leg=leg)
+    assert plain.offered().tolist() == sorted(plain.open)
+    given_to = data.draw(st.lists(st.sampled_from(sorted(pool.open)), unique=True))
+    for robot, task_id in enumerate(given_to):
+        pool.assign(task_id, robot)
+    started = data.draw(st.lists(st.sampled_from(given_to), unique=True)) if given_to else []
+    for task_id in started:
+        pool.errand_done(task_id, tick=1)
+    offered = pool.offered().tolist()
+    assert offered == sorted(offered) and set(offered) <= set(pool.open)
+    for cell in {e[0] for e in errands}:
+        here = [t for t in pool.open.values() if t.errands[0] == cell]
+        busy = sum(1 for t in pool.tasks.values()
+                   if t.robot >= 0 and t.done == 0 and t.errands[0] == cell)
+        got = [t for t in here if t.id in offered]
+        assert len(got) == max(0, min(len(here), cap - busy))
+        if got:  # the shortest (then the lowest ids) of the cell's open tasks
+            key = [(pool.length(t), t.id) for t in here]
+            assert sorted((pool.length(t), t.id) for t in got) == sorted(key)[: len(got)]
+
+
+def test_schedulers_hand_out_only_offered_tasks() -> None:
+    # three tasks from cell 0, one from cell 5; a cap of 1 offers one of cell 0's
+    pool = TaskPool([(0, 9), (0, 1), (0, 4), (5, 6)], reveal=4, leg=lambda a, b: abs(a - b),
+                    station_cap=1)
+    free = [(0, 0), (1, 0), (2, 0)]
+    for scheduler in SCHEDULERS.values():
+        got = scheduler(free, pool, line)
+        assert sorted(got.values()) == [1, 3]  # the short one of cell 0, and cell 5's
+
+
+def test_retracted_errands_go_back_to_the_plan_view() -> None:
+    """Robot 0's committed plan reaches both errands of task 0 (after its 2nd and 4th action)
+    and the first of task 1 (6th); its actions beyond the 3rd are taken back: the markers
+    beyond go, task 0 is planned again from its second errand, task 1 goes back to the pool;
+    then the robot does its 2nd action and the first errand is done as planned."""
+    pool = TaskPool([(10, 12), (20, 21), (30,)], reveal=3)
+    book = ErrandBook(pool, 1)
+    pool.assign(0, 0)
+    book.plan_task[0] = 0
+    states = [[s] for s in (9, 10, 11, 12)]  # one action a step, errands after steps 1 and 3
+    book.register([1], states, [[1, 3]], book.planned([[1, 3]]))
+    assert book.plan_task == [-1]  # the plan reaches the whole task
+    pool.assign(1, 0)
+    book.plan_task[0] = 1
+    book.register([4], [[12], [19], [20]], [[2]], book.planned([[2]]))
+    assert [m for m, _ in book.markers[0]] == [2, 4, 6]
+    book.retract([3], now=5)
+    assert list(book.markers[0]) == [(2, 0)]
+    assert (book.plan_task, book.plan_idx) == ([0], [1])
+    assert 1 in pool.open and pool.tasks[1].robot == -1
+    assert book.reach(0, 2) == [0] and book.goals() == [(12,)]

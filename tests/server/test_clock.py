@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.server.clock import RealClock, VirtualClock, run_virtual
+from gateway.server.clock import PACE_PERIOD_S, RealClock, VirtualClock, run_paced, run_virtual
 from gateway.server.gateway import Gateway
 from gateway.server.items import Inbound
 from protocol import IntruderReport, LoadPlan, Start
@@ -65,6 +65,26 @@ def test_virtual_clock_charges_the_solver_as_configured() -> None:
     assert result == 42 and ms >= 0.0
     # the loop's resolution is 1 µs, and both the sleep's deadline and now are rounded to it
     assert now == pytest.approx(ms, abs=0.002)
+
+
+def test_paced_virtual_time_is_exact_and_never_runs_ahead_of_the_wall_clock() -> None:
+    # the loop sees exact virtual times; the wall clock takes at least as long (less one
+    # pacing period for the phase); a period the process was starved for (here: the loop
+    # blocked for 0.3 s) is not made up by running faster afterwards
+    async def main() -> tuple[float, float, float, float]:
+        loop = asyncio.get_running_loop()
+        t0, w0 = loop.time(), time.monotonic()
+        await asyncio.sleep(0.5)
+        t1, w1 = loop.time(), time.monotonic()
+        time.sleep(0.3)  # starved: the loop's virtual time stands still meanwhile
+        w2 = time.monotonic()
+        await asyncio.sleep(0.2)
+        return t1 - t0, w1 - w0, loop.time() - t1, time.monotonic() - w2
+
+    virtual_a, wall_a, virtual_b, wall_b = run_paced(main())
+    assert (virtual_a, virtual_b) == (pytest.approx(0.5, abs=1e-6), pytest.approx(0.2, abs=1e-6))
+    assert wall_a >= 0.5 - PACE_PERIOD_S
+    assert wall_b >= 0.2 - PACE_PERIOD_S
 
 
 def test_speed_change_keeps_plan_time_continuous() -> None:

@@ -45,9 +45,8 @@ def test_the_example_configures_every_key_of_a_shift() -> None:
 
 @pytest.mark.parametrize(("lifelong", "top", "message"), [
     ({"robots": 0}, {}, "lifelong.robots: Input should be greater than or equal to 1"),
-    ({"scheduler": "fifo"}, {}, "lifelong.scheduler: Input should be 'greedy' or 'shortest'"),
-    ({"scheduler": "mincost"}, {}, "lifelong.scheduler: Input should be 'greedy' or "
-                                   "'shortest'"),
+    ({"scheduler": "fifo"}, {}, "lifelong.scheduler: Input should be 'shortest'"),
+    ({"scheduler": "greedy"}, {}, "lifelong.scheduler: Input should be 'shortest'"),
     ({"planner": "cbs"}, {}, "lifelong.planner: Input should be 'pibt'"),
     ({"period_ms": 0}, {}, "lifelong.period_ms: Input should be greater than 0"),
     ({"horizon": -1}, {}, "lifelong.horizon: Input should be greater than or equal to 0"),

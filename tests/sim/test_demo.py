@@ -119,6 +119,8 @@ def test_default_demo_replans_when_the_slack_crosses_the_threshold(tmp_path: Pat
     # and fleet over real websockets in virtual time (in real time a loaded machine shifts the
     # crossing): the fleet slack passes 2000 ms at 7100 ms (and 3000 ms at 8100 ms, so the
     # crossing is not marginal) and the replan adopts plan 1.
+    # ``fleetgate demo --virtual-time`` (what the GUI tests run: virtual time paced by the
+    # wall clock) has exactly these times, whatever the machine's load
     trace = tmp_path / "trace.jsonl"
     out = _demo_in_virtual_time(trace, intruder=True, policy="slack")
     assert out.replans == 1
@@ -127,6 +129,18 @@ def test_default_demo_replans_when_the_slack_crosses_the_threshold(tmp_path: Pat
     assert [t["policy"] for t in triggers] == ["slack"]
     assert float(triggers[0]["fleet_slack_ms"]) > 2000  # type: ignore[arg-type]
     assert check_trace(read_trace(trace)).errors == []
+    paced = demo("--virtual-time", "--speed", "20")
+    assert (paced["soc_ms"], paced["makespan_ms"], paced["replans"], paced["replan_at_ms"]) \
+        == (out.soc_ms, out.makespan_ms, 1, out.replan_at_ms)
+
+
+def test_virtual_time_is_refused_where_the_world_is_not_in_the_process() -> None:
+    for extra in ("--lifelong", "--vda5050"):
+        proc = subprocess.run([*FLEETGATE, "demo", "--virtual-time", extra, "--port", "0"],
+                              capture_output=True, text=True, timeout=60, check=False)
+        assert proc.returncode == 2
+        assert proc.stderr == ("fleetgate: --virtual-time runs a one-shot demo over "
+                               f"websockets, not {extra}\n")
 
 
 def test_without_headless_it_keeps_serving_until_ctrl_c() -> None:

@@ -9,7 +9,7 @@ import json
 import pytest
 
 from protocol.vda5050.master import LinkState, Report, VehicleMaster
-from protocol.vda5050.models import VERSIONS, Connection, VdaVersion
+from protocol.vda5050.models import VERSIONS, Connection, ErrorReference, VdaError, VdaVersion
 from sim_clients.world import INTRUDER, World
 from tests.vda5050.loop import Loop, actions_of
 from tests.vda5050.schemas import SCHEMA_DIR, assert_valid, needs_schemas
@@ -306,3 +306,64 @@ def test_takeover_maps_edges_to_the_gateways_action_ids() -> None:
     assert [r.kind for r in loop.reports if r.action_id == actions[-1].action_id] == [
         "started", "finished"]
     assert loop.vehicle.cell == (3, 5) and not loop.vehicle.errors
+
+
+@pytest.mark.parametrize("instance", ["", "n."])
+def test_a_restarted_masters_cancel_order_has_a_new_action_id(instance: str) -> None:
+    # a vehicle may keep the states of finished instant actions (section 6.8 only asks that
+    # actionIds be unique): a restarted master that named its cancelOrder as its predecessor
+    # did would read the old one's FINISHED as its own and cancel actions the vehicle drives
+    loop = Loop("2.1.0", PATH[0])
+    first = actions_of(PATH[:3])
+    loop.master.release(first, loop.now)
+    loop.run(0.5)
+    loop.master.cancel([a.action_id for a in first[1:]], loop.now)
+    loop.run(2)  # the vehicle stopped at (1, 5); it lists cancelOrder-1 FINISHED
+    kept = loop.vehicle.action_states["cancelOrder-1"]
+    assert kept.action_status == "FINISHED"
+    old = loop.master
+    loop.master = VehicleMaster(old.topics, "2.1.0", old.nodes, instance=instance)
+    loop.reports.clear()
+    new = actions_of([(1, 5, 0), (2, 5, 0), (3, 5, 0), (4, 5, 0)], plan=1)
+    loop.master.release(new, loop.now)
+    loop.run(2.5)  # action 0 of the new order runs
+    loop.master.cancel([a.action_id for a in new[1:]], loop.now)
+    # a state published before the cancel arrived, on its way, from a vehicle that keeps
+    # the states of finished instant actions
+    state = loop.master.state
+    assert state is not None and state.driving
+    loop.master.receive_state(state.model_copy(update={
+        "action_states": [*state.action_states, kept]}), loop.now)
+    loop.run(6)
+    assert loop.vehicle.cell == (2, 5)  # it drove action 0, then stopped
+    cancelled = [r.action_id for r in loop.reports if r.kind == "cancelled"]
+    assert cancelled == [a.action_id for a in new[1:]]
+    if instance:
+        assert loop.kinds(new[0].action_id) == ["started", "finished"]
+    else:  # the old naming: the stale FINISHED ended the cancel at once, so action 0 went
+        # into a new order the driving vehicle rejected: the action it drove was refused
+        assert loop.kinds(new[0].action_id) == ["started", "refused"]
+
+
+def _held_paused(errors: list[VdaError]) -> tuple[Loop, list[str]]:
+    """A paused vehicle holding an order whose state carries ``errors``: the reports."""
+    loop = Loop("2.1.0", PATH[0])
+    actions = actions_of(PATH)
+    loop.master.pause(loop.now)
+    loop.master.release(actions, loop.now)
+    loop.run(1)
+    state = loop.master.state
+    assert state is not None and state.order_id and not state.driving
+    loop.master.receive_state(state.model_copy(update={"errors": errors}), loop.now)
+    return loop, [r.kind for r in loop.master.drain() if isinstance(r, Report)]
+
+
+def test_a_fatal_error_blocks_a_complaint_about_an_instant_action_does_not() -> None:
+    refs = [ErrorReference(reference_key="actionId", reference_value="cancelOrder-3")]
+    _, kinds = _held_paused([VdaError(error_type="noOrderToCancel", error_level="WARNING",
+                                      error_references=refs)])
+    assert kinds == []
+    _, kinds = _held_paused([VdaError(error_type="motorFault", error_level="FATAL")])
+    assert kinds == ["blocked"]
+    _, kinds = _held_paused([VdaError(error_type="obstacle", error_level="WARNING")])
+    assert kinds == ["blocked"]

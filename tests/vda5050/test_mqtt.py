@@ -107,7 +107,7 @@ async def main():
     broken, online = vehicle.connect(time.time())
     config = BrokerConfig(url=sys.argv[1], keepalive_s=5)
     async with config.client("doomed", will(topics.topic("connection"), broken.message)) as c:
-        await publish(c, topics.topic("connection"), "connection", online.message)
+        publish(c, topics.topic("connection"), "connection", online.message)
         await asyncio.sleep(0.3)
         os._exit(0)  # the connection breaks without an MQTT DISCONNECT
 

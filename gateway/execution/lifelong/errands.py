@@ -169,6 +169,32 @@ class ErrandBook:
                 if self.on_marker is not None:
                     self.on_marker(r, before[r] + count, tasks_of[r])
 
+    def retract(self, appended: Sequence[int], now: float) -> None:
+        """The robots' committed actions were taken back to ``appended[r]`` actions
+        (:meth:`~gateway.execution.lifelong.live_adg.LiveADG.retract`): drop the markers
+        beyond, and the plan view goes back to the first errand not reached any more; tasks
+        the robot was to start after it go back to the pool."""
+        pool = self.pool
+        tasks = pool.tasks
+        for r, count in enumerate(appended):
+            q = self.markers[r]
+            removed = []
+            while q and q[-1][0] > count:
+                removed.append(q.pop()[1])
+            if not removed:
+                continue
+            first = removed[-1]
+            for task_id in {*removed, self.plan_task[r]} - {first, -1}:
+                task = tasks.get(task_id)
+                if task is not None and task.robot == r and not task.done:
+                    pool.release(task_id, now)
+            task = tasks.get(first)
+            if task is None or task.robot != r:
+                self.plan_task[r] = -1
+                continue
+            self.plan_task[r] = first
+            self.plan_idx[r] = task.done + sum(1 for _, t in q if t == first)
+
     def reach(self, robot: int, done: int) -> list[int]:
         """Robot ``robot`` has finished ``done`` actions: the tasks whose next errand that
         completes, in order (the caller tells the pool)."""

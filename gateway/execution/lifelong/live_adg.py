@@ -174,6 +174,65 @@ class LiveADG:
                         f"robot {r} enters cell {v} at step {j}, held by another robot the step "
                         "before (the segment is not 1-robust)")
 
+    def retract(self, keep: Sequence[int], cells: Sequence[int],
+                headings: Sequence[int] | None = None) -> list[int]:
+        """Take back committed actions that have not started, so the next segment plans those
+        robots anew from where they will be: robot r keeps at most its first ``keep[r]``
+        pending actions (its started one must be among them), fewer where a kept action
+        depends on one taken back, so no dependency is broken and the graph stays acyclic and
+        safe. ``cells[r]`` / ``headings[r]``: where robot r stands after its finished actions
+        (its end state if it keeps none). Returns how many actions each robot keeps."""
+        n, done, queue = self.n_robots, self.done, self.queue
+        k = [min(max(0, keep[r]), len(queue[r])) for r in range(n)]
+        cut = [r for r in range(n) if k[r] < len(queue[r])]
+        if not cut:
+            return k
+        changed = True
+        while changed:  # a kept action waiting on one taken back is taken back too
+            changed = False
+            for r in range(n):
+                q = queue[r]
+                for i in range(k[r]):
+                    a = q[i]
+                    if a.dep_robot >= 0 and a.dep_seq >= done[a.dep_robot] + k[a.dep_robot]:
+                        if k[r] == len(q):
+                            cut.append(r)
+                        k[r] = i
+                        changed = True
+                        break
+        leaver_r, leaver_s = self._leaver_robot, self._leaver_seq
+        stale: set[int] = set()  # cells whose last leaver is taken back
+        for r in cut:
+            q = queue[r]
+            prev = q[k[r] - 1].cell if k[r] else cells[r]
+            for i in range(k[r], len(q)):
+                a = q[i]
+                if a.kind == FORWARD:
+                    if leaver_r[prev] == r and leaver_s[prev] == done[r] + i:
+                        stale.add(prev)
+                        leaver_r[prev] = -1
+                    prev = a.cell
+            while len(q) > k[r]:
+                q.pop()
+            self.appended[r] = done[r] + k[r]
+            if q:
+                self.end_cell[r], self.end_heading[r] = q[-1].cell, q[-1].heading
+            else:
+                self.end_cell[r] = cells[r]
+                self.end_heading[r] = headings[r] if headings is not None else 0
+        if stale:  # their last kept leaver, if any (a finished one orders nothing any more)
+            kept = []
+            for r in range(n):
+                prev = cells[r]
+                for i, a in enumerate(queue[r]):
+                    if a.kind == FORWARD:
+                        if prev in stale:
+                            kept.append((a.order, r, done[r] + i, prev))
+                        prev = a.cell
+            for _, r, seq, cell in sorted(kept):
+                leaver_r[cell], leaver_s[cell] = r, seq
+        return k
+
     # ----------------------------------------------------------------- execution
     def head(self, robot: int) -> LiveAction | None:
         """The robot's next committed action, or None."""
