@@ -1,8 +1,9 @@
 """What the no-following rule costs under the LoRR 2024 rules: PIBT with and without it.
 
 A pure step simulation of the shared random-example_400 under the 2024 rules (one action per
-step, no delays, 200 steps, tasks revealed 1.5 x the team, the ``shortest`` scheduler): every
-step the fleet's next action is planned by fleetgate's windowed PIBT
+step, no delays, 200 steps, tasks revealed 1.5 x the team, the ``shortest`` scheduler,
+unstarted tasks reassigned every step): every step the fleet's next action is planned by
+fleetgate's windowed PIBT
 (:class:`~gateway.planning.pibt.WindowedPIBT`, one step, priorities kept) from the state the
 previous step left, with no planning latency and no committed window. The baseline is
 fleetgate's 1-robust PIBT (nobody enters a cell another robot held the step before); the
@@ -130,6 +131,7 @@ def pure_run(problem: LorrProblem, planner: str, seed: int, steps: int,
     book = ErrandBook(pool, n)
     states = [space.state(c) for c in problem.starts]
     for t in range(steps):
+        book.release_unstarted(t)  # as the lifelong runs reassign at every call
         book.schedule([space.cell_of[s] for s in states], SCHEDULERS[scheduler], distances, t)
         win = pibt.plan(states, book.goals(), 1)
         tasks_of = book.planned(win.reached)

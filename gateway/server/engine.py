@@ -101,6 +101,13 @@ log = logging.getLogger("fleetgate.engine")
 # ------------------------------------------------------------------------------ the engine
 _T = TypeVar("_T")
 
+GROUP_COMMIT_ITEMS = 64
+"""Queue items handled at most between two commits. What is queued together is handled, then
+committed once before the owner task yields (a group commit: 50 WMS clients' submissions cost
+one synced commit, not 50, and none is answered before it); at most this many, so that the
+task events of as many batches of ``MAX_BATCH`` tasks are still in the task pool's window
+(``KEEP``) when they are journaled."""
+
 
 def _pose(cell: tuple[int, int], heading: int | None) -> dict[str, Any]:
     """A pose as the plain JSON values an action carries (:func:`protocol.encode_action`)."""
@@ -174,6 +181,7 @@ class Engine:
         tasks of their own)."""
         self._resumed = 0.0  # thread CPU time when the owner task last woke up
         self._handled = 0  # items handled (the queue depth gauge samples every 64th)
+        self._uncommitted = 0  # items handled since the last commit
 
     # -------------------------------------------------------------------------- status
     @property
@@ -222,14 +230,17 @@ class Engine:
         while True:
             if not self.current_run.ticking:
                 next_tick = None
-                self.commit()
-                item = await self._get()
+                if self.queue.empty() or self._uncommitted >= GROUP_COMMIT_ITEMS:
+                    self.commit()
+                item = await self._get()  # at once if the queue is not empty
             else:
                 if next_tick is None:
                     next_tick = self._first_tick(self.now_ms())
                 if not self.queue.empty():
                     # what ``get`` under the timeout would return at once, without arming and
                     # cancelling a timer per item (a busy fleet keeps this queue non-empty)
+                    if self._uncommitted >= GROUP_COMMIT_ITEMS:
+                        self.commit()
                     item = self.queue.get_nowait()
                 else:
                     self.commit()
@@ -249,6 +260,7 @@ class Engine:
             if not self._handled & 63:  # a gauge: a sample every 64 items is enough
                 self.metrics.queue_depth.set(self.queue.qsize())
             self._handle_safely(item)
+            self._uncommitted += 1
 
     async def _get(self) -> Item:
         """The next queue item."""
@@ -279,6 +291,7 @@ class Engine:
     def commit(self) -> None:
         """Make what was journaled durable, then write the trace records it caused (called
         before the owner task yields: nothing queued for a peer leaves before this)."""
+        self._uncommitted = 0
         for hook in self.before_commit:
             hook()
         if self.journal is not None:
