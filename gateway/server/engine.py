@@ -378,16 +378,16 @@ class Engine:
     # -------------------------------------------------------------------------- inbound
     def _inbound(self, item: Inbound) -> None:
         msg, session = item.message, item.session
-        match msg:
-            case Hello():
-                self._hello(session, msg)
+        match msg:  # the most frequent first: two reports and an ack per action
+            case Started() | Finished() | Blocked() | Unblocked() | Cancelled() \
+                    | ActionRefused():
+                self._report(session, msg, item.received, item.at_ms)
             case Ack():
                 gs = self._sender(session)
                 gs.ack(msg.action_id, msg.msg_id, session)
                 self.flush(gs, session)
-            case Started() | Finished() | Blocked() | Unblocked() | Cancelled() \
-                    | ActionRefused():
-                self._report(session, msg, item.received, item.at_ms)
+            case Hello():
+                self._hello(session, msg)
             case State():
                 self._sender(session).state(msg.pose, session)
             case IntruderReport():
