@@ -426,9 +426,10 @@ class VehicleMaster:
         held = state.order_update_id if state and state.order_id == order.order_id else -1
         pending = order.sent[max(0, held + 1 - order.base_update):]
         if pending and now_s - pending[0].sent_s >= self.resend_s:
-            for sent in pending:
-                sent.sent_s = now_s
-                self._emit(Publish("order", sent.order))
+            for sent in pending:  # the same order message under a new header: headerId
+                sent.sent_s = now_s  # counts every message sent (section 6.4)
+                self._emit(Publish("order", sent.order.model_copy(
+                    update=self._header("order", now_s))))
 
     # ------------------------------------------------------------------ vehicle -> gateway
 
