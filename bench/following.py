@@ -155,6 +155,8 @@ def main() -> None:
                     help="the shared LoRR problems (default ../shared/lorr beside the repo)")
     ap.add_argument("--json", action="store_true", help="print one JSON line")
     args = ap.parse_args()
+    if args.seeds < 1 or args.steps < 1:
+        ap.error("--seeds and --steps must be at least 1")
     blocking = next((q for q in (args.lorr, *args.lorr.parents) if q.exists()), None)
     if blocking is not None and not blocking.is_dir():
         ap.error(f"--lorr: {blocking} is not a folder")
@@ -170,7 +172,7 @@ def main() -> None:
     mean = {name: statistics.mean(got) for name, got in runs.items()}
     out: dict[str, object] = {
         "steps": args.steps, "scheduler": args.scheduler, **runs,
-        "ratio": round(mean["following"] / mean["robust"], 3),
+        "ratio": round(mean["following"] / mean["robust"], 3) if mean["robust"] else None,
         **{f"{name}_vs_winner": round(m / WINNER, 3) for name, m in mean.items()}}
     print(json.dumps(out) if args.json else
           f"following: random-400 under the 2024 rules, {args.steps} steps, pure PIBT "
