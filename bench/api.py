@@ -8,8 +8,8 @@ connection each time (what a WMS without keep-alive does; both versions answer i
 DIR`` is a checkout of the other version (``git worktree add DIR main``): its gateway runs
 with ``DIR`` first on the Python path; ``--pairs N`` runs of each side, interleaved ABBA.
 Prints ONE JSON line: this version's and that one's p50 and p99 (medians over the runs),
-requests per second, any status but 201 counted as ``refused``, and ``p99_ratio`` (this /
-that: < 1 is faster).
+requests per second, any status but 201 counted as ``refused``, ``p99_ratio`` and
+``p50_ratio`` (this / that: < 1 is faster) and ``rps_ratio`` (> 1 is faster).
 
     .venv/bin/python bench/api.py --clients 50 --seconds 10 --against ../lead --pairs 2
 """
@@ -116,6 +116,8 @@ def main() -> int:
               "refused": sum(r["refused"] for r in these),
               "against_refused": sum(r["refused"] for r in those)}
     result["p99_ratio"] = round(result["p99_ms"] / result["against_p99_ms"], 3)
+    result["p50_ratio"] = round(result["p50_ms"] / result["against_p50_ms"], 3)
+    result["rps_ratio"] = round(result["rps"] / result["against_rps"], 3)
     print(json.dumps(result))
     return 0
 

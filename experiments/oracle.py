@@ -153,7 +153,7 @@ class _ClairvoyantSimulation(_OracleSimulation):
                 or intr.state not in (IntruderState.WAITING, IntruderState.PRESENT)
                 or intr.cell in request.starts):
             return super().plan_for(request, now)
-        request = dataclasses.replace(request, obstacles=((intr.cell, intr.leave_ms),),
+        request = dataclasses.replace(request, obstacles=((intr.cell, self.held_until(now)),),
                                       start_ms=None)
         # the plan is a function of the starts, headings and forbidden timesteps
         key = (request.starts, request.headings,
@@ -162,6 +162,11 @@ class _ClairvoyantSimulation(_OracleSimulation):
         if got is None:
             got = self.memo.solves[key] = Simulation.plan_for(self, request, now)
         return got
+
+    def held_until(self, now: float) -> float:
+        """Until when a replan at ``now`` keeps the intruder's cell free: when it leaves."""
+        assert self.intruder is not None
+        return self.intruder.leave_ms
 
 
 @dataclass(frozen=True)

@@ -333,17 +333,14 @@ class WindowedPIBT:
                 self._decide(r, -1, cur, nxt, tables, 0)
         return nxt
 
-    def _decide(self, r: int, pusher: int, cur: list[int], nxt: list[int],
-                tables: list[array[int] | None], depth: int) -> None:
-        """Choose robot r's next state (``pusher`` >= 0: that robot wants r's cell)."""
-        stamp = self._stamp
-        self._planned[r] = stamp
-        space = self.space
-        cell_of, occupant, reserved = space.cell_of, self._occupant, self._reserved
-        avoid, call = self._avoid, self._call
-        s = cur[r]
-        c = cell_of[s]
-        table = tables[r]
+    def _candidates(self, s: int, table: array[int] | None, pushed: bool
+                    ) -> list[tuple[int, int]]:
+        """The moves of a robot in state ``s`` towards the goal of ``table`` as ``(cell,
+        resulting state)``, best first: by cost, then waiting (preferred on ties, the last
+        resort if ``pushed``: asked to leave), a free cell before a held one, fewer turns, a
+        random tie-break."""
+        space, occupant = self.space, self._occupant
+        c = space.cell_of[s]
         rng = self.rng.random
         keyed = []
         opts = space.options[s]  # the wait first
@@ -354,12 +351,31 @@ class WindowedPIBT:
             costs[0] = max(costs[0], 1 + min(costs[1:]))
         for (c2, _, turns, rs), cost in zip(opts, costs, strict=True):
             if c2 == c:
-                # waiting: preferred on ties (no needless motion), last resort if asked to leave
-                keyed.append((cost + (UNREACHABLE if pusher >= 0 else 0), 0, 0, rng(), c2, rs))
+                keyed.append((cost + (UNREACHABLE if pushed else 0), 0, 0, rng(), c2, rs))
             else:
                 keyed.append((cost, 1 if occupant[c2] < 0 else 2, turns, rng(), c2, rs))
         keyed.sort()
-        for _, _, _, _, c2, rs in keyed:
+        return [(c2, rs) for _, _, _, _, c2, rs in keyed]
+
+    def _enter_held(self, r: int, o: int, pusher: int, rs: int, cur: list[int],
+                    nxt: list[int], tables: list[array[int] | None], depth: int) -> bool:
+        """Whether robot r may take state ``rs`` towards the cell robot ``o`` holds now: never
+        (1-robust); it asks ``o`` to clear the cell (at the next timestep r may enter)."""
+        if o != pusher and self._planned[o] != self._stamp and depth < MAX_PUSH_DEPTH:
+            self._decide(o, r, cur, nxt, tables, depth + 1)
+        return False
+
+    def _decide(self, r: int, pusher: int, cur: list[int], nxt: list[int],
+                tables: list[array[int] | None], depth: int) -> None:
+        """Choose robot r's next state (``pusher`` >= 0: that robot wants r's cell)."""
+        stamp = self._stamp
+        self._planned[r] = stamp
+        space = self.space
+        cell_of, occupant, reserved = space.cell_of, self._occupant, self._reserved
+        avoid, call = self._avoid, self._call
+        s = cur[r]
+        c = cell_of[s]
+        for c2, rs in self._candidates(s, tables[r], pusher >= 0):
             if c2 == c:
                 nxt[r] = rs
                 reserved[c] = stamp
@@ -367,10 +383,7 @@ class WindowedPIBT:
             if reserved[c2] == stamp or avoid[c2] == call:
                 continue
             o = occupant[c2]
-            if o >= 0:
-                # 1-robust: a held cell cannot be entered now; ask its robot to clear it
-                if o != pusher and self._planned[o] != stamp and depth < MAX_PUSH_DEPTH:
-                    self._decide(o, r, cur, nxt, tables, depth + 1)
+            if o >= 0 and not self._enter_held(r, o, pusher, rs, cur, nxt, tables, depth):
                 continue
             nxt[r] = rs
             reserved[cell_of[rs]] = stamp  # the cell, or the own cell for a turn towards it

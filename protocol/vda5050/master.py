@@ -16,8 +16,9 @@ refused reports back. A vehicle speaks VDA 5050. :class:`VehicleMaster` translat
   whose end node is traversed (``lastNodeSequenceId`` reached its node) is finished (and
   started first if no state showed it started); the next released action is started when the
   vehicle drives (``driving`` and not ``paused``) after traversing its start node. A vehicle
-  that does not move on because of an obstacle (a protective field violation or a WARNING
-  error that is not an order rejection) blocks the action it waits to start; ``unblocked``
+  that does not move on because of an obstacle (a protective field violation, or an error
+  that neither rejects an order nor refers to an instant action: a WARNING such as an obstacle,
+  or a FATAL one that waits for a human) blocks the action it waits to start; ``unblocked``
   when that clears. States lost on the way (QoS 0) lose no report: the next state carries the
   progress;
 * the gateway cancels actions it released but that have not started (a replan): the base
@@ -31,6 +32,10 @@ refused reports back. A vehicle speaks VDA 5050. :class:`VehicleMaster` translat
   ``validationError``, ``orderError``, ``orderUpdateError``, ``noRouteError``) refuses its
   first action and, with it, every later released action; the rejection of an update that
   came after a lost one is no refusal (the lost one is resent, then the rest);
+* a pick or drop on an action's end node that the vehicle reports FAILED blocks the action
+  (:class:`ErrandFailed` asks the gateway); once the gateway gives it up
+  (:meth:`VehicleMaster.give_up`) the action is finished;
+* instant actions' ids are unique per master instance (``instance``);
 * ``pause`` / ``resume`` are the instant actions ``startPause`` / ``stopPause``;
   ``stateRequest`` and ``factsheetRequest`` are sent on request;
 * the ``connection`` topic (ONLINE, OFFLINE, the last will CONNECTIONBROKEN) is the link state;
@@ -152,7 +157,18 @@ class LinkState:
     state: str
 
 
-Effect = Publish | Report | LinkState
+@dataclass(frozen=True, slots=True)
+class ErrandFailed:
+    """The vehicle reports the pick or drop ``errand`` on the end node of action
+    ``action_id`` FAILED (section 6.8.2: e.g. the station is unexpectedly empty). The action
+    is blocked until the gateway gives the errand up (:meth:`VehicleMaster.give_up`: its
+    task no longer needs it), then finished: the vehicle did drive it."""
+
+    errand: str
+    action_id: str
+
+
+Effect = Publish | Report | LinkState | ErrandFailed
 
 
 @dataclass(slots=True)
@@ -243,6 +259,7 @@ class VehicleMaster:
         self._plan: list[Action] = []
         self._carry: list[Action] = []
         self._cancelled: set[str] = set()
+        self._given_up: set[str] = set()
         self._header = Headers(version, topics)
         self._instant = 0
         self._want_paused: bool | None = None
@@ -330,6 +347,15 @@ class VehicleMaster:
         """Ask for the ``factsheet`` (``factsheetRequest``)."""
         self._instant_action("factsheetRequest", now_s)
 
+    def give_up(self, errand: str) -> None:
+        """The gateway gives up the FAILED pick or drop ``errand`` (:class:`ErrandFailed`):
+        the action it waited on is finished (reports follow from the last state)."""
+        self._given_up.add(errand)
+        order, state = self._order, self.state
+        if order is not None and not order.dead and state is not None \
+                and state.order_id == order.order_id:
+            self._progress(order, state)
+
     def adopt(self, state: State) -> tuple[list[str], list[str]]:
         """After a restart: take over the order ``state`` shows, if this master (or its
         predecessor) named it (``<plan key>.<first action>``). Returns the ids of the actions
@@ -400,9 +426,10 @@ class VehicleMaster:
         held = state.order_update_id if state and state.order_id == order.order_id else -1
         pending = order.sent[max(0, held + 1 - order.base_update):]
         if pending and now_s - pending[0].sent_s >= self.resend_s:
-            for sent in pending:
-                sent.sent_s = now_s
-                self._emit(Publish("order", sent.order))
+            for sent in pending:  # the same order message under a new header: headerId
+                sent.sent_s = now_s  # counts every message sent (section 6.4)
+                self._emit(Publish("order", sent.order.model_copy(
+                    update=self._header("order", now_s))))
 
     # ------------------------------------------------------------------ vehicle -> gateway
 
@@ -573,11 +600,16 @@ class VehicleMaster:
                     if status is None:
                         status = {a.action_id: a.action_status for a in msg.action_states}
                     errand = status.get(step.errand)
-                    if errand != "FINISHED":  # the pick or drop there runs (or failed)
+                    done = errand == "FINISHED" or (
+                        errand == "FAILED" and step.errand in self._given_up)
+                    if not done:  # the pick or drop there runs (or failed)
                         if (errand == "FAILED") != step.blocked:
                             step.blocked = errand == "FAILED"
                             self._emit(Report("blocked" if step.blocked else "unblocked", aid))
+                            if step.blocked:
+                                self._emit(ErrandFailed(step.errand, aid))
                         break
+                    self._given_up.discard(step.errand)
                     if step.blocked:
                         step.blocked = False
                         self._emit(Report("unblocked", aid))

@@ -12,7 +12,7 @@ from collections.abc import Callable
 import pytest
 
 from protocol.messages import Action
-from protocol.vda5050.master import Errand, VehicleMaster
+from protocol.vda5050.master import Errand, ErrandFailed, VehicleMaster
 from protocol.vda5050.models import VERSIONS, VdaVersion
 from tests.vda5050.loop import Loop, actions_of
 from tests.vda5050.schemas import assert_valid, needs_schemas
@@ -84,7 +84,7 @@ def test_a_finished_order_is_followed_by_a_new_one() -> None:
     assert loop.kinds(second[-1].action_id) == ["started", "finished"]
 
 
-def test_a_failed_pick_blocks_its_action() -> None:
+def test_a_failed_pick_blocks_its_action_until_the_gateway_gives_it_up() -> None:
     actions = actions_of(PATH)[:2]
     loop = _loop("2.1.0", _errands(actions))
     loop.vehicle.fail_actions = {"pick"}
@@ -92,6 +92,14 @@ def test_a_failed_pick_blocks_its_action() -> None:
     loop.run(5)
     assert loop.kinds(actions[0].action_id) == ["started", "blocked"]
     assert loop.kinds(actions[1].action_id) == []
+    assert loop.failed == [ErrandFailed("pick-t7.0", actions[0].action_id)]  # said once
+    # the pick is terminal (FAILED): the vehicle drove on through its base meanwhile
+    assert loop.vehicle.cell == (2, 5)
+    loop.master.give_up("pick-t7.0")  # its task was cancelled: the action is done
+    loop.pump()
+    assert loop.kinds(actions[0].action_id) == ["started", "blocked", "unblocked", "finished"]
+    assert loop.kinds(actions[1].action_id) == ["started", "finished"]
+    assert loop.failed == [ErrandFailed("pick-t7.0", actions[0].action_id)]
 
 
 def test_a_master_restarted_during_a_pick_does_not_pick_twice() -> None:

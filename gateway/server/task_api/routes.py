@@ -14,10 +14,8 @@ from pydantic import BaseModel
 from starlette.convertors import Convertor, register_url_convertor
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from gateway.server.task_api.api import TaskApi, json_answer
+from gateway.server.task_api.api import KEY, KEY_HEADER, TaskApi, json_answer
 from gateway.server.task_api.models import (
-    KEY_PATTERN,
-    MAX_KEY_CHARS,
     MAX_LIST,
     ApiError,
     SubmitResponse,
@@ -72,7 +70,7 @@ class TaskAuth:
         await self.app(scope, receive, send)
 
 
-def _api(request: Request) -> TaskApi:
+async def _api(request: Request) -> TaskApi:
     """The gateway's task API, once the request's query has only known, single
     parameters."""
     api: TaskApi = request.app.state.task_api
@@ -138,6 +136,12 @@ SSE_EVENT = {
 """``GET /tasks/events``' events in the document: ``data`` is the JSON of a TaskEventView
 (``event: task``, ``id`` its sequence number) or of a ResetEvent (``event: reset``)."""
 
+KEY_PARAMETER = {"name": KEY_HEADER, "in": "header", "required": False,
+                 "schema": {"anyOf": [KEY.json_schema(), {"type": "null"}],
+                            "title": KEY_HEADER}}
+"""``POST /tasks``' ``Idempotency-Key`` header in the document (the route reads it itself:
+:func:`~gateway.server.task_api.api.TaskApi.submit`)."""
+
 SUBMIT_BODY = {"required": True, "content": {"application/json": {"schema": {"oneOf": [
     {"$ref": "#/components/schemas/SubmitOne"}, {"$ref": "#/components/schemas/SubmitBatch"}]}}}}
 """``POST /tasks``' body in the document (the route reads it itself, strictly: see
@@ -150,14 +154,12 @@ SUBMIT_BODY = {"required": True, "content": {"application/json": {"schema": {"on
                         200: _ok(SubmitResponse, "a retry: the tasks of the first request",
                                  FIRST_TASK),
                         **_errors(408, 409, 413, 415, 422)},
-             openapi_extra={"requestBody": SUBMIT_BODY})
-async def submit_tasks(
-        request: Request, api: Api,
-        key: Annotated[str | None, Header(alias="Idempotency-Key", min_length=1,
-                                          max_length=MAX_KEY_CHARS, pattern=KEY_PATTERN)]
-        = None) -> JSONResponse:
+             openapi_extra={"parameters": [KEY_PARAMETER], "requestBody": SUBMIT_BODY})
+async def submit_tasks(request: Request) -> JSONResponse:
     """Submit one task or a batch, with an optional idempotency key."""
-    return await api.submit(request, key)
+    # the lean form (no declared parameter or dependency, the document says them: the
+    # framework's machinery for them cost as much as the rest of a submission)
+    return await (await _api(request)).submit(request)
 
 
 @router.get("/tasks", operation_id="listTasks", summary="List tasks in id order, a page at "
