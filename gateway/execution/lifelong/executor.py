@@ -82,7 +82,8 @@ class PlanRequest:
     steps: int
     priorities: tuple[int, ...] = ()
     """PIBT's priorities the call starts from (per robot, timesteps since it last reached a
-    goal: the previous adopted segment's); empty: the planner's own, from its earlier calls."""
+    goal: the previous adopted segment's) with a random stream of the call's own; empty: the
+    planner goes on from its earlier calls (the LoRR simulator's requests)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -728,9 +729,10 @@ class LifelongExecutor:
 
 class WindowPlanner:
     """Answers :class:`PlanRequest` with :class:`~gateway.planning.pibt.WindowedPIBT` (a
-    driver may run it in a worker thread, one call at a time). Each call starts from the
-    request's priorities (none given: those its previous call left) and a random stream of
-    its own (the call's number), so a restarted planner answers a request as the first did."""
+    driver may run it in a worker thread, one call at a time). A request with priorities (the
+    executor's) is planned from them and a random stream of its own (the call's number), so
+    a restarted planner answers it as the first did; one without (the LoRR simulator's) goes
+    on from the priorities and the random stream the previous call left."""
 
     def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0,
                  space: StateSpace | None = None) -> None:
@@ -740,6 +742,7 @@ class WindowPlanner:
     def __call__(self, req: PlanRequest) -> Segment:
         """The window for ``req``."""
         pibt = self.pibt
-        pibt.start_from(req.priorities or pibt.elapsed, req.call)
+        if req.priorities:
+            pibt.start_from(req.priorities, req.call)
         win = pibt.plan(req.starts, req.goals, req.steps, req.hold, req.avoid)
         return Segment(req.call, win.states, win.reached, tuple(pibt.elapsed))
