@@ -125,8 +125,7 @@ class LifelongConfig:
     reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
     reassign_batch: int = REASSIGN_BATCH  # robots whose unstarted task a reassignment releases
     station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
-    warm: int | None = None  # tables of the robots' later errands computed after each call
-    # (warm_times), at most this many (None: all missing, 0: none)
+    warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     seed: int = 0
     output_window: int = 1000
 
@@ -278,10 +277,9 @@ def run_lifelong(cfg: LifelongConfig,
             tasks_of = book.planned(win.reached)
             cpu = time.thread_time() - cpu0
             planner_times.append(cpu)
-            if cfg.warm != 0:  # tables for after the robots' present errands, before they are due
+            if cfg.warm:  # tables for after the robots' present errands, before they are due
                 cpu0 = time.thread_time()
-                ahead = space.missing(c for g in book.goals() for c in g[1:])
-                space.prefetch(ahead if cfg.warm is None else ahead[:cfg.warm])
+                space.prefetch([c for g in book.goals() for c in g[1:]])
                 warm_times.append(time.thread_time() - cpu0)
             delay_ticks = math.ceil(_planner_ms(cfg.planner_time, cpu) / cfg.tick_ms)
             pending = _Pending(t + delay_ticks, win.states, win.reached, tasks_of)

@@ -45,10 +45,6 @@ STATION_CAP = 4
 """Robots sent to one first-errand cell at a time in the scale runs
 (:attr:`~gateway.execution.lifelong.tasks.TaskPool.station_cap`; 600 ticks, warehouse_large:
 137 tasks without a cap, 591 with 12, 1,075 with 4)."""
-AHEAD_TABLES = 80
-"""At most this many tables of the robots' later errands are computed after a call (on the
-second core; the rest in the calls that need them): about 0.8 s at 10 ms a table of the
-million-cell map, where all of them took up to 1.04 s (p99) after a call."""
 PUBLISHED_STEPS = 5000
 """Steps of the competitions' main-round runs of these instances."""
 
@@ -134,8 +130,7 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int,
     else:
         conv = convert(archive / INSTANCES[name].path)
         prob, changes = conv.problem, conv.changes
-    cfg = LifelongConfig(prob, ticks=ticks, reassign=reassign, station_cap=station_cap,
-                         warm=AHEAD_TABLES)
+    cfg = LifelongConfig(prob, ticks=ticks, reassign=reassign, station_cap=station_cap)
     res = run_lifelong(cfg)
     run_mb = _peak_mb()
     check_output(lorr_output(cfg, res), read_free(format_map(prob.grid)))
