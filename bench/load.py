@@ -829,6 +829,9 @@ def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
             "load_1min_runs": [r["load_1min"] for r in ours],
             "against_load_1min_runs": [r["load_1min"] for r in theirs],
             "cpu_per_action_ratio": median_ratio(key, ours, theirs),
+            "owner_cpu_per_action_ratio": median_ratio("owner_cpu_ms_per_action", ours, theirs),
+            "owner_cpu_ms_per_action_runs": [r["owner_cpu_ms_per_action"] for r in ours],
+            "against_owner_cpu_ms_per_action": [r.get("owner_cpu_ms_per_action") for r in theirs],
             "p99_against_ratio": median_ratio("p99_ms", ours, theirs)}
 
 

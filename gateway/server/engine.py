@@ -28,7 +28,6 @@ collector (:mod:`gateway.server.gc_tuning`, hooked by the :class:`~gateway.serve
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import math
 import time
@@ -52,6 +51,7 @@ from gateway.execution.errors import ExecutionError
 from gateway.execution.trace_records import summary_record
 from gateway.planning.solver import Place
 from gateway.runtime.journal import IntruderRecord, Journal, ReportRecord, RunRecord
+from gateway.runtime.trace import trace_line
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
@@ -378,16 +378,16 @@ class Engine:
     # -------------------------------------------------------------------------- inbound
     def _inbound(self, item: Inbound) -> None:
         msg, session = item.message, item.session
-        match msg:
-            case Hello():
-                self._hello(session, msg)
+        match msg:  # the most frequent first: two reports and an ack per action
+            case Started() | Finished() | Blocked() | Unblocked() | Cancelled() \
+                    | ActionRefused():
+                self._report(session, msg, item.received, item.at_ms)
             case Ack():
                 gs = self._sender(session)
                 gs.ack(msg.action_id, msg.msg_id, session)
                 self.flush(gs, session)
-            case Started() | Finished() | Blocked() | Unblocked() | Cancelled() \
-                    | ActionRefused():
-                self._report(session, msg, item.received, item.at_ms)
+            case Hello():
+                self._hello(session, msg)
             case State():
                 self._sender(session).state(msg.pose, session)
             case IntruderReport():
@@ -497,7 +497,7 @@ class Engine:
             return
         gs.accepted(r)
         if r.kind == "finished":
-            self.metrics.finished.inc()
+            self.metrics.finished_pending += 1
         elif r.kind == "refused":
             log.warning("robot refused an action", extra={
                 "robot": r.robot, "action": r.action_id, "reason": r.reason})
@@ -583,7 +583,7 @@ class Engine:
         gs = self.robot(c.robot)
         gs.dispatch(fields)
         self.flush(gs)
-        self.metrics.dispatched.inc()
+        self.metrics.dispatched_pending += 1
         if self._unlocked_at is not None:
             latency = (time.perf_counter() - self._unlocked_at) * 1000.0
             self.latencies_ms.append(latency)
@@ -594,7 +594,7 @@ class Engine:
         summary = summary_record(c.soc_ms, c.makespan_ms)
         self.feed.write_trace(summary)
         if self.replaying:
-            self.replayed_trace.append(json.dumps(summary) + "\n")
+            self.replayed_trace.append(trace_line(summary))
             self.finished_event.set()
             return
         self.feed.close_trace()

@@ -30,7 +30,6 @@ unfinished actions from the executor itself.
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -67,6 +66,7 @@ from gateway.runtime.journal import (
     ThresholdRecord,
     TimeRecord,
 )
+from gateway.runtime.trace import trace_line
 from gateway.server.runs.base import RunContext
 from gateway.server.runs.resume import JournaledReports, as_live, inputs
 
@@ -272,7 +272,7 @@ def resume_shift(engine: RunContext, run: ShiftRun, records: Sequence[JournalRec
 
     def record(rec: dict[str, object]) -> None:
         engine.feed.record(rec)
-        trace.append(json.dumps(rec) + "\n")
+        trace.append(trace_line(rec))
 
     def start(rec: ShiftRecord) -> None:
         engine.run_id = rec.run_id
