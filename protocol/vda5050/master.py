@@ -159,10 +159,10 @@ class LinkState:
 
 @dataclass(frozen=True, slots=True)
 class ErrandFailed:
-    """The vehicle reports the pick or drop ``errand`` on the end node of action
-    ``action_id`` FAILED (section 6.8.2: e.g. the station is unexpectedly empty). The action
-    is blocked until the gateway gives the errand up (:meth:`VehicleMaster.give_up`: its
-    task no longer needs it), then finished: the vehicle did drive it."""
+    """The vehicle reports the pick or drop ``errand`` of action ``action_id`` (on its end
+    node, or on its edge) FAILED (section 6.8.2: e.g. the station is unexpectedly empty). The
+    action is blocked until the gateway gives the errand up (:meth:`VehicleMaster.give_up`:
+    its task no longer needs it), then reported as the vehicle drove it."""
 
     errand: str
     action_id: str
@@ -183,6 +183,8 @@ class _Step:
     blocked: bool = False
     errand: str | None = None
     """The ``actionId`` of the pick/drop on its end node, if it has one."""
+    depart: str | None = None
+    """The ``actionId`` of the pick/drop on its edge (done before the vehicle drives it)."""
 
     @property
     def node_seq(self) -> int:
@@ -506,7 +508,8 @@ class VehicleMaster:
         errands = [e for e in errands if not (e.on_edge and e.action_id in held)]
         node = self._node(action, edge_seq + 1, True, errands)
         step = _Step(action, edge_seq, node, errand=next(
-            (e.action_id for e in errands if not e.on_edge), None))
+            (e.action_id for e in errands if not e.on_edge), None), depart=next(
+            (e.action_id for e in errands if e.on_edge), None))
         return step, self._edge(action, edge_seq, True, errands)
 
     def _horizon(self, last: Action, seq: int) -> tuple[list[Node], list[Edge]]:
@@ -593,6 +596,15 @@ class VehicleMaster:
             if step.finished:
                 continue
             aid = step.action.action_id
+            if step.depart is not None and not step.started:
+                if status is None:
+                    status = {a.action_id: a.action_status for a in msg.action_states}
+                if status.get(step.depart) == "FAILED" and step.depart not in self._given_up:
+                    if not step.blocked:  # the pick or drop before it drives off failed
+                        step.blocked = True
+                        self._emit(Report("blocked", aid))
+                        self._emit(ErrandFailed(step.depart, aid))
+                    break
             if step.node_seq <= reached:
                 if not step.started:
                     self._started(step)

@@ -164,3 +164,20 @@ def test_an_errand_the_vehicle_stands_on_is_done_before_it_drives_off() -> None:
     master.release(actions[1:], loop.now)
     order = next(e.message for e in master.drain() if hasattr(e, "message"))
     assert order.edges[0].actions == []  # type: ignore[attr-defined]
+
+
+def test_a_failed_errand_before_driving_off_blocks_until_given_up() -> None:
+    actions = actions_of(PATH)[:2]
+    late = Errand("pick", "pick-t8.0-depart", "task-8", on_edge=True)
+    loop = _loop("2.1.0", lambda a: [late] if a is actions[1] else [])
+    loop.vehicle.fail_actions = {"pick"}
+    loop.master.release(actions, loop.now)
+    loop.run(5)
+    # the vehicle drove on after the failed pick, but the action waits for the gateway
+    assert loop.vehicle.cell == (2, 5)
+    assert loop.kinds(actions[0].action_id) == ["started", "finished"]
+    assert loop.kinds(actions[1].action_id) == ["blocked"]
+    assert loop.failed == [ErrandFailed("pick-t8.0-depart", actions[1].action_id)]
+    loop.master.give_up("pick-t8.0-depart")
+    loop.pump()
+    assert loop.kinds(actions[1].action_id) == ["blocked", "unblocked", "started", "finished"]
