@@ -241,6 +241,7 @@ class WindowedPIBT:
     def __init__(self, space: StateSpace, n_robots: int, seed: int = 0) -> None:
         self.space = space
         self.n = n_robots
+        self.seed = seed
         self.rng = random.Random(seed)
         self.elapsed = [0] * n_robots
         self.tie = [self.rng.random() for _ in range(n_robots)]
@@ -251,6 +252,16 @@ class WindowedPIBT:
         self._stamp = 0
         self._avoid = [0] * n_cells
         self._call = 0
+
+    def start_from(self, elapsed: Sequence[int], key: int) -> None:
+        """Make the next :meth:`plan` start from the priorities ``elapsed`` (timesteps since
+        each robot last reached a goal) and the random stream of ``key``, not from what the
+        calls before left: that call is then a function of its inputs (a restarted planner
+        given the same priorities and key plans the same window)."""
+        if len(elapsed) != self.n:
+            raise ValueError(f"priorities for {len(elapsed)} robots, the planner has {self.n}")
+        self.elapsed = list(elapsed)
+        self.rng.seed(f"{self.seed}/{key}")
 
     def plan(self, states: Sequence[int], goals: Sequence[Sequence[int]], steps: int,
              hold: Sequence[int] | None = None, avoid: Sequence[int] = ()) -> Window:

@@ -204,14 +204,17 @@ class ShiftRecord(_Record):
 
 class SegmentRecord(_Record):
     """The planner's window for call ``call`` adopted at ``t_ms`` by a lifelong shift
-    (the :class:`~gateway.execution.lifelong.executor.Segment`: planner states step by step, and the
-    steps at which each robot reaches its goals)."""
+    (the :class:`~gateway.execution.lifelong.executor.Segment`: planner states step by step, the
+    steps at which each robot reaches its goals, and PIBT's priorities after it)."""
 
     kind: Literal["segment"] = "segment"
     call: int
     t_ms: float
     states: list[list[int]]
     reached: list[list[int]]
+    priorities: list[int] = []
+    """PIBT's priorities at the window's end (empty in a journal written before they were
+    kept)."""
 
 
 class ThresholdRecord(_Record):
