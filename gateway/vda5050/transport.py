@@ -204,7 +204,7 @@ class VdaTransport:
         if why is None:
             log.warning("a vehicle's errand failed: its task is cancelled", extra={
                 "robot": vehicle.robot.robot_id, "errand": failed.errand})
-            vehicle.robot.master.give_up(failed.errand)
+            vehicle.robot.master.give_up(failed.errand, time.time())
             self._flush(vehicle)
         else:
             log.warning("a vehicle's errand failed: the action stays blocked for an operator",

@@ -240,8 +240,13 @@ class VehicleMaster:
                  resend_s: float = 1.0, continuous: bool = False,
                  errand: Callable[[Action], Sequence[Errand]] | None = None,
                  ids: Callable[[str, int, int], list[str | None]] = consecutive_ids,
-                 instance: str = "") -> None:
+                 instance: str = "", max_steps: int = 64) -> None:
         self.topics = topics
+        self.max_steps = max_steps
+        """``continuous``: an order grows to at most this many actions; later ones wait for a
+        new order once the vehicle has done it. A vehicle keeps the state of every action of
+        its order until a new one comes (section 6.10.6, ``actionStates``), so one order
+        for a whole shift would make every state message longer as the shift goes on."""
         self.instance = instance
         """Part of every instant action's ``actionId``: one per master instance (the gateway
         gives a fresh one each start), so that a restarted master never reuses an id the
@@ -288,6 +293,9 @@ class VehicleMaster:
             else order.order_id.startswith(plan_key(actions[0].action_id) + "."))
         if live and order is not None and order.cancel_id is not None:
             self._carry.extend(actions)  # a new order once the cancelOrder completes
+        elif self.continuous and live and order is not None and (
+                self._carry or (not other_plan and len(order.steps) >= self.max_steps)):
+            self._carry.extend(actions)  # a new order once the vehicle has done this one
         elif live and order is not None and other_plan and order.horizon:
             # the vehicle waits for its old order's horizon: it would reject a new order
             # (figure 8), so that order is cancelled first
@@ -349,7 +357,7 @@ class VehicleMaster:
         """Ask for the ``factsheet`` (``factsheetRequest``)."""
         self._instant_action("factsheetRequest", now_s)
 
-    def give_up(self, errand: str) -> None:
+    def give_up(self, errand: str, now_s: float) -> None:
         """The gateway gives up the FAILED pick or drop ``errand`` (:class:`ErrandFailed`):
         the action it waited on is finished (reports follow from the last state)."""
         self._given_up.add(errand)
@@ -357,6 +365,15 @@ class VehicleMaster:
         if order is not None and not order.dead and state is not None \
                 and state.order_id == order.order_id:
             self._progress(order, state)
+            self._follow_on(order, now_s)
+
+    def _follow_on(self, order: _Order, now_s: float) -> None:
+        """Actions held back from a full order (``max_steps``) go out as a new order once
+        the vehicle has done the current one."""
+        if (self._carry and order.cancel_id is None and not order.dead
+                and all(step.finished for step in order.steps)):
+            carry, self._carry = self._carry, []
+            self._new_order(carry, now_s)
 
     def adopt(self, state: State) -> tuple[list[str], list[str]]:
         """After a restart: take over the order ``state`` shows, if this master (or its
@@ -462,6 +479,8 @@ class VehicleMaster:
                            if a.action_id == order.cancel_id), None)
             if status in ("FINISHED", "FAILED"):
                 self._cancel_done(order, now_s)
+        else:
+            self._follow_on(order, now_s)
 
     def drain(self) -> list[Effect]:
         """What to send and report, in order (then cleared)."""
