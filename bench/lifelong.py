@@ -39,7 +39,8 @@ events, as after hours of a shift (the pool keeps 100,000 of each).
 ``--scale`` (instead): the LoRR archive's warehouse_large (10,000 robots) and brc202d (6,500)
 under the 2026 rules, ``--ticks`` ticks each (skipped when the archive copy is absent), and
 a generated 10,000-robot warehouse of 1,000,000 cells (``--scale-only`` picks some;
-:mod:`sim_clients.lifelong_scale`).
+:mod:`sim_clients.lifelong_scale`), with at most ``--station-cap`` robots sent to one
+first-errand cell at a time (default 4; 0: no bound).
 
     .venv/bin/python bench/lifelong.py --scale --archive DIR --ticks 600
 """

@@ -65,6 +65,17 @@ def test_same_seed_same_run() -> None:
     assert runs[0].events == runs[1].events
 
 
+def test_tables_computed_ahead_change_no_decision() -> None:
+    """Computing the robots' later errands' tables between calls only moves work: with the
+    planner time charged as fixed, the run is the same with and without it, and each call
+    is followed by one measured spell of it."""
+    problem = small_problem(7)
+    runs = [run_lifelong(LifelongConfig(problem, ticks=90, period=4, planner_time=150.0,
+                                        warm=warm)) for warm in (True, False)]
+    assert runs[0].letters == runs[1].letters and runs[0].events == runs[1].events
+    assert len(runs[0].warm_times) == runs[0].calls and not runs[1].warm_times
+
+
 def test_slow_planner_costs_throughput_but_not_safety() -> None:
     """A planner charged 2.5 s per call leaves robots idle between plans."""
     problem = dataclasses.replace(small_problem(5, p_delay=0.0), agent_counter=1)
