@@ -586,7 +586,7 @@ def summarize(dirs: list[Path]) -> dict[str, Any]:
     ``--keep``; a campaign stopped before its end included): mode -> kind -> keys."""
     result: dict[str, Any] = {}
     for trial in sorted(f for d in dirs for f in d.glob("*/trial.json")):
-        mode, kind, _ = trial.parent.name.split("-")
+        mode, kind = trial.parent.name.split("-")[:2]
         row = result.setdefault(mode, {}).setdefault(kind, dict.fromkeys(KEYS, 0))
         for key, value in json.loads(trial.read_text())["class"].items():
             row[key] += value
