@@ -39,7 +39,8 @@ events, as after hours of a shift (the pool keeps 100,000 of each).
 ``--scale`` (instead): the LoRR archive's warehouse_large (10,000 robots) and brc202d (6,500)
 under the 2026 rules, ``--ticks`` ticks each (skipped when the archive copy is absent), and
 a generated 10,000-robot warehouse of 1,000,000 cells (``--scale-only`` picks some;
-:mod:`sim_clients.lifelong_scale`).
+:mod:`sim_clients.lifelong_scale`), with at most ``--station-cap`` robots sent to one
+first-errand cell at a time (default 4; 0: no bound).
 
     .venv/bin/python bench/lifelong.py --scale --archive DIR --ticks 600
 """
@@ -88,6 +89,7 @@ from sim_clients.lifelong_scale import (
     ARCHIVE_ENV,
     INSTANCES,
     MILLION,
+    STATION_CAP,
     archive_dir,
     scale_line,
     scale_one,
@@ -361,6 +363,9 @@ def main() -> None:
     ap.add_argument("--reassign", type=int, default=LifelongConfig.reassign,
                     help="--scale: planning calls between reassignments of unstarted tasks "
                          "(0: never)")
+    ap.add_argument("--station-cap", type=int, default=STATION_CAP,
+                    help="--scale: robots sent to one first-errand cell at a time (0: no "
+                         "bound)")
     ap.add_argument("--scale-only", default=",".join((*INSTANCES, MILLION)), metavar="NAMES",
                     help="--scale: comma-separated instances to run (default all: "
                          f"{', '.join((*INSTANCES, MILLION))})")
@@ -369,7 +374,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.scale_one:
         print(json.dumps(scale_one(args.scale_one, archive_dir(args.archive), args.ticks,
-                                   args.reassign)))
+                                   args.reassign, args.station_cap or None)))
         return
     if args.scale:
         names = [n for n in args.scale_only.split(",") if n]
@@ -377,7 +382,7 @@ def main() -> None:
         if unknown:
             ap.error(f"--scale-only: unknown instance {unknown[0]!r}")
         scaled = scale_runs(archive_dir(args.archive), args.ticks, args.reassign,
-                            [sys.executable, __file__], names)
+                            [sys.executable, __file__], names, args.station_cap or None)
         print(json.dumps(scaled) if args.json else scale_line(scaled))
         return
     if args.journal:

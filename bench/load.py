@@ -84,6 +84,14 @@ loop thread (CPU time of that thread).
 
     .venv/bin/python bench/load.py --lifelong --robots 500 --seconds 90 --lookahead 1 --json
 
+``--lifelong --against DIR --pairs N``: the same shift (problem, task feed, this version's
+robots) served by this gateway and by DIR's (its ``bench/load.py --serve-lifelong``),
+interleaved ABBA: ``cpu_per_action_ratio`` (the gateway process's CPU per action over the
+shift, this / that; the planner process is left out on both sides), the same for p99 and tasks
+per minute (no virtual-time reference is run).
+
+    .venv/bin/python bench/load.py --lifelong --robots 500 --seconds 30 --against ../main --pairs 2
+
 ``--lifelong --vda5050``: the same shift with every robot a simulated VDA 5050 vehicle
 (``sim_clients.vda_fleet``, this process, one MQTT connection each) on a private mosquitto,
 driven by the gateway's master control (docs/vda5050.md); errands are ``pick`` / ``drop``
@@ -667,24 +675,29 @@ async def _drive_vda_shift(vehicles: list[VdaVehicle], broker: str, wms: Wms,
 
 
 def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-              window: int, profile: Path | None = None, vda5050: bool = False
-              ) -> dict[str, Any]:
-    """One lifelong network run fed through the task API, and its virtual-time baseline; the
-    measurements as a dict. ``vda5050``: the fleet is simulated VDA 5050 vehicles on a
-    private mosquitto (picks and drops take no time, as in the virtual-time reference)."""
+              window: int, profile: Path | None = None, vda5050: bool = False,
+              tree: Path | None = None, reference: bool = True) -> dict[str, Any]:
+    """One lifelong network run fed through the task API, and (``reference``) its
+    virtual-time baseline; the measurements as a dict. ``vda5050``: the fleet is simulated
+    VDA 5050 vehicles on a private mosquitto (picks and drops take no time, as in the
+    virtual-time reference). ``tree``: the gateway process is that checkout's (as in
+    :func:`run_once`)."""
     problem = shift_problem(robots, seed)
     reveal = shift_reveal(problem)
     with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
         broker = stack.enter_context(LocalBroker()) if vda5050 else None
         trace = Path(tmp) / "trace.jsonl"
-        cmd = [sys.executable, __file__, "--serve-lifelong", str(trace), "--robots",
+        cmd = [sys.executable, str(tree / "bench" / "load.py") if tree else __file__,
+               "--serve-lifelong", str(trace), "--robots",
                str(robots), "--seed", str(seed), "--seconds", str(seconds), "--lookahead",
                str(lookahead), "--window", str(window)]
         if profile is not None:
             cmd += ["--profile", str(profile)]
         if broker is not None:
             cmd += ["--vda-broker", broker]
-        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
+        # in the tree: its planner process (``python -m``) imports from its working directory
+        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=tree)
         vehicles: list[VdaVehicle] = []
         stats = FleetStats()
         try:
@@ -728,19 +741,23 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
         collisions, picks = len(report.collisions), 0
         lost = len(dispatched - set(got))
     t0 = time.process_time()
-    virtual = run_lifelong(LifelongConfig(problem, ticks=seconds, period=1,
-                                          tick_ms=1000.0, seed=seed, window=window))
+    virtual = run_lifelong(LifelongConfig(problem, ticks=seconds, period=1, tick_ms=1000.0,
+                                          seed=seed, window=window)) if reference else None
     virtual_cpu = time.process_time() - t0
     minutes = gateway.get("elapsed_ms", 0.0) / 60_000.0
     network_rate = gateway.get("finished", 0) / minutes if minutes else 0.0
-    virtual_rate = virtual.finished / (seconds / 60.0)
+    virtual_rate = virtual.finished / (seconds / 60.0) if virtual is not None else 0.0
+    actions = len(dispatched) if vda5050 else len(stats.received)
     return {"robots": robots, "seconds": seconds, "lookahead": lookahead,
             "window": window or 1, "jitter": jitter, "vda5050": vda5050,
             "tasks_network": gateway.get("finished"),
             "tasks_per_min_network": round(network_rate, 1),
-            "tasks_virtual": virtual.finished, "tasks_per_min_virtual": round(virtual_rate, 1),
+            "tasks_virtual": virtual.finished if virtual is not None else None,
+            "tasks_per_min_virtual": round(virtual_rate, 1) if virtual is not None else None,
             "throughput_ratio": round(network_rate / virtual_rate, 3) if virtual_rate else None,
-            "actions": len(dispatched) if vda5050 else len(stats.received),
+            "actions": actions,
+            "gateway_cpu_ms_per_action": round(1000.0 * gateway["cpu_s"] / actions, 4)
+            if actions and "cpu_s" in gateway else None,
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
             "lost": lost, "duplicated": duplicated, "picks_and_drops": picks,
@@ -829,7 +846,35 @@ def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
             "load_1min_runs": [r["load_1min"] for r in ours],
             "against_load_1min_runs": [r["load_1min"] for r in theirs],
             "cpu_per_action_ratio": median_ratio(key, ours, theirs),
+            "owner_cpu_per_action_ratio": median_ratio("owner_cpu_ms_per_action", ours, theirs),
+            "owner_cpu_ms_per_action_runs": [r["owner_cpu_ms_per_action"] for r in ours],
+            "against_owner_cpu_ms_per_action": [r.get("owner_cpu_ms_per_action") for r in theirs],
             "p99_against_ratio": median_ratio("p99_ms", ours, theirs)}
+
+
+def shift_against(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
+                  window: int, pairs: int, tree: Path) -> dict[str, Any]:
+    """``pairs`` lifelong shifts of this gateway and of the one in ``tree``, interleaved ABBA
+    (the same problem, task feed and robots, this version's): the median run of this version
+    (by gateway CPU per action, the planner process's excluded on both sides) plus
+    ``cpu_per_action_ratio`` (this / that: < 1 is leaner), the same for p99 and for tasks
+    per minute, and the load average after each run. No virtual-time reference is run."""
+    ours, theirs = interleaved(pairs, lambda other: run_shift(
+        robots, seconds, seed, jitter, lookahead, window, tree=tree if other else None,
+        reference=False))
+    key = "gateway_cpu_ms_per_action"
+    result = sorted(ours, key=lambda r: r[key] or math.inf)[(pairs - 1) // 2]
+    return {**result, "pairs": pairs, "against": str(tree),
+            "cpu_ms_per_action": [r[key] for r in ours],
+            "against_cpu_ms_per_action": [r[key] for r in theirs],
+            "tasks_per_min": [r["tasks_per_min_network"] for r in ours],
+            "against_tasks_per_min": [r["tasks_per_min_network"] for r in theirs],
+            "load_1min_runs": [r["load_1min"] for r in ours],
+            "against_load_1min_runs": [r["load_1min"] for r in theirs],
+            "cpu_per_action_ratio": median_ratio(key, ours, theirs),
+            "p99_against_ratio": median_ratio("p99_ms", ours, theirs),
+            "tasks_per_min_against_ratio": median_ratio("tasks_per_min_network", ours,
+                                                        theirs)}
 
 
 def uvloop_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
@@ -905,7 +950,8 @@ def main() -> int:
                         "interleaved, and prints p99_journal_ratio; the baseline run is "
                         "journaled")
     p.add_argument("--pairs", type=int, default=1,
-                   help="with --journal or --against: how many runs of each (default 1)")
+                   help="with --journal or --against (--lifelong too): how many runs of each "
+                        "(default 1)")
     p.add_argument("--against", type=Path, metavar="DIR",
                    help="also run the gateway of another version's checkout DIR (e.g. `git "
                         "worktree add DIR 1045d02`), interleaved with this one, and print "
@@ -959,8 +1005,9 @@ def main() -> int:
     if args.against is not None and not (args.against / "bench" / "load.py").is_file():
         p.error(f"--against {args.against}: no bench/load.py there (give a checkout of "
                 "fleetgate)")
-    if args.against is not None and (args.find_max or args.lifelong):
-        p.error("--against measures one run per side: not with --find-max or --lifelong")
+    if args.against is not None and (args.find_max or args.vda5050):
+        p.error("--against measures one run per side over websockets: not with --find-max "
+                "or --vda5050")
     if args.uvloop and (args.against or args.find_max or args.lifelong):
         p.error("--uvloop measures one run per loop: not with --against, --find-max or "
                 "--lifelong")
@@ -974,6 +1021,18 @@ def main() -> int:
         check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.vda5050 and not args.lifelong:
         p.error("--vda5050 measures a lifelong shift: give --lifelong too")
+    if args.lifelong and args.against is not None:
+        shift = shift_against(args.robots, args.seconds, args.seed, args.jitter,
+                              args.lookahead, args.window, args.pairs, args.against.resolve())
+        print(json.dumps(shift) if args.json else
+              f"lifelong: {shift['robots']} robots, {args.seconds} s, {args.pairs} pair(s) "
+              f"against {shift['against']}: cpu_per_action_ratio "
+              f"{shift['cpu_per_action_ratio']} ({shift['cpu_ms_per_action']} vs "
+              f"{shift['against_cpu_ms_per_action']} ms per action), tasks/min ratio "
+              f"{shift['tasks_per_min_against_ratio']}, p99 ratio "
+              f"{shift['p99_against_ratio']}; lost {shift['lost']}, duplicated "
+              f"{shift['duplicated']}, collisions {shift['collisions']}")
+        return 0
     if args.lifelong:
         shift = run_shift(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
                           args.window, args.profile, args.vda5050)

@@ -8,9 +8,11 @@ offending ``msg_id``.
 from __future__ import annotations
 
 import json
+import math
 import re
 from typing import Any
 
+import orjson
 from pydantic import TypeAdapter, ValidationError
 
 from protocol.messages import (
@@ -181,6 +183,10 @@ def encode_action(v: int, msg_id: str, seq: int, fields: dict[str, Any]) -> str:
     """The JSON text of an ``action`` message with these envelope fields and ``fields`` (its
     own fields as plain JSON values: poses as ``{"cell": [x, y], "heading": h}``), written
     without building the model: the gateway's hot path, for the actions its own executor
-    released. It decodes to the model that :func:`encode` of ``Action(...)`` gives."""
-    return json.dumps({"v": v, "msg_id": msg_id, "seq": seq, "type": "action", **fields},
-                      separators=(",", ":"), allow_nan=False)
+    released. It decodes to the model that :func:`encode` of ``Action(...)`` gives (orjson:
+    ~5x cheaper than ``json.dumps``; it would write a NaN or infinite duration as ``null``,
+    so such a duration is refused first, as ``allow_nan=False`` did)."""
+    if not math.isfinite(fields["duration_ms"]):
+        raise ValueError(f"duration_ms {fields['duration_ms']!r} is not a finite number")
+    return orjson.dumps({"v": v, "msg_id": msg_id, "seq": seq, "type": "action",
+                         **fields}).decode()

@@ -30,7 +30,7 @@ from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar, cast
 
-from websockets.exceptions import ConnectionClosed
+from websockets.exceptions import ConnectionClosed, InvalidMessage, InvalidStatus
 
 from gateway.execution.commands import Dispatch
 from gateway.planning.grid import Cell
@@ -144,6 +144,17 @@ class FleetStats:
     """``code: detail`` of every ``error`` a robot was sent."""
 
 
+def transient(exc: BaseException) -> bool:
+    """Whether a failed connection attempt is worth repeating (LIVE-1: a robot whose link is
+    lost reconnects): nobody listening, a connection reset, a gateway that went away in the
+    middle of the handshake (it answered no valid HTTP response: e.g. it stopped on a journal
+    failure just as the robot reconnected), or a 5xx answer. A refused token (401, 403) or
+    another 4xx is not."""
+    if isinstance(exc, InvalidStatus):
+        return exc.response.status_code >= 500
+    return isinstance(exc, OSError | ConnectionClosed | InvalidMessage | EOFError)
+
+
 class FleetRobot:
     """One simulated robot and its connection: a :class:`SimRobot` body driven by the shared
     protocol session (:class:`~protocol.robot_session.RobotSession`)."""
@@ -206,14 +217,14 @@ class FleetRobot:
             except ssl.SSLError as exc:  # verification failed: retrying will not help
                 fleet.fail(f"robot {self.robot_id}: TLS: {exc.reason or exc}")
                 return
-            except (OSError, ConnectionClosed) as exc:
+            except Exception as exc:
+                if not transient(exc):  # e.g. its token refused: retrying will not help
+                    fleet.fail(f"robot {self.robot_id}: cannot connect: {exc}")
+                    return
                 log.info("robot %d cannot connect: %s", self.robot_id, exc)
                 fleet.unreachable(exc)
                 await asyncio.sleep(fleet.reconnect_delay_s)
                 continue
-            except Exception as exc:  # e.g. handshake refused: retrying will not help
-                fleet.fail(f"robot {self.robot_id}: cannot connect: {exc}")
-                return
             self._conn = conn
             writer = asyncio.create_task(self._write(conn))
             try:
@@ -573,7 +584,10 @@ class SimFleet:
             except ssl.SSLError as exc:
                 self.fail(f"the world connection: TLS: {exc.reason or exc}")
                 return
-            except (OSError, ConnectionClosed) as exc:
+            except Exception as exc:
+                if not transient(exc):
+                    self.fail(f"the world connection: cannot connect: {exc}")
+                    return
                 self.unreachable(exc)
                 await asyncio.sleep(self.reconnect_delay_s)
                 continue

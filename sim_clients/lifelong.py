@@ -124,6 +124,8 @@ class LifelongConfig:
     max_wait: int | None = MAX_WAIT_TICKS  # fairness bound (ticks; None: none), TaskPool.max_wait
     reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
     reassign_batch: int = REASSIGN_BATCH  # robots whose unstarted task a reassignment releases
+    station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
+    warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     seed: int = 0
     output_window: int = 1000
 
@@ -146,6 +148,10 @@ class LifelongResult:
     max_pending: int = 0
     calls: int = 0
     waits: list[float] = field(default_factory=list)
+    warm_times: list[float] = field(default_factory=list)
+    """CPU seconds after each call computing the tables of the robots' later errands (the
+    gateway's planner worker does this between calls, :class:`~gateway.server.runs.
+    planner_process.Warm`; here on the second core: not charged to the call)."""
     extra: dict[str, float] = field(default_factory=dict)
 
 
@@ -190,14 +196,15 @@ def run_lifelong(cfg: LifelongConfig,
                                                  / counter),
                               space=None if space.exact or space.compact else space)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
-                    max_wait=cfg.max_wait)
+                    max_wait=cfg.max_wait, station_cap=cfg.station_cap)
     book = ErrandBook(pool, n)
     # LoRR's preprocessing (up to 30 s before the first tick): the scheduler's tables of the
     # revealed tasks' errands but the last (their first errands and their legs), which the
     # first call would compute otherwise
     cpu0 = time.thread_time()
     distances.space.prefetch([c for task in pool.open.values() for c in task.errands[:-1]])
-    if space.compact:  # and the planner's own (compact) tables of the robots' first goals
+    if space.exact or space.compact:  # and the planner's own tables of the first goals (the
+        # city's first call took 2.5 s of CPU without them: 25 ticks before any robot moved)
         space.prefetch([task.errands[0] for task in pool.open.values()])
     preprocess_s = time.thread_time() - cpu0
 
@@ -210,6 +217,7 @@ def run_lifelong(cfg: LifelongConfig,
     released: list[tuple[int, int, tuple[int, ...]]] = []
     recorded: set[int] = set()
     planner_times: list[float] = []
+    warm_times: list[float] = []
     pending: _Pending | None = None
     next_call = 0
     sum_of_cost = 0
@@ -270,6 +278,10 @@ def run_lifelong(cfg: LifelongConfig,
             tasks_of = book.planned(win.reached)
             cpu = time.thread_time() - cpu0
             planner_times.append(cpu)
+            if cfg.warm:  # tables for after the robots' present errands, before they are due
+                cpu0 = time.thread_time()
+                space.prefetch([c for g in book.goals() for c in g[1:]])
+                warm_times.append(time.thread_time() - cpu0)
             delay_ticks = math.ceil(_planner_ms(cfg.planner_time, cpu) / cfg.tick_ms)
             pending = _Pending(t + delay_ticks, win.states, win.reached, tasks_of)
             next_call = t + cfg.period
@@ -320,6 +332,7 @@ def run_lifelong(cfg: LifelongConfig,
         events=events, tasks=released, planner_times=planner_times,
         delay_intervals=delays.intervals, starts=starts_out, sum_of_cost=sum_of_cost,
         max_pending=max_pending, calls=len(planner_times), waits=pool.waits(cfg.ticks),
+        warm_times=warm_times,
         extra={"delayed": idle[0] / (n * cfg.ticks), "waiting": idle[1] / (n * cfg.ticks),
                "no_work": idle[2] / (n * cfg.ticks), "preprocess_s": preprocess_s})
 

@@ -4,14 +4,16 @@ LoRR 2024 main-round instances warehouse_large (10,000 agents, WAREHOUSE.json) a
 (6,500 agents, GAME.json), read from a copy of the public MAPF-Competition/Benchmark-Archive
 repository (``--archive DIR`` or ``$FLEETGATE_LORR_ARCHIVE``; never committed here; skipped
 cleanly when absent), converted by :mod:`gateway.planning.lorr_convert` (3 ticks an action,
-delays, no following) and run for ``--ticks`` ticks, each in its own process: planner CPU
-per call (p50, p99, max, the first call apart: it schedules every robot and computes every
-table), peak RSS of the run and of the independent validator (``tracecheck/lorr.py``) after
-it, tasks finished and first errands done, the shares of robot-ticks spent delayed, waiting
-for another robot and without committed work, and the ratio to the published winners'
-figures over 5,000 steps (WPPL, 2023; EPIBT, 2024) scaled to the same number of ticks and
-to the same number of actions (a 2026 tick is a third of an action: see the module doc of
-the converter).
+delays, no following) and run for ``--ticks`` ticks, each in its own process, with a
+station cap (:data:`STATION_CAP`): planner CPU per call (p50, p99, max, the first call apart:
+it schedules every robot and computes every table) and of the tables of the robots' later
+errands computed between calls (on the second core, as the gateway's planner worker does: not
+charged to the calls), peak RSS of the run and of the independent validator
+(``tracecheck/lorr.py``) after it, tasks finished and first errands done, the shares of
+robot-ticks spent delayed, waiting for another robot and without committed work, and the
+ratio to the published winners' figures over 5,000 steps (WPPL, 2023; EPIBT, 2024) scaled to
+the same number of ticks and to the same number of actions (a 2026 tick is a third of an
+action: see the module doc of the converter).
 :data:`MILLION` adds a generated 10,000-robot warehouse of 1,000,000 cells (no archive
 needed, no published figures).
 """
@@ -39,6 +41,10 @@ from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
 from tracecheck.lorr import check_output, read_free
 
 ARCHIVE_ENV = "FLEETGATE_LORR_ARCHIVE"
+STATION_CAP = 4
+"""Robots sent to one first-errand cell at a time in the scale runs
+(:attr:`~gateway.execution.lifelong.tasks.TaskPool.station_cap`; 600 ticks, warehouse_large:
+137 tasks without a cap, 591 with 12, 1,075 with 4)."""
 PUBLISHED_STEPS = 5000
 """Steps of the competitions' main-round runs of these instances."""
 
@@ -113,15 +119,18 @@ def _percentile(values: list[float], q: float) -> float:
     return ordered[max(0, math.ceil(q * len(ordered)) - 1)] if ordered else 0.0
 
 
-def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, Any]:
-    """Run one instance in this process (see the module doc); one dict of figures."""
+def scale_one(name: str, archive: Path, ticks: int, reassign: int,
+              station_cap: int | None = STATION_CAP) -> dict[str, Any]:
+    """Run one instance in this process (see the module doc; ``station_cap``: the task
+    pool's, :attr:`~gateway.execution.lifelong.tasks.TaskPool.station_cap`); one dict of
+    figures."""
     changes: tuple[str, ...] = ("generated under the 2026 rules",)
     if name == MILLION:
         prob = million_warehouse()
     else:
         conv = convert(archive / INSTANCES[name].path)
         prob, changes = conv.problem, conv.changes
-    cfg = LifelongConfig(prob, ticks=ticks, reassign=reassign)
+    cfg = LifelongConfig(prob, ticks=ticks, reassign=reassign, station_cap=station_cap)
     res = run_lifelong(cfg)
     run_mb = _peak_mb()
     check_output(lorr_output(cfg, res), read_free(format_map(prob.grid)))
@@ -130,6 +139,7 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, 
     actions = ticks / prob.agent_counter
     out: dict[str, Any] = {
         "instance": name, "robots": prob.team_size, "ticks": ticks, "reassign": reassign,
+        "station_cap": station_cap,
         "free_cells": int(prob.grid.free.sum()), "finished": res.finished,
         "calls": res.calls, "preprocess_s": round(res.extra["preprocess_s"], 2),
         "first_call_s": round(times[0], 2) if times else None,
@@ -137,6 +147,8 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, 
         "cpu_p99_s": round(_percentile(later, 0.99), 3),
         "cpu_max_s": round(max(later, default=0.0), 3),
         "calls_over_1s": sum(t > 1.0 for t in later),
+        "warm_p99_s": round(_percentile(res.warm_times[1:], 0.99), 3),
+        "warm_max_s": round(max(res.warm_times[1:], default=0.0), 3),
         "peak_rss_mb": round(run_mb), "validator_peak_rss_mb": round(_peak_mb()),
         "idle": {k: round(res.extra[k], 3) for k in ("delayed", "waiting", "no_work")},
         "first_errands_done": sum(e[3] == 1 for e in res.events),
@@ -154,11 +166,12 @@ def scale_one(name: str, archive: Path, ticks: int, reassign: int) -> dict[str, 
 
 
 def scale_runs(archive: Path, ticks: int, reassign: int, command: Sequence[str],
-               names: Sequence[str] = (*INSTANCES, MILLION)) -> list[dict[str, Any]]:
+               names: Sequence[str] = (*INSTANCES, MILLION),
+               station_cap: int | None = STATION_CAP) -> list[dict[str, Any]]:
     """Each instance of ``names`` whose files are there (the generated one always is), in its
     own process (its own peak RSS: ``command`` followed by ``--scale-one NAME --archive
-    --ticks --reassign`` prints :func:`scale_one` as one JSON line); an instance that is
-    absent gives ``{"instance": name, "skipped": reason}``."""
+    --ticks --reassign --station-cap`` prints :func:`scale_one` as one JSON line); an
+    instance that is absent gives ``{"instance": name, "skipped": reason}``."""
     out: list[dict[str, Any]] = []
     for name in names:
         inst = INSTANCES.get(name)
@@ -167,7 +180,8 @@ def scale_runs(archive: Path, ticks: int, reassign: int, command: Sequence[str],
             continue
         proc = subprocess.run(
             [*command, "--scale-one", name, "--archive", str(archive),
-             "--ticks", str(ticks), "--reassign", str(reassign)],
+             "--ticks", str(ticks), "--reassign", str(reassign),
+             "--station-cap", str(station_cap or 0)],
             capture_output=True, text=True, check=False)
         if proc.returncode:
             raise SystemExit(f"{name}: the run failed: "
@@ -188,7 +202,8 @@ def scale_line(runs: list[dict[str, Any]]) -> str:
             f"planner CPU per call p50 {r['cpu_p50_s']} s p99 {r['cpu_p99_s']} s max "
             f"{r['cpu_max_s']} s (first {r['first_call_s']} s after {r['preprocess_s']} s of "
             f"preprocessing; {r['calls_over_1s']} of "
-            f"{r['calls'] - 1} later calls over 1 s), peak RSS {r['peak_rss_mb']} MB "
+            f"{r['calls'] - 1} later calls over 1 s; tables ahead between calls p99 "
+            f"{r['warm_p99_s']} s), peak RSS {r['peak_rss_mb']} MB "
             f"(validator {r['validator_peak_rss_mb']} MB), valid"
             + (f"; vs WPPL {r['wppl_per_tick_ratio']} per tick / {r['wppl_per_action_ratio']} "
                f"per action, vs EPIBT {r['epibt_per_tick_ratio']} / "

@@ -204,14 +204,17 @@ class ShiftRecord(_Record):
 
 class SegmentRecord(_Record):
     """The planner's window for call ``call`` adopted at ``t_ms`` by a lifelong shift
-    (the :class:`~gateway.execution.lifelong.executor.Segment`: planner states step by step, and the
-    steps at which each robot reaches its goals)."""
+    (the :class:`~gateway.execution.lifelong.executor.Segment`: planner states step by step, the
+    steps at which each robot reaches its goals, and PIBT's priorities after it)."""
 
     kind: Literal["segment"] = "segment"
     call: int
     t_ms: float
     states: list[list[int]]
     reached: list[list[int]]
+    priorities: list[int] = []
+    """PIBT's priorities at the window's end (empty in a journal written before they were
+    kept)."""
 
 
 class ThresholdRecord(_Record):
@@ -304,6 +307,7 @@ _ADAPTER: TypeAdapter[JournalRecord] = TypeAdapter(JournalRecord)
 
 
 _EVENTS = frozenset(get_args(ExecutorEvent))
+_EMPTY = '""'  # the JSON of an empty reason (every report but a refusal)
 _TIME_KINDS = frozenset(get_args(TimeRecord.model_fields["kind"].annotation))
 
 
@@ -323,6 +327,32 @@ def plain(record: _Record) -> bool:
                 and type(d["index"]) is int and _finite(d["t_ms"]) and type(reason) is str
                 and reason.isascii())
     return type(record) is TimeRecord and d["kind"] in _TIME_KINDS and _finite(d["t_ms"])
+
+
+class EncodedReport:
+    """A :class:`ReportRecord` already encoded, as :func:`report_json` writes it (the owner's
+    hot path: one per robot report, no model built); :meth:`Journal.append` writes its body
+    as it is."""
+
+    __slots__ = ("body",)
+    kind = "report"
+
+    def __init__(self, body: str) -> None:
+        self.body = body
+
+
+def report_json(event: str, robot: int, plan: int, index: int, t_ms: float,
+                reason: str = "") -> str | None:
+    """The JSON of the report record of these values if they round-trip by construction (as
+    :func:`plain` checks a record's: a valid event, exact ints, a finite float, ASCII text),
+    written directly; None otherwise (the caller builds the record: it is read back)."""
+    if not (event in _EVENTS and type(robot) is int and type(plan) is int
+            and type(index) is int and _finite(t_ms) and type(reason) is str
+            and reason.isascii()):
+        return None
+    why = json.dumps(reason) if reason else _EMPTY
+    return (f'{{"kind":"report","event":"{event}","robot":{robot},"plan":{plan},'
+            f'"index":{index},"t_ms":{t_ms!r},"reason":{why}}}')
 
 
 class JournalError(Exception):
@@ -530,10 +560,13 @@ class Journal:
             raise ValueError(f"a {record.kind} record does not round-trip")  # type: ignore[attr-defined]
         return body
 
-    def append(self, record: _Record) -> None:
+    def append(self, record: _Record | EncodedReport) -> None:
         """Buffer one record (written by the next :meth:`commit`)."""
-        kind: str = record.kind  # type: ignore[attr-defined]
-        self._buffer.append((kind, self.encode(record)))
+        if type(record) is EncodedReport:
+            self._buffer.append(("report", record.body))
+            return
+        kind: str = record.kind  # type: ignore[union-attr]
+        self._buffer.append((kind, self.encode(record)))  # type: ignore[arg-type]
         if kind in DURABLE_KINDS:
             self._durable = True
 

@@ -6,14 +6,32 @@ is the sink that writes them to a file.
 
 from __future__ import annotations
 
-import json
 from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+import orjson
+
 from fleetgate.userio.files import atomic_open
 from gateway.execution.trace_records import Record
+
+
+def _plain(value: object) -> object:
+    """A value orjson does not write itself: a subclass of float or int (numpy's) as one."""
+    if isinstance(value, float):
+        return float(value)
+    if isinstance(value, int):
+        return int(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")
+
+
+def trace_line(record: Record) -> str:
+    """One trace record as its line: compact JSON (orjson: ~10x cheaper than ``json.dumps``,
+    one of several records per action on the gateway's owner task) and a newline. Every
+    writer of trace files (the gateway's live and replayed traces, :class:`JsonlWriter`)
+    writes this."""
+    return orjson.dumps(record, default=_plain).decode() + "\n"
 
 
 class JsonlWriter:
@@ -34,8 +52,7 @@ class JsonlWriter:
 
     def __call__(self, record: Record) -> None:
         """Append one record."""
-        self._file.write(json.dumps(record, separators=(",", ":")))
-        self._file.write("\n")
+        self._file.write(trace_line(record))
 
     def close(self, failed: BaseException | None = None) -> None:
         """Flush, and if this writer opened the file put it in place (or, after ``failed``,

@@ -7,7 +7,9 @@ allocates later is collected, but rarely (:data:`GC_THRESHOLDS`): nearly all of 
 reference counting, and with the default thresholds the collector ran every 700 allocations,
 ~25 % of the gateway's CPU and 30-60 ms pauses at 2,000 robots. The tuning lasts for the run
 only: a collection first, so that no garbage of an earlier run is frozen and a gateway serving
-many runs does not grow; the defaults come back when the run is complete.
+many runs does not grow; the defaults come back when the run is complete. A lifelong gateway
+is tuned from its start too (its shift's task pool takes a WMS's tasks before the shift
+starts).
 """
 
 from __future__ import annotations

@@ -68,20 +68,37 @@ class Metrics:
         self.journal_commit = Histogram(
             "fleetgate_journal_commit_seconds", "Journal commits (wall seconds)",
             buckets=LATENCY_BUCKETS, registry=r)
+        self.finished_pending = 0
+        """Finishes applied but not yet added to :attr:`finished` (the owner counts each
+        action with a plain ``+= 1``; every read, :meth:`value` and :meth:`render`, adds
+        them first: a Prometheus ``inc`` takes a lock, two per action on the owner task)."""
+        self.dispatched_pending = 0
+        """Dispatches not yet added to :attr:`dispatched` (as :attr:`finished_pending`)."""
         self.task_counts: Callable[[], dict[str, int]] | None = None
         """Lifelong mode: how many tasks are in each state now, read at each :meth:`render`."""
         self.waits: Callable[[], dict[str, float]] | None = None
         """Lifelong mode: the assignment waits' ``p50``, ``p90``, ``p99`` and ``max`` (s),
         read at each :meth:`render`."""
 
+    def _fold(self) -> None:
+        """Add the pending counts to their counters."""
+        if self.finished_pending:
+            self.finished.inc(self.finished_pending)
+            self.finished_pending = 0
+        if self.dispatched_pending:
+            self.dispatched.inc(self.dispatched_pending)
+            self.dispatched_pending = 0
+
     def value(self, sample: str, **labels: str) -> float:
         """A sample's value now (``fleetgate_actions_finished_total``, a labelled one by its
         labels); 0 if it has none yet."""
+        self._fold()
         found = self.registry.get_sample_value(sample, labels or None)
         return 0.0 if found is None else found
 
     def render(self) -> bytes:
         """The Prometheus text exposition of every metric."""
+        self._fold()
         if self.task_counts is not None:
             counts = self.task_counts()
             for state in OPEN_STATES:

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import json
 from collections import deque
 from pathlib import Path
 from typing import IO, Any, get_args
 
 from gateway.execution.trace_records import intruder_record
 from gateway.planning.grid import Cell
+from gateway.runtime.trace import trace_line
 from gateway.server.wire.session import Session
 from protocol import Event
 from protocol.messages import EventKind
@@ -135,7 +135,7 @@ class OperatorFeed:
     def write_trace(self, rec: dict[str, object]) -> None:
         """One record for the trace file (if one is open), written by :meth:`flush_trace`."""
         if self._trace is not None:
-            self._pending.append(json.dumps(rec) + "\n")
+            self._pending.append(trace_line(rec))
             self.trace_lines += 1
 
     def flush_trace(self) -> None:

@@ -15,14 +15,43 @@ every marker as the book appends it, so none is missed.
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING, Literal
 
+from gateway.execution.lifelong.tasks import TaskError
 from protocol.messages import Action, parse_action_id
 from protocol.vda5050.master import DEPART, Errand
 
 if TYPE_CHECKING:
     from gateway.execution.lifelong.executor import LifelongExecutor
     from gateway.server.engine import Engine
+
+
+_ERRAND_ID = re.compile(r"^(?:pick|drop)-t(\d+)\.\d+(?:" + re.escape(DEPART) + ")?$")
+
+
+def errand_task(errand: str) -> int | None:
+    """The task id in an errand's ``actionId`` (``pick-t<task>.<index>``), else None."""
+    m = _ERRAND_ID.match(errand)
+    return int(m[1]) if m else None
+
+
+def give_up_failed(engine: Engine, errand: str) -> str | None:
+    """A vehicle's pick or drop ``errand`` FAILED: the task is cancelled as the task API
+    cancels it (``DELETE /tasks/<id>``: a task none of whose errands is done, journaled, its
+    event on the stream; its robot finds it gone and takes another), and None is returned.
+    A task with an errand done (a failed drop: the load is on the vehicle) cannot be
+    cancelled: why not is returned, and the vehicle's action stays blocked for an operator.
+    Call in the owner task."""
+    task_id = errand_task(errand)
+    shift = engine.lifelong
+    if task_id is None or shift is None:
+        return f"{errand} is no errand of this shift"
+    try:
+        shift.executor.pool.cancel(task_id, engine.now_ms())
+    except TaskError as exc:
+        return str(exc)
+    return None
 
 
 class ShiftErrands:

@@ -20,11 +20,12 @@ from typing import TYPE_CHECKING
 
 import aiomqtt
 
+from gateway.server.items import OwnerCall
 from gateway.server.wire.auth import Peer
 from gateway.server.wire.transport import MemoryClient, memory_pair
 from gateway.vda5050.config import Vda5050Config
 from gateway.vda5050.driver import MasterClient
-from gateway.vda5050.errands import ShiftErrands
+from gateway.vda5050.errands import ShiftErrands, give_up_failed
 from protocol.codec import ProtocolError, decode, encode
 from protocol.messages import (
     HEADINGS,
@@ -35,7 +36,13 @@ from protocol.messages import (
     action_run,
     parse_action_id,
 )
-from protocol.vda5050.master import Effect, LinkState, VehicleMaster, consecutive_ids
+from protocol.vda5050.master import (
+    Effect,
+    ErrandFailed,
+    LinkState,
+    VehicleMaster,
+    consecutive_ids,
+)
 from protocol.vda5050.robot import VdaRobot
 
 if TYPE_CHECKING:
@@ -183,8 +190,26 @@ class VdaTransport:
             else:
                 asyncio.get_running_loop().create_task(self._close(vehicle))
             return
+        if isinstance(effect, ErrandFailed):
+            self.gateway.engine.queue.put_nowait(OwnerCall(
+                lambda: self._give_up(vehicle, effect)))
+            return
         vehicle.robot.vehicle(effect)
         self._flush(vehicle)
+
+    def _give_up(self, vehicle: _Vehicle, failed: ErrandFailed) -> None:
+        """In the owner task: cancel the task of a failed pick (then the vehicle's action
+        finishes), or leave the action blocked (a drop: the task has an errand done)."""
+        why = give_up_failed(self.gateway.engine, failed.errand)
+        if why is None:
+            log.warning("a vehicle's errand failed: its task is cancelled", extra={
+                "robot": vehicle.robot.robot_id, "errand": failed.errand})
+            vehicle.robot.master.give_up(failed.errand, time.time())
+            self._flush(vehicle)
+        else:
+            log.warning("a vehicle's errand failed: the action stays blocked for an operator",
+                        extra={"robot": vehicle.robot.robot_id, "errand": failed.errand,
+                               "error": why[:300]})
 
     def _state(self, master: VehicleMaster) -> None:
         vehicle = self.vehicles[id(master)]

@@ -16,8 +16,9 @@ refused reports back. A vehicle speaks VDA 5050. :class:`VehicleMaster` translat
   whose end node is traversed (``lastNodeSequenceId`` reached its node) is finished (and
   started first if no state showed it started); the next released action is started when the
   vehicle drives (``driving`` and not ``paused``) after traversing its start node. A vehicle
-  that does not move on because of an obstacle (a protective field violation or a WARNING
-  error that is not an order rejection) blocks the action it waits to start; ``unblocked``
+  that does not move on because of an obstacle (a protective field violation, or an error
+  that neither rejects an order nor refers to an instant action: a WARNING such as an obstacle,
+  or a FATAL one that waits for a human) blocks the action it waits to start; ``unblocked``
   when that clears. States lost on the way (QoS 0) lose no report: the next state carries the
   progress;
 * the gateway cancels actions it released but that have not started (a replan): the base
@@ -31,6 +32,10 @@ refused reports back. A vehicle speaks VDA 5050. :class:`VehicleMaster` translat
   ``validationError``, ``orderError``, ``orderUpdateError``, ``noRouteError``) refuses its
   first action and, with it, every later released action; the rejection of an update that
   came after a lost one is no refusal (the lost one is resent, then the rest);
+* a pick or drop on an action's end node that the vehicle reports FAILED blocks the action
+  (:class:`ErrandFailed` asks the gateway); once the gateway gives it up
+  (:meth:`VehicleMaster.give_up`) the action is finished;
+* instant actions' ids are unique per master instance (``instance``);
 * ``pause`` / ``resume`` are the instant actions ``startPause`` / ``stopPause``;
   ``stateRequest`` and ``factsheetRequest`` are sent on request;
 * the ``connection`` topic (ONLINE, OFFLINE, the last will CONNECTIONBROKEN) is the link state;
@@ -152,7 +157,18 @@ class LinkState:
     state: str
 
 
-Effect = Publish | Report | LinkState
+@dataclass(frozen=True, slots=True)
+class ErrandFailed:
+    """The vehicle reports the pick or drop ``errand`` of action ``action_id`` (on its end
+    node, or on its edge) FAILED (section 6.8.2: e.g. the station is unexpectedly empty). The
+    action is blocked until the gateway gives the errand up (:meth:`VehicleMaster.give_up`:
+    its task no longer needs it), then reported as the vehicle drove it."""
+
+    errand: str
+    action_id: str
+
+
+Effect = Publish | Report | LinkState | ErrandFailed
 
 
 @dataclass(slots=True)
@@ -167,6 +183,8 @@ class _Step:
     blocked: bool = False
     errand: str | None = None
     """The ``actionId`` of the pick/drop on its end node, if it has one."""
+    depart: str | None = None
+    """The ``actionId`` of the pick/drop on its edge (done before the vehicle drives it)."""
 
     @property
     def node_seq(self) -> int:
@@ -222,8 +240,13 @@ class VehicleMaster:
                  resend_s: float = 1.0, continuous: bool = False,
                  errand: Callable[[Action], Sequence[Errand]] | None = None,
                  ids: Callable[[str, int, int], list[str | None]] = consecutive_ids,
-                 instance: str = "") -> None:
+                 instance: str = "", max_steps: int = 64) -> None:
         self.topics = topics
+        self.max_steps = max_steps
+        """``continuous``: an order grows to at most this many actions; later ones wait for a
+        new order once the vehicle has done it. A vehicle keeps the state of every action of
+        its order until a new one comes (section 6.10.6, ``actionStates``), so one order
+        for a whole shift would make every state message longer as the shift goes on."""
         self.instance = instance
         """Part of every instant action's ``actionId``: one per master instance (the gateway
         gives a fresh one each start), so that a restarted master never reuses an id the
@@ -243,6 +266,7 @@ class VehicleMaster:
         self._plan: list[Action] = []
         self._carry: list[Action] = []
         self._cancelled: set[str] = set()
+        self._given_up: set[str] = set()
         self._header = Headers(version, topics)
         self._instant = 0
         self._want_paused: bool | None = None
@@ -269,6 +293,9 @@ class VehicleMaster:
             else order.order_id.startswith(plan_key(actions[0].action_id) + "."))
         if live and order is not None and order.cancel_id is not None:
             self._carry.extend(actions)  # a new order once the cancelOrder completes
+        elif self.continuous and live and order is not None and (
+                self._carry or (not other_plan and len(order.steps) >= self.max_steps)):
+            self._carry.extend(actions)  # a new order once the vehicle has done this one
         elif live and order is not None and other_plan and order.horizon:
             # the vehicle waits for its old order's horizon: it would reject a new order
             # (figure 8), so that order is cancelled first
@@ -329,6 +356,24 @@ class VehicleMaster:
     def request_factsheet(self, now_s: float) -> None:
         """Ask for the ``factsheet`` (``factsheetRequest``)."""
         self._instant_action("factsheetRequest", now_s)
+
+    def give_up(self, errand: str, now_s: float) -> None:
+        """The gateway gives up the FAILED pick or drop ``errand`` (:class:`ErrandFailed`):
+        the action it waited on is finished (reports follow from the last state)."""
+        self._given_up.add(errand)
+        order, state = self._order, self.state
+        if order is not None and not order.dead and state is not None \
+                and state.order_id == order.order_id:
+            self._progress(order, state)
+            self._follow_on(order, now_s)
+
+    def _follow_on(self, order: _Order, now_s: float) -> None:
+        """Actions held back from a full order (``max_steps``) go out as a new order once
+        the vehicle has done the current one."""
+        if (self._carry and order.cancel_id is None and not order.dead
+                and all(step.finished for step in order.steps)):
+            carry, self._carry = self._carry, []
+            self._new_order(carry, now_s)
 
     def adopt(self, state: State) -> tuple[list[str], list[str]]:
         """After a restart: take over the order ``state`` shows, if this master (or its
@@ -400,9 +445,10 @@ class VehicleMaster:
         held = state.order_update_id if state and state.order_id == order.order_id else -1
         pending = order.sent[max(0, held + 1 - order.base_update):]
         if pending and now_s - pending[0].sent_s >= self.resend_s:
-            for sent in pending:
-                sent.sent_s = now_s
-                self._emit(Publish("order", sent.order))
+            for sent in pending:  # the same order message under a new header: headerId
+                sent.sent_s = now_s  # counts every message sent (section 6.4)
+                self._emit(Publish("order", sent.order.model_copy(
+                    update=self._header("order", now_s))))
 
     # ------------------------------------------------------------------ vehicle -> gateway
 
@@ -433,6 +479,8 @@ class VehicleMaster:
                            if a.action_id == order.cancel_id), None)
             if status in ("FINISHED", "FAILED"):
                 self._cancel_done(order, now_s)
+        else:
+            self._follow_on(order, now_s)
 
     def drain(self) -> list[Effect]:
         """What to send and report, in order (then cleared)."""
@@ -479,7 +527,8 @@ class VehicleMaster:
         errands = [e for e in errands if not (e.on_edge and e.action_id in held)]
         node = self._node(action, edge_seq + 1, True, errands)
         step = _Step(action, edge_seq, node, errand=next(
-            (e.action_id for e in errands if not e.on_edge), None))
+            (e.action_id for e in errands if not e.on_edge), None), depart=next(
+            (e.action_id for e in errands if e.on_edge), None))
         return step, self._edge(action, edge_seq, True, errands)
 
     def _horizon(self, last: Action, seq: int) -> tuple[list[Node], list[Edge]]:
@@ -566,6 +615,15 @@ class VehicleMaster:
             if step.finished:
                 continue
             aid = step.action.action_id
+            if step.depart is not None and not step.started:
+                if status is None:
+                    status = {a.action_id: a.action_status for a in msg.action_states}
+                if status.get(step.depart) == "FAILED" and step.depart not in self._given_up:
+                    if not step.blocked:  # the pick or drop before it drives off failed
+                        step.blocked = True
+                        self._emit(Report("blocked", aid))
+                        self._emit(ErrandFailed(step.depart, aid))
+                    break
             if step.node_seq <= reached:
                 if not step.started:
                     self._started(step)
@@ -573,11 +631,16 @@ class VehicleMaster:
                     if status is None:
                         status = {a.action_id: a.action_status for a in msg.action_states}
                     errand = status.get(step.errand)
-                    if errand != "FINISHED":  # the pick or drop there runs (or failed)
+                    done = errand == "FINISHED" or (
+                        errand == "FAILED" and step.errand in self._given_up)
+                    if not done:  # the pick or drop there runs (or failed)
                         if (errand == "FAILED") != step.blocked:
                             step.blocked = errand == "FAILED"
                             self._emit(Report("blocked" if step.blocked else "unblocked", aid))
+                            if step.blocked:
+                                self._emit(ErrandFailed(step.errand, aid))
                         break
+                    self._given_up.discard(step.errand)
                     if step.blocked:
                         step.blocked = False
                         self._emit(Report("unblocked", aid))

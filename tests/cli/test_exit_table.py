@@ -113,6 +113,8 @@ ROWS = [
     Row("bench-distance", ("bench/distance.py", "--goals", "3", "--blocks", "3", "3"),
         folder=("bench/distance.py", "--map", "{file}/m.map")),
     Row("bench-feed", ("bench/feed.py", "--robots", "20", "--repeat", "1", "--json")),
+    Row("bench-following", ("bench/following.py", "--steps", "2", "--seeds", "1", "--json"),
+        folder=("bench/following.py", "--lorr", "{file}/x")),
     Row("bench-lifelong", ("bench/lifelong.py", "--journal", "--robots", "10", "--seconds",
                            "30", "--json")),
     Row("bench-load", ("bench/load.py", "--robots", "20", "--seconds", "5", "--json"),

@@ -145,3 +145,22 @@ def test_operator_plan_now_and_a_threshold_switched_on_later() -> None:
     assert ex.fleet_slack_ms == 0.0
     ex.tick(1200.0)
     assert ex.fleet_slack_ms >= 0.0
+
+
+def test_a_restarted_planner_answers_as_the_first_would() -> None:
+    # PIBT's priorities go out with each request and come back with each adopted segment,
+    # and a call's random stream is its own: a fresh planner (a restarted planner process)
+    # answers the executor's next request exactly as the one that answered the earlier calls
+    prob = small_problem(4, robots=8, size=10, p_delay=0.0)
+    ex = LifelongExecutor(prob.grid, prob.starts, [0] * 8, TaskPool(prob.tasks, 12),
+                          distances=TaskDistances(prob.grid))
+    first = WindowPlanner(prob.grid, 8, True, seed=3)
+    ex.start(0.0)
+    for k in range(1, 7):
+        req = next(c for c in ex.drain() if isinstance(c, PlanRequest))
+        seg = first(req)
+        assert seg == WindowPlanner(prob.grid, 8, True, seed=3)(req)
+        ex.adopt(seg, 1000.0 * k - 990.0)
+        assert ex.priorities == list(seg.priorities)
+        ex.tick(1000.0 * k)  # the next call is due
+    assert any(req.priorities)  # the later calls start from priorities of their own

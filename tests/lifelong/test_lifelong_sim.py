@@ -23,17 +23,19 @@ SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "lorr"
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10_000), turning=st.booleans(), counter=st.integers(1, 3),
        p_delay=st.sampled_from([0.0, 0.05, 0.3]),
-       scheduler=st.sampled_from(sorted(SCHEDULERS)), max_wait=st.sampled_from([None, 6, 30]))
+       scheduler=st.sampled_from(sorted(SCHEDULERS)), max_wait=st.sampled_from([None, 6, 30]),
+       station_cap=st.sampled_from([None, 1]))
 def test_no_robot_enters_a_held_cell_under_any_delays(seed: int, turning: bool, counter: int,
                                                       p_delay: float, scheduler: str,
-                                                      max_wait: int | None) -> None:
+                                                      max_wait: int | None,
+                                                      station_cap: int | None) -> None:
     """Random maps, tasks and delays, every scheduler with and without a (tight) fairness
-    bound: the checker replays the output and finds no shared cell; tasks get done and every
-    finished task has an event per errand."""
+    bound and a station cap: the checker replays the output and finds no shared cell; tasks
+    get done and every finished task has an event per errand."""
     problem = small_problem(seed, counter=counter, p_delay=p_delay)
     cfg = LifelongConfig(problem, ticks=120, turning=turning, period=3,
                          planner_time="zero", scheduler=scheduler, max_wait=max_wait,
-                         seed=seed)
+                         station_cap=station_cap, seed=seed)
     res = run_lifelong(cfg)
     out = lorr_output(cfg, res)
     assert check_output(out, read_free(format_map(problem.grid))) == 120
@@ -61,6 +63,17 @@ def test_same_seed_same_run() -> None:
             for _ in range(2)]
     assert runs[0].letters == runs[1].letters
     assert runs[0].events == runs[1].events
+
+
+def test_tables_computed_ahead_change_no_decision() -> None:
+    """Computing the robots' later errands' tables between calls only moves work: with the
+    planner time charged as fixed, the run is the same with and without it, and each call
+    is followed by one measured spell of it."""
+    problem = small_problem(7)
+    runs = [run_lifelong(LifelongConfig(problem, ticks=90, period=4, planner_time=150.0,
+                                        warm=warm)) for warm in (True, False)]
+    assert runs[0].letters == runs[1].letters and runs[0].events == runs[1].events
+    assert len(runs[0].warm_times) == runs[0].calls and not runs[1].warm_times
 
 
 def test_slow_planner_costs_throughput_but_not_safety() -> None:

@@ -208,3 +208,15 @@ def test_appending_while_executing_stays_acyclic_and_collision_free(
                     done = adg.finish(r)
                     cell[r], heading[r] = done.cell, done.heading
                     progress[r] = 0
+
+
+def test_a_robot_on_its_last_goal_decides_first() -> None:
+    """Robots 0 and 1 both want the centre of a 3 x 3 room next: robot 1, on its task's last
+    goal, gets it although robot 0 has waited longer for its next goal (robot 0 still has two
+    goals: it would win on time alone)."""
+    grid = Grid(np.ones((3, 3), dtype=bool))  # 0 1 2 / 3 4 5 / 6 7 8
+    for goals, winner in (([[5, 0], [7]], 1), ([[5], [7]], 0)):
+        planner = WindowedPIBT(StateSpace(grid, turning=False), 2, seed=3)
+        planner.elapsed[0] = 10
+        win = planner.plan([3, 1], goals, 1)
+        assert win.states[1][winner] == 4, goals

@@ -142,6 +142,46 @@ def test_a_waiting_task_ages_before_it_is_overdue() -> None:
         assert shortest_first([(0, 0)], pool, line) == {0: ids[want]}
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 9)), min_size=1, max_size=30),
+       st.integers(1, 4), st.data())
+def test_a_station_cap_offers_each_first_cell_what_its_queue_leaves(
+        errands: list[tuple[int, int]], cap: int, data: st.DataObject) -> None:
+    """Per first-errand cell: offered = min(open there, cap - robots on their way there), the
+    shortest first; robots past the first errand do not count; no cap offers all open tasks."""
+    leg = lambda a, b: abs(a - b)  # noqa: E731
+    pool = TaskPool(errands, reveal=len(errands), leg=leg, station_cap=cap)
+    plain = TaskPool(errands, reveal=len(errands), leg=leg)
+    assert plain.offered().tolist() == sorted(plain.open)
+    given_to = data.draw(st.lists(st.sampled_from(sorted(pool.open)), unique=True))
+    for robot, task_id in enumerate(given_to):
+        pool.assign(task_id, robot)
+    started = data.draw(st.lists(st.sampled_from(given_to), unique=True)) if given_to else []
+    for task_id in started:
+        pool.errand_done(task_id, tick=1)
+    offered = pool.offered().tolist()
+    assert offered == sorted(offered) and set(offered) <= set(pool.open)
+    for cell in {e[0] for e in errands}:
+        here = [t for t in pool.open.values() if t.errands[0] == cell]
+        busy = sum(1 for t in pool.tasks.values()
+                   if t.robot >= 0 and t.done == 0 and t.errands[0] == cell)
+        got = [t for t in here if t.id in offered]
+        assert len(got) == max(0, min(len(here), cap - busy))
+        if got:  # the shortest (then the lowest ids) of the cell's open tasks
+            key = [(pool.length(t), t.id) for t in here]
+            assert sorted((pool.length(t), t.id) for t in got) == sorted(key)[: len(got)]
+
+
+def test_schedulers_hand_out_only_offered_tasks() -> None:
+    # three tasks from cell 0, one from cell 5; a cap of 1 offers one of cell 0's
+    pool = TaskPool([(0, 9), (0, 1), (0, 4), (5, 6)], reveal=4, leg=lambda a, b: abs(a - b),
+                    station_cap=1)
+    free = [(0, 0), (1, 0), (2, 0)]
+    for scheduler in SCHEDULERS.values():
+        got = scheduler(free, pool, line)
+        assert sorted(got.values()) == [1, 3]  # the short one of cell 0, and cell 5's
+
+
 def test_retracted_errands_go_back_to_the_plan_view() -> None:
     """Robot 0's committed plan reaches both errands of task 0 (after its 2nd and 4th action)
     and the first of task 1 (6th); its actions beyond the 3rd are taken back: the markers

@@ -1,18 +1,19 @@
-"""Fixtures: a real gateway on 127.0.0.1 (ephemeral port) and websocket clients for it.
+"""Helpers: a real gateway on 127.0.0.1 (ephemeral port) and websocket clients for it.
 
 A test marked ``pytest.mark.looptime`` runs on a looptime loop: a gateway it starts itself
-with a ``VirtualClock`` runs in virtual time over the same real websockets, so the test does
-not depend on the machine's load. Fixtures run in real time (looptime makes only the test's
-own time virtual): the fixtures' gateways are real-time ones."""
+with a ``VirtualClock`` (:func:`virtual_gateway`) runs in virtual time over the same real
+websockets, so the test does not depend on the machine's load. Fixtures would run in real time
+(looptime makes only the test's own time virtual): a test starts its gateway itself."""
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
-import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
+from gateway.server.clock import VirtualClock
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 
@@ -36,14 +37,6 @@ def make_config(**overrides: Any) -> GatewayConfig:
                             **overrides})
 
 
-@pytest.fixture
-async def gateway() -> AsyncIterator[Gateway]:
-    """A started gateway listening on 127.0.0.1 (port in ``gateway.port``)."""
-    async with Gateway(make_config()) as gw:
-        await gw.listen()
-        yield gw
-
-
 def ws_url(gw: Gateway, query: str = "") -> str:
     """The websocket URL of a listening gateway."""
     return f"ws://127.0.0.1:{gw.port}/ws{query}"
@@ -61,7 +54,10 @@ def connector(gw: Gateway) -> Connect:
     return _connect
 
 
-@pytest.fixture
-def ws_connect(gateway: Gateway) -> Connect:
-    """:func:`connector` for the ``gateway`` fixture."""
-    return connector(gateway)
+@contextlib.asynccontextmanager
+async def virtual_gateway(**config: Any) -> AsyncIterator[tuple[Gateway, Connect]]:
+    """On the test's virtual time (in a test marked ``pytest.mark.looptime``): a listening
+    gateway (``config`` overrides :func:`make_config`) and its websocket connector."""
+    async with Gateway(make_config(**config), clock=VirtualClock()) as gw:
+        await gw.listen()
+        yield gw, connector(gw)

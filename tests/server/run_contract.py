@@ -11,9 +11,10 @@ a shift's plan time ``END_MS`` and the operator's "stop the shift" (once). The s
 twice: once uninterrupted, once with a crash after "replan now" (the run is journaled: a
 second gateway started on a copy of the journal takes over at the same virtual instant and the
 robots reconnect to it); the two runs' cores at the end are equal field by field
-(:func:`plain`). A shift's planner keeps state of its own that a restart does not journal
-(:attr:`RunSetup.exact_future`): there the resumed core equals the
-live one at the crash, and the shift goes on."""
+(:func:`plain`): a shift's included, as its planner keeps no state of its own between calls
+(PIBT's priorities travel with each request and come back with each journaled segment, the
+random stream is the call's), so a restarted planner process plans what the first would
+have."""
 
 from __future__ import annotations
 
@@ -49,11 +50,6 @@ class RunSetup:
     config: GatewayConfig
     robots: int
     problem: Problem | None = None
-    exact_future: bool = True
-    """Whether a resumed run's future is the uninterrupted one's: False for a shift, whose
-    planner process keeps PIBT's priorities between calls and a restarted one starts them
-    afresh (:mod:`gateway.server.runs.planner_process`): the resumed shift equals the live
-    one at the crash, then goes on its own valid way."""
 
 
 NOT_STATE = {"_record", "sink", "_out", "link", "grid", "distances", "scheduler", "leg",
@@ -203,7 +199,7 @@ async def _check(setup: RunSetup, journal: Path, crash: bool) -> Any:
             code, _ = await gw.command(stop)
             assert code is ErrorCode.BAD_STATE  # stopped once
         assert _finished(gw) > at_crash  # it went on
-        return plain(gw.engine.current_run.core) if setup.exact_future else None
+        return plain(gw.engine.current_run.core)
     finally:
         await fleet.stop()
         await gw.stop()
@@ -212,7 +208,7 @@ async def _check(setup: RunSetup, journal: Path, crash: bool) -> Any:
 def check_run(make: Make) -> None:
     """Run every check of the contract on a fresh gateway from ``make``, once without and
     once with a crash in the middle: the resumed run equals the live one at the crash, and
-    the two runs end equal (if the run's future is exact: :attr:`RunSetup.exact_future`)."""
+    the two runs end equal field by field."""
     ends = []
     for crash in (False, True):
         with tempfile.TemporaryDirectory() as tmp:

@@ -2,8 +2,11 @@
 grow beyond a limit (``RLIMIT_FSIZE``: the write fails at the lowest layer, as on a full
 disk) takes task batches through the task API until the journal cannot be written. The
 process then logs one line and exits non-zero (no listening zombie); every batch answered 201
-is in the journal after a restart (its key answers 200 with the same ids), and the batch
-whose commit failed was never acknowledged, so its retry creates it under new ids."""
+is in the journal after a restart (its key answers 200 with the same ids), and the batch that
+got no answer reuses no acknowledged id when retried: created anew (201) if its own commit
+failed, or found (200) if it was committed and the process stopped on a later commit before
+its answer left (acknowledged means durable; durable need not mean acknowledged: at load 37
+that was the case in 3 runs of 3)."""
 
 from __future__ import annotations
 
@@ -40,15 +43,16 @@ def test_a_full_disk_stops_the_gateway_and_loses_nothing_acknowledged(tmp_path: 
         gw.start(file_limit=600_000)
         n = 0
         for n in range(200):
-            try:
-                reply = await asyncio.wait_for(call(port, "POST", "/tasks", batch(n)), 10)
-            except (OSError, asyncio.IncompleteReadError, TimeoutError):
+            try:  # answered, or the connection ends with the process (a bound for a hang only:
+                # a batch given up on while slowly committed would be retried with 200)
+                reply = await asyncio.wait_for(call(port, "POST", "/tasks", batch(n)), 120)
+            except (OSError, asyncio.IncompleteReadError):
                 break
             assert reply.status == 201, reply.body
             acked[f"batch-{n}"] = [t["id"] for t in reply.json()["tasks"]]
         out["failed"] = n
         assert gw.proc is not None
-        out["code"] = await asyncio.to_thread(gw.proc.wait, 20)
+        out["code"] = await asyncio.to_thread(gw.proc.wait, 120)
         gw.proc = None
         gw.start()  # no limit now
         for key, ids in acked.items():
@@ -67,6 +71,6 @@ def test_a_full_disk_stops_the_gateway_and_loses_nothing_acknowledged(tmp_path: 
     log = gw.log_path.read_text()
     assert log.count("journal write failed") == 1 and "Traceback" not in log, log[-2000:]
     status, ids = out["again"]
-    assert status == 201
+    assert status in (200, 201) and ids
     taken = {i for v in acked.values() for i in v}
     assert not taken & set(ids)  # no acknowledged id is reused

@@ -1,7 +1,9 @@
 """Transport defences against a real gateway on 127.0.0.1: malformed upgrade requests get
 400/401/403 (never 500), a failed handshake leaves nothing behind, hello and idle timeouts, the
 error budget decays, no exception escapes a connection handler, the world's reports are
-checked, and no page an unauthenticated client can fetch holds the operator token."""
+checked, and no page an unauthenticated client can fetch holds the operator token. The
+in-process gateways run in virtual time (their timeouts read the loop's clock), so the
+timeouts are checked exactly at any load."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from typing import Any
 import pytest
 from websockets.exceptions import ConnectionClosed
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import CloseCode, ErrorCode, Hello, IntruderReport, LoadPlan, State
 from tests.server.conftest import LAB_PATHS, connector, make_config
@@ -54,16 +57,18 @@ async def raw_request(port: int, head: bytes) -> int:
     pytest.param(UPGRADE + KEY + "Cookie: fleetgate_session=forged\r\n", 401,
                  id="forged-login-cookie"),
 ])
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_bad_upgrade_requests_get_4xx(head: str, status: int,
                                             caplog: pytest.LogCaptureFixture) -> None:
-    async with Gateway(make_config()) as gw:
+    async with Gateway(make_config(), clock=VirtualClock()) as gw:
         port = await gw.listen()
         assert await raw_request(port, head.encode("utf-8")) == status
     assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
 
 
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_failed_handshakes_leave_nothing_behind() -> None:
-    async with Gateway(make_config()) as gw:
+    async with Gateway(make_config(), clock=VirtualClock()) as gw:
         port = await gw.listen()
         # a valid token, but no Sec-WebSocket-Key: websockets refuses after our check passed
         head = (UPGRADE + "Authorization: Bearer demo-robot-0\r\n").encode()
@@ -84,8 +89,9 @@ async def _closed_with(robot: Peer) -> int:
     return exc.value.rcvd.code
 
 
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_a_robot_that_never_says_hello_is_closed() -> None:
-    async with Gateway(make_config(hello_timeout_s=0.2)) as gw:
+    async with Gateway(make_config(hello_timeout_s=0.2), clock=VirtualClock()) as gw:
         await gw.listen()
         silent = TestRobot(await connector(gw)("demo-robot-0"), 0)
         await silent.send(State, robot_id=0)  # not a hello: the clock keeps running
@@ -98,8 +104,9 @@ async def test_a_robot_that_never_says_hello_is_closed() -> None:
         assert len(gw.sessions) == 1 and op.link is not None
 
 
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_an_idle_robot_is_closed_and_a_talking_one_is_not() -> None:
-    async with Gateway(make_config(idle_timeout_s=0.3)) as gw:
+    async with Gateway(make_config(idle_timeout_s=0.3), clock=VirtualClock()) as gw:
         await gw.listen()
         idle = TestRobot(await connector(gw)("demo-robot-0"), 0)
         talking = TestRobot(await connector(gw)("demo-robot-1"), 1)
@@ -112,11 +119,12 @@ async def test_an_idle_robot_is_closed_and_a_talking_one_is_not() -> None:
         assert gw.engine.connected_robots() == 1
 
 
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_the_idle_deadline_counts_from_the_last_message() -> None:
     """One deadline per connection, moved by every message: a robot that talks for more than
     twice the idle time stays, and once silent it is closed no sooner than the idle time after
     its last message."""
-    async with Gateway(make_config(idle_timeout_s=0.3)) as gw:
+    async with Gateway(make_config(idle_timeout_s=0.3), clock=VirtualClock()) as gw:
         await gw.listen()
         robot = TestRobot(await connector(gw)("demo-robot-0"), 0)
         await robot.hello()
@@ -133,8 +141,9 @@ async def test_the_idle_deadline_counts_from_the_last_message() -> None:
         assert gw._sessions == set()
 
 
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_the_error_budget_decays() -> None:
-    async with Gateway(make_config(max_errors=3, error_decay_s=0.1)) as gw:
+    async with Gateway(make_config(max_errors=3, error_decay_s=0.1), clock=VirtualClock()) as gw:
         await gw.listen()
         robot = TestRobot(await connector(gw)("demo-robot-0"), 0)
         for _ in range(10):  # 2 errors per 0.25 s: never 3 within the budget
@@ -148,9 +157,10 @@ async def test_the_error_budget_decays() -> None:
         assert sum(1 for m in robot.inbox if m.type == "error") == 23
 
 
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_no_exception_escapes_a_handler(monkeypatch: pytest.MonkeyPatch,
                                               caplog: pytest.LogCaptureFixture) -> None:
-    async with Gateway(make_config()) as gw:
+    async with Gateway(make_config(), clock=VirtualClock()) as gw:
         await gw.listen()
         ok = TestRobot(await connector(gw)("demo-robot-1"), 1)
         await ok.hello()
@@ -174,9 +184,10 @@ async def test_no_exception_escapes_a_handler(monkeypatch: pytest.MonkeyPatch,
         assert gw.engine.connected_robots() == 1
 
 
+@pytest.mark.looptime  # virtual time over real sockets
 async def test_world_reports_are_checked_before_the_trace(tmp_path: Any) -> None:
     trace = tmp_path / "trace.jsonl"
-    async with Gateway(make_config(trace=trace)) as gw:
+    async with Gateway(make_config(trace=trace), clock=VirtualClock()) as gw:
         await gw.listen()
         assert (await gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS)))[0] \
             is None

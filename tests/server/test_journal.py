@@ -351,13 +351,13 @@ def test_a_resumed_trace_gets_the_missing_tail_and_loses_a_torn_line(tmp_path: P
     from gateway.server.operator_feed import OperatorFeed
 
     trace = tmp_path / "t.jsonl"
-    whole = [f'{{"t_ms": {i}, "type": "tick"}}\n' for i in range(5)]
+    whole = [f'{{"t_ms":{i},"type":"tick"}}\n' for i in range(5)]
     trace.write_text("".join(whole[:2]) + whole[2][:7])  # a crash tore record 2
     feed = OperatorFeed(10, trace)
     feed.resume_trace(whole)
     feed.write_trace({"t_ms": 5, "type": "tick"})
     feed.close_trace()
-    assert trace.read_text() == "".join(whole) + '{"t_ms": 5, "type": "tick"}\n'
+    assert trace.read_text() == "".join(whole) + '{"t_ms":5,"type":"tick"}\n'
     feed.new_run()  # a new run moves the old trace aside, never truncates it
     feed.close_trace()
     assert (tmp_path / "t.jsonl.1").read_text().count("\n") == 6

@@ -30,6 +30,7 @@ from gateway.runtime.journal import (
     TaskRecord,
     TimeRecord,
     plain,
+    report_json,
 )
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.journal_open import open_journal
@@ -90,6 +91,22 @@ def test_a_record_skipped_by_the_read_back_round_trips(report: bool, values: lis
             Journal.encode(rec)
     ok = ReportRecord.model_construct(event="finished", robot=1, plan=0, index=2, t_ms=5.5)
     assert plain(ok) and not plain(ok.model_copy(update={"t_ms": math.inf}))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(_VALUES, min_size=6, max_size=6))
+def test_a_report_written_without_its_model_reads_back_as_the_record(values: list[object]
+                                                                      ) -> None:
+    """The owner's reports are written by :func:`report_json` without building the model:
+    whatever the values, a body it writes reads back as the record of those values, and it
+    writes one for every record :func:`plain` passes (else the caller builds the record)."""
+    fields = dict(zip(("event", "robot", "plan", "index", "t_ms", "reason"), values,
+                      strict=True))
+    rec = ReportRecord.model_construct(**fields)
+    body = report_json(*values)  # type: ignore[arg-type]
+    assert (body is not None) == plain(rec)
+    if body is not None:
+        assert TypeAdapter(JournalRecord).validate_json(body) == rec
 
 
 # ------------------------------------------------------------------ defect 4: damage

@@ -14,7 +14,7 @@ from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from protocol import Action, ActionRefused, ErrorCode, Event, LoadPlan, Start, Started
 from sim_clients.fleet import SimFleet
-from tests.server.conftest import Connect, connector, make_config
+from tests.server.conftest import Connect, connector, make_config, virtual_gateway
 from tests.server.robots import Peer, TestRobot
 
 # Robot 0 drives east along row 0; robot 1 turns twice on (5, 1), to west, and drives to (4, 1).
@@ -63,15 +63,16 @@ async def test_a_sim_robot_facing_elsewhere_refuses_and_the_operator_sees_why() 
     assert fleet.robots[0].cell == (0, 0)
 
 
-async def test_the_gateway_takes_a_refusal_of_a_started_action_as_an_error(
-        gateway: Gateway, ws_connect: Connect) -> None:
-    assert (await gateway.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=PATHS,
-                                           headings=HEADINGS)))[0] is None
-    robot = TestRobot(await ws_connect("demo-robot-1"), 1)
-    await robot.hello()
-    assert await gateway.command(Start(msg_id="s", seq=1)) == (None, "started")
-    action = await robot.expect(Action)
-    await robot.send(Started, action_id=action.action_id)
-    ref = await robot.send(ActionRefused, action_id=action.action_id, code="cannot_execute")
-    err = await robot.error_for(ref)
-    assert err.code is ErrorCode.REJECTED and "already started" in err.detail
+@pytest.mark.looptime  # virtual time over real websockets
+async def test_the_gateway_takes_a_refusal_of_a_started_action_as_an_error() -> None:
+    async with virtual_gateway() as (gateway, ws_connect):
+        assert (await gateway.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=PATHS,
+                                               headings=HEADINGS)))[0] is None
+        robot = TestRobot(await ws_connect("demo-robot-1"), 1)
+        await robot.hello()
+        assert await gateway.command(Start(msg_id="s", seq=1)) == (None, "started")
+        action = await robot.expect(Action)
+        await robot.send(Started, action_id=action.action_id)
+        ref = await robot.send(ActionRefused, action_id=action.action_id, code="cannot_execute")
+        err = await robot.error_for(ref)
+        assert err.code is ErrorCode.REJECTED and "already started" in err.detail

@@ -21,7 +21,7 @@ def lifelong() -> RunSetup:
     """A six-robot warehouse shift (its planner charged 120 ms a call)."""
     config = GatewayConfig(port=0, map=None, autostart=False, log_level="WARNING",
                            lifelong=LifelongSettings(robots=6, warehouse=(2, 3)))
-    return RunSetup(config, 6, exact_future=False)
+    return RunSetup(config, 6)
 
 
 @pytest.mark.parametrize("make", [one_shot, lifelong], ids=["one-shot", "lifelong"])

@@ -4,6 +4,7 @@ the same gateway behaviour whichever way the messages travel (DESIGN section 1, 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import socket
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -13,11 +14,14 @@ from typing import Any
 import pytest
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
+from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
 from gateway.server.wire.auth import AuthError
 from protocol import ErrorCode, GetSnapshot, LoadPlan, Ok, SetThreshold
 from tests.server.conftest import LAB_PATHS, connector, make_config
 from tests.server.robots import ClientLink, Peer, TestRobot
+
+pytestmark = pytest.mark.looptime  # virtual time over both transports
 
 
 @dataclass
@@ -41,8 +45,11 @@ class Transport:
         raise AssertionError("handshake was accepted")
 
 
+@contextlib.asynccontextmanager
 async def _transport(name: str, **config: Any) -> AsyncIterator[Transport]:
-    async with Gateway(make_config(**config)) as gw:
+    """A gateway on the test's virtual time (``config`` overrides :func:`make_config`) and
+    its transport ``name``."""
+    async with Gateway(make_config(**config), clock=VirtualClock()) as gw:
         if name == "memory":
             async def open_memory(token: str | None) -> ClientLink:
                 return await gw.connect(token or "")
@@ -63,73 +70,82 @@ async def _transport(name: str, **config: Any) -> AsyncIterator[Transport]:
             yield Transport(name, gw, open_ws, open_small)
 
 
-@pytest.fixture(params=["memory", "websocket"])
-async def transport(request: pytest.FixtureRequest) -> AsyncIterator[Transport]:
-    """Each test runs once per transport."""
-    async for t in _transport(request.param):
-        yield t
+TRANSPORTS = ["memory", "websocket"]
+"""Each test runs once per transport, in virtual time (none is about the real clock)."""
 
 
-async def test_hello_gets_welcome_for_the_bound_robot(transport: Transport) -> None:
-    robot = TestRobot(await transport.open("demo-robot-7"), 7)
-    welcome = await robot.hello()
-    assert welcome.robot_id == 7 and welcome.resend == []
-    assert transport.gw.engine.connected_robots() == 1
+@pytest.mark.parametrize("name", TRANSPORTS)
+async def test_hello_gets_welcome_for_the_bound_robot(name: str) -> None:
+    async with _transport(name) as transport:
+        robot = TestRobot(await transport.open("demo-robot-7"), 7)
+        welcome = await robot.hello()
+        assert welcome.robot_id == 7 and welcome.resend == []
+        assert transport.gw.engine.connected_robots() == 1
 
 
-async def test_handshake_auth(transport: Transport) -> None:
-    assert await transport.handshake_status(None) == 401
-    assert await transport.handshake_status("nobody") == 403
+@pytest.mark.parametrize("name", TRANSPORTS)
+async def test_handshake_auth(name: str) -> None:
+    async with _transport(name) as transport:
+        assert await transport.handshake_status(None) == 401
+        assert await transport.handshake_status("nobody") == 403
 
 
-async def test_order_is_preserved(transport: Transport) -> None:
-    op = Peer(await transport.open("demo-operator"), "op")
-    refs = [await op.send(SetThreshold, threshold_ms=float(i)) for i in range(100)]
-    got: list[str] = []
-    async with asyncio.timeout(10):
-        while len(got) < len(refs):
-            msg = await op.recv()
-            if isinstance(msg, Ok):
-                got.append(msg.ref)
-    assert got == refs
-    assert transport.gw.engine.threshold_ms == 99.0
+@pytest.mark.parametrize("name", TRANSPORTS)
+async def test_order_is_preserved(name: str) -> None:
+    async with _transport(name) as transport:
+        op = Peer(await transport.open("demo-operator"), "op")
+        refs = [await op.send(SetThreshold, threshold_ms=float(i)) for i in range(100)]
+        got: list[str] = []
+        async with asyncio.timeout(10):
+            while len(got) < len(refs):
+                msg = await op.recv()
+                if isinstance(msg, Ok):
+                    got.append(msg.ref)
+        assert got == refs
+        assert transport.gw.engine.threshold_ms == 99.0
 
 
-async def test_client_close_is_seen_by_the_gateway(transport: Transport) -> None:
-    robot = TestRobot(await transport.open("demo-robot-1"), 1)
-    await robot.hello()
-    await robot.link.close()
-    async with asyncio.timeout(5):
-        while transport.gw.engine.connected_robots():
-            await asyncio.sleep(0.01)
-    assert transport.gw.engine.robot(1).link is None
-
-
-async def test_gateway_close_after_abuse_flushes_errors_first(transport: Transport) -> None:
-    peer = Peer(await transport.open("demo-robot-2"), "r2")
-    limit = transport.gw.config.max_errors
-    for _ in range(limit):
-        await peer.send_raw("[]")
-    with pytest.raises(ConnectionClosed) as exc:
+@pytest.mark.parametrize("name", TRANSPORTS)
+async def test_client_close_is_seen_by_the_gateway(name: str) -> None:
+    async with _transport(name) as transport:
+        robot = TestRobot(await transport.open("demo-robot-1"), 1)
+        await robot.hello()
+        await robot.link.close()
         async with asyncio.timeout(5):
-            while True:
+            while transport.gw.engine.connected_robots():
+                await asyncio.sleep(0.01)
+        assert transport.gw.engine.robot(1).link is None
+
+
+@pytest.mark.parametrize("name", TRANSPORTS)
+async def test_gateway_close_after_abuse_flushes_errors_first(name: str) -> None:
+    async with _transport(name) as transport:
+        peer = Peer(await transport.open("demo-robot-2"), "r2")
+        limit = transport.gw.config.max_errors
+        for _ in range(limit):
+            await peer.send_raw("[]")
+        with pytest.raises(ConnectionClosed) as exc:
+            async with asyncio.timeout(5):
+                while True:
+                    await peer.recv()
+        assert [getattr(m, "code", None) for m in peer.inbox] == [ErrorCode.MALFORMED] * limit
+        assert exc.value.rcvd is not None and exc.value.rcvd.code == 1008
+
+
+@pytest.mark.parametrize("name", TRANSPORTS)
+async def test_frame_over_the_hard_limit_closes_1009(name: str) -> None:
+    async with _transport(name) as transport:
+        peer = Peer(await transport.open("demo-robot-3"), "r3")
+        with pytest.raises(ConnectionClosed) as exc:
+            await peer.send_raw(json.dumps({"pad": "x" * 300_000}))
+            async with asyncio.timeout(5):
                 await peer.recv()
-    assert [getattr(m, "code", None) for m in peer.inbox] == [ErrorCode.MALFORMED] * limit
-    assert exc.value.rcvd is not None and exc.value.rcvd.code == 1008
+        assert exc.value.rcvd is not None and exc.value.rcvd.code == 1009
 
 
-async def test_frame_over_the_hard_limit_closes_1009(transport: Transport) -> None:
-    peer = Peer(await transport.open("demo-robot-3"), "r3")
-    with pytest.raises(ConnectionClosed) as exc:
-        await peer.send_raw(json.dumps({"pad": "x" * 300_000}))
-        async with asyncio.timeout(5):
-            await peer.recv()
-    assert exc.value.rcvd is not None and exc.value.rcvd.code == 1009
-
-
-@pytest.mark.parametrize("name", ["memory", "websocket"])
+@pytest.mark.parametrize("name", TRANSPORTS)
 async def test_a_slow_client_never_stalls_the_others(name: str) -> None:
-    async for t in _transport(name, send_queue=8):
+    async with _transport(name, send_queue=8) as t:
         await t.gw.command(LoadPlan(msg_id="l", seq=0, map="lab", paths=LAB_PATHS))
         slow = Peer(await t.open_reluctant("demo-operator"), "slow")  # never reads
         fast = Peer(await t.open("demo-operator"), "fast")

@@ -31,6 +31,7 @@ from protocol import (
     decode,
     encode,
 )
+from sim_clients.connect import websocket_connector
 from sim_clients.des import PolicyName
 from sim_clients.fleet import SimFleet, fleet_for, run_in_process
 from tracecheck import check_trace, read_trace
@@ -140,6 +141,41 @@ def test_a_robot_whose_link_drops_reconnects_and_the_run_completes(tmp_path: Pat
     report = check_trace(read_trace(trace))
     assert report.errors == [] and report.collisions == []
     assert report.soc_ms == soc
+
+
+def test_a_robot_retries_a_handshake_cut_off_by_a_stopping_gateway() -> None:
+    """LIVE-1: a gateway that stops (on a journal failure it ends at once) just as a robot
+    reconnects closes the connection before any HTTP response. The robot must keep
+    reconnecting; it gave up for good ("did not receive a valid HTTP response"), so under load
+    a robot of a must-only fleet never came back and its run hung (bench/faults.py eio_sync)."""
+
+    async def main() -> int:
+        cut = 0
+
+        async def stopping(_r: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            nonlocal cut
+            cut += 1
+            writer.close()  # the request is read by nobody: no response at all
+
+        stub = await asyncio.start_server(stopping, "127.0.0.1", 0)
+        port = stub.sockets[0].getsockname()[1]
+        fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(2),
+                         send_state=False, reconnect_delay_s=0.02, must_only=True)
+        await fleet.start()
+        try:
+            async with asyncio.timeout(30):
+                while cut < 4:
+                    await asyncio.sleep(0.01)
+            stub.close()
+            await stub.wait_closed()
+            async with Gateway(GatewayConfig(port=port, map=None)) as gw:
+                await gw.listen()
+                await fleet.wait_connected(timeout=30)
+        finally:
+            await fleet.stop()
+        return cut
+
+    assert asyncio.run(main()) >= 4
 
 
 def test_the_world_blocks_a_robot_whose_cell_the_intruder_holds(tmp_path: Path) -> None:

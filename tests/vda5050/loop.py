@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from protocol.messages import HEADINGS, Action, Pose, action_id
-from protocol.vda5050.master import LinkState, Publish, Report, VehicleMaster
+from protocol.vda5050.master import ErrandFailed, LinkState, Publish, Report, VehicleMaster
 from protocol.vda5050.models import Factsheet, State, VdaVersion, dump, parse
 from protocol.vda5050.nodes import THETA, NodeMap
 from protocol.vda5050.topics import VehicleTopics
@@ -38,6 +38,7 @@ class Loop:
     reports: list[Report] = field(default_factory=list)
     report_times: list[float] = field(default_factory=list)
     links: list[LinkState] = field(default_factory=list)
+    failed: list[ErrandFailed] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         topics = VehicleTopics("uagv", "v2", "fleetgate", "sim0")
@@ -74,6 +75,8 @@ class Loop:
                 elif isinstance(effect, Report):
                     self.reports.append(effect)
                     self.report_times.append(self.now)
+                elif isinstance(effect, ErrandFailed):
+                    self.failed.append(effect)
                 else:
                     self.links.append(effect)
             for out in self.vehicle.drain():

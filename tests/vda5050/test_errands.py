@@ -12,7 +12,7 @@ from collections.abc import Callable
 import pytest
 
 from protocol.messages import Action
-from protocol.vda5050.master import Errand, VehicleMaster
+from protocol.vda5050.master import Errand, ErrandFailed, VehicleMaster
 from protocol.vda5050.models import VERSIONS, VdaVersion
 from tests.vda5050.loop import Loop, actions_of
 from tests.vda5050.schemas import assert_valid, needs_schemas
@@ -84,7 +84,7 @@ def test_a_finished_order_is_followed_by_a_new_one() -> None:
     assert loop.kinds(second[-1].action_id) == ["started", "finished"]
 
 
-def test_a_failed_pick_blocks_its_action() -> None:
+def test_a_failed_pick_blocks_its_action_until_the_gateway_gives_it_up() -> None:
     actions = actions_of(PATH)[:2]
     loop = _loop("2.1.0", _errands(actions))
     loop.vehicle.fail_actions = {"pick"}
@@ -92,6 +92,14 @@ def test_a_failed_pick_blocks_its_action() -> None:
     loop.run(5)
     assert loop.kinds(actions[0].action_id) == ["started", "blocked"]
     assert loop.kinds(actions[1].action_id) == []
+    assert loop.failed == [ErrandFailed("pick-t7.0", actions[0].action_id)]  # said once
+    # the pick is terminal (FAILED): the vehicle drove on through its base meanwhile
+    assert loop.vehicle.cell == (2, 5)
+    loop.master.give_up("pick-t7.0", loop.now)  # its task was cancelled: the action is done
+    loop.pump()
+    assert loop.kinds(actions[0].action_id) == ["started", "blocked", "unblocked", "finished"]
+    assert loop.kinds(actions[1].action_id) == ["started", "finished"]
+    assert loop.failed == [ErrandFailed("pick-t7.0", actions[0].action_id)]
 
 
 def test_a_master_restarted_during_a_pick_does_not_pick_twice() -> None:
@@ -156,3 +164,40 @@ def test_an_errand_the_vehicle_stands_on_is_done_before_it_drives_off() -> None:
     master.release(actions[1:], loop.now)
     order = next(e.message for e in master.drain() if hasattr(e, "message"))
     assert order.edges[0].actions == []  # type: ignore[attr-defined]
+
+
+def test_a_failed_errand_before_driving_off_blocks_until_given_up() -> None:
+    actions = actions_of(PATH)[:2]
+    late = Errand("pick", "pick-t8.0-depart", "task-8", on_edge=True)
+    loop = _loop("2.1.0", lambda a: [late] if a is actions[1] else [])
+    loop.vehicle.fail_actions = {"pick"}
+    loop.master.release(actions, loop.now)
+    loop.run(5)
+    # the vehicle drove on after the failed pick, but the action waits for the gateway
+    assert loop.vehicle.cell == (2, 5)
+    assert loop.kinds(actions[0].action_id) == ["started", "finished"]
+    assert loop.kinds(actions[1].action_id) == ["blocked"]
+    assert loop.failed == [ErrandFailed("pick-t8.0-depart", actions[1].action_id)]
+    loop.master.give_up("pick-t8.0-depart", loop.now)
+    loop.pump()
+    assert loop.kinds(actions[1].action_id) == ["blocked", "unblocked", "started", "finished"]
+
+
+def test_a_full_order_is_followed_by_a_new_one_not_extended() -> None:
+    # a vehicle keeps every action state of its order until a new order comes (section
+    # 6.10.6): in a shift, an order takes at most max_steps actions, the next ones go out
+    # as a new order from where the vehicle stands once it has done the full one
+    actions = actions_of(PATH)
+    loop = _loop("2.1.0", _errands(actions))
+    loop.master.max_steps = 3
+    for action in actions:  # one at a time, while the vehicle drives (lookahead)
+        loop.master.release([action], loop.now)
+    loop.run(10)
+    for a in actions:
+        assert loop.kinds(a.action_id) == ["started", "finished"], a.action_id
+    orders = [json.loads(p) for t, p in loop.traffic if t == "order"]
+    assert [(o["orderId"], o["orderUpdateId"]) for o in orders] == [
+        ("0.0.0", 0), ("0.0.0", 1), ("0.0.0", 2), ("0.0.3", 0)]
+    assert orders[-1]["nodes"][0]["nodeId"] == "n3_5"  # where the vehicle stood
+    assert not loop.vehicle.errors and loop.vehicle.cell == (4, 5)
+    assert set(loop.vehicle.action_states) == {"drop-t7.1"}  # the first order's are gone

@@ -15,6 +15,7 @@ from pathlib import Path
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.vda5050.transport import VdaTransport
+from protocol.messages import StopShift
 from sim_clients.fleet import SimFleet
 from sim_clients.shift import stop_shift
 from sim_clients.vda_fleet import (
@@ -95,3 +96,43 @@ async def test_mixed_lifelong_shift_picks_and_drops(broker_url: str, tmp_path: P
     if (SCHEMA_DIR / "2.1.0").is_dir():
         for topic, payload in seen:
             assert_valid(json.loads(payload)["version"], topic.rsplit("/", 1)[-1], payload)
+
+
+async def test_a_vehicles_failed_pick_cancels_its_task(broker_url: str, tmp_path: Path) -> None:
+    # vehicle 0's picks all FAIL (section 6.8.2: e.g. the station is empty): each failed
+    # pick's task is cancelled as DELETE /tasks/<id> would (none of its errands is done), the
+    # vehicle's action finishes (it drove it) and the vehicle goes on with other tasks; the
+    # other vehicles finish theirs
+    robots = [0, 1, 2]
+    vda = vda_config(broker_url, robots, ("2.1.0",))
+    config = GatewayConfig(port=0, speed=SPEED, trace=tmp_path / "t.jsonl", log_level="WARNING",
+                           map=None, autostart=True, dispatch_lookahead=1, vda5050=vda,
+                           lifelong=LifelongSettings(robots=len(robots), warehouse=(2, 3)))
+    async with Gateway(config) as gw:
+        vehicles = make_vehicles(vda, None, speed=SPEED, starts=shift_starts(config))
+        vehicles[0].fail_actions = {"pick"}
+        stop = asyncio.Event()
+        driving = asyncio.create_task(run_fleet(vehicles, vda.broker, stop))
+        async with VdaTransport(gw, vda):
+            shift = gw.engine.lifelong
+            assert shift is not None
+            async with asyncio.timeout(60):
+                while shift.status == "loaded" or gw.engine.now_ms() < 40_000.0:
+                    await asyncio.sleep(0.05)
+            await gw.command(StopShift(msg_id="shift-stop", seq=1))
+            await asyncio.wait_for(gw.wait_done(), 60.0)
+        stop.set()
+        await driving
+        pool = shift.executor.pool
+    failed = vehicles[0].node_actions_run
+    assert failed and all(a.startswith("pick-") for a in failed)
+    cancelled = {t.id for t in pool.book.values() if t.state == "cancelled"}
+    assert cancelled == {int(a.split("-t")[1].split(".")[0]) for a in failed}
+    events = [e for e in pool.events if e.task in cancelled and e.state == "cancelled"]
+    assert len(events) == len(cancelled)  # each cancelled once, on the event stream
+    # it drove on after its first failed pick; the others' tasks finished
+    assert len(vehicles[0].driven) > 2 * len(failed)
+    assert any(t.state == "finished" for t in pool.book.values())
+    assert all(not v.errors for v in vehicles)
+    report = check_trace(read_trace(tmp_path / "t.jsonl"))
+    assert report.ok, report.errors

@@ -132,6 +132,8 @@ def test_lost_order_update_is_resent() -> None:
     loop.run(10)
     assert all(loop.kinds(a.action_id) == ["started", "finished"] for a in actions)
     assert [o["orderUpdateId"] for o in _orders(loop)] == [0, 1, 1]
+    # a resent message is a new message: headerId counts every one sent (section 6.4)
+    assert [o["headerId"] for o in _orders(loop)] == [0, 1, 2]
 
 
 def test_rejected_order_is_refused() -> None:

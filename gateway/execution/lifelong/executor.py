@@ -80,23 +80,30 @@ class PlanRequest:
     hold: tuple[int, ...]
     avoid: tuple[int, ...]
     steps: int
+    priorities: tuple[int, ...] = ()
+    """PIBT's priorities the call starts from (per robot, timesteps since it last reached a
+    goal: the previous adopted segment's) with a random stream of the call's own; empty: the
+    planner goes on from its earlier calls (the LoRR simulator's requests)."""
 
 
 @dataclass(frozen=True, slots=True)
 class Segment:
     """The planner's window for request ``call``: ``states[j][r]`` is robot r's planner state
     at step j (step 0 = the request's ``starts``); ``reached[r]`` the steps at which it stands
-    on each of its goals, in order."""
+    on each of its goals, in order; ``priorities`` PIBT's priorities at the window's end (the
+    next call's start; empty: not known, e.g. a journal written before they were kept)."""
 
     call: int
     states: Sequence[Sequence[int]]
     reached: Sequence[Sequence[int]]
+    priorities: Sequence[int] = ()
 
 
 def window_request(call: int, book: ErrandBook, adg: LiveADG, scheduler: Scheduler,
                    distances: TaskDistances, now: float, *, release: bool,
                    late: Sequence[bool], hold: Sequence[int], steps: int, turning: bool,
-                   release_robots: Sequence[int] | None = None
+                   release_robots: Sequence[int] | None = None,
+                   priorities: Sequence[int] = ()
                    ) -> tuple[PlanRequest, list[tuple[int, int]]]:
     """Planning call ``call`` at ``now``: give the robots without a task one (their unstarted
     tasks back to the scheduler first if ``release``, only those of ``release_robots`` if
@@ -104,7 +111,8 @@ def window_request(call: int, book: ErrandBook, adg: LiveADG, scheduler: Schedul
     distance charge of ``distances``) and ask for ``steps`` timesteps from where each robot's
     committed plan ends, robot r holding through ``hold[r]`` steps and nobody entering a cell a
     late robot still has to drive through. The request and the new ``(robot, task id)``
-    pairs. The executor's and the LoRR simulator's call (``sim_clients.lifelong``)."""
+    pairs; the call starts from PIBT's ``priorities`` (empty: the planner's own). The
+    executor's and the LoRR simulator's call (``sim_clients.lifelong``)."""
     n = len(adg.end_cell)
     if release:
         book.release_unstarted(now, release_robots)
@@ -116,7 +124,8 @@ def window_request(call: int, book: ErrandBook, adg: LiveADG, scheduler: Schedul
     else:
         starts = tuple(adg.end_cell)
     avoid = tuple(a.cell for r in range(n) if late[r] for a in adg.queue[r])
-    return PlanRequest(call, starts, goals, tuple(hold), avoid, steps), assigned
+    return PlanRequest(call, starts, goals, tuple(hold), avoid, steps,
+                       tuple(priorities)), assigned
 
 
 LifelongCommand = Dispatch | Trigger | Completed | PlanRequest
@@ -201,6 +210,9 @@ class LifelongExecutor:
         """Segments adopted (the next segment's number)."""
         self.outstanding: PlanRequest | None = None
         """The planner call not answered yet."""
+        self.priorities = [0] * n
+        """PIBT's priorities after the latest adopted segment (the next call starts from
+        them: the planner keeps none of its own, so a restarted one plans the same)."""
         self._next_call = 0.0
         self._next_check = 0.0
         self.fleet_slack_ms = 0.0
@@ -285,7 +297,7 @@ class LifelongExecutor:
             "slack_based": self._slack_based, "fleet_slack_ms": self.fleet_slack_ms,
             "next_call_ms": self._next_call, "next_check_ms": self._next_check,
             "calls": self.calls, "segments": self.segments, "triggers": self.triggers,
-            "errands_done": self.errands_done}
+            "errands_done": self.errands_done, "priorities": list(self.priorities)}
 
     def restore(self, *, mode: str, paused: bool, now_ms: float, threshold_ms: float | None,
                 cell: Sequence[int], heading: Sequence[int], sent: Sequence[int],
@@ -294,9 +306,11 @@ class LifelongExecutor:
                 completion: Sequence[float], slack0: Sequence[Sequence[float]],
                 slack_based: bool, fleet_slack_ms: float, next_call_ms: float,
                 next_check_ms: float, calls: int, segments: int, triggers: int,
-                errands_done: int, outstanding: PlanRequest | None) -> None:
+                errands_done: int, priorities: Sequence[int],
+                outstanding: PlanRequest | None) -> None:
         """Take the state :meth:`snapshot` gave (and the outstanding planner call), in a
-        fresh executor of the same configuration (ExecutionError if it was started)."""
+        fresh executor of the same configuration (ExecutionError if it was started); empty
+        ``priorities`` (a snapshot written before they were kept) start afresh."""
         if self.mode is not LifelongMode.NEW:
             raise ExecutionError("a snapshot is restored into a shift not started yet")
         self.mode = LifelongMode(mode)
@@ -313,6 +327,7 @@ class LifelongExecutor:
         self.calls, self.segments = calls, segments
         self.outstanding = outstanding
         self.triggers, self.errands_done = triggers, errands_done
+        self.priorities = list(priorities) if priorities else [0] * self.n
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, now_ms: float) -> None:
@@ -417,7 +432,7 @@ class LifelongExecutor:
             self.calls, book, adg, self.scheduler, self.distances, self._now,
             release=bool(self.reassign) and self.calls % self.reassign == 0,
             late=self.late(self._now), hold=[max(0, adg.pending(r) - 1) for r in range(n)],
-            steps=self.window, turning=self.turning)
+            steps=self.window, turning=self.turning, priorities=self.priorities)
         self._out.append(self.outstanding)
         self.calls += 1
         # fixed rate: the next call is due a period after this one was due, so a call made
@@ -445,6 +460,8 @@ class LifelongExecutor:
         self._check_call(segment.call)
         if len(segment.reached) != self.n:
             raise ExecutionError(f"a segment needs reached steps for {self.n} robots")
+        if len(segment.priorities) not in (0, self.n):
+            raise ExecutionError(f"a segment needs priorities for {self.n} robots (or none)")
         adg = self.adg
         if self.turning:
             cells = [[s >> 2 for s in row] for row in segment.states]
@@ -458,6 +475,8 @@ class LifelongExecutor:
         self.outstanding = None
         number = self.segments
         self.segments += 1
+        if segment.priorities:
+            self.priorities = list(segment.priorities)
         tasks_of = self.book.planned(segment.reached)
         self.book.register(before, segment.states, segment.reached, tasks_of)
         for r in range(self.n):
@@ -709,9 +728,11 @@ class LifelongExecutor:
 
 
 class WindowPlanner:
-    """Answers :class:`PlanRequest` with :class:`~gateway.planning.pibt.WindowedPIBT` (pure;
-    a driver may run it in a worker thread, one call at a time: it keeps PIBT's priorities
-    between calls)."""
+    """Answers :class:`PlanRequest` with :class:`~gateway.planning.pibt.WindowedPIBT` (a
+    driver may run it in a worker thread, one call at a time). A request with priorities (the
+    executor's) is planned from them and a random stream of its own (the call's number), so
+    a restarted planner answers it as the first did; one without (the LoRR simulator's) goes
+    on from the priorities and the random stream the previous call left."""
 
     def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0,
                  space: StateSpace | None = None) -> None:
@@ -720,5 +741,8 @@ class WindowPlanner:
 
     def __call__(self, req: PlanRequest) -> Segment:
         """The window for ``req``."""
-        win = self.pibt.plan(req.starts, req.goals, req.steps, req.hold, req.avoid)
-        return Segment(req.call, win.states, win.reached)
+        pibt = self.pibt
+        if req.priorities:
+            pibt.start_from(req.priorities, req.call)
+        win = pibt.plan(req.starts, req.goals, req.steps, req.hold, req.avoid)
+        return Segment(req.call, win.states, win.reached, tuple(pibt.elapsed))

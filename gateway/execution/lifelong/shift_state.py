@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from operator import attrgetter
 from typing import Any
 
@@ -139,6 +139,7 @@ class RequestSnapshot:
     hold: list[int]
     avoid: list[int]
     steps: int
+    priorities: list[int] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -186,6 +187,9 @@ class ShiftState:
     plan_idx: list[int]
     markers: list[list[tuple[int, int]]]
     pool: PoolSnapshot
+    priorities: list[int] = field(default_factory=list)
+    """PIBT's priorities after the latest adopted segment (empty in a snapshot written
+    before they were kept: the shift's planner then starts them afresh)."""
 
 
 def snapshot_shift(ex: LifelongExecutor) -> ShiftState:
@@ -196,7 +200,7 @@ def snapshot_shift(ex: LifelongExecutor) -> ShiftState:
         version=SNAPSHOT_VERSION, robots=ex.n, **ex.snapshot(), **ex.adg.snapshot(),
         outstanding=None if req is None else RequestSnapshot(
             req.call, list(req.starts), [list(g) for g in req.goals], list(req.hold),
-            list(req.avoid), req.steps),
+            list(req.avoid), req.steps, list(req.priorities)),
         plan_task=list(book.plan_task), plan_idx=list(book.plan_idx),
         markers=[list(m) for m in book.markers], pool=_pool_snapshot(ex.pool))
 
@@ -323,7 +327,7 @@ def restore_shift(ex: LifelongExecutor, state: ShiftState,
     ex.restore(**{name: getattr(state, name) for name in _EXECUTOR_FIELDS},
                outstanding=None if req is None else PlanRequest(
                    req.call, tuple(req.starts), tuple(tuple(g) for g in req.goals),
-                   tuple(req.hold), tuple(req.avoid), req.steps))
+                   tuple(req.hold), tuple(req.avoid), req.steps, tuple(req.priorities)))
     ex.adg.restore(**{name: getattr(state, name) for name in _ADG_FIELDS})
     book = ex.book
     book.plan_task, book.plan_idx = list(state.plan_task), list(state.plan_idx)
@@ -335,7 +339,8 @@ _ADG_FIELDS = ("end_cell", "end_heading", "queue", "done", "appended", "leavers"
 _EXECUTOR_FIELDS = ("mode", "paused", "now_ms", "threshold_ms", "cell", "heading", "sent",
                     "started_at", "blocked", "refusing", "waiters", "segment_of",
                     "completion", "slack0", "slack_based", "fleet_slack_ms", "next_call_ms",
-                    "next_check_ms", "calls", "segments", "triggers", "errands_done")
+                    "next_check_ms", "calls", "segments", "triggers", "errands_done",
+                    "priorities")
 
 
 def _restore_pool(pool: TaskPool, snap: PoolSnapshot,

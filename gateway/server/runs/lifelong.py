@@ -55,6 +55,7 @@ from gateway.planning.grid import Grid
 from gateway.planning.lorr import random_problem, read_problem, warehouse_problem
 from gateway.planning.movingai import read_map
 from gateway.runtime.journal import (
+    EncodedReport,
     JournalError,
     JournalRecord,
     ShiftHistoryRecord,
@@ -366,7 +367,7 @@ class LifelongRun:
         self.counted_until(last)
         e.before_commit.append(tasks.flush)
 
-        def sink(rec: JournalRecord) -> None:
+        def sink(rec: JournalRecord | EncodedReport) -> None:
             tasks.flush()  # the task changes before the input first: the replay's order
             journal.append(rec)
 

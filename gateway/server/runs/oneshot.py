@@ -11,7 +11,6 @@ rebuild from the journal after a restart (:meth:`OneShotRun.resume`).
 
 from __future__ import annotations
 
-import json
 import logging
 from typing import cast
 
@@ -24,6 +23,7 @@ from gateway.planning.instance import Instance
 from gateway.planning.movingai import format_map, parse_map
 from gateway.planning.plan import Plan
 from gateway.runtime.journal import PolicyRecord, RunRecord, SnapshotRecord, new_run_id
+from gateway.runtime.trace import trace_line
 from gateway.server.items import SolverDone
 from gateway.server.planner import Problem
 from gateway.server.runs.base import RunContext, RunRefused
@@ -307,7 +307,7 @@ class OneShotRun:
 
         def record(rec: dict[str, object]) -> None:
             e.feed.record(rec)
-            trace.append(json.dumps(rec) + "\n")
+            trace.append(trace_line(rec))
 
         e.replaying = True
         try:

@@ -4,7 +4,8 @@
 gateway.server.runs.planner_process``: a fresh interpreter that imports only the planner, with no
 copy of the gateway's threads or sockets and no re-import of the caller's main module). The
 worker builds the :class:`~gateway.execution.lifelong.executor.WindowPlanner` once (the grid's state
-space, its cached distance tables and PIBT's priorities live there) and then answers one
+space and its cached distance tables live there; PIBT's priorities come with each request) and
+then answers one
 :class:`~gateway.execution.lifelong.executor.PlanRequest` at a time over a pair of pipes with its
 :class:`~gateway.execution.lifelong.executor.Segment` and the CPU time the call took (what a virtual
 clock charges). Only the request and the segment cross the pipes. Between calls the gateway
@@ -15,7 +16,8 @@ waiting for it to be ready (a restarting gateway replays its journal meanwhile).
 
 If the worker dies (killed, out of memory), :meth:`PlannerProcess.call` raises
 :class:`PlannerDied` with one line saying so, and the next call starts a new worker (its
-tables are computed again, PIBT's priorities start afresh). A planner error inside the worker
+tables are computed again; it answers as the first would have: each request carries PIBT's
+priorities and the call's random stream is its own). A planner error inside the worker
 comes back as :class:`PlannerFailed` (one line). :meth:`PlannerProcess.close` ends the worker;
 a worker whose gateway died ends by itself (its input pipe closes). The worker ignores the
 terminal's Ctrl-C: its gateway shuts it down.

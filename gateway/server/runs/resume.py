@@ -32,6 +32,7 @@ from gateway.planning.plan import Plan
 from gateway.runtime.journal import (
     REJECTED,
     AdoptRecord,
+    EncodedReport,
     ExecutorEvent,
     IntruderRecord,
     JournalError,
@@ -44,6 +45,7 @@ from gateway.runtime.journal import (
     SnapshotRecord,
     SpeedRecord,
     TimeRecord,
+    report_json,
 )
 
 Sink = Callable[[Any], None]
@@ -86,9 +88,12 @@ class JournaledReports:
                 action: int, now_ms: float, *reason: str) -> None:
         """Journal, then apply, a robot report (the record is built only if journaled: the hot
         path of a big fleet)."""
-        record = None if self.sink is None else ReportRecord.model_construct(
-            event=event, robot=robot, plan=plan, index=action, t_ms=now_ms,
-            reason=reason[0] if reason else "")
+        record: EncodedReport | ReportRecord | None = None
+        if self.sink is not None:
+            why = reason[0] if reason else ""
+            body = report_json(event, robot, plan, action, now_ms, why)
+            record = EncodedReport(body) if body is not None else ReportRecord.model_construct(
+                event=event, robot=robot, plan=plan, index=action, t_ms=now_ms, reason=why)
         self.journaled(record, apply, robot, plan, action, now_ms, *reason)
 
     def started(self, robot: int, plan: int, action: int, now_ms: float) -> None:

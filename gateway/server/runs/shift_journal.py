@@ -30,7 +30,6 @@ unfinished actions from the executor itself.
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -67,6 +66,7 @@ from gateway.runtime.journal import (
     ThresholdRecord,
     TimeRecord,
 )
+from gateway.runtime.trace import trace_line
 from gateway.server.runs.base import RunContext
 from gateway.server.runs.resume import JournaledReports, as_live, inputs
 
@@ -89,7 +89,8 @@ class JournaledLifelong(JournaledReports, LifelongExecutor):
     def adopt(self, segment: Segment, now_ms: float) -> None:
         self.journaled(None if self.sink is None else SegmentRecord(
             call=segment.call, t_ms=now_ms, states=[list(s) for s in segment.states],
-            reached=[list(r) for r in segment.reached]), super().adopt, segment, now_ms)
+            reached=[list(r) for r in segment.reached],
+            priorities=list(segment.priorities)), super().adopt, segment, now_ms)
 
     def set_threshold(self, threshold_ms: float) -> None:
         """The operator's slack threshold."""
@@ -192,7 +193,7 @@ def _apply(ex: JournaledLifelong, out: ShiftReplayed, rec: JournalRecord,
                 raise JournalError("a failed planner call is journaled, but none is outstanding")
             ex.plan_failed(req.call, rec.t_ms)
         case SegmentRecord():
-            ex.adopt(Segment(rec.call, rec.states, rec.reached), rec.t_ms)
+            ex.adopt(Segment(rec.call, rec.states, rec.reached, rec.priorities), rec.t_ms)
         case ThresholdRecord():
             out.threshold_ms = rec.threshold_ms
             ex.set_threshold(rec.threshold_ms)
@@ -272,7 +273,7 @@ def resume_shift(engine: RunContext, run: ShiftRun, records: Sequence[JournalRec
 
     def record(rec: dict[str, object]) -> None:
         engine.feed.record(rec)
-        trace.append(json.dumps(rec) + "\n")
+        trace.append(trace_line(rec))
 
     def start(rec: ShiftRecord) -> None:
         engine.run_id = rec.run_id

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Protocol, TypeVar, cast
 
 from fastapi import Request
 from fastapi.responses import JSONResponse, StreamingResponse
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from gateway.execution.lifelong.executor import LifelongMode
 from gateway.execution.lifelong.tasks import (
@@ -52,6 +52,7 @@ from gateway.server.runs.lifelong import LifelongRun
 from gateway.server.task_api.models import (
     MAX_BODY_BYTES,
     MAX_LIST,
+    Key,
     ResetEvent,
     SubmitBatch,
     SubmitOne,
@@ -75,6 +76,9 @@ POLL_S = 0.1
 """How often an event stream looks for new events."""
 MAX_STREAMS = 32
 """Event streams open at once."""
+KEY_HEADER = "Idempotency-Key"
+KEY: TypeAdapter[str] = TypeAdapter(Key)
+"""What an idempotency key is (the header's and the body field's)."""
 T = TypeVar("T")
 
 
@@ -233,20 +237,18 @@ class TaskApi:
             raise HttpError(408, f"no complete body within {self.body_timeout_s} s") from None
         return bytes(data)
 
-    async def submit(self, request: Request, header_key: str | None) -> JSONResponse:
+    async def submit(self, request: Request) -> JSONResponse:
         """``POST /tasks``."""
+        header_key = _header_key(request)
         self.pool()
         self.check_open()
         body = _parse(request.headers.get("Content-Type", ""), await self.body(request))
-        if len(request.headers.getlist("Idempotency-Key")) > 1:
-            raise HttpError(400, "Idempotency-Key header given more than once")
         key = body.idempotency_key
         if header_key is not None:
             if key is not None and key != header_key:
                 raise HttpError(400, "the Idempotency-Key header and the idempotency_key "
                                      "field differ")
             key = header_key
-            body = type(body).model_validate({**body.model_dump(), "idempotency_key": key})
         grid = self.grid()
         specs = body.tasks if isinstance(body, SubmitBatch) else [body]
         new = []
@@ -343,6 +345,23 @@ class TaskApi:
                 idle += POLL_S
         finally:
             self.streams -= 1
+
+
+def _header_key(request: Request) -> str | None:
+    """The ``Idempotency-Key`` header (None if absent), checked as the body's field is
+    (:data:`~gateway.server.task_api.models.Key`); HttpError(400). Read here rather than
+    declared as a FastAPI parameter: the framework's parameter machinery cost as much as
+    the rest of a submission (the document declares it: ``routes.KEY_PARAMETER``)."""
+    values = request.headers.getlist(KEY_HEADER)
+    if len(values) > 1:
+        raise HttpError(400, f"{KEY_HEADER} header given more than once")
+    if not values:
+        return None
+    try:
+        return KEY.validate_python(values[0])
+    except ValidationError as exc:
+        raise HttpError(400, first_error([{**e, "loc": ("header", KEY_HEADER)}
+                                          for e in exc.errors(include_url=False)])) from None
 
 
 def _parse(content_type: str, raw: bytes) -> SubmitOne | SubmitBatch:
