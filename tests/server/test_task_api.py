@@ -1,10 +1,12 @@
 """The task API over real HTTP on 127.0.0.1: submissions, idempotency, reads, cancel, pause,
 refusals, the OpenAPI document (validated, and every answer checked against its schemas), and
-the event stream of a shift of simulated robots over websockets."""
+the event stream of a shift of simulated robots over websockets. The gateways of the tests
+without a running shift run in virtual time."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import http.client
 import json
 import logging
@@ -17,6 +19,7 @@ import pytest
 from openapi_spec_validator import validate as validate_spec
 
 from gateway.planning.grid import Cell, Grid
+from gateway.server.clock import VirtualClock, run_virtual
 from gateway.server.config import GatewayConfig, LifelongSettings
 from gateway.server.gateway import Gateway
 from gateway.server.task_api.models import MAX_BATCH, MAX_BODY_BYTES
@@ -38,10 +41,11 @@ def lifelong_config(**overrides: Any) -> GatewayConfig:
                             **overrides})
 
 
-@pytest.fixture
-async def served() -> AsyncIterator[tuple[Gateway, int]]:
-    """A lifelong gateway whose shift has not started (the pool takes tasks already)."""
-    async with Gateway(lifelong_config()) as gw:
+@contextlib.asynccontextmanager
+async def shift_served() -> AsyncIterator[tuple[Gateway, int]]:
+    """A lifelong gateway on the test's virtual time whose shift has not started (the pool
+    takes tasks already), and its port."""
+    async with Gateway(lifelong_config(), clock=VirtualClock()) as gw:
         yield gw, await gw.listen()
 
 
@@ -69,157 +73,160 @@ def check_schema(reply: Reply, operation: tuple[str, str]) -> None:
     jsonschema.validate(reply.json(), {**schema, "components": SPEC["components"]})
 
 
-async def test_submit_retry_read_cancel_pause(served: tuple[Gateway, int]) -> None:
-    gw, port = served
-    a, b, c = cells(gw, 3)
-    batch = {"tasks": [{"errands": [a, b]}, {"errands": [c], "priority": 3,
-                                             "deadline_ms": 90_000}]}
-    first = await call(port, "POST", "/tasks", batch, {"Authorization": "Bearer demo-operator",
-                                                       "Idempotency-Key": "wms-1"})
-    check_schema(first, ("/tasks", "post"))
-    assert first.status == 201 and first.json()["created"] is True
-    ids = [t["id"] for t in first.json()["tasks"]]
-    assert first.json()["tasks"][0]["errands"] == [a, b]
-    assert first.json()["tasks"][1]["priority"] == 3
-    # the retry (key in the body this time) creates nothing
-    retry = await call(port, "POST", "/tasks", {**batch, "idempotency_key": "wms-1"})
-    assert retry.status == 200 and [t["id"] for t in retry.json()["tasks"]] == ids
-    check_schema(retry, ("/tasks", "post"))
-    other = await call(port, "POST", "/tasks", {"errands": [a], "idempotency_key": "wms-1"})
-    assert other.status == 409
-    assert other.json() == {"error": f"idempotency key 'wms-1' was used for a different "
-                                     f"request (tasks {ids[0]}, {ids[1]})"}
-    check_schema(other, ("/tasks", "post"))
-    one = await call(port, "POST", "/tasks", {"errands": [c]})
-    assert one.status == 201 and one.json()["tasks"][0]["id"] == ids[1] + 1
-    # reads
-    got = await call(port, "GET", f"/tasks/{ids[0]}")
-    check_schema(got, ("/tasks/{id}", "get"))
-    assert got.json()["state"] == "queued" and got.json()["idempotency_key"] == "wms-1"
-    page = await call(port, "GET", "/tasks?state=queued&limit=2")
-    check_schema(page, ("/tasks", "get"))
-    body = page.json()
-    assert [t["id"] for t in body["tasks"]] == ids and body["next_after"] == ids[1]
-    assert body["counts"]["queued"] == 3
-    rest = await call(port, "GET", f"/tasks?after={ids[1]}")
-    assert [t["id"] for t in rest.json()["tasks"]] == [ids[1] + 1]
-    assert rest.json()["next_after"] is None
-    # pause, resume, cancel (twice: a retried DELETE changes nothing)
-    paused = await call(port, "POST", f"/tasks/{ids[0]}/pause")
-    check_schema(paused, ("/tasks/{id}/pause", "post"))
-    assert paused.json()["task"]["state"] == "paused"
-    assert (await call(port, "GET", "/tasks?state=paused")).json()["tasks"][0]["id"] == ids[0]
-    resumed = await call(port, "POST", f"/tasks/{ids[0]}/resume")
-    assert resumed.json()["task"]["state"] == "queued"
-    for _ in range(2):
-        gone = await call(port, "DELETE", f"/tasks/{ids[0]}")
-        check_schema(gone, ("/tasks/{id}", "delete"))
-        assert gone.status == 200 and gone.json()["state"] == "cancelled"
-    again = await call(port, "POST", f"/tasks/{ids[0]}/resume")
-    assert again.status == 409 and again.json()["error"] == (
-        f"task {ids[0]} is cancelled: it cannot be resumed")
+@pytest.mark.looptime  # virtual time over real HTTP
+async def test_submit_retry_read_cancel_pause() -> None:
+    async with shift_served() as (gw, port):
+        a, b, c = cells(gw, 3)
+        batch = {"tasks": [{"errands": [a, b]}, {"errands": [c], "priority": 3,
+                                                 "deadline_ms": 90_000}]}
+        first = await call(port, "POST", "/tasks", batch, {"Authorization": "Bearer demo-operator",
+                                                           "Idempotency-Key": "wms-1"})
+        check_schema(first, ("/tasks", "post"))
+        assert first.status == 201 and first.json()["created"] is True
+        ids = [t["id"] for t in first.json()["tasks"]]
+        assert first.json()["tasks"][0]["errands"] == [a, b]
+        assert first.json()["tasks"][1]["priority"] == 3
+        # the retry (key in the body this time) creates nothing
+        retry = await call(port, "POST", "/tasks", {**batch, "idempotency_key": "wms-1"})
+        assert retry.status == 200 and [t["id"] for t in retry.json()["tasks"]] == ids
+        check_schema(retry, ("/tasks", "post"))
+        other = await call(port, "POST", "/tasks", {"errands": [a], "idempotency_key": "wms-1"})
+        assert other.status == 409
+        assert other.json() == {"error": f"idempotency key 'wms-1' was used for a different "
+                                         f"request (tasks {ids[0]}, {ids[1]})"}
+        check_schema(other, ("/tasks", "post"))
+        one = await call(port, "POST", "/tasks", {"errands": [c]})
+        assert one.status == 201 and one.json()["tasks"][0]["id"] == ids[1] + 1
+        # reads
+        got = await call(port, "GET", f"/tasks/{ids[0]}")
+        check_schema(got, ("/tasks/{id}", "get"))
+        assert got.json()["state"] == "queued" and got.json()["idempotency_key"] == "wms-1"
+        page = await call(port, "GET", "/tasks?state=queued&limit=2")
+        check_schema(page, ("/tasks", "get"))
+        body = page.json()
+        assert [t["id"] for t in body["tasks"]] == ids and body["next_after"] == ids[1]
+        assert body["counts"]["queued"] == 3
+        rest = await call(port, "GET", f"/tasks?after={ids[1]}")
+        assert [t["id"] for t in rest.json()["tasks"]] == [ids[1] + 1]
+        assert rest.json()["next_after"] is None
+        # pause, resume, cancel (twice: a retried DELETE changes nothing)
+        paused = await call(port, "POST", f"/tasks/{ids[0]}/pause")
+        check_schema(paused, ("/tasks/{id}/pause", "post"))
+        assert paused.json()["task"]["state"] == "paused"
+        assert (await call(port, "GET", "/tasks?state=paused")).json()["tasks"][0]["id"] == ids[0]
+        resumed = await call(port, "POST", f"/tasks/{ids[0]}/resume")
+        assert resumed.json()["task"]["state"] == "queued"
+        for _ in range(2):
+            gone = await call(port, "DELETE", f"/tasks/{ids[0]}")
+            check_schema(gone, ("/tasks/{id}", "delete"))
+            assert gone.status == 200 and gone.json()["state"] == "cancelled"
+        again = await call(port, "POST", f"/tasks/{ids[0]}/resume")
+        assert again.status == 409 and again.json()["error"] == (
+            f"task {ids[0]} is cancelled: it cannot be resumed")
 
 
-async def test_refusals_are_precise(served: tuple[Gateway, int]) -> None:
-    gw, port = served
-    grid = grid_of(gw)
-    (a,) = cells(gw, 1)
-    blocked = next((x, y) for y in range(grid.height) for x in range(grid.width)
-                   if not grid.is_free((x, y)))
-    cases: list[tuple[tuple[str, str, Any, dict[str, str] | None, bytes | None], int, str]] = [
-        (("POST", "/tasks", {"errands": [a]}, {}, None), 401, "missing token"),
-        (("GET", "/tasks", None, {"Authorization": "Bearer demo-robot-1"}, None), 403,
-         "not an operator token"),
-        (("GET", "/tasks", None, {"Authorization": "Bearer nobody"}, None), 403,
-         "unknown token"),
-        (("POST", "/tasks", None, None, b"{nope"), 415, "application/json"),
-        (("POST", "/tasks", None, {"Authorization": "Bearer demo-operator",
-                                   "Content-Type": "application/json"}, b"{nope"), 400,
-         "not JSON"),
-        (("POST", "/tasks", [1, 2], None, None), 400, "must be a JSON object"),
-        (("POST", "/tasks", {"errands": []}, None, None), 400, "errands: List should have"),
-        (("POST", "/tasks", {"errands": [a], "colour": "red"}, None, None), 400,
-         "colour: Extra inputs are not permitted"),
-        (("POST", "/tasks", {"errands": [list(blocked)]}, None, None), 422,
-         f"errands.0: {list(blocked)} is not a free cell of the map"),
-        (("POST", "/tasks", {"tasks": [{"errands": [a]}, {"errands": [[a[0], 10**5]]}]},
-          None, None), 422, "tasks.1.errands.0"),
-        (("POST", "/tasks", {"tasks": [{"errands": [a]}] * (MAX_BATCH + 1)}, None, None), 400,
-         f"at most {MAX_BATCH} items"),
-        (("POST", "/tasks", {"errands": [a], "priority": 10**40}, None, None), 413,
-         "more than 32 digits"),
-        (("POST", "/tasks", {"errands": [a], "idempotency_key": "x" * 200}, None, None), 400,
-         "idempotency_key"),
-        (("POST", "/tasks", None, None, b"[" * 50 + b"]" * 50), 413, "nested deeper"),
-        (("POST", "/tasks", {"errands": [a]}, {"Authorization": "Bearer demo-operator",
-                                               "Idempotency-Key": "two words"}, None), 400,
-         "Idempotency-Key: String should match pattern"),
-        (("POST", "/tasks", {"errands": [a]}, {"Authorization": "Bearer demo-operator",
-                                               "Idempotency-Key": "x" * 129}, None), 400,
-         "Idempotency-Key: String should have at most 128 characters"),
-        (("POST", "/tasks", {"errands": [a], "idempotency_key": "b"},
-          {"Authorization": "Bearer demo-operator", "Idempotency-Key": "a"}, None), 400,
-         "the Idempotency-Key header and the idempotency_key field differ"),
-        (("POST", "/tasks?colour=1", {"errands": [a]}, None, None), 400,
-         "unknown query parameter 'colour' (known: none)"),
-        (("GET", "/tasks/999", None, None, None), 404, "no task 999"),
-        (("DELETE", "/tasks/999", None, None, None), 404, "no task 999"),
-        (("GET", "/tasks?state=lost", None, None, None), 400, "unknown state 'lost'"),
-        (("GET", "/tasks?limit=0", None, None, None), 400,
-         "limit: Input should be greater than or equal to 1"),
-        (("GET", "/tasks?colour=1", None, None, None), 400, "unknown query parameter"),
-        (("PUT", "/tasks/1", None, None, b"{}"), 405, "use GET or DELETE"),
-        (("GET", "/tasks/1/pause", None, None, None), 405, "GET /tasks/1/pause: use POST"),
-        (("GET", "/tasks/x/y", None, None, None), 404, "no route"),
-    ]
-    for (method, path, data, headers, raw), status, words in cases:
-        if raw is not None and headers is None and status != 415:
-            headers = {"Authorization": "Bearer demo-operator",
-                       "Content-Type": "application/json"}
-        reply = await call(port, method, path, data, headers, raw)
-        assert reply.status == status, (method, path, reply.status, reply.body[:200])
-        error = reply.json()["error"]
-        assert words in error and "\n" not in error, (path, error)
-    # a body over the limit is refused before it is read
-    big = await call(port, "POST", "/tasks", None, None, b" " * (MAX_BODY_BYTES + 1))
-    assert big.status == 413 and "more than" in big.json()["error"]
-    # a GUI login may read, and change only from the gateway's own origin
-    login = await call(port, "GET", "/session", headers={"Authorization":
-                                                         "Bearer demo-operator"})
-    cookie = login.headers["set-cookie"].split(";")[0]
-    assert (await call(port, "GET", "/tasks", headers={"Cookie": cookie})).status == 200
-    foreign = await call(port, "POST", "/tasks", {"errands": [a]},
-                         {"Cookie": cookie, "Origin": "http://evil.example"})
-    assert foreign.status == 403 and "Origin" in foreign.json()["error"]
-    own = await call(port, "POST", "/tasks", {"errands": [a]},
-                     {"Cookie": cookie, "Origin": f"http://127.0.0.1:{port}"})
-    assert own.status == 201
-    pool = gw.engine.current_run.tasks
-    assert pool is not None and pool.next_id == 1  # nothing else made
+@pytest.mark.looptime  # virtual time over real HTTP
+async def test_refusals_are_precise() -> None:
+    async with shift_served() as (gw, port):
+        grid = grid_of(gw)
+        (a,) = cells(gw, 1)
+        blocked = next((x, y) for y in range(grid.height) for x in range(grid.width)
+                       if not grid.is_free((x, y)))
+        cases: list[tuple[tuple[str, str, Any, dict[str, str] | None, bytes | None], int, str]] = [
+            (("POST", "/tasks", {"errands": [a]}, {}, None), 401, "missing token"),
+            (("GET", "/tasks", None, {"Authorization": "Bearer demo-robot-1"}, None), 403,
+             "not an operator token"),
+            (("GET", "/tasks", None, {"Authorization": "Bearer nobody"}, None), 403,
+             "unknown token"),
+            (("POST", "/tasks", None, None, b"{nope"), 415, "application/json"),
+            (("POST", "/tasks", None, {"Authorization": "Bearer demo-operator",
+                                       "Content-Type": "application/json"}, b"{nope"), 400,
+             "not JSON"),
+            (("POST", "/tasks", [1, 2], None, None), 400, "must be a JSON object"),
+            (("POST", "/tasks", {"errands": []}, None, None), 400, "errands: List should have"),
+            (("POST", "/tasks", {"errands": [a], "colour": "red"}, None, None), 400,
+             "colour: Extra inputs are not permitted"),
+            (("POST", "/tasks", {"errands": [list(blocked)]}, None, None), 422,
+             f"errands.0: {list(blocked)} is not a free cell of the map"),
+            (("POST", "/tasks", {"tasks": [{"errands": [a]}, {"errands": [[a[0], 10**5]]}]},
+              None, None), 422, "tasks.1.errands.0"),
+            (("POST", "/tasks", {"tasks": [{"errands": [a]}] * (MAX_BATCH + 1)}, None, None), 400,
+             f"at most {MAX_BATCH} items"),
+            (("POST", "/tasks", {"errands": [a], "priority": 10**40}, None, None), 413,
+             "more than 32 digits"),
+            (("POST", "/tasks", {"errands": [a], "idempotency_key": "x" * 200}, None, None), 400,
+             "idempotency_key"),
+            (("POST", "/tasks", None, None, b"[" * 50 + b"]" * 50), 413, "nested deeper"),
+            (("POST", "/tasks", {"errands": [a]}, {"Authorization": "Bearer demo-operator",
+                                                   "Idempotency-Key": "two words"}, None), 400,
+             "Idempotency-Key: String should match pattern"),
+            (("POST", "/tasks", {"errands": [a]}, {"Authorization": "Bearer demo-operator",
+                                                   "Idempotency-Key": "x" * 129}, None), 400,
+             "Idempotency-Key: String should have at most 128 characters"),
+            (("POST", "/tasks", {"errands": [a], "idempotency_key": "b"},
+              {"Authorization": "Bearer demo-operator", "Idempotency-Key": "a"}, None), 400,
+             "the Idempotency-Key header and the idempotency_key field differ"),
+            (("POST", "/tasks?colour=1", {"errands": [a]}, None, None), 400,
+             "unknown query parameter 'colour' (known: none)"),
+            (("GET", "/tasks/999", None, None, None), 404, "no task 999"),
+            (("DELETE", "/tasks/999", None, None, None), 404, "no task 999"),
+            (("GET", "/tasks?state=lost", None, None, None), 400, "unknown state 'lost'"),
+            (("GET", "/tasks?limit=0", None, None, None), 400,
+             "limit: Input should be greater than or equal to 1"),
+            (("GET", "/tasks?colour=1", None, None, None), 400, "unknown query parameter"),
+            (("PUT", "/tasks/1", None, None, b"{}"), 405, "use GET or DELETE"),
+            (("GET", "/tasks/1/pause", None, None, None), 405, "GET /tasks/1/pause: use POST"),
+            (("GET", "/tasks/x/y", None, None, None), 404, "no route"),
+        ]
+        for (method, path, data, headers, raw), status, words in cases:
+            if raw is not None and headers is None and status != 415:
+                headers = {"Authorization": "Bearer demo-operator",
+                           "Content-Type": "application/json"}
+            reply = await call(port, method, path, data, headers, raw)
+            assert reply.status == status, (method, path, reply.status, reply.body[:200])
+            error = reply.json()["error"]
+            assert words in error and "\n" not in error, (path, error)
+        # a body over the limit is refused before it is read
+        big = await call(port, "POST", "/tasks", None, None, b" " * (MAX_BODY_BYTES + 1))
+        assert big.status == 413 and "more than" in big.json()["error"]
+        # a GUI login may read, and change only from the gateway's own origin
+        login = await call(port, "GET", "/session", headers={"Authorization":
+                                                             "Bearer demo-operator"})
+        cookie = login.headers["set-cookie"].split(";")[0]
+        assert (await call(port, "GET", "/tasks", headers={"Cookie": cookie})).status == 200
+        foreign = await call(port, "POST", "/tasks", {"errands": [a]},
+                             {"Cookie": cookie, "Origin": "http://evil.example"})
+        assert foreign.status == 403 and "Origin" in foreign.json()["error"]
+        own = await call(port, "POST", "/tasks", {"errands": [a]},
+                         {"Cookie": cookie, "Origin": f"http://127.0.0.1:{port}"})
+        assert own.status == 201
+        pool = gw.engine.current_run.tasks
+        assert pool is not None and pool.next_id == 1  # nothing else made
 
 
-async def test_openapi_document_is_served_valid_and_complete(
-        served: tuple[Gateway, int]) -> None:
-    _, port = served
-    reply = await call(port, "GET", "/openapi.json", headers={})  # public: no secret in it
-    assert reply.status == 200
-    doc = reply.json()
-    validate_spec(doc)
-    assert doc == json.loads(json.dumps(openapi_document()))
-    assert set(doc["paths"]) == {"/tasks", "/tasks/{id}", "/tasks/{id}/pause",
-                                 "/tasks/{id}/resume", "/tasks/events"}
-    # every schema the document names is defined there
-    text = json.dumps(doc)
-    for name in {part.split('"')[0] for part in text.split("#/components/schemas/")[1:]}:
-        assert name in doc["components"]["schemas"], name
+@pytest.mark.looptime  # virtual time over real HTTP
+async def test_openapi_document_is_served_valid_and_complete() -> None:
+    async with shift_served() as (_, port):
+        reply = await call(port, "GET", "/openapi.json", headers={})  # public: no secret in it
+        assert reply.status == 200
+        doc = reply.json()
+        validate_spec(doc)
+        assert doc == json.loads(json.dumps(openapi_document()))
+        assert set(doc["paths"]) == {"/tasks", "/tasks/{id}", "/tasks/{id}/pause",
+                                     "/tasks/{id}/resume", "/tasks/events"}
+        # every schema the document names is defined there
+        text = json.dumps(doc)
+        for name in {part.split('"')[0] for part in text.split("#/components/schemas/")[1:]}:
+            assert name in doc["components"]["schemas"], name
 
 
 def test_no_lifelong_mode_no_task_pool() -> None:
     async def main() -> Reply:
-        async with Gateway(GatewayConfig(port=0, log_level="WARNING")) as gw:
+        async with Gateway(GatewayConfig(port=0, log_level="WARNING"),
+                           clock=VirtualClock()) as gw:
             return await call(await gw.listen(), "GET", "/tasks")
 
-    reply = asyncio.run(main())
+    reply = run_virtual(main())
     assert reply.status == 503 and "not in lifelong mode" in reply.json()["error"]
 
 

@@ -53,8 +53,18 @@ class GatewayHttpProtocol(HttpToolsProtocol):
         if hasattr(transport, "max_size"):  # asyncio's socket transport: what one recv takes
             transport.max_size = READ_BYTES
         self._head_bytes = 0
+        self._body_due = False  # a request's head is in, its body is not whole yet
         self._head_timer: asyncio.TimerHandle | None = self.loop.call_later(
             self.head_timeout_s, self._too_slow)
+
+    def data_received(self, data: bytes) -> None:
+        """Parse what was read; then, if a request's head is in but not all of its body, read
+        no more until the application asks for the body (uvicorn would read on up to its
+        64 KiB high-water mark before the credentials are checked). A request read whole
+        (most are: head and body in one read) leaves reading on: no pause and resume."""
+        super().data_received(data)
+        if self._body_due:
+            self.flow.pause_reading()
 
     def connection_lost(self, exc: Exception | None) -> None:
         """Stop the clock."""
@@ -81,13 +91,16 @@ class GatewayHttpProtocol(HttpToolsProtocol):
         super().on_header(name, value)
 
     def on_headers_complete(self) -> None:
-        """The head is in: no more clock (the application bounds the body's time), and no
-        more reading until the application asks for the body (uvicorn would read on up to
-        its 64 KiB high-water mark before the credentials are checked)."""
+        """The head is in: no more clock (the application bounds the body's time); its body
+        is due (see :meth:`data_received`)."""
         self._stop_clock()
         super().on_headers_complete()
-        if not self.parser.should_upgrade():
-            self.flow.pause_reading()
+        self._body_due = not self.parser.should_upgrade()
+
+    def on_message_complete(self) -> None:
+        """The body is whole."""
+        super().on_message_complete()
+        self._body_due = False
 
     def _count(self, n: int) -> None:
         self._head_bytes += n
