@@ -11,7 +11,9 @@ with one replan, per experiment, as a table of savings over a grid of stays:
 * for each stay: the run without replanning, and every second from ``T_a`` while the
   intruder is there, a forced informed replan that keeps its cell free until the robot's
   need plus an *assumed* stay (each of ``assumed_s``, the same for every true stay: the
-  policy cannot know it) and, as the clairvoyant, until the true leave time;
+  policy cannot know it) and, as the clairvoyant, until the true leave time; the replan's
+  waits for a reported block are gated as the executor's informed replans are (the robot
+  moves in when the cell is really free, not at the assumed end);
 * a policy picks, per experiment, one (replan time, assumed stay) or none; it replans only
   if the intruder is still there then (all it can observe), so its saving at a stay where
   the intruder left before is 0.
@@ -102,7 +104,7 @@ def gain_table(config: SimConfig, key: ExperimentKey, stays_s: Sequence[float],
     best = []
     need: float | None = None
     for k, stay in enumerate(stays_s):
-        cfg = dataclasses.replace(config, policy="none", max_replans=1,
+        cfg = dataclasses.replace(config, policy="none", max_replans=1, informed=True,
                                   intruder_stay=StaySpec("fixed", (stay,)))
         base = _Assumed(cfg, memo)
         base.start()

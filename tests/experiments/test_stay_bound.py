@@ -51,7 +51,8 @@ def test_every_entry_of_a_table_equals_fresh_runs() -> None:
     for k, stay in enumerate(stays):
         none = run_simulation(_fixed(config, stay)).soc_ms
         for (t, a), savings in got.actions.items():
-            sim = _Assuming(dataclasses.replace(_fixed(config, stay), max_replans=1))
+            sim = _Assuming(dataclasses.replace(_fixed(config, stay), max_replans=1,
+                                                informed=True))
             sim.assumed_ms = 1000.0 * a
             sim.executor.policy = RandomReplan(0, intruder_appear_ms=t, makespan_lb_ms=0.0)
             res = sim.run()
