@@ -41,6 +41,9 @@ on a loaded machine is slow, and slow is not wrong.
 Prints ONE line (``--json``: a JSON object with ``oneshot`` and ``lifelong``, each kind's keys,
 ``trials`` in all and ``wall_s``; ``exact_ratio``: exact resumes over the trials that could
 resume, i.e. all but the clean refusals, against 1.0).
+``--keep DIR`` keeps every trial's directory (journal, trace, gateway log, ``trial.json``);
+``--summarize DIR...`` runs nothing and prints the same line for the trials kept there (a
+campaign split over processes, or stopped before its end).
 """
 
 from __future__ import annotations
@@ -578,8 +581,20 @@ def campaign(mode: str, trials: int, seed: int, kinds: tuple[str, ...],
     return table
 
 
+def summarize(dirs: list[Path]) -> dict[str, Any]:
+    """The campaign's table from the ``trial.json`` of every trial kept under ``dirs`` (by
+    ``--keep``; a campaign stopped before its end included): mode -> kind -> keys."""
+    result: dict[str, Any] = {}
+    for trial in sorted(f for d in dirs for f in d.glob("*/trial.json")):
+        mode, kind = trial.parent.name.split("-")[:2]
+        row = result.setdefault(mode, {}).setdefault(kind, dict.fromkeys(KEYS, 0))
+        for key, value in json.loads(trial.read_text())["class"].items():
+            row[key] += value
+    return result
+
+
 def main() -> int:
-    """Run the campaign and print one line."""
+    """Run the campaign (or sum up kept trials) and print one line."""
     parser = CommandParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=12, help="trials per fault kind and mode")
     parser.add_argument("--seed", type=int, default=1)
@@ -588,6 +603,8 @@ def main() -> int:
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--keep", type=Path, metavar="DIR",
                         help="keep every trial's directory under DIR (default: deleted)")
+    parser.add_argument("--summarize", type=Path, nargs="+", metavar="DIR",
+                        help="run nothing: sum up the trials kept under each DIR")
     args = parser.parse_args()
     kinds = tuple(k for k in args.kinds.split(",") if k)
     unknown = [k for k in kinds if k not in KINDS]
@@ -596,15 +613,17 @@ def main() -> int:
               if unknown else "faults: --trials must be >= 1", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    result: dict[str, Any] = {mode: campaign(mode, args.trials, args.seed, kinds, args.keep)
-                              for mode in args.modes.split(",")}
+    result: dict[str, Any] = summarize(args.summarize) if args.summarize else {
+        mode: campaign(mode, args.trials, args.seed, kinds, args.keep)
+        for mode in args.modes.split(",")}
     rows = [row for table in result.values() for row in table.values()]
     total = sum(r["trials"] for r in rows)
     resumable = total - sum(r["clean_refusals"] for r in rows)
     exact = sum(r["exact_resumes"] for r in rows)
-    result.update(trials=total, wall_s=round(time.perf_counter() - t0, 1),
+    result.update(trials=total, wall_s=None if args.summarize
+                  else round(time.perf_counter() - t0, 1),
                   exact_ratio=round(exact / resumable, 3) if resumable else math.nan,
-                  baseline_ratio=1.0, seed=args.seed)
+                  baseline_ratio=1.0, seed=None if args.summarize else args.seed)
     if args.json:
         print(json.dumps(result))
     else:

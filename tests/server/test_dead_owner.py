@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import random
+import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -69,7 +70,7 @@ def test_a_dead_owner_task_exits_70_with_one_line_and_a_consistent_journal(
             gw.port, LoadPlan(msg_id="load", seq=0, map=str(map_file),
                               paths=[list(p) for p in plan.paths]), Start(msg_id="go", seq=0)))
         assert gw.proc is not None
-        out["code"] = await asyncio.to_thread(gw.proc.wait, 30)
+        out["code"] = await asyncio.to_thread(gw.proc.wait, 120)  # a bound for a hang only
         gw.proc = None
         out["log"] = gw.log_path.read_text()
         with_error.cancel()
@@ -78,7 +79,8 @@ def test_a_dead_owner_task_exits_70_with_one_line_and_a_consistent_journal(
         out["resumed_as"] = (await asyncio.to_thread(gw.health)).get("gateway")
         if out["resumed_as"] == "loaded":  # the start's record did not make it: start again
             await _operator(gw.port, Start(msg_id="go", seq=0))
-        for _ in range(600):
+        deadline = time.monotonic() + 240.0  # a bound for a hang only (the run: 3 s)
+        while time.monotonic() < deadline:
             if (await asyncio.to_thread(gw.health)).get("gateway") == "done":
                 break
             await asyncio.sleep(0.1)
