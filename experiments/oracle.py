@@ -83,7 +83,7 @@ Outcome = tuple[float, float]
 
 
 @dataclass
-class _Memo:
+class Memo:
     """The sweep's memos (shared by every fork of one experiment)."""
 
     solves: dict[tuple[Any, ...], tuple[Plan | None, float]] = field(default_factory=dict)
@@ -93,7 +93,7 @@ class _Memo:
 class _OracleSimulation(Simulation):
     """A simulation whose solves and post-replan continuations are memoised."""
 
-    def __init__(self, config: SimConfig, memo: _Memo) -> None:
+    def __init__(self, config: SimConfig, memo: Memo) -> None:
         super().__init__(config)
         self.memo = memo
         self.known: Outcome | None = None
@@ -144,7 +144,7 @@ class _OracleSimulation(Simulation):
         return got
 
 
-class _ClairvoyantSimulation(_OracleSimulation):
+class ClairvoyantSimulation(_OracleSimulation):
     """An oracle simulation whose replans know the intruder's cell and leave time."""
 
     def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
@@ -203,8 +203,8 @@ def sweep(config: SimConfig, step_ms: float = DEFAULT_STEP_MS, *,
     if config.policy != "none" or config.max_replans < 1:
         raise ValueError("the oracle forces its own replans: give policy 'none' and "
                          "max_replans >= 1")
-    memo = _Memo()
-    base = (_ClairvoyantSimulation if clairvoyant else _OracleSimulation)(config, memo)
+    memo = Memo()
+    base = (ClairvoyantSimulation if clairvoyant else _OracleSimulation)(config, memo)
     base.start()
     curve = []
     t = config.intruder_config.appear_ms if clairvoyant else 0.0

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.oracle import ExperimentKey, _ClairvoyantSimulation, _Memo
+from experiments.oracle import ClairvoyantSimulation, ExperimentKey, Memo
 from sim_clients.des import SimConfig
 from sim_clients.intruder import IntruderState
 from sim_clients.stays import StaySpec
@@ -56,7 +56,7 @@ def stay_grid(spec: StaySpec, points: int, samples: int = 100_000) -> tuple[floa
                  for k in range(points))
 
 
-class _Assumed(_ClairvoyantSimulation):
+class _Assumed(ClairvoyantSimulation):
     """A sweep fork whose forced replan keeps the intruder's cell free until its robot's
     need plus ``assumed_ms`` (the true stay when None: the clairvoyant)."""
 
@@ -99,7 +99,7 @@ class GainTable:
 def gain_table(config: SimConfig, key: ExperimentKey, stays_s: Sequence[float],
                assumed_s: Sequence[float], step_ms: float = 1000.0) -> GainTable:
     """The savings table of one experiment (``config``: its intruder variant, any stay)."""
-    memo = _Memo()
+    memo = Memo()
     socs: dict[tuple[float, float], list[float]] = {}
     best = []
     need: float | None = None

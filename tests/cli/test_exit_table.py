@@ -126,6 +126,8 @@ ROWS = [
         folder=("bench/api.py", "--against", "{file}/x"), long=True),
     Row("bench-fuzz", ("bench/fuzz.py", "--frames", "2000"), long=True),
     Row("bench-demo-stays", ("bench/demo_stays.py", "--runs", "1")),
+    Row("bench-stay-bound", ("bench/stay_bound.py", "{camp}", "--sample", "1", "--points",
+                             "2", "--tables", "{out}"), previous=False),
     Row("bench-faults", ("bench/faults.py", "--trials", "1", "--modes", "oneshot"), long=True),
 ]
 NO_PATH = {"bench-monitor", "bench-sim-speed", "bench-feed", "bench-lifelong", "bench-crash",
@@ -158,6 +160,11 @@ def scratch(tmp_path_factory: pytest.TempPathFactory) -> Path:
                             "10", "--trace", str(tmp / "t.jsonl")], cwd=ROOT, check=True,
                            capture_output=True, timeout=120)
     assert trace.returncode == 0
+    camp = subprocess.run([sys.executable, "-m", "fleetgate", "experiment", "--maps", "lab",
+                           "--agents", "4", "--instances", "1", "--seeds", "1", "--solver-time",
+                           "zero", "--intruder-stay", "uniform:1-30", "--out", str(tmp / "camp"),
+                           "--no-progress"], cwd=ROOT, capture_output=True, timeout=120)
+    assert camp.returncode == 0, camp.stderr
     return tmp
 
 
@@ -222,7 +229,7 @@ def _argv(row: Row, case: str, scratch: Path, out: Path) -> list[str] | None:
         args = row.argv
     target = {"full": "/dev/full", "folder": f"{scratch}/file/out"}.get(case, str(out))
     return [a.replace("{out}", target).replace("{file}", f"{scratch}/file")
-            .replace("{trace}", f"{scratch}/t.jsonl")
+            .replace("{trace}", f"{scratch}/t.jsonl").replace("{camp}", f"{scratch}/camp")
             .replace("{problem}", f"{scratch}/lorr/wh.json")
             .replace("{maps}", str(BENCHMARK_MAPS)) for a in args]
 
