@@ -142,6 +142,7 @@ from gateway.planning.instance import Instance
 from gateway.planning.lorr import LorrProblem, warehouse_blocks, warehouse_problem
 from gateway.planning.plan import Plan
 from gateway.planning.random_plans import open_grid, random_plan
+from gateway.runtime.exits import UsageError
 from gateway.server.config import GatewayConfig, LifelongSettings, TokensConfig
 from gateway.server.gateway import Gateway
 from gateway.server.gc_tuning import GC_THRESHOLDS
@@ -476,7 +477,11 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
                                    stdout=subprocess.PIPE, text=True)
         try:
             assert gw.stdout is not None
-            port = int(gw.stdout.readline())
+            line = gw.stdout.readline()
+            if not line.strip().isdigit():  # e.g. an --against checkout without an option
+                raise UsageError(f"the gateway of {tree or 'this checkout'} did not start "
+                                 "(its error is above)")
+            port = int(line)
             total = sum(len(p) - 1 for p in plan.paths)
             robots_gc_ms: float | None = None
             if generators:
