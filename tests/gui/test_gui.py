@@ -129,13 +129,16 @@ def test_intruder_click_blocks_a_robot_and_slack_rises(page: Page) -> None:
     page.wait_for_function("window.fleetgate.model.snap.policy === 'none'")
     fresh_run(page)
     target = intruder_target(page, INTRUDER_S)
-    # real-time jitter leaves Δ̄F at a few ms at most before the intruder
-    assert max((v for _, v in page.evaluate("window.fleetgate.slack()")), default=0.0) < 100
+    # before the intruder Δ̄F is real-time jitter only: a few ms on a quiet machine, 143 ms
+    # seen with a second test suite on the same 2 cores; the intruder adds 500 ms more
+    before = max((v for _, v in page.evaluate("window.fleetgate.slack()")), default=0.0)
+    assert before < 500
     place_intruder(page, target, INTRUDER_S)
     page.wait_for_function(
         "window.fleetgate.robots().some(r => r.activity === 'blocked')", timeout=6_000)
     page.wait_for_function(
-        "window.fleetgate.slack().some(p => p[1] > 500)", timeout=6_000)
+        "(before) => window.fleetgate.slack().some(p => p[1] > before + 500)", arg=before,
+        timeout=6_000)
     expect(page.get_by_role("list", name="Event log")).to_contain_text("blocked")
     assert page.evaluate("window.fleetgate.plan()") == 0  # policy none: nobody replanned
 
