@@ -179,8 +179,12 @@ class Disk:
     def __init__(self, where: Path) -> None:
         self.dir = where
         where.mkdir()
-        self.mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs",
-                                       str(where)], capture_output=True).returncode == 0
+        try:
+            self.mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs",
+                                           str(where)], capture_output=True).returncode == 0
+        except BaseException:  # Ctrl-C while mounting: the mount may be in place all the same
+            subprocess.run(["umount", "-l", str(where)], capture_output=True)
+            raise
         self.filler = where / "filler"
 
     def fill(self) -> None:
