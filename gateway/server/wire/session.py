@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -34,7 +35,11 @@ class Session:
         self.link = link
         self.peer: Peer = link.peer
         self.id = next(_ids)
-        self._queue: asyncio.Queue[str | None] = asyncio.Queue(queue_size)
+        # the send queue: a deque and the writer's waiter (an asyncio.Queue costs the owner
+        # about twice as much per message: its bookkeeping and a wake-up per put)
+        self._queue: deque[str | None] = deque()
+        self._queue_size = queue_size
+        self._waiter: asyncio.Future[None] | None = None  # the idle writer's
         self._seq = itertools.count()
         self._max_errors = max_errors
         self._error_decay_s = error_decay_s
@@ -76,13 +81,21 @@ class Session:
 
     def _put(self, text: str) -> bool:
         """Queue ``text`` for the writer; False (and the session closed) if it is too slow."""
-        try:
-            self._queue.put_nowait(text)
-        except asyncio.QueueFull:
+        if len(self._queue) >= self._queue_size:
             log.warning("send queue full, closing", extra={"peer": str(self)})
             self.close(1013, "too slow: send queue full")
             return False
+        self._queue.append(text)
+        self._wake()
         return True
+
+    def _wake(self) -> None:
+        """Wake the writer if it waits for the queue."""
+        waiter = self._waiter
+        if waiter is not None:
+            self._waiter = None
+            if not waiter.done():
+                waiter.set_result(None)
 
     def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
         """Reply ``error``; close the connection (1008) after too many in a short time."""
@@ -116,16 +129,21 @@ class Session:
             return
         self.closing = True
         self._close_args = (code, reason)
-        try:
-            self._queue.put_nowait(None)
-        except asyncio.QueueFull:
+        if len(self._queue) >= self._queue_size:
             self.writer.cancel()
             self._closer = self._loop.create_task(self.link.close(code, reason))
+        else:
+            self._queue.append(None)
+            self._wake()
 
     async def _write(self) -> None:
         try:
+            queue = self._queue
             while True:
-                text = await self._queue.get()
+                while not queue:
+                    self._waiter = self._loop.create_future()
+                    await self._waiter
+                text = queue.popleft()
                 if text is None:
                     await self.link.close(*self._close_args)
                     return
