@@ -60,7 +60,7 @@ from gateway.server.wire.asgi_server import HttpServer
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.wire.deadline import IdleDeadline
 from gateway.server.wire.http import PlainRoutes
-from gateway.server.wire.session import Session
+from gateway.server.wire.session import Outbox, Session
 from gateway.server.wire.tls import server_context
 from gateway.server.wire.transport import (
     HARD_MAX_BYTES,
@@ -144,6 +144,7 @@ class Gateway:
             weakref.WeakKeyDictionary())
         self._links: set[asyncio.Task[None]] = set()
         self._sessions: set[Session] = set()
+        self._outbox: Outbox | None = None  # (made in the event loop, by the first connection)
         self._max_connections = self.config.max_connections
         self.http = PlainRoutes(self.metrics.render, self._health, self._ready, self.auth,
                                 tls=tls is not None, static_dir=self.config.static_dir)
@@ -407,7 +408,10 @@ class Gateway:
         ``hello_timeout_s`` and then send something at least every ``idle_timeout_s``.
         """
         cfg = self.config
+        if self._outbox is None:
+            self._outbox = Outbox()
         session = Session(link, queue_size=cfg.send_queue, max_errors=cfg.max_errors,
+                          outbox=self._outbox,
                           error_decay_s=cfg.error_decay_s,
                           rate_per_s=cfg.rate_per_s, rate_burst=cfg.rate_burst,
                           on_error=lambda code: self.metrics.errors.labels(code.value).inc())

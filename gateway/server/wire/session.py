@@ -1,6 +1,9 @@
 """One connection's outgoing side: a bounded send queue drained by its own writer task.
 
 The owner task never awaits a peer: it builds a message and puts it in the session's queue.
+The writers are woken in batches (:class:`Outbox`): once per turn of the event loop, after the
+task that queued the messages yields, not once per message (the owner's messages could not
+leave earlier anyway: it commits the journal before it yields).
 If that queue is full the peer is too slow and the session is closed (code 1013), so one slow
 client never stalls the others. Also counts the peer's protocol errors (closing the connection
 on repeated abuse, code 1008: an error budget of ``max_errors`` that forgets one error every
@@ -26,11 +29,32 @@ log = logging.getLogger("fleetgate.session")
 _ids = itertools.count(1)
 
 
+class Outbox:
+    """The sessions with messages queued since the last turn of the event loop: their
+    writers are woken together by one callback, scheduled when the first one is added (the
+    queuing task pays a deque append per message, not a future and a loop callback)."""
+
+    def __init__(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._ready: list[Session] = []
+
+    def add(self, session: Session) -> None:
+        """``session`` has messages to write: wake its writer at the next turn of the loop."""
+        if not self._ready:
+            self._loop.call_soon(self._release)
+        self._ready.append(session)
+
+    def _release(self) -> None:
+        ready, self._ready = self._ready, []
+        for session in ready:
+            session.wake()
+
+
 class Session:
     """An authenticated connection as the gateway sees it."""
 
     def __init__(self, link: Link, *, queue_size: int, max_errors: int, rate_per_s: float,
-                 rate_burst: float, error_decay_s: float = 1.0,
+                 rate_burst: float, outbox: Outbox, error_decay_s: float = 1.0,
                  on_error: Callable[[ErrorCode], None] | None = None) -> None:
         self.link = link
         self.peer: Peer = link.peer
@@ -40,6 +64,8 @@ class Session:
         self._queue: deque[str | None] = deque()
         self._queue_size = queue_size
         self._waiter: asyncio.Future[None] | None = None  # the idle writer's
+        self._outbox = outbox
+        self._in_outbox = False  # the writer will be woken at the next turn of the loop
         self._seq = itertools.count()
         self._max_errors = max_errors
         self._error_decay_s = error_decay_s
@@ -86,11 +112,14 @@ class Session:
             self.close(1013, "too slow: send queue full")
             return False
         self._queue.append(text)
-        self._wake()
+        if not self._in_outbox:
+            self._in_outbox = True
+            self._outbox.add(self)
         return True
 
-    def _wake(self) -> None:
-        """Wake the writer if it waits for the queue."""
+    def wake(self) -> None:
+        """Wake the writer if it waits for the queue (:class:`Outbox` calls this)."""
+        self._in_outbox = False
         waiter = self._waiter
         if waiter is not None:
             self._waiter = None
@@ -134,7 +163,7 @@ class Session:
             self._closer = self._loop.create_task(self.link.close(code, reason))
         else:
             self._queue.append(None)
-            self._wake()
+            self.wake()
 
     async def _write(self) -> None:
         try:
