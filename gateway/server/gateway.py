@@ -61,7 +61,7 @@ from gateway.server.wire.connections import (
     raise_fd_limit,
 )
 from gateway.server.wire.http import PlainRoutes
-from gateway.server.wire.session import LinkSession, Session
+from gateway.server.wire.session import LinkSession
 from gateway.server.wire.tls import server_context
 from gateway.server.wire.transport import MemoryClient, memory_pair
 from gateway.server.wire.ws_endpoint import WsEndpoint
@@ -213,7 +213,7 @@ class Gateway(ConnectionServer):
         if self._ws is not None:
             await self._ws.close()
             self._ws = None
-        await self._close_links()
+        await self.close_links()
         if self._owner is not None:
             self._owner.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -240,11 +240,6 @@ class Gateway(ConnectionServer):
         return self.engine.status
 
     @property
-    def sessions(self) -> frozenset[Session]:
-        """The sessions of the connections open now (authenticated, websocket or memory)."""
-        return frozenset(self._sessions)
-
-    @property
     def latencies_ms(self) -> list[float]:
         """Finish-received -> dispatch-queued latency of every dispatch a finish unlocked."""
         return self.engine.latencies_ms
@@ -267,7 +262,7 @@ class Gateway(ConnectionServer):
         """Open an in-memory connection (driver 2); AuthError as a websocket 401/403 would."""
         peer = self.auth.identify(token)
         client, link = memory_pair(peer, self.config.send_queue)
-        self._track(asyncio.get_running_loop().create_task(self.serve_link(link)))
+        self.track(asyncio.get_running_loop().create_task(self.serve_link(link)))
         await asyncio.sleep(0)
         return client
 
@@ -278,7 +273,7 @@ class Gateway(ConnectionServer):
         cfg = self.config
         ssl = server_context(cfg.tls) if cfg.tls is not None else None
         fds = raise_fd_limit()
-        self._ws = self._ws_endpoint(fds)
+        self._ws = self.ws_endpoint(fds)
         self._server = HttpServer(
             Guard(self.app), self._ws, ssl_context=ssl, head_timeout_s=cfg.handshake_timeout_s,
             keep_alive_s=cfg.keep_alive_s,
@@ -296,7 +291,7 @@ class Gateway(ConnectionServer):
         else:
             self.port = await self._server.start(host, port)
         log.info("listening", extra={"host": host, "port": self.port, "tls": ssl is not None,
-                                     "max_connections": self._max_connections,
+                                     "max_connections": self.max_connections,
                                      "workers": cfg.workers})
         return self.port
 

@@ -102,11 +102,21 @@ class ConnectionServer(ABC):
 
     # ------------------------------------------------------------------ websockets
     @property
+    def sessions(self) -> frozenset[LinkSession]:
+        """The sessions of the connections open now (authenticated) in this process."""
+        return frozenset(self._sessions)
+
+    @property
+    def max_connections(self) -> int:
+        """The cap of open websocket connections of this process."""
+        return self._max_connections
+
+    @property
     def pending_handshakes(self) -> int:
         """Websocket handshakes authenticated whose connection is not served (yet)."""
         return len(self._ws_peers)
 
-    def _ws_endpoint(self, fds: int) -> WsEndpoint:
+    def ws_endpoint(self, fds: int) -> WsEndpoint:
         """The websocket endpoint for this process (connections capped by ``fds``, the limit
         of open files)."""
         cfg = self.config
@@ -116,7 +126,8 @@ class ConnectionServer(ABC):
             open_timeout=cfg.handshake_timeout_s, ping_interval=cfg.ping_interval_s,
             ping_timeout=cfg.ping_timeout_s, close_timeout=cfg.close_timeout_s, max_queue=64)
 
-    def _track(self, task: asyncio.Task[None]) -> None:
+    def track(self, task: asyncio.Task[None]) -> None:
+        """Keep ``task`` (a connection's) until it ends; :meth:`close_links` cancels it."""
         self._links.add(task)
         task.add_done_callback(self._links.discard)
 
@@ -242,7 +253,7 @@ class ConnectionServer(ABC):
                 return None
         return message
 
-    async def _close_links(self) -> None:
+    async def close_links(self) -> None:
         """Close every connection (1001) and wait for their handlers."""
         for session in list(self._sessions):
             session.close(1001, "gateway shutting down")

@@ -64,7 +64,7 @@ class Worker(ConnectionServer):
         """Listen on ``host:port`` beside the other workers."""
         cfg = self.config
         ssl = server_context(cfg.tls) if cfg.tls is not None else None
-        endpoint = self._ws_endpoint(raise_fd_limit())
+        endpoint = self.ws_endpoint(raise_fd_limit())
         self._endpoint = endpoint
 
         def route() -> Router:
@@ -97,7 +97,7 @@ class Worker(ConnectionServer):
         if self._server is not None:
             self._server.close()
             await self._endpoint.close()
-        await self._close_links()
+        await self.close_links()
 
 
 async def serve(fd: int) -> None:
