@@ -1,11 +1,14 @@
-"""One connection's outgoing side: a bounded send queue drained by its own writer task.
+"""A connection as the owner task sees it (:class:`Session`), and the usual kind
+(:class:`LinkSession`): one connection's outgoing side, a bounded send queue drained by its own
+writer task. (A connection that a worker process serves is a
+:class:`~gateway.server.workers.remote.RemoteSession`.)
 
 The owner task never awaits a peer: it builds a message and puts it in the session's queue.
-The writers are woken in batches (:class:`Outbox`): once per turn of the event loop, after the
-task that queued the messages yields, not once per message (the owner's messages could not
-leave earlier anyway: it commits the journal before it yields).
-If that queue is full the peer is too slow and the session is closed (code 1013), so one slow
-client never stalls the others. Also counts the peer's protocol errors (closing the connection
+The writers are woken in batches (:class:`Wakeups`): once per turn of the event loop, after
+the task that queued the messages yields, not once per message (the owner's messages could not
+leave earlier anyway: it commits the journal before it yields). If that queue is full the
+peer is too slow and the session is closed (code 1013), so one slow client never stalls the
+others. Also counts the peer's protocol errors (closing the connection
 on repeated abuse, code 1008: an error budget of ``max_errors`` that forgets one error every
 ``error_decay_s``) and rate-limits it (token bucket on the loop clock).
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
+from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -29,16 +33,16 @@ log = logging.getLogger("fleetgate.session")
 _ids = itertools.count(1)
 
 
-class Outbox:
+class Wakeups:
     """The sessions with messages queued since the last turn of the event loop: their
     writers are woken together by one callback, scheduled when the first one is added (the
     queuing task pays a deque append per message, not a future and a loop callback)."""
 
     def __init__(self) -> None:
         self._loop = asyncio.get_running_loop()
-        self._ready: list[Session] = []
+        self._ready: list[LinkSession] = []
 
-    def add(self, session: Session) -> None:
+    def add(self, session: LinkSession) -> None:
         """``session`` has messages to write: wake its writer at the next turn of the loop."""
         if not self._ready:
             self._loop.call_soon(self._release)
@@ -50,22 +54,52 @@ class Outbox:
             session.wake()
 
 
-class Session:
-    """An authenticated connection as the gateway sees it."""
+class Session(ABC):
+    """An authenticated connection as the owner task sees it: who is on it, the protocol
+    version it speaks, and what may be sent to it."""
+
+    peer: Peer
+    id: int
+    closing: bool
+    version: ProtocolVersion
+
+    def __str__(self) -> str:
+        return f"{self.peer}#{self.id}"
+
+    @abstractmethod
+    def send(self, kind: type[AnyMessage], **fields: Any) -> None:
+        """Queue a message of type ``kind`` with these fields (dropped once closing)."""
+
+    @abstractmethod
+    def send_action(self, fields: dict[str, Any]) -> None:
+        """Queue an ``action`` with these fields (plain JSON values, see
+        :func:`~protocol.codec.encode_action`), written without building its model."""
+
+    @abstractmethod
+    def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
+        """Reply ``error``; too many in a short time close the connection (1008)."""
+
+    @abstractmethod
+    def close(self, code: int = 1000, reason: str = "") -> None:
+        """Flush what is queued, then close the connection (idempotent)."""
+
+
+class LinkSession(Session):
+    """A session served in this process: its messages go to a :class:`Link`."""
 
     def __init__(self, link: Link, *, queue_size: int, max_errors: int, rate_per_s: float,
-                 rate_burst: float, outbox: Outbox, error_decay_s: float = 1.0,
+                 rate_burst: float, wakeups: Wakeups, error_decay_s: float = 1.0,
                  on_error: Callable[[ErrorCode], None] | None = None) -> None:
         self.link = link
-        self.peer: Peer = link.peer
+        self.peer = link.peer
         self.id = next(_ids)
         # the send queue: a deque and the writer's waiter (an asyncio.Queue costs the owner
         # about twice as much per message: its bookkeeping and a wake-up per put)
         self._queue: deque[str | None] = deque()
         self._queue_size = queue_size
         self._waiter: asyncio.Future[None] | None = None  # the idle writer's
-        self._outbox = outbox
-        self._in_outbox = False  # the writer will be woken at the next turn of the loop
+        self._wakeups = wakeups
+        self._in_wakeups = False  # the writer will be woken at the next turn of the loop
         self._seq = itertools.count()
         self._max_errors = max_errors
         self._error_decay_s = error_decay_s
@@ -79,23 +113,17 @@ class Session:
         self._tokens = rate_burst
         self._last = self._loop.time()
         self.closing = False
-        self.version: ProtocolVersion = PROTOCOL_VERSION
+        self.version = PROTOCOL_VERSION
         """The protocol version of this connection (a robot's ``hello`` fixes it)."""
         self.writer = asyncio.create_task(self._write(), name=f"writer-{self.id}")
 
-    def __str__(self) -> str:
-        return f"{self.peer}#{self.id}"
-
-    def send(self, kind: type[AnyMessage], **fields: Any) -> AnyMessage | None:
-        """Build a message of type ``kind`` with this session's next msg_id/seq and queue it.
-
-        Returns the message, or None if the session is closing or was too slow (then closed).
-        """
+    def send(self, kind: type[AnyMessage], **fields: Any) -> None:
+        """Build a message of type ``kind`` with this session's next msg_id/seq and queue it
+        (nothing if the session is closing; a session too slow to take it is closed)."""
         if self.closing:
-            return None
+            return
         seq = next(self._seq)
-        message = kind(v=self.version, msg_id=f"g{self.id}-{seq}", seq=seq, **fields)
-        return message if self._put(encode(message)) else None
+        self._put(encode(kind(v=self.version, msg_id=f"g{self.id}-{seq}", seq=seq, **fields)))
 
     def send_action(self, fields: dict[str, Any]) -> None:
         """Queue an ``action`` with these fields (plain JSON values, see
@@ -112,14 +140,14 @@ class Session:
             self.close(1013, "too slow: send queue full")
             return False
         self._queue.append(text)
-        if not self._in_outbox:
-            self._in_outbox = True
-            self._outbox.add(self)
+        if not self._in_wakeups:
+            self._in_wakeups = True
+            self._wakeups.add(self)
         return True
 
     def wake(self) -> None:
-        """Wake the writer if it waits for the queue (:class:`Outbox` calls this)."""
-        self._in_outbox = False
+        """Wake the writer if it waits for the queue (:class:`Wakeups` calls this)."""
+        self._in_wakeups = False
         waiter = self._waiter
         if waiter is not None:
             self._waiter = None
