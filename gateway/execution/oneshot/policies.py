@@ -130,8 +130,8 @@ class InformedReplan(SlackReplan):
 
 
 class ShadowPolicy(NoReplan):
-    """Shadow planning (:mod:`gateway.execution.oneshot.shadow`): while the fleet is delayed,
-    solve in the background, informed, from where the robots would stop,
+    """Shadow planning (:mod:`gateway.execution.oneshot.shadow`): while a block is open or
+    the fleet is delayed, solve in the background, informed, from where the robots would stop,
     each solve assuming the blocks end at another quantile of their durations
     (:meth:`next_assumption`: a plan that assumes a short block risks little if it lasts,
     one that assumes a long block saves more if it does); adopt a plan only if it pays under
