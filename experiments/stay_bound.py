@@ -23,9 +23,8 @@ clairvoyant's expected saving such that the expected share of experiments worse 
 replanning is at most ``budget`` (a Lagrangian relaxation of the choice, i.e. the linear
 program that may mix two choices in one experiment: an upper bound for this family of
 policies). The policy is allowed to know every experiment's savings table except the stay:
-far more than any real policy knows. It is an estimate, not a proof, for policies outside
-the family (several replans, replanning back when the block ends early): their extra
-choices are not simulated.
+far more than any real policy knows. Policies that decide more than once (switch again,
+replan back when the block ends early) are bounded by :mod:`experiments.stay_paths`.
 """
 
 from __future__ import annotations
