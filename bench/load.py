@@ -34,7 +34,10 @@ action may be released by its robot's previous dispatch instead, so the run then
 gateway's trace and measures only the dispatches a finish released (the dispatch records
 right after each finish record), from that finish sent to the action received. ``--trace``
 (implied by lookahead) also runs tracecheck on it (``trace_errors``, ``collisions``);
-``--journaled`` makes the one run journaled.
+``--journaled`` makes the one run journaled. ``--workers N`` runs the gateway with N worker
+processes serving the robots' websockets (docs/workers.md): ``gateway_cpu_ms_per_action`` then
+counts the workers' CPU too, split into ``owner_process_cpu_ms_per_action`` and
+``workers_cpu_ms_per_action``; the 10-robot baseline runs with the same workers.
 
 CPU: ``gateway_cpu_ms_per_action`` is the whole gateway process's CPU time from listening to
 the end of the run per plan action; ``owner_cpu_ms_per_action`` only the owner task's own work
@@ -134,6 +137,7 @@ from typing import Any
 
 import numpy as np
 
+from fleetgate.userio import children
 from fleetgate.userio.exits import CommandParser, run_main
 from fleetgate.userio.files import check_writable, write_text
 from gateway.execution.oneshot.adg import ADG
@@ -214,7 +218,7 @@ class GcPauses:
 
 # ------------------------------------------------------------------ the gateway process
 async def _serve(plan_file: Path, lookahead: int, journal: Path | None,
-                 trace: Path | None = None) -> dict[str, Any]:
+                 trace: Path | None = None, workers: int = 0) -> dict[str, Any]:
     data = json.loads(plan_file.read_text())
     plan = Plan.of(data["paths"])
     size = int(data["size"])
@@ -223,7 +227,8 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None,
                     "load")
     config = GatewayConfig(port=0, map=None, autostart=True, policy="none",
                            ping_interval_s=20.0, ping_timeout_s=20.0, log_level="WARNING",
-                           dispatch_lookahead=lookahead, journal=journal, trace=trace)
+                           dispatch_lookahead=lookahead, journal=journal, trace=trace,
+                           workers=workers)
     pauses = GcPauses()
     gw = Gateway(config)
     gw.engine.meter_cpu = True  # owner_cpu_s
@@ -238,12 +243,17 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None,
         gw.engine.load(Problem(inst, "load", plan))
         port = await gw.listen()
         print(port, flush=True)
+        pool = gw.workers
         cpu0 = time.process_time()  # from here: connections and the execution, not imports
         owner0 = gw.engine.cpu_s
+        workers0 = pool.cpu_s() if pool is not None else 0.0
         soc, _ = await gw.wait_done()
+        workers_cpu = pool.cpu_s() - workers0 if pool is not None else 0.0
         lat = sorted(gw.latencies_ms)
         out: dict[str, Any] = {
-            "soc_ms": soc, "dispatches": len(lat), "cpu_s": time.process_time() - cpu0,
+            "soc_ms": soc, "dispatches": len(lat),
+            "cpu_s": time.process_time() - cpu0 + workers_cpu, "workers_cpu_s": workers_cpu,
+            "owner_process_cpu_s": time.process_time() - cpu0,
             "owner_cpu_s": gw.engine.cpu_s - owner0,
             "gc_max_ms": round(pauses.max_ms, 1),
             "gateway_p50_ms": statistics.median(lat) if lat else None,
@@ -260,9 +270,11 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None,
 
 
 def serve_main(plan_file: Path, profile: Path | None, lookahead: int,
-               journal: Path | None, uvloop: bool = False, trace: Path | None = None) -> None:
+               journal: Path | None, uvloop: bool = False, trace: Path | None = None,
+               workers: int = 0) -> None:
     """``--serve``: run the gateway until the plan is executed (``uvloop``: on uvloop's event
-    loop); print its port, then a JSON line of its own measurements."""
+    loop; ``workers``: its worker processes); print its port, then a JSON line of its own
+    measurements."""
     _raise_fd_limit()
     # CPU time, not wall time: on a shared machine wall time would charge preemptions to
     # whatever function happened to run
@@ -274,7 +286,7 @@ def serve_main(plan_file: Path, profile: Path | None, lookahead: int,
         # optional (pip install uvloop): main() checked that it is there
         factory = importlib.import_module("uvloop").new_event_loop
     with asyncio.Runner(loop_factory=factory) as runner:
-        result = runner.run(_serve(plan_file, lookahead, journal, trace))
+        result = runner.run(_serve(plan_file, lookahead, journal, trace, workers))
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(str(profile))
@@ -328,8 +340,7 @@ def cpu_pressure() -> float | None:
 
 
 _SLEEPER = """
-import signal, sys, time
-signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the benchmark ends it
+import sys, time
 late = []
 end = time.perf_counter() + float(sys.argv[1])
 while time.perf_counter() < end:
@@ -416,13 +427,12 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
     """Run the plan's robots in ``parts`` lean generator processes; their merged stats, the
     execution's wall time and the processes' CPU time during it."""
     outs = [plan_file.with_name(f"robots-{k}.json") for k in range(parts)]
-    procs = [subprocess.Popen([sys.executable, __file__, "--lean-part", f"{k}/{parts}",
-                               "--lean-files", str(plan_file), str(out), "--port", str(port),
-                               "--seconds", str(seconds), "--seed", str(seed),
-                               "--jitter", str(jitter)])
-             for k, out in enumerate(outs)]
     stats, cpu = FleetStats(), 0.0
-    try:
+    with contextlib.ExitStack() as stack:
+        procs = [stack.enter_context(children.running(
+            [sys.executable, __file__, "--lean-part", f"{k}/{parts}", "--lean-files",
+             str(plan_file), str(out), "--port", str(port), "--seconds", str(seconds),
+             "--seed", str(seed), "--jitter", str(jitter)])) for k, out in enumerate(outs)]
         for proc, out in zip(procs, outs, strict=True):
             proc.wait(timeout=lean_deadline_s(seconds) + 900.0)  # + connecting, starting
             if proc.returncode != 0 or not out.exists():
@@ -434,11 +444,6 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
             stats.duplicates += part["duplicates"]
             stats.errors.extend(part["errors"])
             cpu += part["cpu_s"]
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
     first = min(stats.received.values(), default=0.0)
     last = max(stats.finish_sent.values(), default=0.0)
     return stats, last - first, cpu
@@ -446,8 +451,8 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
 
 def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
              profile: Path | None = None, journal: bool = False, tree: Path | None = None,
-             generators: int = -1, uvloop: bool = False, trace: bool = False
-             ) -> dict[str, Any]:
+             generators: int = -1, uvloop: bool = False, trace: bool = False,
+             workers: int = 0) -> dict[str, Any]:
     """One gateway process + one fleet; the measurements as a dict. With ``tree`` (a checkout
     of another version) the gateway process is that version's (its ``bench/load.py --serve``
     with its packages first on the path); the robots are always this version's: ``generators``
@@ -467,15 +472,16 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             cmd += ["--serve-journal", str(Path(tmp) / "journal.sqlite")]
         if uvloop:
             cmd += ["--serve-uvloop"]
+        if workers:
+            cmd += ["--serve-workers", str(workers)]
         trace_file = Path(tmp) / "trace.jsonl"
         trace = trace or lookahead > 0  # what a finish released is read from the trace
         if trace:
             cmd += ["--serve-trace", str(trace_file)]
         env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
-        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
-        sleeper = subprocess.Popen([sys.executable, "-c", _SLEEPER, str(seconds)],
-                                   stdout=subprocess.PIPE, text=True)
-        try:
+        with (children.running(cmd, stdout=subprocess.PIPE, text=True, env=env) as gw,
+              children.running([sys.executable, "-c", _SLEEPER, str(seconds)],
+                               stdout=subprocess.PIPE, text=True) as sleeper):
             assert gw.stdout is not None
             line = gw.stdout.readline()
             if not line.strip().isdigit():  # e.g. an --against checkout without an option
@@ -498,11 +504,6 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
                 out = ""
             gateway = json.loads(out.strip() or "{}")
             floor = float(sleeper.communicate(timeout=60)[0] or "nan")
-        finally:
-            for proc in (gw, sleeper):
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait()
         records = read_trace(trace_file) if trace else []
         checked = check_trace(records) if trace else None
     if checked is not None:  # the dispatches each finish released, as the gateway traced them
@@ -516,7 +517,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
     offered = total / plan.makespan  # actions per second if nobody is ever late
     achieved = total / wall_s if wall_s > 0 else 0.0
     return {"robots": robots, "lookahead": lookahead, "journal": journal, "uvloop": uvloop,
-            "actions": len(stats.received),
+            "workers": workers, "actions": len(stats.received),
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
             "p99_after_step1_ms": round(_percentile(steady, 0.99), 3) if steady else None,
@@ -530,6 +531,10 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             "gateway_cpu_ms_per_action": round(1000.0 * gateway.get("cpu_s", 0.0) / total, 3),
             "owner_cpu_ms_per_action": round(1000.0 * gateway["owner_cpu_s"] / total, 4)
             if "owner_cpu_s" in gateway else None,
+            **({"owner_process_cpu_ms_per_action":
+                round(1000.0 * gateway["owner_process_cpu_s"] / total, 3),
+                "workers_cpu_ms_per_action": round(1000.0 * gateway["workers_cpu_s"] / total, 3)}
+               if workers else {}),
             "gateway_gc_max_ms": gateway.get("gc_max_ms"),
             "robots_gc_max_ms": None if robots_gc_ms is None else round(robots_gc_ms, 1),
             "generators": generators,
@@ -702,10 +707,9 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
             cmd += ["--vda-broker", broker]
         env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
         # in the tree: its planner process (``python -m``) imports from its working directory
-        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=tree)
         vehicles: list[VdaVehicle] = []
         stats = FleetStats()
-        try:
+        with children.running(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=tree) as gw:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
             _SHIFT_RESULT.clear()
@@ -721,10 +725,6 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
                                          jitter=jitter, seed=seed, action_s=0.0)
                 asyncio.run(_drive_vda_shift(vehicles, broker, wms, gw))
             gw.wait(timeout=60)
-        finally:
-            if gw.poll() is None:
-                gw.kill()
-                gw.wait()
         gateway = json.loads(_SHIFT_RESULT[0]) if _SHIFT_RESULT and _SHIFT_RESULT[0] else {}
         records = read_trace(trace)
     report = check_trace(records)
@@ -908,13 +908,14 @@ def holds(result: dict[str, Any]) -> bool:
 
 
 def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int, limit: int,
-             generators: int = -1) -> tuple[int, list[dict[str, Any]]]:
+             generators: int = -1, workers: int = 0) -> tuple[int, list[dict[str, Any]]]:
     """Largest fleet (to within 10 %) that holds: double from ``start``, then bisect."""
     runs: list[dict[str, Any]] = []
     good, bad = 0, None
     r = start
     while r <= limit:
-        res = run_once(r, seconds, seed, jitter, lookahead, generators=generators)
+        res = run_once(r, seconds, seed, jitter, lookahead, generators=generators,
+                       workers=workers)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if not holds(res):
@@ -923,7 +924,8 @@ def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int,
         good, r = r, r * 2
     while bad is not None and bad - good > max(50, good // 10):
         mid = (good + bad) // 2
-        res = run_once(mid, seconds, seed, jitter, lookahead, generators=generators)
+        res = run_once(mid, seconds, seed, jitter, lookahead, generators=generators,
+                       workers=workers)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if holds(res):
@@ -978,6 +980,11 @@ def main() -> int:
     p.add_argument("--uvloop", action="store_true",
                    help="the gateway on uvloop's event loop (pip install uvloop) and on "
                         "asyncio's, interleaved (--pairs): uvloop_cpu_per_action_ratio")
+    p.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="one run (or --find-max): the gateway with N worker processes serving "
+                        "the robots' websockets (its config's workers; default 0: one "
+                        "process); gateway_cpu_ms_per_action then counts them too")
+    p.add_argument("--serve-workers", type=int, default=0, help=argparse.SUPPRESS)
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--serve-uvloop", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--serve-trace", type=Path, help=argparse.SUPPRESS)
@@ -994,7 +1001,7 @@ def main() -> int:
     args = p.parse_args()
     if args.serve is not None:
         serve_main(args.serve, args.profile, args.lookahead, args.serve_journal,
-                   args.serve_uvloop, args.serve_trace)
+                   args.serve_uvloop, args.serve_trace, args.serve_workers)
         return 0
     if args.lean_part is not None:
         lean_main(args)
@@ -1022,6 +1029,11 @@ def main() -> int:
                                            or args.find_max or args.lifelong):
         p.error("--trace and --journaled are for one run: not with --against, --journal, "
                 "--uvloop, --find-max or --lifelong")
+    if args.workers < 0:
+        p.error("--workers must be >= 0")
+    if args.workers and (args.against or args.journal or args.uvloop or args.lifelong):
+        p.error("--workers is for one run or --find-max: not with --against, --journal, "
+                "--uvloop or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.vda5050 and not args.lifelong:
@@ -1053,10 +1065,10 @@ def main() -> int:
     gens = args.generators
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
                         args.lookahead, journal=args.journal or args.journaled,
-                        generators=gens)
+                        generators=gens, workers=args.workers)
     if args.find_max:
         best, runs = find_max(args.seconds, args.seed, args.jitter, args.lookahead, 250,
-                              args.max_robots, gens)
+                              args.max_robots, gens, args.workers)
         result = next((r for r in runs if r["robots"] == best), baseline)
         result = {"max_robots": best, **result}
     elif args.against is not None:
@@ -1072,7 +1084,7 @@ def main() -> int:
     else:
         result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
                           args.profile, journal=args.journaled, generators=gens,
-                          trace=args.trace)
+                          trace=args.trace, workers=args.workers)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99

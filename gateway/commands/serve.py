@@ -44,7 +44,8 @@ def _run(args: argparse.Namespace) -> int:
 
     try:
         config = load_config(args.config, host=args.host, port=args.port,
-                             log_level=args.log_level, log_format=args.log_format)
+                             log_level=args.log_level, log_format=args.log_format,
+                             workers=args.workers)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     if args.no_journal:
@@ -82,6 +83,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument("--config", metavar="FILE", help="configuration file (.json or .toml)")
     parser.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port to listen on (default 8080; 0 = any)")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="worker processes that serve the robots' websockets on the same "
+                             "port, beside this one (default 0: one process; see "
+                             "docs/workers.md)")
     parser.add_argument("--journal", metavar="FILE",
                         help="the run journal (SQLite; default: journal.sqlite in the state "
                              "directory, $STATE_DIRECTORY under systemd): a restart resumes "

@@ -214,7 +214,12 @@ class GatewayConfig(BaseSettings):
     idle_timeout_s: float = Field(default=60.0, gt=0)
     """A robot's websocket that sends nothing for this long is closed (4002)."""
     max_connections: int = Field(default=10000, ge=1)
-    """Open websocket connections at most (more get HTTP 503); also capped by the fd limit."""
+    """Open websocket connections at most (more get HTTP 503); also capped by the fd limit.
+    With ``workers``, the cap of each worker process and of the gateway's own."""
+    workers: int = Field(default=0, ge=0, le=64)
+    """Worker processes that serve the robots' websockets (TLS, handshake, message checks) on
+    the gateway's port and pass them to its own process, the only writer of the executor and
+    the journal (docs/workers.md); 0: the gateway's own process serves everything."""
     max_http_connections: int = Field(default=1000, ge=1)
     """Open HTTP connections at most (websockets not counted): each is unauthenticated until
     its request's head is read; a request on a connection over this gets 503."""

@@ -33,14 +33,10 @@ import asyncio
 import contextlib
 import json
 import logging
-import resource
-import time
-import weakref
+import os
+import tempfile
 from collections.abc import Callable
 from types import TracebackType
-
-from websockets.asyncio.server import ServerConnection
-from websockets.http11 import Request, Response
 
 from gateway.runtime.exits import EXIT_JOURNAL, EXIT_SOFTWARE, fatal
 from gateway.runtime.journal import JournalError, JournalLock
@@ -57,64 +53,22 @@ from gateway.server.planner import InstanceError, resolve_instance
 from gateway.server.runs.lifelong import LifelongRun, shift_from
 from gateway.server.task_api.api import TaskApi
 from gateway.server.wire.asgi_server import HttpServer
-from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
-from gateway.server.wire.deadline import IdleDeadline
+from gateway.server.wire.auth import Authenticator, AuthError
+from gateway.server.wire.connections import (
+    ALLOWED,
+    FD_RESERVE,
+    ConnectionServer,
+    raise_fd_limit,
+)
 from gateway.server.wire.http import PlainRoutes
-from gateway.server.wire.session import Session
+from gateway.server.wire.session import LinkSession
 from gateway.server.wire.tls import server_context
-from gateway.server.wire.transport import (
-    HARD_MAX_BYTES,
-    Link,
-    LinkClosed,
-    MemoryClient,
-    WebSocketLink,
-    memory_pair,
-)
+from gateway.server.wire.transport import MemoryClient, memory_pair
 from gateway.server.wire.ws_endpoint import WsEndpoint
-from protocol import (
-    OPERATOR_TYPES,
-    ROBOT_TYPES,
-    WORLD_TYPES,
-    AnyMessage,
-    CloseCode,
-    ErrorCode,
-    Hello,
-    OperatorCommand,
-    ProtocolError,
-    State,
-    decode,
-    parse_action_id,
-)
-from protocol.codec import BINARY_FRAME
+from gateway.server.workers.pool import WorkerPool
+from protocol import AnyMessage, ErrorCode, OperatorCommand
 
 log = logging.getLogger("fleetgate.gateway")
-
-ALLOWED: dict[str, frozenset[str]] = {
-    "robot": ROBOT_TYPES, "operator": OPERATOR_TYPES, "world": WORLD_TYPES,
-}
-"""Which message types each role may send."""
-
-FD_RESERVE = 64
-"""File descriptors kept free for logs, the trace and static files when capping connections."""
-
-
-def raise_fd_limit() -> int:
-    """Raise the soft limit of open files to the hard one; returns the soft limit now."""
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    if soft != hard:
-        with contextlib.suppress(ValueError, OSError):
-            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
-            soft = hard
-    return soft if soft != resource.RLIM_INFINITY else 1 << 20
-
-
-def _refuse(connection: ServerConnection, status: int, text: str,
-            header: tuple[str, str] | None = None) -> Response:
-    """A websocket upgrade's refusal: ``status``, one line of text, and ``header``."""
-    answer = connection.respond(status, f"{text}\n")
-    if header is not None:
-        answer.headers[header[0]] = header[1]
-    return answer
 
 
 def _restore_gc_when_done(status: str) -> None:
@@ -122,29 +76,26 @@ def _restore_gc_when_done(status: str) -> None:
         gc_tuning.restore_defaults()
 
 
-class Gateway:
+class Gateway(ConnectionServer):
     """The fleetgate gateway server; see the module docstring for how to run it."""
 
     def __init__(self, config: GatewayConfig | None = None, *, clock: Clock | None = None,
                  fresh: bool = False) -> None:
-        self.config = config if config is not None else GatewayConfig()
+        config = config if config is not None else GatewayConfig()
+        tls = config.tls
+        super().__init__(config, Authenticator(
+            config.tokens, login_ttl_s=config.login_ttl_s,
+            robots_need_cert=tls is not None and tls.client_ca is not None), Metrics())
         self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
-        self.metrics = Metrics()
-        tls = self.config.tls
-        self.auth = Authenticator(
-            self.config.tokens, login_ttl_s=self.config.login_ttl_s,
-            robots_need_cert=tls is not None and tls.client_ca is not None)
         self.engine = Engine(self.config, self.clock, self.metrics)
         self.engine.before_start.append(gc_tuning.tune_for_run)
         self.engine.status_listeners.append(_restore_gc_when_done)
         self._owner: asyncio.Task[None] | None = None
         self._server: HttpServer | None = None
         self._ws: WsEndpoint | None = None
-        self._ws_peers: weakref.WeakKeyDictionary[ServerConnection, Peer] = (
-            weakref.WeakKeyDictionary())
-        self._links: set[asyncio.Task[None]] = set()
-        self._sessions: set[Session] = set()
-        self._max_connections = self.config.max_connections
+        self.workers: WorkerPool | None = None
+        """The worker processes serving the robots (``config.workers``), once listening."""
+        self._private: tempfile.TemporaryDirectory[str] | None = None
         self.http = PlainRoutes(self.metrics.render, self._health, self._ready, self.auth,
                                 tls=tls is not None, static_dir=self.config.static_dir)
         self.task_api = TaskApi(self.engine, self.auth, tls=tls is not None,
@@ -253,17 +204,16 @@ class Gateway:
     async def stop(self) -> None:
         """Close every connection and stop the owner task."""
         self.task_api.closing = True
+        if self.workers is not None:
+            await self.workers.stop()
+            self.workers = None
         if self._server is not None:
             await self._server.stop()
             self._server = None
         if self._ws is not None:
             await self._ws.close()
             self._ws = None
-        for session in list(self._sessions):
-            session.close(1001, "gateway shutting down")
-        for task in list(self._links):
-            task.cancel()
-        await asyncio.gather(*self._links, return_exceptions=True)
+        await self.close_links()
         if self._owner is not None:
             self._owner.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -271,6 +221,9 @@ class Gateway:
             self._owner = None
         await self.engine.aclose()
         self._close_journal()
+        if self._private is not None:
+            self._private.cleanup()
+            self._private = None
 
     async def __aenter__(self) -> Gateway:
         await self.start()
@@ -285,16 +238,6 @@ class Gateway:
     def status(self) -> str:
         """The engine's status (empty, planning, loaded, running, paused, replanning, done)."""
         return self.engine.status
-
-    @property
-    def sessions(self) -> frozenset[Session]:
-        """The sessions of the connections open now (authenticated, websocket or memory)."""
-        return frozenset(self._sessions)
-
-    @property
-    def pending_handshakes(self) -> int:
-        """Websocket handshakes authenticated whose connection is not served (yet)."""
-        return len(self._ws_peers)
 
     @property
     def latencies_ms(self) -> list[float]:
@@ -319,7 +262,7 @@ class Gateway:
         """Open an in-memory connection (driver 2); AuthError as a websocket 401/403 would."""
         peer = self.auth.identify(token)
         client, link = memory_pair(peer, self.config.send_queue)
-        self._track(asyncio.get_running_loop().create_task(self.serve_link(link)))
+        self.track(asyncio.get_running_loop().create_task(self.serve_link(link)))
         await asyncio.sleep(0)
         return client
 
@@ -330,26 +273,29 @@ class Gateway:
         cfg = self.config
         ssl = server_context(cfg.tls) if cfg.tls is not None else None
         fds = raise_fd_limit()
-        self._max_connections = max(1, min(cfg.max_connections, fds - FD_RESERVE))
-        self._ws = WsEndpoint(
-            self._ws_handler, self._process_request, max_size=HARD_MAX_BYTES,
-            open_timeout=cfg.handshake_timeout_s, ping_interval=cfg.ping_interval_s,
-            ping_timeout=cfg.ping_timeout_s, close_timeout=cfg.close_timeout_s, max_queue=64)
+        self._ws = self.ws_endpoint(fds)
         self._server = HttpServer(
             Guard(self.app), self._ws, ssl_context=ssl, head_timeout_s=cfg.handshake_timeout_s,
             keep_alive_s=cfg.keep_alive_s,
             max_connections=max(1, min(cfg.max_http_connections, fds - FD_RESERVE)))
-        self.port = await self._server.start(host or cfg.host, cfg.port if port is None else port)
-        log.info("listening", extra={"host": host or cfg.host, "port": self.port,
-                                     "tls": ssl is not None,
-                                     "max_connections": self._max_connections})
+        host, port = host or cfg.host, cfg.port if port is None else port
+        if cfg.workers:  # robots on the workers; the rest relayed to this process
+            self._private = tempfile.TemporaryDirectory(prefix="fleetgate-")
+            owner_path = os.path.join(self._private.name, "owner.sock")
+            await self._server.start_unix(owner_path)
+            self.workers = WorkerPool(cfg, self.engine.queue, self.clock)
+            try:
+                self.port = await self.workers.start(host, port, owner_path)
+            except RuntimeError as exc:
+                raise ValueError(str(exc)) from None
+        else:
+            self.port = await self._server.start(host, port)
+        log.info("listening", extra={"host": host, "port": self.port, "tls": ssl is not None,
+                                     "max_connections": self.max_connections,
+                                     "workers": cfg.workers})
         return self.port
 
     # ------------------------------------------------------------------------ connections
-    def _track(self, task: asyncio.Task[None]) -> None:
-        self._links.add(task)
-        task.add_done_callback(self._links.discard)
-
     def _alive(self) -> bool:
         return self._owner is not None and not self._owner.done()
 
@@ -362,129 +308,14 @@ class Gateway:
     def _ready(self) -> bool:
         return self._alive() and self._server is not None and self._server.is_serving()
 
-    def _process_request(self, connection: ServerConnection, request: Request
-                         ) -> Response | None:
-        """The checks of a websocket upgrade (None accepts it). Never raises: a malformed
-        request gets 400, refused credentials 401/403, too many connections 503, anything
-        unexpected 500 with one log line."""
-        try:
-            if len(self._sessions) >= self._max_connections:
-                return _refuse(connection, 503, "too many connections", ("Retry-After", "5"))
-            tls = self.config.tls is not None
-            if not origin_allowed(request.headers, tls, self.config.allowed_origins):
-                raise AuthError(403, "foreign Origin")
-            single_header(request.headers, "Upgrade")
-            cert = connection.transport.get_extra_info("peercert") if tls else None
-            self._ws_peers[connection] = self.auth.handshake(request.headers, request.path,
-                                                             cert)
-        except AuthError as exc:
-            log.warning("handshake refused", extra={"status": exc.status, "why": exc.reason})
-            self.metrics.refused.labels(str(exc.status)).inc()
-            extra = ("WWW-Authenticate", "Bearer") if exc.status == 401 else None
-            return _refuse(connection, exc.status, exc.reason, extra)
-        except Exception as exc:
-            log.error("request failed", extra={"path": request.path[:200], "error": repr(exc)})
-            return _refuse(connection, 500, "internal error")
-        return None
+    def _opened(self, session: LinkSession) -> None:
+        self.engine.queue.put_nowait(Connected(session))
 
-    async def _ws_handler(self, connection: ServerConnection) -> None:
-        peer = self._ws_peers.pop(connection, None)
-        if peer is None:  # cannot happen: process_request accepted it
-            await connection.close(CloseCode.INTERNAL, "not authenticated")
-            return
-        task = asyncio.current_task()
-        assert task is not None
-        self._links.add(task)
-        try:
-            await self.serve_link(WebSocketLink(connection, peer), timeouts=True)
-        finally:
-            self._links.discard(task)
+    def _received(self, session: LinkSession, message: AnyMessage, received: float) -> None:
+        self.engine.queue.put_nowait(Inbound(session, message, received, self.clock.now_ms()))
 
-    async def serve_link(self, link: Link, *, timeouts: bool = False) -> None:
-        """Run one authenticated connection until it closes (both transports use this).
-
-        With ``timeouts`` (websockets; never in virtual time) a robot must say hello within
-        ``hello_timeout_s`` and then send something at least every ``idle_timeout_s``.
-        """
-        cfg = self.config
-        session = Session(link, queue_size=cfg.send_queue, max_errors=cfg.max_errors,
-                          error_decay_s=cfg.error_decay_s,
-                          rate_per_s=cfg.rate_per_s, rate_burst=cfg.rate_burst,
-                          on_error=lambda code: self.metrics.errors.labels(code.value).inc())
-        self._sessions.add(session)
-        queue = self.engine.queue
-        queue.put_nowait(Connected(session))
-        deadline = None
-        if timeouts and session.peer.role == "robot":
-            task = asyncio.current_task()
-            assert task is not None
-            deadline = IdleDeadline(task, cfg.hello_timeout_s)
-        greeted = False
-        try:
-            while not session.closing:
-                try:
-                    raw = await link.recv()
-                except asyncio.CancelledError:
-                    if deadline is None or not deadline.consume_expiry():
-                        raise
-                    code = CloseCode.IDLE_TIMEOUT if greeted else CloseCode.HELLO_TIMEOUT
-                    session.close(code, f"{'idle' if greeted else 'no hello'} for "
-                                        f"{deadline.limit} s")
-                    break
-                if deadline is not None:
-                    deadline.touch()
-                message = self._admit(session, raw)
-                if message is not None:
-                    if not greeted and isinstance(message, Hello):
-                        greeted = True
-                        if deadline is not None:
-                            deadline.set_limit(cfg.idle_timeout_s)
-                    queue.put_nowait(Inbound(session, message, time.perf_counter(),
-                                             self.clock.now_ms()))
-        except LinkClosed:
-            pass
-        except Exception as exc:  # a bug: one line, close 1011, the gateway carries on
-            log.error("connection handler failed", extra={"peer": str(session),
-                                                          "error": repr(exc)[:500]})
-            self.metrics.handler_failures.inc()
-            session.close(CloseCode.INTERNAL, "internal error")
-        finally:
-            if deadline is not None:
-                deadline.cancel()
-            self._sessions.discard(session)
-            queue.put_nowait(Disconnected(session))
-            session.close()
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(asyncio.shield(session.writer), 1.0)
-
-    def _admit(self, session: Session, raw: str | bytes) -> AnyMessage | None:
-        """Validate one message from a peer; reply ``error`` and return None if it is bad."""
-        if not session.allow():
-            session.error(ErrorCode.RATE_LIMITED, None, "too many messages")
-            return None
-        if isinstance(raw, bytes):
-            session.error(ErrorCode.MALFORMED, None, BINARY_FRAME)
-            return None
-        try:
-            message = decode(raw)
-        except ProtocolError as exc:
-            session.error(exc.code, exc.ref, exc.detail)
-            return None
-        peer = session.peer
-        if message.type not in ALLOWED[peer.role]:
-            session.error(ErrorCode.FORBIDDEN, message.msg_id,
-                          f"a {peer.role} may not send {message.type}")
-            return None
-        if peer.role == "robot":
-            if isinstance(message, Hello | State):
-                about = message.robot_id
-            else:
-                about = parse_action_id(message.action_id)[1]  # type: ignore[union-attr]
-            if about != peer.robot_id:
-                session.error(ErrorCode.NOT_YOURSELF, message.msg_id,
-                              f"robot {peer.robot_id} may not report about robot {about}")
-                return None
-        return message
+    def _closed(self, session: LinkSession) -> None:
+        self.engine.queue.put_nowait(Disconnected(session))
 
 
 __all__ = ["ALLOWED", "AuthError", "CommandError", "Gateway", "MemoryClient"]

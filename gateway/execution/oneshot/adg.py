@@ -12,8 +12,10 @@ tails of the Type 2 edges into ``v`` and ``t2_succ[...]`` the heads of those out
 from __future__ import annotations
 
 import copy
-from bisect import bisect_right
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterator, Sequence
+
+import numpy as np
+import numpy.typing as npt
 
 from gateway.execution.actions import ActionKind, action_kind
 from gateway.execution.errors import ExecutionError
@@ -21,15 +23,14 @@ from gateway.planning.grid import Cell
 from gateway.planning.plan import Plan
 
 
-def _csr(n: int, pairs: list[tuple[int, int]]) -> tuple[list[int], list[int]]:
-    """Pointer and index lists of ``pairs`` (key, value) grouped by key, values sorted."""
-    pairs.sort()
-    ptr = [0] * (n + 1)
-    for key, _ in pairs:
-        ptr[key + 1] += 1
-    for i in range(n):
-        ptr[i + 1] += ptr[i]
-    return ptr, [value for _, value in pairs]
+def _csr(n: int, keys: npt.NDArray[np.int64],
+         values: npt.NDArray[np.int64]) -> tuple[list[int], list[int]]:
+    """Pointer and index lists of the pairs (``keys[i]``, ``values[i]``) grouped by key,
+    values sorted."""
+    order = np.lexsort((values, keys))
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(keys, minlength=n), out=ptr[1:])
+    return ptr.tolist(), values[order].tolist()
 
 
 class ADG:
@@ -91,25 +92,32 @@ class ADG:
         self.is_first = bytearray(v in firsts for v in range(self.n_vertices))
         self._set_edges(self._type2_edges(), self.step_of)
 
-    def _set_edges(self, edges: list[tuple[int, int]], level: list[int]) -> None:
+    def _set_edges(self, edges: Sequence[tuple[int, int]] | npt.NDArray[np.int64],
+                   level: list[int]) -> None:
         """Install the Type 2 ``edges`` (tail, head) and the Type 1 chain, with ``level``: a
         number per vertex that grows along every edge (the topological order's key)."""
         self.level = level
         """Grows along every edge: the plan step, or (rescheduled) the longest path from a
         source; :class:`~gateway.execution.oneshot.monitor.Monitor` evaluates vertices by level."""
-        self.t2_pred_ptr, self.t2_pred = _csr(self.n_vertices, [(h, t) for t, h in edges])
-        self.t2_succ_ptr, self.t2_succ = _csr(self.n_vertices, [(t, h) for t, h in edges])
+        pairs = np.array(edges, dtype=np.int64).reshape(-1, 2)
+        tails, heads = pairs[:, 0], pairs[:, 1]
+        n = self.n_vertices
+        self.t2_pred_ptr, self.t2_pred = _csr(n, heads, tails)
+        self.t2_succ_ptr, self.t2_succ = _csr(n, tails, heads)
         # all edges (Type 1 and 2) in CSR form, for the monitor's inner loop
-        type1 = [(v - 1, v) for v in range(self.n_vertices) if not self.is_first[v]]
-        self.pred_ptr, self.pred = _csr(self.n_vertices, [(h, t) for t, h in edges + type1])
-        self.succ_ptr, self.succ = _csr(self.n_vertices, [(t, h) for t, h in edges + type1])
-        # Every edge goes to a higher level, so (level, robot) is a topological order.
-        self.order: list[int] = sorted(
-            range(self.n_vertices), key=lambda v: (level[v], self.robot_of[v])
-        )
-        self.topo: list[int] = [0] * self.n_vertices
-        for rank, v in enumerate(self.order):
-            self.topo[v] = rank
+        chained = np.flatnonzero(np.frombuffer(self.is_first, dtype=np.uint8) == 0)
+        all_tails = np.concatenate((tails, chained - 1))
+        all_heads = np.concatenate((heads, chained))
+        self.pred_ptr, self.pred = _csr(n, all_heads, all_tails)
+        self.succ_ptr, self.succ = _csr(n, all_tails, all_heads)
+        # Every edge goes to a higher level, so (level, robot) is a topological order (ties:
+        # by vertex id, a stable sort).
+        order = np.lexsort((np.asarray(self.robot_of, dtype=np.int64),
+                            np.asarray(level, dtype=np.int64)))
+        topo = np.empty(n, dtype=np.int64)
+        topo[order] = np.arange(n, dtype=np.int64)
+        self.order: list[int] = order.tolist()
+        self.topo: list[int] = topo.tolist()
 
     def with_type2(self, edges: list[tuple[int, int]]) -> ADG:
         """The same actions ordered by other Type 2 ``edges`` (tail, head vertex ids), e.g.
@@ -149,31 +157,61 @@ class ADG:
         return [(v, w) for v in range(self.n_vertices)
                 for w in self.t2_succ[self.t2_succ_ptr[v]:self.t2_succ_ptr[v + 1]]]
 
-    def _type2_edges(self) -> list[tuple[int, int]]:
-        """(tail, head) for every move leaving u and the first later entry of each other robot.
+    def _type2_edges(self) -> npt.NDArray[np.int64]:
+        """(tail, head) for every move leaving u and the first later entry of each other robot,
+        ordered by tail, then head.
 
-        Per cell, each robot's entering actions are kept sorted by path index (they are built
-        in path order), so each lookup is a bisection: O(actions x robots-per-cell x log).
+        Vectorised: the moves entering each cell are grouped by (cell, robot) and sorted by
+        path index; every move leaving a cell is paired with each other robot's group of that
+        cell, and one binary search over all groups at once finds that robot's first entry
+        after it. O(pairs x log(actions)) in numpy, no loop per action.
         """
-        entering: dict[Cell, dict[int, tuple[list[int], list[int]]]] = {}
-        for v in range(self.n_vertices):
-            if self.src[v] != self.dst[v]:
-                per_robot = entering.setdefault(self.dst[v], {})
-                steps, vertices = per_robot.setdefault(self.robot_of[v], ([], []))
-                steps.append(self.step_of[v])
-                vertices.append(v)
-        edges: list[tuple[int, int]] = []
-        for v in range(self.n_vertices):
-            u = self.src[v]
-            if u == self.dst[v] or u not in entering:
-                continue
-            k, i = self.robot_of[v], self.step_of[v]
-            for k2, (steps, vertices) in entering[u].items():
-                if k2 != k:
-                    pos = bisect_right(steps, i)
-                    if pos < len(steps):
-                        edges.append((v, vertices[pos]))
-        return edges
+        n = self.n_vertices
+        none = np.zeros((0, 2), dtype=np.int64)
+        if n == 0:
+            return none
+        src = np.asarray(self.src, dtype=np.int64).reshape(n, 2)
+        dst = np.asarray(self.dst, dtype=np.int64).reshape(n, 2)
+        robot = np.asarray(self.robot_of, dtype=np.int64)
+        step = np.asarray(self.step_of, dtype=np.int64)
+        width = int(max(src[:, 1].max(), dst[:, 1].max())) + 1
+        moves = np.flatnonzero((src != dst).any(axis=1))
+        if len(moves) == 0:
+            return none
+        into = dst[moves, 0] * width + dst[moves, 1]  # the cell each move enters
+        # entries sorted by (cell, robot, step): groups of one robot entering one cell
+        e_order = np.lexsort((step[moves], robot[moves], into))
+        e_vertex, e_cell = moves[e_order], into[e_order]
+        e_robot, e_step = robot[e_vertex], step[e_vertex]
+        new_group = np.ones(len(e_vertex), dtype=bool)
+        new_group[1:] = (e_cell[1:] != e_cell[:-1]) | (e_robot[1:] != e_robot[:-1])
+        g_start = np.flatnonzero(new_group)  # each group's first entry
+        g_of_entry = np.cumsum(new_group) - 1
+        g_cell, g_robot = e_cell[g_start], e_robot[g_start]
+        # each cell's groups are a contiguous range of groups
+        cells, c_first, c_count = np.unique(g_cell, return_index=True, return_counts=True)
+        # queries: every move, leaving its source cell; keep those whose cell is entered
+        out_cell = src[moves, 0] * width + src[moves, 1]
+        pos = np.searchsorted(cells, out_cell)
+        pos_ok = np.minimum(pos, len(cells) - 1)
+        hit = cells[pos_ok] == out_cell
+        q_vertex, q_cell_idx = moves[hit], pos_ok[hit]
+        counts = c_count[q_cell_idx]
+        # one (query, group) pair per robot entering the query's cell
+        pair_q = np.repeat(np.arange(len(q_vertex)), counts)
+        offsets = np.arange(len(pair_q)) - np.repeat(np.cumsum(counts) - counts, counts)
+        pair_g = c_first[q_cell_idx][pair_q] + offsets
+        tail = q_vertex[pair_q]
+        other = g_robot[pair_g] != robot[tail]
+        tail, pair_g = tail[other], pair_g[other]
+        # the group's first entry with a larger path index than the tail's
+        key = g_of_entry * (int(step.max()) + 2) + e_step
+        found = np.searchsorted(key, pair_g * (int(step.max()) + 2) + step[tail], side="right")
+        found_ok = np.minimum(found, len(key) - 1)
+        later = (found < len(key)) & (g_of_entry[found_ok] == pair_g)
+        tail, head = tail[later], e_vertex[found_ok[later]]
+        ordered = np.lexsort((head, tail))
+        return np.stack((tail[ordered], head[ordered]), axis=1)
 
     def heading(self, robot: int, step: int) -> int | None:
         """Robot's heading at timestep ``step`` of the plan (None under ``omni``)."""

@@ -168,10 +168,15 @@ class Monitor:
         # the union of their descendants instead of one pass each (same values: every vertex
         # is a function of its predecessors, evaluated in topological order)
         self._pending: list[int] = []
-        self._propagate(range(nv))
-        for v in range(nv):
-            if self._remaining[v] == 0:
-                heapq.heappush(self._thresholds, (self._ts[v], v, _READY_KIND))
+        self._delta0 = self._delta  # (a copy of Δ once it is computed, below)
+        if nv >= VECTOR_MIN_VERTICES:  # the same values, vectorised level by level
+            self._views()
+            self._recompute()
+        else:
+            self._propagate(range(nv))
+        ready = np.flatnonzero(np.frombuffer(self._remaining, np.intc) == 0)
+        self._thresholds = [(self._ts[v], v, _READY_KIND) for v in ready.tolist()]
+        heapq.heapify(self._thresholds)
         self._delta0 = array("d", self._delta)
         self._views()
 

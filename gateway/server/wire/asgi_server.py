@@ -144,18 +144,24 @@ class HttpServer:
         """Whether it accepts connections."""
         return self._server is not None and self._server.is_serving()
 
+    def _protocol(self) -> asyncio.Protocol:
+        config = self._config
+        return config.http_protocol_class(  # type: ignore[call-arg]
+            config=config, server_state=self._state, app_state={})
+
     async def start(self, host: str, port: int) -> int:
         """Listen on ``host:port``; the bound port. OSError if it cannot."""
-        config, state = self._config, self._state
-
-        def protocol() -> asyncio.Protocol:
-            return config.http_protocol_class(  # type: ignore[call-arg]
-                config=config, server_state=state, app_state={})
-
         self._server = await asyncio.get_running_loop().create_server(
-            protocol, host, port, ssl=self._ssl, backlog=config.backlog,
+            self._protocol, host, port, ssl=self._ssl, backlog=self._config.backlog,
             ssl_handshake_timeout=self._handshake_timeout_s if self._ssl else None)
         return int(self._server.sockets[0].getsockname()[1])
+
+    async def start_unix(self, path: str) -> None:
+        """Listen on the unix socket ``path`` instead, without TLS: the worker processes
+        relay to it what they do not serve themselves, TLS already terminated
+        (:mod:`gateway.server.workers.router`). OSError if it cannot."""
+        self._server = await asyncio.get_running_loop().create_unix_server(
+            self._protocol, path, backlog=self._config.backlog)
 
     async def stop(self, grace_s: float = 2.0) -> None:
         """Stop listening, end idle connections and requests in flight (streams are cut after

@@ -1,4 +1,7 @@
-"""One connection's outgoing side: a bounded send queue drained by its own writer task.
+"""A connection as the owner task sees it (:class:`Session`), and the usual kind
+(:class:`LinkSession`): one connection's outgoing side, a bounded send queue drained by its own
+writer task. (A connection that a worker process serves is a
+:class:`~gateway.server.workers.remote.RemoteSession`.)
 
 The owner task never awaits a peer: it builds a message and puts it in the session's queue.
 If that queue is full the peer is too slow and the session is closed (code 1013), so one slow
@@ -12,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any
 
@@ -25,14 +29,44 @@ log = logging.getLogger("fleetgate.session")
 _ids = itertools.count(1)
 
 
-class Session:
-    """An authenticated connection as the gateway sees it."""
+class Session(ABC):
+    """An authenticated connection as the owner task sees it: who is on it, the protocol
+    version it speaks, and what may be sent to it."""
+
+    peer: Peer
+    id: int
+    closing: bool
+    version: ProtocolVersion
+
+    def __str__(self) -> str:
+        return f"{self.peer}#{self.id}"
+
+    @abstractmethod
+    def send(self, kind: type[AnyMessage], **fields: Any) -> None:
+        """Queue a message of type ``kind`` with these fields (dropped once closing)."""
+
+    @abstractmethod
+    def send_action(self, fields: dict[str, Any]) -> None:
+        """Queue an ``action`` with these fields (plain JSON values, see
+        :func:`~protocol.codec.encode_action`), written without building its model."""
+
+    @abstractmethod
+    def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
+        """Reply ``error``; too many in a short time close the connection (1008)."""
+
+    @abstractmethod
+    def close(self, code: int = 1000, reason: str = "") -> None:
+        """Flush what is queued, then close the connection (idempotent)."""
+
+
+class LinkSession(Session):
+    """A session served in this process: its messages go to a :class:`Link`."""
 
     def __init__(self, link: Link, *, queue_size: int, max_errors: int, rate_per_s: float,
                  rate_burst: float, error_decay_s: float = 1.0,
                  on_error: Callable[[ErrorCode], None] | None = None) -> None:
         self.link = link
-        self.peer: Peer = link.peer
+        self.peer = link.peer
         self.id = next(_ids)
         self._queue: asyncio.Queue[str | None] = asyncio.Queue(queue_size)
         self._seq = itertools.count()
@@ -48,23 +82,17 @@ class Session:
         self._tokens = rate_burst
         self._last = self._loop.time()
         self.closing = False
-        self.version: ProtocolVersion = PROTOCOL_VERSION
+        self.version = PROTOCOL_VERSION
         """The protocol version of this connection (a robot's ``hello`` fixes it)."""
         self.writer = asyncio.create_task(self._write(), name=f"writer-{self.id}")
 
-    def __str__(self) -> str:
-        return f"{self.peer}#{self.id}"
-
-    def send(self, kind: type[AnyMessage], **fields: Any) -> AnyMessage | None:
-        """Build a message of type ``kind`` with this session's next msg_id/seq and queue it.
-
-        Returns the message, or None if the session is closing or was too slow (then closed).
-        """
+    def send(self, kind: type[AnyMessage], **fields: Any) -> None:
+        """Build a message of type ``kind`` with this session's next msg_id/seq and queue it
+        (nothing if the session is closing; a session too slow to take it is closed)."""
         if self.closing:
-            return None
+            return
         seq = next(self._seq)
-        message = kind(v=self.version, msg_id=f"g{self.id}-{seq}", seq=seq, **fields)
-        return message if self._put(encode(message)) else None
+        self._put(encode(kind(v=self.version, msg_id=f"g{self.id}-{seq}", seq=seq, **fields)))
 
     def send_action(self, fields: dict[str, Any]) -> None:
         """Queue an ``action`` with these fields (plain JSON values, see

@@ -1,0 +1,191 @@
+"""The owner's side of the workers: starts them on the gateway's port, turns their events
+into the engine's queue items, and restarts one that dies (its robots were cut off: each is
+``Disconnected``, and they reconnect as after any cut link)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import resource
+import socket
+import sys
+from dataclasses import dataclass, field
+
+from gateway.server.clock import Clock
+from gateway.server.config import GatewayConfig
+from gateway.server.items import Connected, Disconnected, Inbound, Item
+from gateway.server.workers.channel import Op, Outbox, frame, read_batch
+from gateway.server.workers.remote import RemoteSession
+
+log = logging.getLogger("fleetgate.workers")
+
+START_TIMEOUT_S = 60.0
+"""A worker not listening within this is a failed start."""
+
+_TICK_S = os.sysconf("SC_CLK_TCK")
+
+
+@dataclass
+class _Handle:
+    """One running worker process."""
+
+    index: int
+    process: asyncio.subprocess.Process
+    reader: asyncio.StreamReader
+    outbox: Outbox
+    writer: asyncio.StreamWriter
+    sessions: dict[int, RemoteSession] = field(default_factory=dict)
+
+
+def _reserve(host: str, port: int) -> tuple[list[socket.socket], int]:
+    """Bind (without listening) ``host:port`` with ``SO_REUSEPORT`` on each of its addresses:
+    the port stays the gateway's while workers come and go (a socket that does not listen
+    gets no connections). Returns the sockets and the port (chosen here if 0)."""
+    held: list[socket.socket] = []
+    try:
+        for family, kind, proto, _, addr in socket.getaddrinfo(
+                host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE):
+            s = socket.socket(family, kind, proto)
+            held.append(s)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            s.bind((addr[0], port, *addr[2:]))
+            port = s.getsockname()[1]
+    except BaseException:
+        for s in held:
+            s.close()
+        raise
+    return held, port
+
+
+class WorkerPool:
+    """``count`` worker processes serving the robots on one port for the owner's engine."""
+
+    def __init__(self, config: GatewayConfig, queue: asyncio.Queue[Item], clock: Clock) -> None:
+        self._config = config
+        self._queue = queue
+        self._clock = clock
+        self._handles: dict[int, _Handle] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._reserved: list[socket.socket] = []
+        self._stopping = False
+        self.restarts = 0
+        """Workers started again after one died."""
+
+    @property
+    def pids(self) -> list[int]:
+        """The process ids of the running workers."""
+        return [h.process.pid for h in self._handles.values()]
+
+    async def start(self, host: str, port: int, owner_path: str) -> int:
+        """Start the workers on ``host:port`` (relaying to ``owner_path``); the port. OSError
+        if it cannot be bound, RuntimeError if a worker does not start."""
+        self._reserved, port = _reserve(host, port)
+        self._where = (host, port, owner_path)
+        await asyncio.gather(*(self._start(i) for i in range(self._config.workers)))
+        return port
+
+    async def _start(self, index: int) -> None:
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            process = await asyncio.create_subprocess_exec(
+                sys.executable, "-m", "gateway.server.workers.worker", str(theirs.fileno()),
+                pass_fds=(theirs.fileno(),), start_new_session=True)  # no terminal Ctrl-C
+        finally:
+            theirs.close()
+        reader, writer = await asyncio.open_unix_connection(sock=ours)
+        writer.write(frame([("start", self._config, *self._where)]))
+        try:
+            async with asyncio.timeout(START_TIMEOUT_S):
+                ready = await read_batch(reader)
+        except (TimeoutError, asyncio.IncompleteReadError):
+            with contextlib.suppress(ProcessLookupError):
+                process.kill()
+            await process.wait()
+            raise RuntimeError(f"worker {index} did not start (exit {process.returncode})"
+                               ) from None
+        assert ready == [("ready",)], ready
+        handle = _Handle(index, process, reader, Outbox(writer), writer)
+        self._handles[index] = handle
+        task = asyncio.get_running_loop().create_task(self._serve(handle),
+                                                      name=f"worker-{index}")
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _serve(self, handle: _Handle) -> None:
+        """Deliver a worker's events until it ends; then restart it (unless stopping)."""
+        try:
+            while True:
+                self._deliver(handle, await read_batch(handle.reader))
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass
+        finally:
+            for session in handle.sessions.values():
+                session.closing = True
+                self._queue.put_nowait(Disconnected(session))
+            handle.sessions.clear()
+            handle.writer.close()
+            self._handles.pop(handle.index, None)
+        code = await handle.process.wait()
+        delay = 0.1
+        while not self._stopping:
+            log.warning("worker %d ended (exit %s): restarting it", handle.index, code)
+            try:
+                await self._start(handle.index)
+            except (RuntimeError, OSError) as exc:
+                log.error("worker %d: %s", handle.index, exc)
+                await asyncio.sleep(delay)
+                delay = min(5.0, 2 * delay)
+                continue
+            self.restarts += 1
+            return
+
+    def _deliver(self, handle: _Handle, ops: list[Op]) -> None:
+        """A worker's batch as engine queue items (its messages arrive at this plan time)."""
+        now_ms = self._clock.now_ms()
+        put = self._queue.put_nowait
+        sessions = handle.sessions
+        for op in ops:
+            if op[0] == "i":
+                put(Inbound(sessions[op[1]], op[2], op[3], now_ms))
+            elif op[0] == "o":
+                session = sessions[op[1]] = RemoteSession(handle.outbox, op[1], op[2])
+                put(Connected(session))
+            else:
+                gone = sessions.pop(op[1])
+                gone.closing = True
+                put(Disconnected(gone))
+
+    def cpu_s(self) -> float:
+        """CPU seconds of the workers: those running now plus those that ended (and any
+        other child process of the gateway that ended)."""
+        total = 0.0
+        for pid in self.pids:
+            with contextlib.suppress(OSError, IndexError, ValueError):
+                with open(f"/proc/{pid}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+                total += (int(fields[11]) + int(fields[12])) / _TICK_S
+        ended = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return total + ended.ru_utime + ended.ru_stime
+
+    async def stop(self) -> None:
+        """End the workers (each closes its connections with 1001 when its channel closes)."""
+        self._stopping = True
+        for handle in list(self._handles.values()):
+            handle.writer.close()
+        processes = [h.process for h in self._handles.values()]
+        if processes:
+            _, late = await asyncio.wait([asyncio.ensure_future(p.wait())
+                                          for p in processes], timeout=5.0)
+            for p in processes:
+                if p.returncode is None:
+                    with contextlib.suppress(ProcessLookupError):
+                        p.kill()
+            await asyncio.gather(*late, return_exceptions=True)
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        for s in self._reserved:
+            s.close()

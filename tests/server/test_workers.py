@@ -1,0 +1,161 @@
+"""Worker processes (``workers = N``) over real websockets on 127.0.0.1, in real time (they are
+real processes): the robots are served by the workers and complete a journaled run exactly once
+(tracecheck), also when a worker is killed with SIGKILL mid-run; everything else (HTTP,
+operators, refused handshakes) is relayed to the gateway's own process and answered as on its
+own port; TLS and mutual TLS end in the workers; bad robot input is refused there."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import ssl
+import urllib.request
+from collections import Counter
+from pathlib import Path
+
+import pytest
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+
+from gateway.server.config import GatewayConfig
+from gateway.server.gateway import Gateway
+from gateway.server.workers.remote import RemoteSession
+from protocol import ErrorCode, Finished, LoadPlan, Start, State
+from sim_clients.connect import websocket_connector
+from sim_clients.fleet import SimFleet
+from tests.server.conftest import LAB_PATHS, connector, make_config
+from tests.server.robots import TestOperator, TestRobot
+from tests.server.test_journal import workload
+from tests.server.tls_certs import make_certs
+from tracecheck import check_trace, read_trace
+
+
+def _get(url: str, context: ssl.SSLContext | None = None) -> tuple[int, bytes]:
+    with urllib.request.urlopen(url, context=context, timeout=10) as answer:
+        return answer.status, answer.read()
+
+
+async def _run_with_a_kill(tmp_path: Path, kill: bool) -> None:
+    trace = tmp_path / "trace.jsonl"
+    config = GatewayConfig(port=0, map=None, policy="none", journal=tmp_path / "j.sqlite",
+                           trace=trace, speed=20.0, autostart=True, workers=2)
+    problem = workload(8, 30)
+    executed: Counter[tuple[int, int, int]] = Counter()
+
+    def on_event(kind: str, plan: int, robot: int, index: int) -> None:
+        if kind == "execute":
+            executed[(plan, robot, index)] += 1
+
+    async with Gateway(config) as gw:
+        port = await gw.listen()
+        pool = gw.workers
+        assert pool is not None and len(pool.pids) == 2 and os.getpid() not in pool.pids
+        fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(8),
+                         clock=gw.clock, send_state=False, reconnect_delay_s=0.05)
+        fleet.on_event = on_event
+        gw.engine.load(problem)
+        await fleet.start()
+        try:
+            await fleet.wait_connected()
+            # every robot is served by a worker: the owner sees it as a RemoteSession
+            assert all(isinstance(gs.link, RemoteSession) for gs in gw.engine.robots.values())
+            if kill:
+                total = sum(len(p) - 1 for p in problem.plan.paths)
+                while sum(executed.values()) < total // 3:
+                    await asyncio.sleep(0.01)
+                victim = pool.pids[0]
+                os.kill(victim, signal.SIGKILL)
+            await asyncio.wait_for(gw.wait_done(), 90)
+            if kill:
+                assert pool.restarts == 1 and victim not in pool.pids and len(pool.pids) == 2
+        finally:
+            await fleet.stop()
+    report = check_trace(read_trace(trace))
+    assert report.ok, report.errors[:5]
+    assert report.actions_run == sum(len(p) - 1 for p in problem.plan.paths)
+    assert set(executed.values()) == {1}, "an action executed twice or never"
+    assert len(executed) == report.actions_run
+
+
+def test_robots_served_by_workers_complete_a_journaled_run(tmp_path: Path) -> None:
+    asyncio.run(_run_with_a_kill(tmp_path, kill=False))
+
+
+def test_a_worker_killed_mid_run_is_restarted_and_nothing_is_lost_or_doubled(
+        tmp_path: Path) -> None:
+    asyncio.run(_run_with_a_kill(tmp_path, kill=True))
+
+
+def test_http_operators_and_refusals_reach_the_owner_through_the_workers() -> None:
+    async def go() -> None:
+        async with Gateway(make_config(workers=1)) as gw:
+            port = await gw.listen()
+            status, body = await asyncio.to_thread(_get, f"http://127.0.0.1:{port}/healthz")
+            assert status == 200 and json.loads(body)["status"] == "ok"
+            code, detail = await gw.command(LoadPlan(msg_id="l", seq=0, map="lab",
+                                                     paths=LAB_PATHS[:1]))
+            assert code is None, detail
+            ws = connector(gw)
+            op = TestOperator(await ws("demo-operator"), "op")
+            assert (await op.snapshot()).status == "loaded"
+            assert gw.engine.feed.operators and not any(
+                isinstance(s, RemoteSession) for s in gw.engine.feed.operators)
+            with pytest.raises(InvalidStatus) as refused:
+                await ws("no-such-token")
+            assert refused.value.response.status_code == 403
+            robot = TestRobot(await ws("demo-robot-0"), 0)
+            await robot.hello()
+            assert isinstance(gw.engine.robots[0].link, RemoteSession)
+            running = asyncio.create_task(robot.run())
+            await op.send(Start)  # the operator's command, relayed, starts the robot's run
+            await gw.wait_done()
+            running.cancel()
+            assert len(robot.finished) == len(LAB_PATHS[0]) - 1
+
+    asyncio.run(asyncio.wait_for(go(), 60))
+
+
+def test_bad_robot_input_is_refused_in_the_worker() -> None:
+    async def go() -> None:
+        async with Gateway(make_config(workers=1, max_errors=4)) as gw:
+            await gw.listen()
+            robot = TestRobot(await connector(gw)("demo-robot-0"), 0)
+            await robot.hello()
+            await robot.send_raw("{bad")
+            assert (await robot.error_for(None)).code is ErrorCode.MALFORMED
+            ref = await robot.send(State, robot_id=1)
+            assert (await robot.error_for(ref)).code is ErrorCode.NOT_YOURSELF
+            ref = await robot.send(Finished, action_id="0.1.0")
+            assert (await robot.error_for(ref)).code is ErrorCode.NOT_YOURSELF
+            await robot.send_raw("{bad")  # the fourth error in a second: closed (1008)
+            with pytest.raises(ConnectionClosed) as closed:
+                while True:
+                    await robot.recv()
+            assert closed.value.rcvd is not None and closed.value.rcvd.code == 1008
+
+    asyncio.run(asyncio.wait_for(go(), 60))
+
+
+def test_tls_and_mutual_tls_end_in_the_workers(tmp_path: Path) -> None:
+    certs = make_certs(tmp_path)
+
+    async def go() -> None:
+        config = make_config(workers=2, tls=certs.tls())
+        async with Gateway(config) as gw:
+            port = await gw.listen()
+            url = f"wss://127.0.0.1:{port}/ws"
+            link = await connect(url, ssl=certs.client(0), proxy=None)  # its certificate
+            robot = TestRobot(link, 0)
+            assert (await robot.hello()).robot_id == 0
+            assert isinstance(gw.engine.robots[0].link, RemoteSession)
+            with pytest.raises(InvalidStatus) as refused:  # robot 1's token, robot 0's cert
+                await connect(url, ssl=certs.client(0), proxy=None,
+                              additional_headers={"Authorization": "Bearer demo-robot-1"})
+            assert refused.value.response.status_code == 403
+            status, body = await asyncio.to_thread(
+                _get, f"https://127.0.0.1:{port}/healthz", certs.client())
+            assert status == 200 and json.loads(body)["robots"] == 1
+
+    asyncio.run(asyncio.wait_for(go(), 60))
