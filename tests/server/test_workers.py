@@ -19,10 +19,11 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
+from bench.fuzz import FuzzStats, frames, fuzz
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.workers.remote import RemoteSession
-from protocol import ErrorCode, Finished, LoadPlan, Start, State
+from protocol import CloseCode, ErrorCode, Finished, LoadPlan, Start, State
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from tests.server.conftest import LAB_PATHS, connector, make_config
@@ -159,3 +160,43 @@ def test_tls_and_mutual_tls_end_in_the_workers(tmp_path: Path) -> None:
             assert status == 200 and json.loads(body)["robots"] == 1
 
     asyncio.run(asyncio.wait_for(go(), 60))
+
+
+def test_fuzzing_the_workers_changes_nothing_for_the_fleet(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """bench/fuzz.py's hostile frames (robot tokens of ids outside the plan: served by the
+    workers; the world and an operator: relayed) while a fleet runs through the workers."""
+    stats = FuzzStats()
+    source = frames(2000, seed=2)
+
+    async def go() -> None:
+        trace = tmp_path / "trace.jsonl"
+        config = GatewayConfig(port=0, map=None, policy="none", trace=trace, speed=10.0,
+                               autostart=True, workers=2, close_timeout_s=1.0)
+        problem = workload(8, 20)
+        async with Gateway(config) as gw:
+            port = await gw.listen()
+            url = f"ws://127.0.0.1:{port}/ws"
+            fleet = SimFleet(websocket_connector(url), range(8), clock=gw.clock,
+                             send_state=False, reconnect_delay_s=0.05)
+            gw.engine.load(problem)
+            await fleet.start()
+            try:
+                await fleet.wait_connected()
+                await asyncio.gather(fuzz(url, source, stats, 8, 2), gw.wait_done())
+            finally:
+                await fleet.stop()
+            assert gw.workers is not None and gw.workers.restarts == 0
+            assert gw.metrics.value("fleetgate_handler_failures_total") == 0
+        report = check_trace(read_trace(trace))
+        assert report.ok, report.errors[:5]
+        assert report.actions_run == sum(len(p) - 1 for p in problem.plan.paths)
+
+    asyncio.run(asyncio.wait_for(go(), 240))
+    assert stats.sent >= 1500
+    for code in (ErrorCode.MALFORMED, ErrorCode.INVALID, ErrorCode.UNKNOWN_TYPE,
+                 ErrorCode.FORBIDDEN):
+        assert stats.replies.get(code.value, 0) > 0, (code, stats.replies)
+    assert set(stats.closes) <= {int(c) for c in CloseCode}, stats.closes
+    err = capfd.readouterr().err  # the workers' log lines (they share this stderr)
+    assert "Traceback" not in err and "handler failed" not in err, err[-2000:]
