@@ -9,8 +9,13 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import signal
+import socket
 import ssl
+import subprocess
+import sys
+import time
 import urllib.request
 from collections import Counter
 from pathlib import Path
@@ -200,3 +205,43 @@ def test_fuzzing_the_workers_changes_nothing_for_the_fleet(
     assert set(stats.closes) <= {int(c) for c in CloseCode}, stats.closes
     err = capfd.readouterr().err  # the workers' log lines (they share this stderr)
     assert "Traceback" not in err and "handler failed" not in err, err[-2000:]
+
+
+def test_the_workers_end_with_a_killed_owner_and_free_the_port(tmp_path: Path) -> None:
+    """``fleetgate serve --workers 2`` killed with SIGKILL: its workers see their channel
+    close and end, so no orphan keeps serving (or holding) the port."""
+    env = {**os.environ, "XDG_STATE_HOME": str(tmp_path)}
+    env.pop("STATE_DIRECTORY", None)
+    owner = subprocess.Popen([sys.executable, "-m", "gateway", "serve", "--port", "0",
+                              "--workers", "2", "--no-journal", "--log-level", "WARNING"],
+                             stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert owner.stderr is not None
+        line = owner.stderr.readline()
+        found = re.search(r"ws://127\.0\.0\.1:(\d+)/ws", line)
+        assert found, line
+        port = int(found[1])
+        children = Path(f"/proc/{owner.pid}/task/{owner.pid}/children").read_text().split()
+        workers = [int(c) for c in children
+                   if "gateway.server.workers.worker" in
+                   Path(f"/proc/{c}/cmdline").read_text().replace("\0", " ")]
+        assert len(workers) == 2
+        status, _ = _get(f"http://127.0.0.1:{port}/healthz")
+        assert status == 200
+    finally:
+        owner.kill()
+        owner.wait(10)
+    deadline = time.monotonic() + 20
+    while any(Path(f"/proc/{w}").exists() and "Z" not in _state(w) for w in workers):
+        assert time.monotonic() < deadline, "a worker outlived its owner"
+        time.sleep(0.05)
+    with socket.socket() as s:  # nobody listens on the port any more
+        assert s.connect_ex(("127.0.0.1", port)) != 0
+
+
+def _state(pid: int) -> str:
+    """The state letter of a process (Z: a zombie, ended)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "Z"
