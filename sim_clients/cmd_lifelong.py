@@ -36,7 +36,9 @@ def _run(args: argparse.Namespace) -> int:
 
     from gateway.execution.lifelong.tasks import wait_percentiles
     from gateway.planning.lorr import LorrFormatError, read_problem
+    from gateway.planning.pibt import StateSpace
     from sim_clients.lifelong import (
+        PLANNER_BUDGET,
         LifelongConfig,
         lorr_output,
         mean,
@@ -47,7 +49,7 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("ticks", "period"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name} must be positive, got {getattr(args, name)}")
-    for name in ("window", "reassign", "max_wait"):
+    for name in ("window", "reassign", "max_wait", "lanes"):
         if getattr(args, name) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, "
                              f"got {getattr(args, name)}")
@@ -58,13 +60,20 @@ def _run(args: argparse.Namespace) -> int:
     if args.delay_seed is not None:
         problem = dataclasses.replace(problem, delay=dataclasses.replace(problem.delay,
                                                                          seed=args.delay_seed))
+    if args.lanes and (args.motion != "turning"
+                       or not StateSpace(problem.grid, True, budget_bytes=PLANNER_BUDGET,
+                                         robots=problem.team_size).exact):
+        raise UsageError("--lanes needs the turning motion and a map whose exact tables fit "
+                         f"2 GB ({problem.name}: {problem.grid.width}x{problem.grid.height}, "
+                         f"{problem.team_size} robots)" if args.motion == "turning"
+                         else "--lanes needs --motion turning")
     if args.output:
         check_writable(args.output)  # before the run, not after it
     cfg = LifelongConfig(problem=problem, ticks=args.ticks, turning=args.motion == "turning",
                          period=args.period, window=args.window,
                          planner_time=args.planner_time, scheduler=args.scheduler,
                          max_wait=args.max_wait or None,
-                         reassign=args.reassign, seed=args.seed)
+                         reassign=args.reassign, lanes=args.lanes, seed=args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("ticks, {task.fields[done]} tasks"),
                   disable=not args.progress, transient=True,
@@ -113,6 +122,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--reassign", type=int, default=1, metavar="CALLS",
                    help="planning calls between reassignments of tasks not started yet "
                         "(default 1: every call; 0: never)")
+    p.add_argument("--lanes", type=int, default=0, metavar="PENALTY",
+                   help="guide the turning planner by crisscross lanes (even rows east, odd "
+                        "rows west, even columns south, odd columns north): a move against its "
+                        "lane costs PENALTY half-moves more (default 0: no lanes; needs the "
+                        "exact tables of a map that fits 2 GB)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
     p.add_argument("--delay-seed", type=int, default=None, metavar="SEED",
                    help="seed of the delay model (default: the problem's delayConfig seed)")

@@ -37,6 +37,7 @@ from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.executor import WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
+from gateway.planning.guidance import crisscross
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
 from gateway.planning.pibt import StateSpace
 
@@ -59,6 +60,9 @@ REASSIGN_BATCH = 1000
 """Robots whose unstarted tasks one reassignment releases, in turn (all of a fleet up to this
 size, so the shared problems' runs are unchanged): on the competition's large maps, releasing
 all of 10,000 robots' unstarted tasks at every call made the matching 2-4 s of CPU a call."""
+PLANNER_BUDGET = 2 << 30
+"""Bytes of the planner's table cache (exact tables over the turning states when two per robot
+fit: what ``lanes`` needs)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -125,6 +129,8 @@ class LifelongConfig:
     reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
     reassign_batch: int = REASSIGN_BATCH  # robots whose unstarted task a reassignment releases
     station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
+    lanes: int = 0  # penalty of a move against its crisscross lane (gateway.planning.guidance;
+    # turning, exact tables); 0: no lanes
     warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     seed: int = 0
     output_window: int = 1000
@@ -183,7 +189,10 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
-    space = StateSpace(grid, cfg.turning, budget_bytes=2 << 30, robots=n)
+    if cfg.lanes and not cfg.turning:
+        raise ValueError("lanes guide the turning model only")
+    space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
+                       guidance=crisscross(grid, cfg.lanes) if cfg.lanes else None)
     planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
@@ -204,8 +213,11 @@ def run_lifelong(cfg: LifelongConfig,
     cpu0 = time.thread_time()
     distances.space.prefetch([c for task in pool.open.values() for c in task.errands[:-1]])
     if space.exact or space.compact:  # and the planner's own tables of the first goals (the
-        # city's first call took 2.5 s of CPU without them: 25 ticks before any robot moved)
-        space.prefetch([task.errands[0] for task in pool.open.values()])
+        # city's first call took 2.5 s of CPU without them: 25 ticks before any robot moved);
+        # guided tables cost five breadth-first ones: all the errands' (a first call of 0.4 s)
+        space.prefetch([c for task in pool.open.values()
+                        for c in (task.errands if space.guidance is not None
+                                  else task.errands[:1])])
     preprocess_s = time.thread_time() - cpu0
 
     cell = list(prob.starts)

@@ -34,6 +34,7 @@ import numpy.typing as npt
 from gateway.planning.bfs_kernel import pack_mod3
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
+from gateway.planning.guidance import MOVE, guided_tables
 
 UNREACHABLE = 32000
 """Distance of a state that cannot reach the goal (tables are int16)."""
@@ -64,7 +65,8 @@ class StateSpace:
     """
 
     def __init__(self, grid: Grid, turning: bool, budget_bytes: int = 1 << 30,
-                 robots: int = 0, exact: bool | None = None) -> None:
+                 robots: int = 0, exact: bool | None = None,
+                 guidance: npt.NDArray[np.int32] | None = None) -> None:
         self.grid = grid
         self.turning = turning
         n = grid.size
@@ -72,6 +74,12 @@ class StateSpace:
             exact = 2 * max(robots, 32) * 8 * n <= budget_bytes
         self.exact = turning and exact
         """Whether tables are over the states (else over the free cells)."""
+        if guidance is not None and not self.exact:
+            raise ValueError("a guidance needs exact tables over the turning states")
+        self.guidance = guidance
+        """Each state's forward-move cost (:mod:`gateway.planning.guidance`; None: every
+        action costs one): tables and :meth:`costs` are then in its units."""
+        self._forward: list[int] = guidance.tolist() if guidance is not None else []
         self.index = free_index(grid)
         """Each cell's position in a table over the free cells (-1: obstacle)."""
         self.n_states = 4 * n if turning else n
@@ -121,13 +129,22 @@ class StateSpace:
         """Compute the missing tables of ``goals`` together (one batched search)."""
         missing = self.missing(goals)
         if missing:
-            self.offer(goal_tables(self.grid, self.exact, missing, self.compact))
+            self.offer(goal_tables(self.grid, self.exact, missing, self.compact,
+                                   self.guidance))
 
     def costs(self, table: array[int], opts: Sequence[tuple[int, int, int, int]]) -> list[int]:
         """The cost of each move of :attr:`options` ``opts`` (the wait first) towards the goal
         of ``table``: its table entry plus its turns. From a :attr:`compact` table, the moves
         relative to the robot's own cell (neighbours differ by exactly one move on a grid), plus
-        :data:`COMPACT_BASE`: the same order and differences as the moves themselves."""
+        :data:`COMPACT_BASE`: the same order and differences as the moves themselves. Under a
+        :attr:`guidance`, each move's own cost (the wait and a turn :data:`~gateway.planning.
+        guidance.MOVE`, a move its lane's cost) plus the table entry after it."""
+        if self.guidance is not None:
+            forward = self._forward
+            own = opts[0][1]
+            c = own >> 2
+            return [table[es] + (MOVE if es == own else MOVE * turns + forward[4 * c + (es & 3)])
+                    for _, es, turns, _ in opts]
         if not self.compact:
             return [table[es] + turns for _, es, turns, _ in opts]
         own = (table[opts[0][1] >> 2] >> ((opts[0][1] & 3) << 1)) & 3
@@ -197,17 +214,21 @@ class _Options:
         return tuple(opts)
 
 
-def goal_tables(grid: Grid, exact: bool, goals: Sequence[int], compact: bool = False
-                ) -> dict[int, array[int]]:
+def goal_tables(grid: Grid, exact: bool, goals: Sequence[int], compact: bool = False,
+                guidance: npt.NDArray[np.int32] | None = None) -> dict[int, array[int]]:
     """The distance table of each goal cell (:meth:`StateSpace.distances`: int16, capped at
-    :data:`UNREACHABLE`): over the ``turning`` states if ``exact``, else over the free cells
-    (exact moves, a lower bound of the turning cost), searched in batches; ``compact`` (not
-    with ``exact``): :func:`compact_rows` of those over the free cells."""
+    :data:`UNREACHABLE`): over the ``turning`` states if ``exact`` (the costs under
+    ``guidance`` if given: :func:`~gateway.planning.guidance.guided_tables`), else over the
+    free cells (exact moves, a lower bound of the turning cost), searched in batches;
+    ``compact`` (not with ``exact``): :func:`compact_rows` of those over the free cells."""
     out: dict[int, array[int]] = {}
     for i in range(0, len(goals), 32):
         chunk = goals[i : i + 32]
-        found = (turning_distance_tables(grid, [grid.cell(g) for g in chunk]) if exact
-                 else cell_distance_rows(grid, chunk))
+        if guidance is not None:
+            found = guided_tables(grid, chunk, guidance)
+        else:
+            found = (turning_distance_tables(grid, [grid.cell(g) for g in chunk]) if exact
+                     else cell_distance_rows(grid, chunk))
         if compact:
             out.update(zip(chunk, compact_rows(found), strict=True))
             continue

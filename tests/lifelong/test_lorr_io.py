@@ -9,7 +9,9 @@ import pytest
 
 from gateway.cli import main
 from gateway.planning.lorr import LorrFormatError, compress_path, read_problem, write_problem
+from gateway.planning.movingai import format_map
 from tests.lifelong.support import small_problem
+from tracecheck.lorr import check_output, read_free
 
 
 def _write(tmp_path: Path) -> Path:
@@ -115,3 +117,20 @@ def test_cli_default_bound_is_the_runner_s() -> None:
     from sim_clients.lifelong import MAX_WAIT_TICKS, LifelongConfig
 
     assert CLI == MAX_WAIT_TICKS == LifelongConfig(small_problem(1)).max_wait
+
+
+def test_cli_lanes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--lanes`` runs the guided planner (a valid output), and is refused without turning or
+    below 0, in one line each."""
+    path = _write(tmp_path)
+    out = tmp_path / "lanes.json"
+    assert main(["lifelong", "--problem", str(path), "--ticks", "40", "--output", str(out),
+                 "--planner-time", "zero", "--no-progress", "--lanes", "2"]) == 0
+    prob = read_problem(path)
+    assert check_output(json.loads(out.read_text()), read_free(format_map(prob.grid))) == 40
+    capsys.readouterr()
+    for extra, want in ((["--lanes", "-1"], "--lanes must be >= 0, got -1"),
+                        (["--lanes", "1", "--motion", "omni"], "--lanes needs --motion turning")):
+        assert main(["lifelong", "--problem", str(path), "--no-progress", *extra]) == 2
+        err = capsys.readouterr().err
+        assert err == f"fleetgate: {want}\n"

@@ -1,0 +1,94 @@
+"""Traffic guidance for the ``turning`` planner: soft one-way lanes and the tables they weigh.
+
+A guidance gives every ``turning`` state ``4 * cell + heading`` the cost of its forward move;
+a turn and a wait cost :data:`MOVE`. :func:`crisscross` is the hand-made guidance of the
+guidance-graph literature (Zhang et al., "Guidance Graph Optimization for Lifelong MAPF",
+IJCAI 2024; the LoRR 2023 winner's WPPL, arXiv 2404.16162, optimises one instead): even rows
+run east, odd rows west, even columns south, odd columns north, and a move against its lane
+costs ``penalty`` more. Robots still go anywhere (the lanes are soft), but opposite flows
+mostly take different lanes, so fewer robots meet head-on, where the 1-robust rule and the
+cost of turning round hurt most. :func:`guided_tables` are the exact costs to a goal under a
+guidance (a Dijkstra search backwards over the states, compiled with numba as
+:mod:`gateway.planning.bfs_kernel` is).
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit
+
+from gateway.planning.distance import turning_predecessor_table
+from gateway.planning.grid import Grid
+
+MOVE = 2
+"""Cost of one action (a move along its lane, a turn, a wait) in a guided table: an even unit,
+so half a move can be a penalty."""
+
+
+def crisscross(grid: Grid, penalty: int) -> npt.NDArray[np.int32]:
+    """The forward-move cost of each state ``4 * cell + heading`` (headings east, south,
+    west, north): :data:`MOVE`, plus ``penalty`` against the lane (even rows east, odd rows
+    west, even columns south, odd columns north)."""
+    if penalty < 0:
+        raise ValueError(f"a lane penalty must be at least 0, not {penalty}")
+    cells = np.arange(grid.size)
+    x, y = cells % grid.width, cells // grid.width
+    along = np.stack([y % 2 == 0, x % 2 == 0, y % 2 == 1, x % 2 == 1], axis=1)
+    return np.where(along, MOVE, MOVE + penalty).astype(np.int32).ravel()
+
+
+@njit(cache=True, nogil=True)
+def _dijkstra_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
+                     sources: npt.NDArray[np.int64], bounds: npt.NDArray[np.int64],
+                     out: npt.NDArray[np.int32]) -> None:
+    """Fill ``out[k]`` (all -1) with the cheapest costs to the sources
+    ``sources[bounds[k]:bounds[k + 1]]``: ``table`` is :func:`turning_predecessor_table`
+    (columns 0 and 1 turn into the state, column 2 moves forward into it), a turn costs
+    ``MOVE``, the forward move out of state u ``forward[u]``."""
+    n = table.shape[0] - 1
+    for k in range(bounds.shape[0] - 1):
+        row = out[k]
+        heap = [(np.int64(0), np.int64(0))]
+        heap.pop()
+        for i in range(bounds[k], bounds[k + 1]):
+            s = sources[i]
+            row[s] = 0
+            heapq.heappush(heap, (np.int64(0), s))
+        while heap:
+            d, v = heapq.heappop(heap)
+            if d > row[v]:
+                continue
+            for j in range(3):
+                u = table[v, j]
+                if u >= n:
+                    continue
+                nd = d + (MOVE if j < 2 else forward[u])
+                if row[u] < 0 or nd < row[u]:
+                    row[u] = nd
+                    heapq.heappush(heap, (nd, np.int64(u)))
+
+
+def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int32]
+                  ) -> npt.NDArray[np.int32]:
+    """``out[k, 4 * cell + heading]``: the cheapest cost from that state to standing on cell
+    ``goals[k]`` (flat ids, any heading) when a turn costs :data:`MOVE` and the forward move
+    of state u ``forward[u]`` (:func:`crisscross`); -1 if unreachable. With every forward cost
+    :data:`MOVE` it is :data:`MOVE` times the exact timesteps."""
+    if forward.shape != (4 * grid.size,):
+        raise ValueError(f"a guidance of {forward.shape[0]} states for a map of "
+                         f"{4 * grid.size}")
+    free = grid.free.ravel()
+    for g in goals:
+        if not 0 <= g < grid.size or not free[g]:
+            raise ValueError(f"goal {g} is not a free cell of {grid!r}")
+    out = np.full((len(goals), 4 * grid.size), -1, dtype=np.int32)
+    if goals:
+        flat = np.array([4 * g + h for g in goals for h in range(4)], dtype=np.int64)
+        bounds = np.arange(0, 4 * len(goals) + 1, 4, dtype=np.int64)
+        _dijkstra_groups(turning_predecessor_table(grid), forward.astype(np.int32), flat,
+                         bounds, out)
+    return out

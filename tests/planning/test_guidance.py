@@ -1,0 +1,120 @@
+"""Guided tables (crisscross lanes): equal to a textbook Dijkstra over the turning states,
+twice the exact timesteps without a penalty, and the planner's option costs consistent with
+them."""
+
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from gateway.planning.distance import turning_distance_tables
+from gateway.planning.grid import Grid
+from gateway.planning.guidance import MOVE, crisscross, guided_tables
+from gateway.planning.pibt import UNREACHABLE, StateSpace
+
+grids = arrays(bool, st.tuples(st.integers(1, 8), st.integers(1, 8)), elements=st.booleans())
+STEP = ((1, 0), (0, 1), (-1, 0), (0, -1))  # headings east, south, west, north
+
+
+@st.composite
+def grid_and_goal(draw: st.DrawFn) -> tuple[Grid, int]:
+    """A drawn grid (one free cell at least) and one of its free cells."""
+    free = draw(grids)
+    if not free.any():
+        free[0, 0] = True
+    grid = Grid(free)
+    return grid, draw(st.sampled_from(np.flatnonzero(grid.free.ravel()).tolist()))
+
+
+def dijkstra(grid: Grid, goal: int, forward: list[int]) -> list[int]:
+    """Textbook forward Dijkstra from every state to the goal cell (the oracle): a turn costs
+    MOVE, a forward move out of state s ``forward[s]``; -1 if unreachable."""
+    w, h = grid.width, grid.height
+    out = []
+    for start in range(4 * grid.size):
+        c = start >> 2
+        if not grid.free.ravel()[c]:
+            out.append(-1)
+            continue
+        best = {start: 0}
+        heap = [(0, start)]
+        found = -1
+        while heap:
+            d, s = heapq.heappop(heap)
+            if d > best[s]:
+                continue
+            if s >> 2 == goal:
+                found = d
+                break
+            c, hd = s >> 2, s & 3
+            x, y = c % w, c // w
+            nxt = [(4 * c + (hd + 1) % 4, MOVE), (4 * c + (hd + 3) % 4, MOVE)]
+            nx, ny = x + STEP[hd][0], y + STEP[hd][1]
+            if 0 <= nx < w and 0 <= ny < h and grid.free[ny, nx]:
+                nxt.append((4 * (ny * w + nx) + hd, forward[s]))
+            for u, cost in nxt:
+                if d + cost < best.get(u, 1 << 30):
+                    best[u] = d + cost
+                    heapq.heappush(heap, (d + cost, u))
+        out.append(found)
+    return out
+
+
+def test_crisscross_lanes_by_hand() -> None:
+    """Even rows east, odd rows west, even columns south, odd columns north."""
+    grid = Grid(np.ones((2, 2), dtype=bool))
+    lanes = crisscross(grid, 3).reshape(4, 4).tolist()
+    assert lanes[0] == [2, 2, 5, 5]  # (0, 0): east and south along
+    assert lanes[3] == [5, 5, 2, 2]  # (1, 1): west and north along
+    assert lanes[1] == [2, 5, 5, 2]  # (1, 0): east, north
+    with pytest.raises(ValueError, match="at least 0"):
+        crisscross(grid, -1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid_and_goal(), st.integers(0, 5))
+def test_guided_tables_equal_a_textbook_dijkstra(case: tuple[Grid, int], penalty: int) -> None:
+    grid, goal = case
+    forward = crisscross(grid, penalty)
+    got = guided_tables(grid, [goal], forward)[0].tolist()
+    assert got == dijkstra(grid, goal, forward.tolist())
+    steps = turning_distance_tables(grid, [grid.cell(goal)])[0]
+    if penalty == 0:
+        assert got == np.where(steps < 0, -1, MOVE * steps).tolist()
+    for cost, exact in zip(got, steps.tolist(), strict=True):  # lanes only lengthen a path
+        assert (cost < 0) == (exact < 0)
+        if exact >= 0:
+            assert MOVE * exact <= cost <= (MOVE + penalty) * exact
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid_and_goal(), st.integers(1, 4))
+def test_the_best_option_costs_the_table_entry(case: tuple[Grid, int], penalty: int) -> None:
+    """From every state off the goal that can reach it, the cheapest move (forward, or a turn
+    towards a cell) costs exactly the state's table entry (Bellman), none less, and waiting
+    costs one MOVE more."""
+    grid, goal = case
+    space = StateSpace(grid, True, exact=True, guidance=crisscross(grid, penalty))
+    table = space.distances(goal)
+    for s in range(space.n_states):
+        opts = space.options[s]
+        if not opts or table[s] in (0, UNREACHABLE):
+            continue
+        costs = space.costs(table, opts)
+        assert costs[0] == table[s] + MOVE
+        assert min(costs[1:]) == table[s]
+
+
+def test_guidance_needs_exact_tables() -> None:
+    grid = Grid(np.ones((3, 3), dtype=bool))
+    with pytest.raises(ValueError, match="exact tables"):
+        StateSpace(grid, True, exact=False, guidance=crisscross(grid, 1))
+    with pytest.raises(ValueError, match="guidance of 4 states"):
+        guided_tables(grid, [0], np.full(4, MOVE, dtype=np.int32))
+    with pytest.raises(ValueError, match="not a free cell"):
+        guided_tables(Grid(np.array([[True, False]])), [1], crisscross(grid, 0)[:8])
