@@ -7,7 +7,11 @@ IJCAI 2024; the LoRR 2023 winner's WPPL, arXiv 2404.16162, optimises one instead
 run east, odd rows west, even columns south, odd columns north, and a move against its lane
 costs ``penalty`` more. Robots still go anywhere (the lanes are soft), but opposite flows
 mostly take different lanes, so fewer robots meet head-on, where the 1-robust rule and the
-cost of turning round hurt most. :func:`guided_tables` are the exact costs to a goal under a
+cost of turning round hurt most. :func:`crowded` adds the crowd of the moment: a move into a
+cell costs a move more for each robot standing around it, and tables are searched again as
+they age (:meth:`~gateway.planning.pibt.StateSpace.guide`): on the LoRR room map, clusters of
+robots had waited 40-70 ticks on both sides of one-cell doors while other doors of the same
+wall stood empty. :func:`guided_tables` are the exact costs to a goal under a
 guidance (a Dijkstra search backwards over the states, compiled with numba as
 :mod:`gateway.planning.bfs_kernel` is).
 """
@@ -92,3 +96,48 @@ def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int3
         _dijkstra_groups(turning_predecessor_table(grid), forward.astype(np.int32), flat,
                          bounds, out)
     return out
+
+
+CROWD_RADIUS = 1
+"""A cell's crowd counts the robots within this many cells of it in x and y (its 3 x 3 box)."""
+CROWD_AGE = 3
+"""Guided planning calls after which a table is searched again with the crowd of the moment
+(:meth:`~gateway.planning.pibt.StateSpace.guide`)."""
+CROWD_BUDGET = 1_000_000
+"""States a call searches again at most (61 tables of a 64 x 64 map, 3 of the 256 x 256 city
+map), so a large map's tables are refreshed a few at a time and a call stays short."""
+
+
+def crowd(grid: Grid, cells: Sequence[int], radius: int = CROWD_RADIUS
+          ) -> npt.NDArray[np.int32]:
+    """Per cell (flat id), the robots standing on ``cells`` within ``radius`` cells of it in x
+    and y (a box sum of the robots' occupancy)."""
+    h, w = grid.height, grid.width
+    occupied = np.zeros(grid.size, dtype=np.int32)
+    occupied[np.asarray(cells, dtype=np.int64)] = 1
+    sums = np.pad(occupied.reshape(h, w), radius + 1).cumsum(0).cumsum(1)
+    k = 2 * radius + 1
+    box = sums[k:k + h, k:k + w] - sums[:h, k:k + w] - sums[k:k + h, :w] + sums[:h, :w]
+    return np.ascontiguousarray(box.ravel(), dtype=np.int32)
+
+
+def crowded(grid: Grid, forward: npt.NDArray[np.int32], cells: Sequence[int]
+            ) -> npt.NDArray[np.int32]:
+    """Forward-move costs ``forward`` (:func:`crisscross`) plus :data:`MOVE` for each robot
+    around the cell each move enters (:func:`crowd`, robots on ``cells``): in the manner of
+    the LoRR winners' traffic-flow guidance against congestion, so robots bound the same way
+    spread over doors and corridors instead of queueing at one."""
+    around = np.append(crowd(grid, cells), np.int32(0))  # the sentinel: no cell ahead
+    return forward + MOVE * around[_ahead(grid)]
+
+
+def _ahead(grid: Grid) -> npt.NDArray[np.int64]:
+    """The cell in front of each state ``4 * cell + heading`` (``grid.size`` off the map)."""
+    cells = np.arange(grid.size)
+    x, y = cells % grid.width, cells // grid.width
+    out = np.full((grid.size, 4), grid.size, dtype=np.int64)
+    for h, (dx, dy) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
+        nx, ny = x + dx, y + dy
+        inside = (nx >= 0) & (nx < grid.width) & (ny >= 0) & (ny < grid.height)
+        out[inside, h] = (ny * grid.width + nx)[inside]
+    return out.ravel()
