@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from crash import GatewayProcess, free_port  # bench/crash.py
+from crash import GatewayProcess, cpu_s, free_port  # bench/crash.py
 
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.lorr import warehouse_problem
@@ -74,12 +74,6 @@ async def _load(port: int, clients: int, seconds: float) -> dict[str, Any]:
             "refused": sum(n for s, n in statuses.items() if s != 201)}
 
 
-def _cpu_s(pid: int) -> float:
-    """CPU time (user and system) of process ``pid`` so far (Linux: ``/proc/<pid>/stat``)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def run_once(source: Path | None, clients: int, seconds: float, journal: bool = True
              ) -> dict[str, Any]:
     """One run against a fresh gateway of this version (``source`` None) or of ``source``
@@ -99,9 +93,9 @@ def run_once(source: Path | None, clients: int, seconds: float, journal: bool = 
         gw.start()
         assert gw.proc is not None
         try:
-            cpu0 = _cpu_s(gw.proc.pid)
+            cpu0 = cpu_s(gw.proc.pid)
             run = asyncio.run(_load(gw.port, clients, seconds))
-            run["cpu_ms"] = 1000.0 * (_cpu_s(gw.proc.pid) - cpu0) / max(1, run["requests"])
+            run["cpu_ms"] = 1000.0 * (cpu_s(gw.proc.pid) - cpu0) / max(1, run["requests"])
             return run
         finally:
             gw.stop()

@@ -73,6 +73,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio import children
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.grid import Cell, Grid
 from gateway.planning.lorr import warehouse_problem
@@ -167,10 +168,10 @@ class GatewayProcess:
         """Start the process and wait until it answers ``/readyz``; ``file_limit``: no file it
         writes may grow beyond that many bytes (``RLIMIT_FSIZE``: a write beyond fails with
         ``EFBIG``, as a full disk fails with ``ENOSPC``)."""
-        self.proc = subprocess.Popen(self.cmd, stdout=self.log, stderr=self.log, env=self.env,
-                                     cwd=self.cwd,
-                                     preexec_fn=None if file_limit is None
-                                     else partial(limit_files, file_limit))
+        self.proc = children.spawn(self.cmd, stdout=self.log, stderr=self.log, env=self.env,
+                                   cwd=self.cwd,
+                                   preexec_fn=None if file_limit is None
+                                   else partial(limit_files, file_limit))
         self.starts += 1
         deadline = time.monotonic() + START_WALL_S
         while time.monotonic() < deadline and cpu_s(self.proc.pid) < START_CPU_S:
@@ -197,8 +198,7 @@ class GatewayProcess:
     def kill(self) -> None:
         """SIGKILL, and reap."""
         if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+            children.kill(self.proc)
             self._killed_at = time.perf_counter()
         self.proc = None
 
@@ -224,12 +224,8 @@ class GatewayProcess:
 
     def stop(self) -> None:
         """End the process for good."""
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.kill()
+        if self.proc is not None:
+            children.stop(self.proc)
         self.proc = None
         self.log.close()
 

@@ -137,6 +137,7 @@ from typing import Any
 
 import numpy as np
 
+from fleetgate.userio import children
 from fleetgate.userio.exits import CommandParser, run_main
 from fleetgate.userio.files import check_writable, write_text
 from gateway.execution.oneshot.adg import ADG
@@ -339,8 +340,7 @@ def cpu_pressure() -> float | None:
 
 
 _SLEEPER = """
-import signal, sys, time
-signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the benchmark ends it
+import sys, time
 late = []
 end = time.perf_counter() + float(sys.argv[1])
 while time.perf_counter() < end:
@@ -427,13 +427,12 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
     """Run the plan's robots in ``parts`` lean generator processes; their merged stats, the
     execution's wall time and the processes' CPU time during it."""
     outs = [plan_file.with_name(f"robots-{k}.json") for k in range(parts)]
-    procs = [subprocess.Popen([sys.executable, __file__, "--lean-part", f"{k}/{parts}",
-                               "--lean-files", str(plan_file), str(out), "--port", str(port),
-                               "--seconds", str(seconds), "--seed", str(seed),
-                               "--jitter", str(jitter)])
-             for k, out in enumerate(outs)]
     stats, cpu = FleetStats(), 0.0
-    try:
+    with contextlib.ExitStack() as stack:
+        procs = [stack.enter_context(children.running(
+            [sys.executable, __file__, "--lean-part", f"{k}/{parts}", "--lean-files",
+             str(plan_file), str(out), "--port", str(port), "--seconds", str(seconds),
+             "--seed", str(seed), "--jitter", str(jitter)])) for k, out in enumerate(outs)]
         for proc, out in zip(procs, outs, strict=True):
             proc.wait(timeout=lean_deadline_s(seconds) + 900.0)  # + connecting, starting
             if proc.returncode != 0 or not out.exists():
@@ -445,11 +444,6 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
             stats.duplicates += part["duplicates"]
             stats.errors.extend(part["errors"])
             cpu += part["cpu_s"]
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
     first = min(stats.received.values(), default=0.0)
     last = max(stats.finish_sent.values(), default=0.0)
     return stats, last - first, cpu
@@ -485,10 +479,9 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
         if trace:
             cmd += ["--serve-trace", str(trace_file)]
         env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
-        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
-        sleeper = subprocess.Popen([sys.executable, "-c", _SLEEPER, str(seconds)],
-                                   stdout=subprocess.PIPE, text=True)
-        try:
+        with (children.running(cmd, stdout=subprocess.PIPE, text=True, env=env) as gw,
+              children.running([sys.executable, "-c", _SLEEPER, str(seconds)],
+                               stdout=subprocess.PIPE, text=True) as sleeper):
             assert gw.stdout is not None
             line = gw.stdout.readline()
             if not line.strip().isdigit():  # e.g. an --against checkout without an option
@@ -511,11 +504,6 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
                 out = ""
             gateway = json.loads(out.strip() or "{}")
             floor = float(sleeper.communicate(timeout=60)[0] or "nan")
-        finally:
-            for proc in (gw, sleeper):
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait()
         records = read_trace(trace_file) if trace else []
         checked = check_trace(records) if trace else None
     if checked is not None:  # the dispatches each finish released, as the gateway traced them
@@ -719,10 +707,9 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
             cmd += ["--vda-broker", broker]
         env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
         # in the tree: its planner process (``python -m``) imports from its working directory
-        gw = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=tree)
         vehicles: list[VdaVehicle] = []
         stats = FleetStats()
-        try:
+        with children.running(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=tree) as gw:
             assert gw.stdout is not None
             port = int(gw.stdout.readline())
             _SHIFT_RESULT.clear()
@@ -738,10 +725,6 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
                                          jitter=jitter, seed=seed, action_s=0.0)
                 asyncio.run(_drive_vda_shift(vehicles, broker, wms, gw))
             gw.wait(timeout=60)
-        finally:
-            if gw.poll() is None:
-                gw.kill()
-                gw.wait()
         gateway = json.loads(_SHIFT_RESULT[0]) if _SHIFT_RESULT and _SHIFT_RESULT[0] else {}
         records = read_trace(trace)
     report = check_trace(records)

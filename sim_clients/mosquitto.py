@@ -12,6 +12,8 @@ import time
 from pathlib import Path
 from types import TracebackType
 
+from fleetgate.userio import children
+
 CANDIDATES = ("/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto")
 
 
@@ -62,8 +64,8 @@ class LocalBroker:
                             "max_queued_messages 100000\n")
             log = Path(self._dir.name) / "mosquitto.log"
             with log.open("wb") as out:
-                self._proc = subprocess.Popen([self.binary, "-c", str(conf)],
-                                              stdout=subprocess.DEVNULL, stderr=out)
+                self._proc = children.spawn([self.binary, "-c", str(conf)],
+                                            stdout=subprocess.DEVNULL, stderr=out)
             if self._listening():
                 return self.url
             self._kill()
@@ -84,13 +86,8 @@ class LocalBroker:
         return False
 
     def _kill(self) -> None:
-        if self._proc is not None and self._proc.poll() is None:
-            self._proc.terminate()
-            try:
-                self._proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self._proc.kill()
-                self._proc.wait()
+        if self._proc is not None:
+            children.stop(self._proc, grace_s=5.0)
         self._proc = None
 
     def stop(self) -> None:

@@ -16,7 +16,9 @@ every ``bench/`` script):
 =====  ====================================================================================
 
 :func:`run_main` wraps a command's ``main``; :func:`guard` (first thing in a script) covers the
-moment before it, while the script is still importing.
+moment before it, while the script is still importing. Before that, while the interpreter
+itself starts, a Ctrl-C is CPython's to report (with a traceback); a launcher that blocks
+SIGINT across ``exec`` has it delivered once the guard is in place.
 """
 
 from __future__ import annotations
@@ -127,7 +129,17 @@ wait behind a long computation)."""
 
 def _give_up(prog: str) -> None:
     _say(prog, f"interrupted (did not stop within {GRACE_S:g} s)")
+    _stop_children(at_once=True)
     os._exit(EXIT_INTERRUPTED)
+
+
+def _stop_children(at_once: bool) -> None:
+    """Before ``os._exit`` (which runs no ``atexit``): stop the children the command
+    started (:mod:`fleetgate.userio.children`, if it was ever imported: else there are none),
+    ``at_once``: SIGKILL right after SIGTERM."""
+    children = sys.modules.get("fleetgate.userio.children")
+    if children is not None:
+        children.stop_all(grace_s=0.0 if at_once else children.STOP_GRACE_S)
 
 
 @contextlib.contextmanager
@@ -174,6 +186,7 @@ def call(prog: str, main: Callable[..., int | None], *args: Any) -> int:
     line on stderr. Standard output is flushed here, so that a full device is reported too."""
     try:
         with _bounded_interrupts(prog):
+            _deliver_held_interrupts()
             code = main(*args) or EXIT_OK
     except (UsageError, KeyboardInterrupt, OSError) as exc:
         code = _ending(prog, exc)
@@ -203,7 +216,17 @@ def guard(prog: str) -> None:
             sys.__excepthook__(kind, exc, tb)
             return
         _flush_stdout(prog)
+        _stop_children(at_once=False)
         os._exit(code)
 
     sys.excepthook = last_words
     sys.unraisablehook = _interrupt_again
+    _deliver_held_interrupts()
+
+
+def _deliver_held_interrupts() -> None:
+    """Unblock SIGINT. Whoever starts a command may block it (a blocked signal stays
+    blocked across ``exec``) so that a Ctrl-C during the interpreter's own start-up, before
+    any code of ours runs and where CPython prints a traceback for it, waits until the guard
+    is in place: it is delivered here, and ends the command with one line and 130."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

@@ -230,7 +230,7 @@ class Engine:
         while True:
             if not self.current_run.ticking:
                 next_tick = None
-                if self.queue.empty() or self._uncommitted >= GROUP_COMMIT_ITEMS:
+                if self.queue.empty() or self._commit_due():
                     self.commit()
                 item = await self._get()  # at once if the queue is not empty
             else:
@@ -239,7 +239,7 @@ class Engine:
                 if not self.queue.empty():
                     # what ``get`` under the timeout would return at once, without arming and
                     # cancelling a timer per item (a busy fleet keeps this queue non-empty)
-                    if self._uncommitted >= GROUP_COMMIT_ITEMS:
+                    if self._commit_due():
                         self.commit()
                     item = self.queue.get_nowait()
                 else:
@@ -261,6 +261,11 @@ class Engine:
                 self.metrics.queue_depth.set(self.queue.qsize())
             self._handle_safely(item)
             self._uncommitted += 1
+
+    def _commit_due(self) -> bool:
+        """A group commit is full: :data:`GROUP_COMMIT_ITEMS` items handled since the last
+        commit (commit before handling more, even with the queue still non-empty)."""
+        return self._uncommitted >= GROUP_COMMIT_ITEMS
 
     async def _get(self) -> Item:
         """The next queue item."""

@@ -1,6 +1,7 @@
 """Every command and bench script, as a user runs them, where things go wrong around them: its
 output to ``/dev/full``, into a pipe whose reader is gone (``| head``), to a path where a file
-stands in place of a folder, and Ctrl-C (SIGINT to its process group) after 1 s. Each ends
+stands in place of a folder, and Ctrl-C (SIGINT to its process group) after 1 s, or once the
+command's guard is in place if it is still starting then (:func:`_hold_sigint`). Each ends
 with the documented exit code (:mod:`fleetgate.userio.exits`), at most a line on stderr and
 never a traceback, and a file it was asked to write is left as it was when the command did
 not finish (``fleetgate.userio.files``). Real subprocesses, nothing mocked.
@@ -168,9 +169,14 @@ def scratch(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp
 
 
-def _default_sigint() -> None:
-    # a shell starts background jobs with SIGINT ignored, and children inherit that
+def _hold_sigint() -> None:
+    """In the child before ``exec``: SIGINT acts by default (a shell starts background jobs
+    with it ignored, and children inherit that), and is blocked until the command's guard is
+    in place (:func:`fleetgate.userio.exits.guard` unblocks it): a Ctrl-C while CPython itself
+    still starts, before any code of ours runs, is CPython's to report, with a traceback. A
+    SIGINT sent earlier waits for that point instead of depending on the machine's load."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 
 
 @dataclass
@@ -183,7 +189,8 @@ class Outcome:
 
 def _run(argv: list[str], stdout: int | str, sigint: bool, cwd: Path) -> Outcome:
     """Run ``python ARGV`` with stdout to a file path, or to a pipe whose reader is gone
-    (``stdout == -1``); SIGINT its process group after 1 s if ``sigint`` and still running."""
+    (``stdout == -1``); SIGINT its process group after 1 s if ``sigint`` and still running
+    (delivered once its guard is in place: :func:`_hold_sigint`)."""
     read = write = None
     if stdout == -1:
         read, write = os.pipe()
@@ -195,7 +202,7 @@ def _run(argv: list[str], stdout: int | str, sigint: bool, cwd: Path) -> Outcome
     try:
         proc = subprocess.Popen([sys.executable, *argv], stdout=out, stderr=subprocess.PIPE,
                                 stdin=subprocess.DEVNULL, cwd=cwd, env=env, text=True,
-                                start_new_session=True, preexec_fn=_default_sigint)
+                                start_new_session=True, preexec_fn=_hold_sigint)
     finally:
         os.close(out)
     stopped = None

@@ -15,8 +15,8 @@ from urllib.parse import urlsplit
 
 from websockets.sync.client import connect
 
+from fleetgate.userio import children
 from protocol import Event, decode
-from tests.gui.demo_process import stop_process
 
 
 def test_a_busy_gateway_is_refused_in_one_line_touching_no_robot() -> None:
@@ -79,4 +79,4 @@ def test_a_busy_gateway_is_refused_in_one_line_touching_no_robot() -> None:
         assert getattr(snap, "status", None) == "running"
         assert all(r.connected for r in getattr(snap, "robots", []))
     finally:
-        stop_process(demo)
+        children.stop(demo, grace_s=20.0)  # SIGTERM: the demo stops cleanly on it

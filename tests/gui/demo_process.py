@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import re
-import signal
 import subprocess
 import sys
 import threading
 from pathlib import Path
+
+from fleetgate.userio import children
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -15,18 +16,6 @@ CHROMIUM_ARGS = [
     "--disable-component-update", "--disable-sync", "--no-first-run",
 ]
 _URL = re.compile(r"GUI at (https?://\S+)")
-
-
-def stop_process(proc: subprocess.Popen[str], timeout_s: float = 20.0) -> None:
-    """SIGTERM ``proc`` (fleetgate's commands stop cleanly on it), SIGKILL after
-    ``timeout_s``."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 class DemoProcess:
@@ -57,7 +46,7 @@ class DemoProcess:
 
     def stop(self) -> None:
         """SIGTERM (the demo stops cleanly on it), SIGKILL after 10 s."""
-        stop_process(self.proc, 10.0)
+        children.stop(self.proc, grace_s=10.0)
 
     def __enter__(self) -> DemoProcess:
         return self

@@ -21,8 +21,9 @@ import pytest
 from playwright.sync_api import Browser, Page, expect
 from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
+from fleetgate.userio import children
 from tests.gui.conftest import ARTIFACTS
-from tests.gui.demo_process import DemoProcess, stop_process
+from tests.gui.demo_process import DemoProcess
 
 pytestmark = pytest.mark.gui
 
@@ -232,4 +233,4 @@ def test_an_empty_shift_says_where_tasks_come_from_and_takes_one_from_the_gui(
             page.get_by_role("button", name="Add task").click()
             expect(note).to_contain_text("is not a free cell")
     finally:
-        stop_process(proc)
+        children.stop(proc, grace_s=20.0)  # SIGTERM: the demo stops cleanly on it
