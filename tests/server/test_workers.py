@@ -248,3 +248,17 @@ def _state(pid: int) -> str:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
     except OSError:
         return "Z"
+
+
+def test_a_port_taken_by_another_listener_is_refused_as_without_workers() -> None:
+    async def go() -> None:
+        with socket.socket() as taken:
+            taken.bind(("127.0.0.1", 0))
+            taken.listen()
+            port = taken.getsockname()[1]
+            async with Gateway(make_config(workers=1, port=port)) as gw:
+                with pytest.raises(OSError):
+                    await gw.listen()
+                assert gw.workers is None or gw.workers.pids == []
+
+    asyncio.run(asyncio.wait_for(go(), 60))
