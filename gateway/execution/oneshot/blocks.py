@@ -73,15 +73,13 @@ class BlockTracker:
         total = sum(longer) / len(longer) if longer else 2.0 * lasted
         return since + max(total, self.min_ms, lasted)
 
-    def end_quantiles(self, cell: Cell, levels: Sequence[float],
-                      min_ms: float | None = None) -> list[float]:
+    def end_quantiles(self, cell: Cell, levels: Sequence[float]) -> list[float]:
         """When the open block on ``cell`` ends at each probability level of ``levels`` (the
-        quantiles of its end time; see the module's docstring), no block lasting less than
-        ``min_ms`` (None: the tracker's)."""
+        quantiles of its end time; see the module's docstring)."""
         since = self.open[cell]
         lasted = self.seen[cell] - since
-        shortest = self.min_ms if min_ms is None else min_ms
-        return [since + d for d in duration_quantiles(self.history, lasted, shortest, levels)]
+        return [since + d for d in duration_quantiles(self.history, lasted, self.min_ms,
+                                                      levels)]
 
     def evidence(self, cell: Cell) -> int:
         """How many earlier blocks lasted longer than the open block on ``cell`` has so far:

@@ -571,8 +571,8 @@ class Executor:
         adg = self._adg_of(plan)
         evidence = min((self.blocks.evidence(c) for c in self.blocks.open), default=math.inf)
         floored = policy.floor_level > 0
-        gains = self._shadow_gains(adg, start, policy.levels,
-                                   policy.floor_level if floored else None)
+        gains = self._shadow_gains(adg, start, policy.levels + (
+            (policy.floor_level,) if floored else ()))
         floor = gains.pop() if floored else math.inf
         if not policy.adopts(gains, evidence, floor):
             return False
@@ -595,19 +595,15 @@ class Executor:
                 end = max(end, self.monitor.completion_ms(r, adg.step_of[v]))
         return tuple(cells), None if headings is None else tuple(headings), end
 
-    def _shadow_gains(self, adg: ADG, start_ms: float, levels: Sequence[float],
-                      floor_level: float | None = None) -> list[float]:
+    def _shadow_gains(self, adg: ADG, start_ms: float,
+                      levels: Sequence[float]) -> list[float]:
         """How much earlier (sum of completion times) the fleet is expected to finish if it
         stops and executes ``adg``'s plan from ``start_ms`` than if it keeps its plan, in one
         scenario per probability level of ``levels``: every open block ends at that quantile
         of its end (:meth:`BlockTracker.end_quantiles`; the blocks' ends comonotone), and in
-        both forecasts every move into a blocked cell waits until then; with
-        ``floor_level``, one more scenario at that quantile, which may be shorter than the
-        tracker's one-action minimum (a block can end sooner than a robot's action)."""
+        both forecasts every move into a blocked cell waits until then."""
         now, blocks, cur = self._now, self.blocks, self.adg
-        ends = {c: blocks.end_quantiles(c, levels) + (
-            [] if floor_level is None else blocks.end_quantiles(c, (floor_level,), 0.0))
-                for c in blocks.open}
+        ends = {c: blocks.end_quantiles(c, levels) for c in blocks.open}
         keep_moves: list[tuple[int, Cell]] = []
         completions = list(self._completion)
         for r, queue in enumerate(self._queue):
@@ -623,7 +619,7 @@ class Executor:
         new_moves = [(u, adg.dst[u]) for u in range(adg.n_vertices)
                      if adg.dst[u] in ends and adg.src[u] != adg.dst[u]]
         gains = []
-        for k in range(len(levels) + (floor_level is not None)):
+        for k in range(len(levels)):
             keep = forecast_completions(
                 self.monitor, {u: ends[c][k] for u, c in keep_moves if ends[c][k] > now})
             new = forecast_completions(
