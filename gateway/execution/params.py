@@ -56,9 +56,6 @@ class ExecutionParams:
     ``shadow_risk_level`` with this confidence, given how many earlier blocks it rests on."""
     shadow_scenarios: int = 20
     """The equally likely scenarios of the blocks' ends shadow planning weighs."""
-    shadow_floor_level: float = 0.01
-    """Shadow planning adopts no plan that loses if the blocks end at this quantile of their
-    ends (the chance that a replan is worse than none it accepts)."""
     shadow_assumptions: int = 3
     """Shadow planning's solves assume, in turn, the blocks end at this many quantiles of
     their durations."""

@@ -156,21 +156,12 @@ def test_adopting_a_detour_by_hand() -> None:
     """Keeping the plan, robot 0 finishes 2000 ms after the block ends (at E); the detour
     from 1000 ms finishes at 5000 ms: the gain is E - 3000 in every scenario."""
     policy = ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0, risk_aversion=1.0,
-                          risk_level=0.1, floor_level=0.0)
+                          risk_level=0.1)
     # Every earlier block lasted 10 s. Lasted 1 s: it ends in (1, 10) s with 1/20 (level
     # 0.025: 5.5 s), at 10 s (levels 0.075 .. 0.925), beyond with 1/20 (0.975: 20 s).
     adopted, gains = _decide([10_000.0] * 19, policy)
     assert gains == pytest.approx([2500.0] + [7000.0] * 18 + [17_000.0])
     assert adopted
-    # The floor: at its 1% quantile the block ends at 1 + 0.2 * 9 = 2.8 s (a fifth into the
-    # first gap's 1/20), and the detour loses 200 ms: the chance it loses is above 1%.
-    floored = ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0, risk_aversion=1.0,
-                           risk_level=0.1, floor_level=0.01)
-    assert not _decide([10_000.0] * 19, floored)[0]
-    assert duration_quantiles([10_000.0] * 19, 1000.0, 1000.0, [0.01]) == [2800.0]
-    # it breaks even at 3 s, the quantile 2 / 9 / 20 = 1.1%: a floor at 1.2% (3.16 s) adopts
-    assert _decide([10_000.0] * 19, ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0,
-                                                 risk_level=0.1, floor_level=0.012))[0]
     # Every earlier block lasted 2 s: the detour loses 1000 ms in 18 of 20 scenarios.
     adopted, gains = _decide([2000.0] * 19, policy)
     assert gains == pytest.approx([-1500.0] + [-1000.0] * 18 + [1000.0])
@@ -183,12 +174,12 @@ def test_adopting_a_detour_by_hand() -> None:
     assert gains[:4] == pytest.approx([-1737.5, -1500.0, -1500.0, 17_737.5])
     assert sum(gains) / 20 > 20_000 and not adopted
     bold = ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0, risk_aversion=1.0,
-                        risk_level=0.2, floor_level=0.0)
+                        risk_level=0.2)
     # 15% <= 0.2, but 20 earlier blocks cannot show it: the bound is 22.9% (Wilson, 80%)
     assert bold.adopts(gains) and not _decide(risky, bold)[0]
     assert loss_bound(0.15, 20, 0.8) == pytest.approx(0.229, abs=1e-3)
     assert _decide(risky, ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0,
-                                       risk_level=0.25, floor_level=0.0))[0]
+                                       risk_level=0.25))[0]
 
 
 def test_shadow_solves_assume_the_quantiles_in_turn_from_the_first_report() -> None:

@@ -570,11 +570,7 @@ class Executor:
         self._check_plan(plan, cells, headings)
         adg = self._adg_of(plan)
         evidence = min((self.blocks.evidence(c) for c in self.blocks.open), default=math.inf)
-        floored = policy.floor_level > 0
-        gains = self._shadow_gains(adg, start, policy.levels + (
-            (policy.floor_level,) if floored else ()))
-        floor = gains.pop() if floored else math.inf
-        if not policy.adopts(gains, evidence, floor):
+        if not policy.adopts(self._shadow_gains(adg, start, policy.levels), evidence):
             return False
         self._ready = plan
         self._trigger(policy.name)

@@ -153,13 +153,11 @@ class ShadowPolicy(NoReplan):
                  risk_level: float = PAPER.shadow_risk_level,
                  scenarios: int = PAPER.shadow_scenarios,
                  risk_confidence: float = PAPER.shadow_risk_confidence,
-                 assumptions: int = PAPER.shadow_assumptions,
-                 floor_level: float = PAPER.shadow_floor_level) -> None:
+                 assumptions: int = PAPER.shadow_assumptions) -> None:
         if not (risk_aversion >= 0 and 0 <= risk_level <= 1 and scenarios >= 1
-                and 0.5 <= risk_confidence < 1 and assumptions >= 1 and 0 <= floor_level < 1):
+                and 0.5 <= risk_confidence < 1 and assumptions >= 1):
             raise ValueError("need risk_aversion >= 0, 0 <= risk_level <= 1, scenarios >= 1, "
-                             "0.5 <= risk_confidence < 1, assumptions >= 1, "
-                             "0 <= floor_level < 1")
+                             "0.5 <= risk_confidence < 1, assumptions >= 1")
         self.margin_ms = float(margin_ms)
         self.period_ms = float(period_ms)
         self.min_slack_ms = float(min_slack_ms)
@@ -168,7 +166,6 @@ class ShadowPolicy(NoReplan):
         self.scenarios = float(int(scenarios))  # (a journal's snapshot keeps floats)
         self.risk_confidence = float(risk_confidence)
         self.assumptions = float(int(assumptions))
-        self.floor_level = float(floor_level)
         self.turn = 0.0
         """How many shadow solves were asked (which assumption the next one makes)."""
 
@@ -188,8 +185,7 @@ class ShadowPolicy(NoReplan):
         self.turn += 1.0
         return level
 
-    def adopts(self, gains: Sequence[float], evidence: float = math.inf,
-               floor_gain: float = math.inf) -> bool:
+    def adopts(self, gains: Sequence[float], evidence: float = math.inf) -> bool:
         """Adopt a plan whose gain in the equally likely scenarios is ``gains`` (ms) if its
         expected gain, less ``risk_aversion`` times its expected regret against keeping the
         plan (the mean loss where it loses), is at least the margin, and the chance that it
@@ -197,11 +193,8 @@ class ShadowPolicy(NoReplan):
         how many earlier blocks the scenarios rest on (those that lasted longer than the
         block has); a plan that loses in any scenario must keep the chance of a loss within
         ``risk_level`` with ``risk_confidence`` (:func:`loss_bound`): a short history cannot
-        show that blocks rarely end soon. ``floor_gain`` is the gain if every block ends at
-        the ``floor_level`` quantile of its end, earlier than every scenario (0: no floor): a
-        plan that loses then is not adopted, so a plan that gains more the longer the blocks
-        last is worse than keeping the plan with a chance of at most ``floor_level``."""
-        if not gains or floor_gain < 0:
+        show that blocks rarely end soon."""
+        if not gains:
             return False
         n = len(gains)
         mean = sum(gains) / n
