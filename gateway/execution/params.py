@@ -56,9 +56,6 @@ class ExecutionParams:
     ``shadow_risk_level`` with this confidence, given how many earlier blocks it rests on."""
     shadow_scenarios: int = 20
     """The equally likely scenarios of the blocks' ends shadow planning weighs."""
-    shadow_assumptions: int = 3
-    """Shadow planning's solves assume, in turn, the blocks end at this many quantiles of
-    their durations."""
     oracle_step_ms: float = 250.0
     """The step of the oracle's sweep of forced replans (``fleetgate experiment --oracle``)."""
 

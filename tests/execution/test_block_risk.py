@@ -180,39 +180,3 @@ def test_adopting_a_detour_by_hand() -> None:
     assert loss_bound(0.15, 20, 0.8) == pytest.approx(0.229, abs=1e-3)
     assert _decide(risky, ShadowPolicy(margin_ms=1000.0, min_slack_ms=1000.0,
                                        risk_level=0.25))[0]
-
-
-def test_shadow_solves_assume_the_quantiles_in_turn_from_the_first_report() -> None:
-    """The first shadow solve is asked at the tick of the block's first report (no slack
-    yet); each keeps the blocked cell free until the next quantile of the block's end (given
-    how long it has lasted): the median, then the shorter, then the longer of three equally
-    likely bins."""
-    policy = ShadowPolicy(period_ms=500.0, assumptions=3)
-    history = [3000.0, 7000.0, 20_000.0]
-    ex = Executor(Plan.of([[(0, 0), (1, 0), (2, 0)]]), policy=policy, block_history=history)
-    ex.start(0.0)
-    ex.drain()
-    ex.blocked(0, 0, 0, 0.0)
-    ends = []
-    for now in (0.0, 500.0, 1000.0, 1500.0):
-        ex.tick(now)
-        (request,) = [c for c in ex.drain() if isinstance(c, SolveRequest)]
-        assert request.shadow and request.start_ms == now
-        ((cell, end),) = request.obstacles
-        assert cell == (1, 0)
-        ends.append(end)
-        ex.shadow_solved(None, now)
-    levels = [0.5, 1 / 6, 5 / 6, 0.5]
-    assert ends == pytest.approx([duration_quantiles(history, t, 1000.0, [q])[0]
-                                  for t, q in zip((0.0, 500.0, 1000.0, 1500.0), levels,
-                                                  strict=True)])
-    # by hand: lasted 0 s, the gaps (0, 3), (3, 7), (7, 20) s and beyond hold 1/4 each: the
-    # median is 7 s; lasted 0.5 s, 1/6 is 2/3 into the first gap, (0.5, 3) s
-    assert ends[:2] == pytest.approx([7000.0, 500.0 + 2500.0 * 2 / 3])
-
-
-def test_one_assumption_is_the_median() -> None:
-    policy = ShadowPolicy(assumptions=1)
-    assert [policy.next_assumption() for _ in range(3)] == [0.5, 0.5, 0.5]
-    with pytest.raises(ValueError):
-        ShadowPolicy(assumptions=0)

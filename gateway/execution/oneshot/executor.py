@@ -774,21 +774,19 @@ class Executor:
 
     def _maybe_shadow(self, policy: ShadowPolicy) -> None:
         """Ask for a shadow solve if none is outstanding, the last was asked at least the
-        policy's period ago, and a block is open or the fleet is delayed (its slack at least
-        the policy's minimum); the solve keeps robots off each open block until the quantile
-        of its end the policy assumes next."""
+        policy's period ago, and the fleet is delayed (its slack, or a block lasting, at
+        least the policy's minimum)."""
         if self._shadow is not None or self._now < self._next_shadow_ms:
             return
-        if not self.blocks.open and self.monitor.fleet_slack() < policy.min_slack_ms:
+        lasted = max((self._now - since for since in self.blocks.open.values()), default=0.0)
+        if max(lasted, self.monitor.fleet_slack()) < policy.min_slack_ms:
             return
         cells, headings, start = self._stop_config()
         self._shadow = (cells, headings)
         self._next_shadow_ms = self._now + policy.period_ms
-        level = policy.next_assumption()
-        ends = ((c, self.blocks.end_quantiles(c, (level,))[0]) for c in sorted(self.blocks.open))
         self._out.append(SolveRequest(cells, self._goals, headings,
-                                      tuple((c, end) for c, end in ends if end > start),
-                                      shadow=True, start_ms=start))
+                                      self.blocks.obstacles(start), shadow=True,
+                                      start_ms=start))
 
     def _maybe_solve(self) -> None:
         """In STOPPING, once every robot is idle: adopt the shadow plan the replan was decided

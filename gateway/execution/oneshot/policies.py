@@ -130,12 +130,9 @@ class InformedReplan(SlackReplan):
 
 
 class ShadowPolicy(NoReplan):
-    """Shadow planning (:mod:`gateway.execution.oneshot.shadow`): while a block is open or
-    the fleet is delayed, solve in the background, informed, from where the robots would stop,
-    each solve assuming the blocks end at another quantile of their durations
-    (:meth:`next_assumption`: a plan that assumes a short block risks little if it lasts,
-    one that assumes a long block saves more if it does); adopt a plan only if it pays under
-    the uncertainty of the blocks' ends (:meth:`adopts`).
+    """Shadow planning (:mod:`gateway.execution.oneshot.shadow`): while the fleet is delayed,
+    solve in the background, informed, from where the robots would stop; adopt the plan only if it
+    pays under the uncertainty of the blocks' ends (:meth:`adopts`).
 
     The gain (sum of completion times saved, the stop included) is estimated in one scenario
     per level of :attr:`levels`: every open block ends at that quantile of its duration, the
@@ -152,12 +149,11 @@ class ShadowPolicy(NoReplan):
                  risk_aversion: float = PAPER.shadow_risk_aversion,
                  risk_level: float = PAPER.shadow_risk_level,
                  scenarios: int = PAPER.shadow_scenarios,
-                 risk_confidence: float = PAPER.shadow_risk_confidence,
-                 assumptions: int = PAPER.shadow_assumptions) -> None:
+                 risk_confidence: float = PAPER.shadow_risk_confidence) -> None:
         if not (risk_aversion >= 0 and 0 <= risk_level <= 1 and scenarios >= 1
-                and 0.5 <= risk_confidence < 1 and assumptions >= 1):
+                and 0.5 <= risk_confidence < 1):
             raise ValueError("need risk_aversion >= 0, 0 <= risk_level <= 1, scenarios >= 1, "
-                             "0.5 <= risk_confidence < 1, assumptions >= 1")
+                             "0.5 <= risk_confidence < 1")
         self.margin_ms = float(margin_ms)
         self.period_ms = float(period_ms)
         self.min_slack_ms = float(min_slack_ms)
@@ -165,25 +161,12 @@ class ShadowPolicy(NoReplan):
         self.risk_level = float(risk_level)
         self.scenarios = float(int(scenarios))  # (a journal's snapshot keeps floats)
         self.risk_confidence = float(risk_confidence)
-        self.assumptions = float(int(assumptions))
-        self.turn = 0.0
-        """How many shadow solves were asked (which assumption the next one makes)."""
 
     @property
     def levels(self) -> tuple[float, ...]:
         """The probability levels of the scenarios (equally likely)."""
         n = int(self.scenarios)
         return tuple((k + 0.5) / n for k in range(n))
-
-    def next_assumption(self) -> float:
-        """The probability level of the blocks' ends the next shadow solve assumes (its
-        obstacles last until that quantile): the ``assumptions`` midpoints of equally likely
-        bins in turn, the median first, then outwards, shorter before longer."""
-        n = int(self.assumptions)
-        order = sorted(((k + 0.5) / n for k in range(n)), key=lambda q: (abs(q - 0.5), q))
-        level = order[int(self.turn) % n]
-        self.turn += 1.0
-        return level
 
     def adopts(self, gains: Sequence[float], evidence: float = math.inf) -> bool:
         """Adopt a plan whose gain in the equally likely scenarios is ``gains`` (ms) if its
