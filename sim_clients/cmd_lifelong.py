@@ -15,6 +15,8 @@ SCHEDULER_CHOICES = ("shortest",)
 light."""
 MAX_WAIT_TICKS = 600
 """``sim_clients.lifelong.MAX_WAIT_TICKS`` (a test checks), named here for the same reason."""
+LANES = 3
+"""``sim_clients.lifelong.LANES`` (a test checks), named here for the same reason."""
 
 
 def _planner_time(text: str) -> str | float:
@@ -124,8 +126,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--lanes", type=int, default=None, metavar="PENALTY",
                    help="guide the turning planner by crisscross lanes (even rows east, odd "
                         "rows west, even columns south, odd columns north): a move against its "
-                        "lane costs PENALTY half-moves more; 0: no lanes (default: 1 where the "
-                        "exact tables fit the planner's 2 GB, else none)")
+                        "lane costs PENALTY half-moves more; 0: no lanes (default: "
+                        f"{LANES} where the exact tables fit the planner's 2 GB, else none)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
     p.add_argument("--delay-seed", type=int, default=None, metavar="SEED",
                    help="seed of the delay model (default: the problem's delayConfig seed)")

@@ -63,13 +63,14 @@ all of 10,000 robots' unstarted tasks at every call made the matching 2-4 s of C
 PLANNER_BUDGET = 2 << 30
 """Bytes of the planner's table cache (exact tables over the turning states when two per robot
 fit: what ``lanes`` needs)."""
-LANES = 1
-"""The default crisscross lanes' penalty (:mod:`gateway.planning.guidance`) of a run whose
-exact tables fit :data:`PLANNER_BUDGET` (else none). Against none, at load 18-25: the shared
-LoRR problems (600 ticks, mean over delay seeds) maze 75.7 -> 84.3 tasks (3 seeds), random 456
--> 506 (2), room 124.3 -> 125.3 (8; over the first 3 121.3 -> 120.3), city 246.3 -> 251.3
-(3); random-400 under the 2024 rules 445.2 -> 493.8 (5 planner seeds; penalty 3: 497.8, 4:
-499.8, 6: 486.4); the generated 1,000-robot warehouse (600 s) 2,058 -> 2,641."""
+LANES = 3
+"""The default crisscross lanes' penalty (:mod:`gateway.planning.guidance`: a move against its
+lane costs 2.5 moves) of a run whose exact tables fit :data:`PLANNER_BUDGET` (else none).
+Shared LoRR problems, 600 ticks, delay seeds 0-2, load 14-25, tasks without lanes / penalty 1
+/ penalty 3: maze 75.7 / 84.3 / 84.7, room 121.3 / 120.3 / 136.7 (seeds 0-7: 124.3 / 125.3 /
+132.9), random 456 (2 seeds) / 499.7 / 500.0, city 246.3 / 251.0 / 250.0; random-400 under
+the 2024 rules (planner seeds 0-4) 445.2 / 493.8 / 497.8 (penalty 4: 499.8, 6: 486.4; room
+penalty 5: 131.0, maze 83.3)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
