@@ -45,6 +45,12 @@ MAX_PUSH_DEPTH = 64
 """Longest chain of robots asked to move away within one timestep."""
 
 
+def exact_fits(grid: Grid, robots: int, budget_bytes: int) -> bool:
+    """Whether two exact tables over the ``turning`` states per robot (of ``robots``, 32 at
+    least) fit ``budget_bytes``: :class:`StateSpace`'s default for ``exact``."""
+    return 2 * max(robots, 32) * 8 * grid.size <= budget_bytes
+
+
 class StateSpace:
     """The planner's state graph on a grid: successors per state, and distance tables.
 
@@ -71,7 +77,7 @@ class StateSpace:
         self.turning = turning
         n = grid.size
         if exact is None:
-            exact = 2 * max(robots, 32) * 8 * n <= budget_bytes
+            exact = exact_fits(grid, robots, budget_bytes)
         self.exact = turning and exact
         """Whether tables are over the states (else over the free cells)."""
         if guidance is not None and not self.exact:
