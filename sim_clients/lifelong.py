@@ -139,6 +139,7 @@ class LifelongConfig:
     station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
     lanes: int | None = None  # penalty of a move against its crisscross lane
     # (gateway.planning.guidance; turning, exact tables); 0: no lanes; None: LANES if they fit
+    crowd: bool = True  # tables guided by the crowd (StateSpace.guide) where they are exact
     warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     seed: int = 0
     output_window: int = 1000
@@ -204,7 +205,11 @@ def run_lifelong(cfg: LifelongConfig,
         raise ValueError("lanes guide the turning model only")
     space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
                        guidance=crisscross(grid, lanes) if lanes else None)
-    planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space)
+    guided = cfg.crowd and space.exact  # the crowd weighs exact tables (lanes 0: none)
+    if guided and not lanes:
+        space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
+                           guidance=crisscross(grid, 0))
+    planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space, guided=guided)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)
