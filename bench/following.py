@@ -12,9 +12,10 @@ the same step (the 2024 rules allow that; swaps stay forbidden), everything else
 A third run, :class:`GhostPIBT`, is free flow (robots pass through each other): what the
 scheduler and the turns allow without any congestion. Each step of the first two is checked
 (no two robots on a cell, no swap; the 1-robust run also: nobody enters a cell held the step
-before). Prints one result line: tasks finished per planner seed by each, and ``ratio`` =
-following / 1-robust (how much the rule costs, at the same planner), beside the 2024
-winner's 698 tasks.
+before). ``--lanes P``: every planner guided by crisscross lanes of penalty P
+(:mod:`gateway.planning.guidance`). Prints one result line: tasks finished per planner seed
+by each, and ``ratio`` = following / 1-robust (how much the rule costs, at the same
+planner), beside the 2024 winner's 698 tasks.
 
     nice -n 10 .venv/bin/python bench/following.py --seeds 3
 """
@@ -35,6 +36,7 @@ from pathlib import Path
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool
+from gateway.planning.guidance import crisscross
 from gateway.planning.lorr import LorrProblem, read_problem
 from gateway.planning.pibt import (
     MAX_PUSH_DEPTH,
@@ -118,12 +120,13 @@ PLANNERS: dict[str, type[WindowedPIBT]] = {"robust": WindowedPIBT,
 
 
 def pure_run(problem: LorrProblem, planner: str, seed: int, steps: int,
-             scheduler: str) -> int:
+             scheduler: str, lanes: int = 0) -> int:
     """Tasks finished in ``steps`` steps of the pure simulation with the planner of
-    :data:`PLANNERS` (see the module doc)."""
+    :data:`PLANNERS` (see the module doc), guided by crisscross ``lanes`` if not 0."""
     n = problem.team_size
     grid = problem.grid
-    space = StateSpace(grid, True, robots=n)
+    space = StateSpace(grid, True, robots=n, exact=True if lanes else None,
+                       guidance=crisscross(grid, lanes) if lanes else None)
     pibt = PLANNERS[planner](space, n, seed=seed)
     distances = TaskDistances(grid)
     pool = TaskPool(problem.tasks, max(1, int(problem.num_tasks_reveal * n)),
@@ -151,12 +154,17 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3, help="planner seeds (tie-breaks)")
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--scheduler", choices=sorted(SCHEDULERS), default="shortest")
+    ap.add_argument("--lanes", type=int, default=0, metavar="PENALTY",
+                    help="guide the planners by crisscross lanes (gateway/planning/guidance.py; "
+                         "default 0: none)")
     ap.add_argument("--lorr", type=Path, default=SHARED,
                     help="the shared LoRR problems (default ../shared/lorr beside the repo)")
     ap.add_argument("--json", action="store_true", help="print one JSON line")
     args = ap.parse_args()
     if args.seeds < 1 or args.steps < 1:
         ap.error("--seeds and --steps must be at least 1")
+    if args.lanes < 0:
+        ap.error("--lanes must be at least 0")
     blocking = next((q for q in (args.lorr, *args.lorr.parents) if q.exists()), None)
     if blocking is not None and not blocking.is_dir():
         ap.error(f"--lorr: {blocking} is not a folder")
@@ -167,16 +175,16 @@ def main() -> None:
     problem = read_problem(args.lorr / PROBLEM)
     problem = dataclasses.replace(problem, agent_counter=1,
                                   delay=dataclasses.replace(problem.delay, p_delay=0.0))
-    runs = {name: [pure_run(problem, name, s, args.steps, args.scheduler)
+    runs = {name: [pure_run(problem, name, s, args.steps, args.scheduler, args.lanes)
                    for s in range(args.seeds)] for name in PLANNERS}
     mean = {name: statistics.mean(got) for name, got in runs.items()}
     out: dict[str, object] = {
-        "steps": args.steps, "scheduler": args.scheduler, **runs,
+        "steps": args.steps, "scheduler": args.scheduler, "lanes": args.lanes, **runs,
         "ratio": round(mean["following"] / mean["robust"], 3) if mean["robust"] else None,
         **{f"{name}_vs_winner": round(m / WINNER, 3) for name, m in mean.items()}}
     print(json.dumps(out) if args.json else
           f"following: random-400 under the 2024 rules, {args.steps} steps, pure PIBT "
-          f"simulation: 1-robust {runs['robust']} tasks, following allowed "
+          f"simulation, lanes {args.lanes}: 1-robust {runs['robust']} tasks, following allowed "
           f"{runs['following']}: ratio {out['ratio']}; free flow (robots pass through each "
           f"other) {runs['ghost']}; vs the 2024 winner's {WINNER}: "
           f"{out['robust_vs_winner']}, {out['following_vs_winner']}, "

@@ -84,7 +84,7 @@ from gateway.server.runs.shift_journal import (
     replay_shift,
 )
 from gateway.server.runs.task_journal import TaskJournal
-from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from sim_clients.lifelong import LANES, LifelongConfig, lorr_output, run_lifelong
 from sim_clients.lifelong_scale import (
     ARCHIVE_ENV,
     INSTANCES,
@@ -113,18 +113,13 @@ RULES_2024 = ("random", 698)
 """The 2024-rules conversion of random-example_400 (one tick per action, no delays, 200
 steps) and the tasks the LoRR 2024 winner (EPIBT) finished on it, built and run here under
 those rules (issue 28)."""
-LANES_2024 = 1
-"""The crisscross lanes' penalty of the 2024-rules run (:mod:`gateway.planning.guidance`: a
-move against its lane costs 1.5 moves): 437.7 -> 479 tasks over planner seeds 0-2 (penalty
-2: 479.3)."""
 
 
-def shared_run(problem: LorrProblem, ticks: int, scheduler: str, seed: int = 0,
-               lanes: int = 0) -> dict[str, Any]:
-    """One run of ``problem`` (``seed``: the planner's; ``lanes``: as
-    :class:`~sim_clients.lifelong.LifelongConfig`'s): tasks finished, planner CPU (total and
+def shared_run(problem: LorrProblem, ticks: int, scheduler: str, seed: int = 0
+               ) -> dict[str, Any]:
+    """One run of ``problem`` (``seed``: the planner's): tasks finished, planner CPU (total and
     longest call) and the assignment waits, its output checked by the independent checker."""
-    cfg = LifelongConfig(problem, ticks=ticks, scheduler=scheduler, seed=seed, lanes=lanes)
+    cfg = LifelongConfig(problem, ticks=ticks, scheduler=scheduler, seed=seed)
     res = run_lifelong(cfg)
     check_output(lorr_output(cfg, res), read_free(format_map(problem.grid)))
     return {"finished": res.finished, "cpu_s": round(sum(res.planner_times), 2),
@@ -162,7 +157,7 @@ def shared_runs(shared: Path, ticks: int, seeds: int, schedulers: Sequence[str]
 def rules_2024_run(shared: Path, scheduler: str, seeds: int) -> dict[str, Any]:
     """random-example_400 under the LoRR 2024 rules (one tick per action, no delays, 200
     steps; fleetgate keeps its own no-following safety; the planner guided by crisscross
-    lanes, :data:`LANES_2024`) against the 2024 winner's tasks, with
+    lanes, :data:`~sim_clients.lifelong.LANES`) against the 2024 winner's tasks, with
     ``seeds`` planner seeds (without delays one run is the luck of its tie-breaks and of one
     tick of first-call latency: 416 to 456 tasks over five seeds): tasks per seed, mean, min
     and their ratios."""
@@ -170,11 +165,11 @@ def rules_2024_run(shared: Path, scheduler: str, seeds: int) -> dict[str, Any]:
     problem = read_problem(shared / REFERENCE[name][0])
     problem = dataclasses.replace(problem, agent_counter=1,
                                   delay=dataclasses.replace(problem.delay, p_delay=0.0))
-    runs = [shared_run(problem, 200, scheduler, seed, LANES_2024) for seed in range(seeds)]
+    runs = [shared_run(problem, 200, scheduler, seed) for seed in range(seeds)]
     finished = [r["finished"] for r in runs]
     avg = sum(finished) / seeds
     return {"problem": f"{name} (2024 rules, 200 steps)", "scheduler": scheduler,
-            "lanes": LANES_2024,
+            "lanes": LANES,
             "finished": finished, "mean": round(avg, 1), "min": min(finished),
             "winner": winner, "ratio": round(avg / winner, 3),
             "min_ratio": round(min(finished) / winner, 3),

@@ -37,7 +37,12 @@ right after each finish record), from that finish sent to the action received. `
 ``--journaled`` makes the one run journaled. ``--workers N`` runs the gateway with N worker
 processes serving the robots' websockets (docs/workers.md): ``gateway_cpu_ms_per_action`` then
 counts the workers' CPU too, split into ``owner_process_cpu_ms_per_action`` and
-``workers_cpu_ms_per_action``; the 10-robot baseline runs with the same workers.
+``workers_cpu_ms_per_action``; the 10-robot baseline runs with the same workers. With
+``--pairs P`` (P > 1) it runs P pairs of one-process and worker runs interleaved ABBA and adds
+``workers_cpu_per_action_ratio``, ``workers_owner_process_cpu_ratio``, ``workers_p99_ratio``
+and ``workers_rate_ratio`` (with workers / without).
+
+    .venv/bin/python bench/load.py --robots 2000 --lookahead 1 --journaled --workers 1 --pairs 2
 
 CPU: ``gateway_cpu_ms_per_action`` is the whole gateway process's CPU time from listening to
 the end of the run per plan action; ``owner_cpu_ms_per_action`` only the owner task's own work
@@ -747,7 +752,8 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
         lost = len(dispatched - set(got))
     t0 = time.process_time()
     virtual = run_lifelong(LifelongConfig(problem, ticks=seconds, period=1, tick_ms=1000.0,
-                                          seed=seed, window=window)) if reference else None
+                                          seed=seed, window=window, lanes=0)
+                           ) if reference else None  # no lanes: the gateway's planner has none
     virtual_cpu = time.process_time() - t0
     minutes = gateway.get("elapsed_ms", 0.0) / 60_000.0
     network_rate = gateway.get("finished", 0) / minutes if minutes else 0.0
@@ -900,6 +906,34 @@ def uvloop_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: 
             "asyncio_load_1min_runs": [r["load_1min"] for r in plain]}
 
 
+def workers_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
+                 pairs: int, workers: int, journal: bool, generators: int) -> dict[str, Any]:
+    """``pairs`` runs of the gateway in one process and with ``workers`` worker processes,
+    interleaved ABBA: the median run with workers plus, with workers / without (the median of
+    each side), ``workers_cpu_per_action_ratio`` (the whole gateway's: > 1 costs more),
+    ``workers_owner_process_cpu_ratio`` (the owner process's against the one process's),
+    ``workers_p99_ratio`` and ``workers_rate_ratio`` (served actions per second)."""
+    one, split = interleaved(pairs, lambda w: run_once(
+        robots, seconds, seed, jitter, lookahead, journal=journal, generators=generators,
+        workers=workers if w else 0))
+    for r in one:  # one process: the owner process is the whole gateway
+        r["owner_process_cpu_ms_per_action"] = r["gateway_cpu_ms_per_action"]
+    key = "gateway_cpu_ms_per_action"
+    result = sorted(split, key=lambda r: r[key])[(pairs - 1) // 2]
+    return {**result, "pairs": pairs,
+            "workers_cpu_per_action_ratio": median_ratio(key, split, one),
+            "workers_owner_process_cpu_ratio": median_ratio("owner_process_cpu_ms_per_action",
+                                                            split, one),
+            "workers_p99_ratio": median_ratio("p99_ms", split, one),
+            "workers_rate_ratio": median_ratio("achieved_per_s", split, one),
+            "p99_ms_runs": [r["p99_ms"] for r in split],
+            "one_process_p99_ms_runs": [r["p99_ms"] for r in one],
+            "achieved_per_s_runs": [r["achieved_per_s"] for r in split],
+            "one_process_achieved_per_s_runs": [r["achieved_per_s"] for r in one],
+            "load_1min_runs": [r["load_1min"] for r in split],
+            "one_process_load_1min_runs": [r["load_1min"] for r in one]}
+
+
 def holds(result: dict[str, Any]) -> bool:
     """p99 within the limit, nothing lost or duplicated."""
     p99 = result["p99_ms"]
@@ -957,8 +991,8 @@ def main() -> int:
                         "interleaved, and prints p99_journal_ratio; the baseline run is "
                         "journaled")
     p.add_argument("--pairs", type=int, default=1,
-                   help="with --journal or --against (--lifelong too): how many runs of each "
-                        "(default 1)")
+                   help="with --journal, --against or --workers (--lifelong too): how many runs "
+                        "of each (default 1)")
     p.add_argument("--against", type=Path, metavar="DIR",
                    help="also run the gateway of another version's checkout DIR (e.g. `git "
                         "worktree add DIR 1045d02`), interleaved with this one, and print "
@@ -1032,8 +1066,8 @@ def main() -> int:
     if args.workers < 0:
         p.error("--workers must be >= 0")
     if args.workers and (args.against or args.journal or args.uvloop or args.lifelong):
-        p.error("--workers is for one run or --find-max: not with --against, --journal, "
-                "--uvloop or --lifelong")
+        p.error("--workers is for one run, --pairs or --find-max: not with --against, "
+                "--journal, --uvloop or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.vda5050 and not args.lifelong:
@@ -1075,6 +1109,9 @@ def main() -> int:
         result = against_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.pairs, args.against.resolve(),
                               args.journal, gens)
+    elif args.workers and args.pairs > 1:
+        result = workers_cost(args.robots, args.seconds, args.seed, args.jitter,
+                              args.lookahead, args.pairs, args.workers, args.journaled, gens)
     elif args.uvloop:
         result = uvloop_cost(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
                              args.pairs, args.journal, gens)

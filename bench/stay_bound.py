@@ -10,6 +10,12 @@ the same run) with at most ``--budget`` of the experiments worse than not replan
 replans from the block's first report (what an online policy can know), from one second
 after it, and from ``T_a`` (knowing the cell as early as the clairvoyant), and the never-losing
 choice's capture. ``--tables FILE`` also writes each experiment's savings table (JSON lines).
+
+``--switches 1|2`` also bounds policies that decide more than once
+(:mod:`experiments.stay_paths`): up to that many switches while the block lasts (the second
+to a longer assumed stay, every ``--second-step`` s), each path settled when the block ends by
+the better of keeping its plan and replanning back; the line then adds the best such
+policy's capture, with 1 switch and with 2.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import numpy as np
 
 from experiments.campaign import InstanceRecord, SimSettings, load_grid, variant_config
 from experiments.stay_bound import Bound, GainTable, best_capture, gain_table, stay_grid
+from experiments.stay_paths import PathTable, best_path_capture, path_table
 from fleetgate.userio.exits import CommandParser, run_main
 from fleetgate.userio.files import write_text
 from gateway.planning.seeds import derive_seed
@@ -40,6 +47,14 @@ def _line(label: str, got: Bound) -> str:
             f"{median}, never-losing {100 * got.never_losing:.1f}%)")
 
 
+def _paths_line(paths: list[PathTable], budget: float, switches: int) -> str:
+    capture, worse, median = best_path_capture(paths, budget, switches)
+    safe = best_path_capture(paths, 0.0, switches)[0]
+    shown = "n/a" if median is None else f"{100 * median:.0f}%"
+    return (f"up to {switches} switch(es), replanning back: capture {100 * capture:.1f}% "
+            f"(worse {100 * worse:.2f}%, median {shown}, never-losing {100 * safe:.1f}%)")
+
+
 def main() -> None:
     """Simulate the sample and print the result line."""
     p = CommandParser(description=__doc__)
@@ -52,6 +67,10 @@ def main() -> None:
                    help="the assumed stays, as quantile levels of the distribution")
     p.add_argument("--maps-dir", default=None)
     p.add_argument("--tables", type=Path, default=None, help="write the savings tables here")
+    p.add_argument("--switches", type=int, default=0,
+                   help="also bound policies with up to this many switches (0, 1 or 2)")
+    p.add_argument("--second-step", type=float, default=2.0,
+                   help="seconds between the second switch's times (default 2)")
     args = p.parse_args()
     try:
         settings = json.loads((args.folder / "campaign.json").read_text())
@@ -62,8 +81,10 @@ def main() -> None:
         raise UsageError(f"{args.folder}: not a campaign folder ({exc})") from None
     if not settings.get("intruder_stay"):
         raise UsageError(f"{args.folder}: the campaign has the paper's fixed stay")
-    if not (args.points >= 2 and args.sample >= 1 and 0 <= args.budget < 1):
-        raise UsageError("need --points >= 2, --sample >= 1 and 0 <= --budget < 1")
+    if not (args.points >= 2 and args.sample >= 1 and 0 <= args.budget < 1
+            and args.switches in (0, 1, 2) and args.second_step > 0):
+        raise UsageError("need --points >= 2, --sample >= 1, 0 <= --budget < 1, --switches "
+                         "0, 1 or 2 and --second-step > 0")
     spec = parse_stay(settings["intruder_stay"])
     levels = [float(x) for x in args.assumed.split(",")]
     grid = stay_grid(spec, args.points)
@@ -74,6 +95,7 @@ def main() -> None:
     rng = np.random.default_rng(derive_seed(int(settings["seed"]), "stay-bound"))
     picked = sorted(rng.permutation(len(keys))[:args.sample].tolist())
     tables: list[GainTable] = []
+    paths: list[PathTable] = []
     began = time.process_time()
     for j in picked:
         m, n, i, seed = keys[j]
@@ -85,15 +107,22 @@ def main() -> None:
             raise UsageError(f"{args.folder}: {m}-{n}-{i}: {exc}") from None
         config = variant_config(load_grid(str(path)), rec.plan, seed, "intruder", sim)
         tables.append(gain_table(config, keys[j], grid, assumed_s))
+        if args.switches:
+            paths.append(path_table(config, keys[j], grid, assumed_s, tables[-1].clairvoyant,
+                                    second_step_ms=1000.0 * args.second_step,
+                                    switches=args.switches))
     if args.tables is not None:
-        write_text(args.tables, "".join(json.dumps(t.to_json()) + "\n" for t in tables))
+        rows = [t.to_json() for t in tables] + [t.to_json() for t in paths]
+        write_text(args.tables, "".join(json.dumps(r) + "\n" for r in rows))
     first = best_capture(tables, args.budget, 0.0)
     print(f"stay_bound: {len(tables)} experiments of {args.folder.name} (stay {spec.text}, "
           f"{args.points} stays, clairvoyant saves {first.clairvoyant_ms / 1000:.2f} s mean), "
           f"best single replan vs the clairvoyant with worse <= {100 * args.budget:g}%: "
           + "; ".join([_line("from the block's report", first),
                        _line("from 1 s after it", best_capture(tables, args.budget, 1000.0)),
-                       _line("from T_a", best_capture(tables, args.budget, None))])
+                       _line("from T_a", best_capture(tables, args.budget, None)),
+                       *[_paths_line(paths, args.budget, k)
+                         for k in range(1, args.switches + 1)]])
           + f" ({time.process_time() - began:.0f} s CPU)")
 
 

@@ -23,9 +23,8 @@ clairvoyant's expected saving such that the expected share of experiments worse 
 replanning is at most ``budget`` (a Lagrangian relaxation of the choice, i.e. the linear
 program that may mix two choices in one experiment: an upper bound for this family of
 policies). The policy is allowed to know every experiment's savings table except the stay:
-far more than any real policy knows. It is an estimate, not a proof, for policies outside
-the family (several replans, replanning back when the block ends early): their extra
-choices are not simulated.
+far more than any real policy knows. Policies that decide more than once (switch again,
+replan back when the block ends early) are bounded by :mod:`experiments.stay_paths`.
 """
 
 from __future__ import annotations
@@ -56,7 +55,7 @@ def stay_grid(spec: StaySpec, points: int, samples: int = 100_000) -> tuple[floa
                  for k in range(points))
 
 
-class _Assumed(ClairvoyantSimulation):
+class Assumed(ClairvoyantSimulation):
     """A sweep fork whose forced replan keeps the intruder's cell free until its robot's
     need plus ``assumed_ms`` (the true stay when None: the clairvoyant)."""
 
@@ -106,7 +105,7 @@ def gain_table(config: SimConfig, key: ExperimentKey, stays_s: Sequence[float],
     for k, stay in enumerate(stays_s):
         cfg = dataclasses.replace(config, policy="none", max_replans=1, informed=True,
                                   intruder_stay=StaySpec("fixed", (stay,)))
-        base = _Assumed(cfg, memo)
+        base = Assumed(cfg, memo)
         base.start()
         forks: dict[tuple[float, float | None], float] = {}
         t = cfg.intruder_config.appear_ms
@@ -152,25 +151,43 @@ class Bound:
     experiments where the clairvoyant saves."""
 
 
+Options = list[tuple[float, float]]
+"""An experiment's choices: ``(expected saving ms, chance of being worse than none)`` each."""
+
+
 def best_capture(tables: Sequence[GainTable], budget: float,
                  not_before_need_ms: float | None = 0.0) -> Bound:
     """The best capture of policies that replan once, at or after the block's first report
     plus ``not_before_need_ms`` (None: from ``T_a``, knowing the cell as early as the
     clairvoyant), with an expected worse-than-none share of at most ``budget``."""
-    gains, risks, clair = [], [], []
+    options, clair = [], []
     for tab in tables:
-        e, p = [0.0], [0.0]
+        opts = [(0.0, 0.0)]
         for (t, _), g in tab.actions.items():
             if not_before_need_ms is not None and (
                     tab.need_ms is None or t < tab.need_ms + not_before_need_ms):
                 continue
             arr = np.asarray(g)
-            e.append(float(arr.mean()))
-            p.append(float((arr < 0).mean()))
-        gains.append(np.asarray(e))
-        risks.append(np.asarray(p))
+            opts.append((float(arr.mean()), float((arr < 0).mean())))
+        options.append(opts)
         clair.append(float(np.mean(tab.clairvoyant)))
-    n, total = len(tables), sum(clair)
+    capture, worse, median = choose_capture(options, clair, budget)
+    safe = choose_capture(options, clair, 0.0)[0]
+    n = len(tables)
+    return Bound(n, sum(clair) / n if n else 0.0, capture, worse, safe, median)
+
+
+def choose_capture(options: Sequence[Options], clairvoyant_ms: Sequence[float],
+                   budget: float) -> tuple[float, float, float | None]:
+    """The campaign's choice, one of ``options`` per experiment (the first must be not
+    replanning, ``(0, 0)``), that maximises the pooled capture of the clairvoyant's expected
+    savings ``clairvoyant_ms`` with an expected worse-than-none share of at most ``budget``:
+    the linear program that may mix two choices in one experiment, solved by its Lagrangian.
+    Returns the pooled capture, the worse-than-none share and the median per-experiment
+    capture over the experiments where the clairvoyant saves."""
+    gains = [np.asarray([o[0] for o in opts]) for opts in options]
+    risks = [np.asarray([o[1] for o in opts]) for opts in options]
+    n, total = len(options), float(sum(clairvoyant_ms))
 
     def pick(lam: float) -> tuple[float, float, list[int]]:
         chosen = [int(np.argmax(e - lam * p)) for e, p in zip(gains, risks, strict=True)]
@@ -184,15 +201,11 @@ def best_capture(tables: Sequence[GainTable], budget: float,
         for _ in range(200):
             mid = (lo + hi) / 2
             lo, hi = (lo, mid) if pick(mid)[1] <= budget * n else (mid, hi)
-    e_hi, p_hi, chosen = pick(hi)
+    e_hi, p_hi, chosen = pick(hi if budget > 0 else 1e15)
     e_lo, p_lo, _ = pick(lo)
     w = 0.0 if p_lo <= p_hi else min(1.0, max(0.0, (budget * n - p_hi) / (p_lo - p_hi)))
     saving, worse = w * e_lo + (1 - w) * e_hi, w * p_lo + (1 - w) * p_hi
-    safe = pick(1e15)[0]
-    shares = [float(e[j]) / c for e, j, c in zip(gains, chosen, clair, strict=True) if c > 0]
-
-    def ratio(x: float) -> float:
-        return x / total if total > 0 else 0.0
-
-    return Bound(n, total / n if n else 0.0, ratio(saving), worse / n if n else 0.0,
-                 ratio(safe), float(np.median(shares)) if shares else None)
+    shares = [float(e[j]) / c for e, j, c in zip(gains, chosen, clairvoyant_ms, strict=True)
+              if c > 0]
+    return (saving / total if total > 0 else 0.0, worse / n if n else 0.0,
+            float(np.median(shares)) if shares else None)

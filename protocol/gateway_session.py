@@ -79,7 +79,7 @@ are still recognised (``duplicate``); an older repeat is an ``unknown_action``. 
 changes nothing, and a lifelong shift's sessions stay bounded."""
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)  # not frozen (4x cheaper to build): one per message
 class ToRobot:
     """Send a message of type ``kind`` with ``fields`` on the robot's current connection."""
 
@@ -87,7 +87,7 @@ class ToRobot:
     fields: dict[str, Any]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)  # not frozen (4x cheaper to build): one per message
 class Refuse:
     """Reply ``error(code, ref, detail)`` to the sender of the message being handled."""
 
@@ -96,7 +96,7 @@ class Refuse:
     detail: str
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)  # not frozen (4x cheaper to build): one per message
 class Report:
     """Robot ``robot`` reports ``kind`` of action ``index`` of plan ``plan`` at ``t_ms``;
     ``ref`` is the report's msg_id (None for what a ``hello`` caught up); ``reason`` the

@@ -15,6 +15,8 @@ SCHEDULER_CHOICES = ("shortest",)
 light."""
 MAX_WAIT_TICKS = 600
 """``sim_clients.lifelong.MAX_WAIT_TICKS`` (a test checks), named here for the same reason."""
+LANES = 3
+"""``sim_clients.lifelong.LANES`` (a test checks), named here for the same reason."""
 
 
 def _planner_time(text: str) -> str | float:
@@ -36,7 +38,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from gateway.execution.lifelong.tasks import wait_percentiles
     from gateway.planning.lorr import LorrFormatError, read_problem
-    from gateway.planning.pibt import StateSpace
+    from gateway.planning.pibt import exact_fits
     from sim_clients.lifelong import (
         PLANNER_BUDGET,
         LifelongConfig,
@@ -50,7 +52,7 @@ def _run(args: argparse.Namespace) -> int:
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name} must be positive, got {getattr(args, name)}")
     for name in ("window", "reassign", "max_wait", "lanes"):
-        if getattr(args, name) < 0:
+        if (getattr(args, name) or 0) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, "
                              f"got {getattr(args, name)}")
     try:
@@ -61,8 +63,7 @@ def _run(args: argparse.Namespace) -> int:
         problem = dataclasses.replace(problem, delay=dataclasses.replace(problem.delay,
                                                                          seed=args.delay_seed))
     if args.lanes and (args.motion != "turning"
-                       or not StateSpace(problem.grid, True, budget_bytes=PLANNER_BUDGET,
-                                         robots=problem.team_size).exact):
+                       or not exact_fits(problem.grid, problem.team_size, PLANNER_BUDGET)):
         raise UsageError("--lanes needs the turning motion and a map whose exact tables fit "
                          f"2 GB ({problem.name}: {problem.grid.width}x{problem.grid.height}, "
                          f"{problem.team_size} robots)" if args.motion == "turning"
@@ -122,11 +123,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--reassign", type=int, default=1, metavar="CALLS",
                    help="planning calls between reassignments of tasks not started yet "
                         "(default 1: every call; 0: never)")
-    p.add_argument("--lanes", type=int, default=0, metavar="PENALTY",
+    p.add_argument("--lanes", type=int, default=None, metavar="PENALTY",
                    help="guide the turning planner by crisscross lanes (even rows east, odd "
                         "rows west, even columns south, odd columns north): a move against its "
-                        "lane costs PENALTY half-moves more (default 0: no lanes; needs the "
-                        "exact tables of a map that fits 2 GB)")
+                        "lane costs PENALTY half-moves more; 0: no lanes (default: "
+                        f"{LANES} where the exact tables fit the planner's 2 GB, else none)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
     p.add_argument("--delay-seed", type=int, default=None, metavar="SEED",
                    help="seed of the delay model (default: the problem's delayConfig seed)")

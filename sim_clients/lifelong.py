@@ -39,7 +39,7 @@ from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
 from gateway.planning.guidance import crisscross
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
-from gateway.planning.pibt import StateSpace
+from gateway.planning.pibt import StateSpace, exact_fits
 
 TICK_MS = 100.0
 """LoRR's default execution tick (``actionMoveTimeLimit``)."""
@@ -63,6 +63,14 @@ all of 10,000 robots' unstarted tasks at every call made the matching 2-4 s of C
 PLANNER_BUDGET = 2 << 30
 """Bytes of the planner's table cache (exact tables over the turning states when two per robot
 fit: what ``lanes`` needs)."""
+LANES = 3
+"""The default crisscross lanes' penalty (:mod:`gateway.planning.guidance`: a move against its
+lane costs 2.5 moves) of a run whose exact tables fit :data:`PLANNER_BUDGET` (else none).
+Shared LoRR problems, 600 ticks, delay seeds 0-2, load 14-25, tasks without lanes / penalty 1
+/ penalty 3: maze 75.7 / 84.3 / 84.7, room 121.3 / 120.3 / 136.7 (seeds 0-7: 124.3 / 125.3 /
+132.9), random 456 (2 seeds) / 499.7 / 500.0, city 246.3 / 251.0 / 250.0; random-400 under
+the 2024 rules (planner seeds 0-4) 445.2 / 493.8 / 497.8 (penalty 4: 499.8, 6: 486.4; room
+penalty 5: 131.0, maze 83.3)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -129,8 +137,9 @@ class LifelongConfig:
     reassign: int = 1  # planning calls between reassignments of unstarted tasks; 0: never
     reassign_batch: int = REASSIGN_BATCH  # robots whose unstarted task a reassignment releases
     station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
-    lanes: int = 0  # penalty of a move against its crisscross lane (gateway.planning.guidance;
-    # turning, exact tables); 0: no lanes
+    lanes: int | None = None  # penalty of a move against its crisscross lane
+    # (gateway.planning.guidance; turning, exact tables); 0: no lanes; None: LANES if they fit
+    crowd: bool = True  # tables guided by the crowd (StateSpace.guide) where they are exact
     warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     seed: int = 0
     output_window: int = 1000
@@ -189,11 +198,18 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
-    if cfg.lanes and not cfg.turning:
+    lanes = cfg.lanes
+    if lanes is None:
+        lanes = LANES if cfg.turning and exact_fits(grid, n, PLANNER_BUDGET) else 0
+    if lanes and not cfg.turning:
         raise ValueError("lanes guide the turning model only")
     space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
-                       guidance=crisscross(grid, cfg.lanes) if cfg.lanes else None)
-    planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space)
+                       guidance=crisscross(grid, lanes) if lanes else None)
+    guided = cfg.crowd and space.exact  # the crowd weighs exact tables (lanes 0: none)
+    if guided and not lanes:
+        space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
+                           guidance=crisscross(grid, 0))
+    planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space, guided=guided)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)
@@ -212,6 +228,9 @@ def run_lifelong(cfg: LifelongConfig,
     # first call would compute otherwise
     cpu0 = time.thread_time()
     distances.space.prefetch([c for task in pool.open.values() for c in task.errands[:-1]])
+    if guided:  # the crowd at the start weighs the first tables (and its search is compiled
+        # here, not in the first call: 0.6 s of CPU on a fresh machine)
+        space.guide(prob.starts, ())
     if space.exact or space.compact:  # and the planner's own tables of the first goals (the
         # city's first call took 2.5 s of CPU without them: 25 ticks before any robot moved);
         # guided tables cost five breadth-first ones: all the errands' (a first call of 0.4 s)

@@ -7,14 +7,17 @@ IJCAI 2024; the LoRR 2023 winner's WPPL, arXiv 2404.16162, optimises one instead
 run east, odd rows west, even columns south, odd columns north, and a move against its lane
 costs ``penalty`` more. Robots still go anywhere (the lanes are soft), but opposite flows
 mostly take different lanes, so fewer robots meet head-on, where the 1-robust rule and the
-cost of turning round hurt most. :func:`guided_tables` are the exact costs to a goal under a
-guidance (a Dijkstra search backwards over the states, compiled with numba as
+cost of turning round hurt most. :func:`crowded` adds the crowd of the moment: a move into a
+cell costs half a move more for each robot standing around it, and tables are searched again as
+they age (:meth:`~gateway.planning.pibt.StateSpace.guide`): on the LoRR room map, clusters of
+robots had waited 40-70 ticks on both sides of one-cell doors while other doors of the same
+wall stood empty. :func:`guided_tables` are the exact costs to a goal under a guidance (a
+Dijkstra search backwards over the states with two FIFO queues, compiled with numba as
 :mod:`gateway.planning.bfs_kernel` is).
 """
 
 from __future__ import annotations
 
-import heapq
 from collections.abc import Sequence
 
 import numpy as np
@@ -42,41 +45,112 @@ def crisscross(grid: Grid, penalty: int) -> npt.NDArray[np.int32]:
 
 
 @njit(cache=True, nogil=True)
-def _dijkstra_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
-                     sources: npt.NDArray[np.int64], bounds: npt.NDArray[np.int64],
-                     out: npt.NDArray[np.int32]) -> None:
+def _two_queue_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
+                      sources: npt.NDArray[np.int64], bounds: npt.NDArray[np.int64],
+                      out: npt.NDArray[np.int32]) -> None:
     """Fill ``out[k]`` (all -1) with the cheapest costs to the sources
     ``sources[bounds[k]:bounds[k + 1]]``: ``table`` is :func:`turning_predecessor_table`
     (columns 0 and 1 turn into the state, column 2 moves forward into it), a turn costs
-    ``MOVE``, the forward move out of state u ``forward[u]``."""
+    ``MOVE``, the forward move out of state u ``forward[u]``: ``MOVE`` or one other cost.
+
+    Dijkstra with two FIFO queues instead of a heap: states are popped in increasing cost,
+    so the costs pushed onto the queue of ``MOVE`` edges, and those pushed onto the queue of
+    the other edges, each come in increasing order, and the cheaper head of the two is the
+    next state (a stale entry, reached cheaper since, is skipped)."""
     n = table.shape[0] - 1
+    cap = 3 * n + 8
+    q_state = np.empty((2, cap), dtype=np.int64)
+    q_cost = np.empty((2, cap), dtype=np.int64)
     for k in range(bounds.shape[0] - 1):
         row = out[k]
-        heap = [(np.int64(0), np.int64(0))]
-        heap.pop()
+        head = np.zeros(2, dtype=np.int64)
+        tail = np.zeros(2, dtype=np.int64)
         for i in range(bounds[k], bounds[k + 1]):
             s = sources[i]
             row[s] = 0
-            heapq.heappush(heap, (np.int64(0), s))
-        while heap:
-            d, v = heapq.heappop(heap)
+            q_state[0, tail[0]] = s
+            q_cost[0, tail[0]] = 0
+            tail[0] += 1
+        while head[0] < tail[0] or head[1] < tail[1]:
+            q = 0
+            if head[0] == tail[0] or (head[1] < tail[1]
+                                      and q_cost[1, head[1]] < q_cost[0, head[0]]):
+                q = 1
+            v = q_state[q, head[q]]
+            d = q_cost[q, head[q]]
+            head[q] += 1
             if d > row[v]:
                 continue
             for j in range(3):
                 u = table[v, j]
                 if u >= n:
                     continue
-                nd = d + (MOVE if j < 2 else forward[u])
+                step = MOVE if j < 2 else forward[u]
+                nd = d + step
                 if row[u] < 0 or nd < row[u]:
                     row[u] = nd
-                    heapq.heappush(heap, (nd, np.int64(u)))
+                    p = 0 if step == MOVE else 1
+                    q_state[p, tail[p]] = u
+                    q_cost[p, tail[p]] = nd
+                    tail[p] += 1
+
+
+@njit(cache=True, nogil=True)
+def _bucket_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
+                   sources: npt.NDArray[np.int64], bounds: npt.NDArray[np.int64],
+                   out: npt.NDArray[np.int32]) -> None:
+    """:func:`_two_queue_groups` for any forward costs (:func:`crowded`'s): Dijkstra with a
+    bucket queue (Dial's), one bucket per cost modulo the dearest step plus one."""
+    n = table.shape[0] - 1
+    buckets = max(int(forward.max()), MOVE) + 1
+    cap = 3 * n + 8
+    node = np.empty(cap, dtype=np.int64)
+    link = np.empty(cap, dtype=np.int64)
+    for k in range(bounds.shape[0] - 1):
+        row = out[k]
+        first = np.full(buckets, -1, dtype=np.int64)
+        used = 0
+        pending = 0
+        for i in range(bounds[k], bounds[k + 1]):
+            s = sources[i]
+            row[s] = 0
+            node[used] = s
+            link[used] = first[0]
+            first[0] = used
+            used += 1
+            pending += 1
+        d = 0
+        while pending > 0:
+            b = d % buckets
+            e = first[b]
+            first[b] = -1
+            while e >= 0:
+                v = node[e]
+                e = link[e]
+                pending -= 1
+                if row[v] != d:
+                    continue
+                for j in range(3):
+                    u = table[v, j]
+                    if u >= n:
+                        continue
+                    nd = d + (MOVE if j < 2 else forward[u])
+                    if row[u] < 0 or nd < row[u]:
+                        row[u] = nd
+                        node[used] = u
+                        link[used] = first[nd % buckets]
+                        first[nd % buckets] = used
+                        used += 1
+                        pending += 1
+            d += 1
 
 
 def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int32]
                   ) -> npt.NDArray[np.int32]:
     """``out[k, 4 * cell + heading]``: the cheapest cost from that state to standing on cell
     ``goals[k]`` (flat ids, any heading) when a turn costs :data:`MOVE` and the forward move
-    of state u ``forward[u]`` (:func:`crisscross`); -1 if unreachable. With every forward cost
+    of state u ``forward[u]`` (:func:`crisscross`, or :func:`crowded`: any costs of at least
+    :data:`MOVE`); -1 if unreachable. With every forward cost
     :data:`MOVE` it is :data:`MOVE` times the exact timesteps."""
     if forward.shape != (4 * grid.size,):
         raise ValueError(f"a guidance of {forward.shape[0]} states for a map of "
@@ -89,6 +163,58 @@ def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int3
     if goals:
         flat = np.array([4 * g + h for g in goals for h in range(4)], dtype=np.int64)
         bounds = np.arange(0, 4 * len(goals) + 1, 4, dtype=np.int64)
-        _dijkstra_groups(turning_predecessor_table(grid), forward.astype(np.int32), flat,
-                         bounds, out)
+        two = np.unique(forward[forward != MOVE]).size <= 1  # lanes alone: two queues
+        (_two_queue_groups if two else _bucket_groups)(
+            turning_predecessor_table(grid), forward.astype(np.int32), flat, bounds, out)
     return out
+
+
+CROWD_RADIUS = 1
+"""A cell's crowd counts the robots within this many cells of it in x and y (its 3 x 3 box)."""
+CROWD_WEIGHT = MOVE // 2
+"""What each robot of a cell's crowd adds to a move into it: half a move. With the default
+lanes (penalty 3), 600 ticks, delay seeds 0-5: random 3010 -> 3150 tasks (every seed above
+every seed without), room 797 -> 805, maze 254 -> 254 (seeds 0-2), city 254 (seed 0); a
+whole move: random 2992, room 805; half a move over the 5 x 5 box: random 1529 (seeds 0-2,
+against 1500), room 790."""
+CROWD_AGE = 3
+"""Guided planning calls after which a table is searched again with the crowd of the moment
+(:meth:`~gateway.planning.pibt.StateSpace.guide`)."""
+CROWD_BUDGET = 1_000_000
+"""States a call searches again at most (61 tables of a 64 x 64 map, 3 of the 256 x 256 city
+map), so a large map's tables are refreshed a few at a time and a call stays short."""
+
+
+def crowd(grid: Grid, cells: Sequence[int], radius: int = CROWD_RADIUS
+          ) -> npt.NDArray[np.int32]:
+    """Per cell (flat id), the robots standing on ``cells`` within ``radius`` cells of it in x
+    and y (a box sum of the robots' occupancy)."""
+    h, w = grid.height, grid.width
+    occupied = np.zeros(grid.size, dtype=np.int32)
+    occupied[np.asarray(cells, dtype=np.int64)] = 1
+    sums = np.pad(occupied.reshape(h, w), radius + 1).cumsum(0).cumsum(1)
+    k = 2 * radius + 1
+    box = sums[k:k + h, k:k + w] - sums[:h, k:k + w] - sums[k:k + h, :w] + sums[:h, :w]
+    return np.ascontiguousarray(box.ravel(), dtype=np.int32)
+
+
+def crowded(grid: Grid, forward: npt.NDArray[np.int32], cells: Sequence[int]
+            ) -> npt.NDArray[np.int32]:
+    """Forward-move costs ``forward`` (:func:`crisscross`) plus :data:`CROWD_WEIGHT` for each
+    robot around the cell each move enters (:func:`crowd`, robots on ``cells``): in the manner of
+    the LoRR winners' traffic-flow guidance against congestion, so robots bound the same way
+    spread over doors and corridors instead of queueing at one."""
+    around = np.append(crowd(grid, cells), np.int32(0))  # the sentinel: no cell ahead
+    return forward + CROWD_WEIGHT * around[_ahead(grid)]
+
+
+def _ahead(grid: Grid) -> npt.NDArray[np.int64]:
+    """The cell in front of each state ``4 * cell + heading`` (``grid.size`` off the map)."""
+    cells = np.arange(grid.size)
+    x, y = cells % grid.width, cells // grid.width
+    out = np.full((grid.size, 4), grid.size, dtype=np.int64)
+    for h, (dx, dy) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
+        nx, ny = x + dx, y + dy
+        inside = (nx >= 0) & (nx < grid.width) & (ny >= 0) & (ny < grid.height)
+        out[inside, h] = (ny * grid.width + nx)[inside]
+    return out.ravel()

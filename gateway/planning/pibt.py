@@ -34,7 +34,7 @@ import numpy.typing as npt
 from gateway.planning.bfs_kernel import pack_mod3
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
-from gateway.planning.guidance import MOVE, guided_tables
+from gateway.planning.guidance import CROWD_AGE, CROWD_BUDGET, MOVE, crowded, guided_tables
 
 UNREACHABLE = 32000
 """Distance of a state that cannot reach the goal (tables are int16)."""
@@ -43,6 +43,12 @@ COMPACT_BASE = 1 << 10
 positive, as the moves of a robot not on its goal are)."""
 MAX_PUSH_DEPTH = 64
 """Longest chain of robots asked to move away within one timestep."""
+
+
+def exact_fits(grid: Grid, robots: int, budget_bytes: int) -> bool:
+    """Whether two exact tables over the ``turning`` states per robot (of ``robots``, 32 at
+    least) fit ``budget_bytes``: :class:`StateSpace`'s default for ``exact``."""
+    return 2 * max(robots, 32) * 8 * grid.size <= budget_bytes
 
 
 class StateSpace:
@@ -71,7 +77,7 @@ class StateSpace:
         self.turning = turning
         n = grid.size
         if exact is None:
-            exact = 2 * max(robots, 32) * 8 * n <= budget_bytes
+            exact = exact_fits(grid, robots, budget_bytes)
         self.exact = turning and exact
         """Whether tables are over the states (else over the free cells)."""
         if guidance is not None and not self.exact:
@@ -80,6 +86,9 @@ class StateSpace:
         """Each state's forward-move cost (:mod:`gateway.planning.guidance`; None: every
         action costs one): tables and :meth:`costs` are then in its units."""
         self._forward: list[int] = guidance.tolist() if guidance is not None else []
+        self._lanes = guidance
+        self._calls = 0  # guided calls so far (:meth:`guide`)
+        self._searched: dict[int, int] = {}  # goal -> the guided call its table is from
         self.index = free_index(grid)
         """Each cell's position in a table over the free cells (-1: obstacle)."""
         self.n_states = 4 * n if turning else n
@@ -131,6 +140,27 @@ class StateSpace:
         if missing:
             self.offer(goal_tables(self.grid, self.exact, missing, self.compact,
                                    self.guidance))
+            if self._calls:
+                self._searched.update(dict.fromkeys(missing, self._calls))
+
+    def guide(self, cells: Sequence[int], goals: Iterable[int]) -> None:
+        """A guided planning call with robots on ``cells`` (needs a :attr:`guidance`): the
+        forward costs from now on are the lanes' plus the crowd of the moment
+        (:func:`~gateway.planning.guidance.crowded`), and the oldest cached tables of ``goals``
+        searched :data:`~gateway.planning.guidance.CROWD_AGE` guided calls ago or more are
+        dropped (searched again when asked for), as many as :data:`~gateway.planning.
+        guidance.CROWD_BUDGET` states allow."""
+        if self._lanes is None:
+            raise ValueError("crowd guidance needs a guidance (lanes, or none: crisscross 0)")
+        self._calls += 1
+        self.guidance = crowded(self.grid, self._lanes, cells)  # the tables' (:meth:`costs`
+        # weighs a robot's own next move by the lanes alone: by the crowd, a move into a
+        # crowded cell, its own robot counted, would cost more than a wait, and robots froze)
+        searched, cache = self._searched, self._cache
+        stale = sorted((searched.get(g, 0), g) for g in set(goals)
+                       if g in cache and self._calls - searched.get(g, 0) >= CROWD_AGE)
+        for _, g in stale[: CROWD_BUDGET // self.n_states]:
+            del cache[g]
 
     def costs(self, table: array[int], opts: Sequence[tuple[int, int, int, int]]) -> list[int]:
         """The cost of each move of :attr:`options` ``opts`` (the wait first) towards the goal
@@ -259,8 +289,13 @@ class Window:
 class WindowedPIBT:
     """1-robust PIBT over a :class:`StateSpace`, keeping priorities between calls."""
 
-    def __init__(self, space: StateSpace, n_robots: int, seed: int = 0) -> None:
+    def __init__(self, space: StateSpace, n_robots: int, seed: int = 0,
+                 guided: bool = False) -> None:
         self.space = space
+        self.guided = guided
+        """Whether each call guides the tables by the crowd (:meth:`StateSpace.guide`; the
+        space needs a guidance): a call then depends on the calls before it, not only on its
+        inputs."""
         self.n = n_robots
         self.seed = seed
         self.rng = random.Random(seed)
@@ -297,6 +332,8 @@ class WindowedPIBT:
         cur = list(states)
         if len({cell_of[s] for s in cur}) != n:
             raise ValueError("two robots stand on the same cell")
+        if self.guided:
+            space.guide([cell_of[s] for s in cur], [g[0] for g in goals if g])
         space.prefetch([g[0] for g in goals if g])
         progress = [0] * n
         reached: list[list[int]] = [[] for _ in range(n)]

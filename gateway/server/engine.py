@@ -531,6 +531,8 @@ class Engine:
         commands are then routed after the rest of this batch, never before: a session gets
         its robot's actions in dispatch order (else a robot's listed finish of an action
         released by a nested batch would be refused as queued behind one of this batch)."""
+        if not commands:  # (most reports release nothing)
+            return
         if self._routing:
             self._routed_later.extend(commands)
             return

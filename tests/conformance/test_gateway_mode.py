@@ -39,16 +39,18 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-@pytest.fixture(scope="module")
-def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """``fleetgate serve --port 0`` with its embedded defaults; its websocket URL. Its state
+@pytest.fixture(scope="module", params=[0, 2], ids=["one-process", "two-workers"])
+def served(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
+           ) -> Iterator[str]:
+    """``fleetgate serve --port 0`` with its embedded defaults, in one process or with two
+    worker processes serving the robots (``--workers 2``); its websocket URL. Its state
     directory (the default journal's) is its own: the per-test one of tests/conftest.py is set
     only after module fixtures, and a shared one would resume another run's journal."""
     env = {**os.environ, "XDG_STATE_HOME": str(tmp_path_factory.mktemp("served-state"))}
     env.pop("STATE_DIRECTORY", None)
     proc = subprocess.Popen([sys.executable, "-m", "gateway", "serve", "--port", "0",
-                             "--log-level", "WARNING"], stderr=subprocess.PIPE, text=True,
-                            env=env)
+                             "--log-level", "WARNING", "--workers", str(request.param)],
+                            stderr=subprocess.PIPE, text=True, env=env)
     try:
         assert proc.stderr is not None
         line = proc.stderr.readline()

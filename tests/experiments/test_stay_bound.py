@@ -8,7 +8,9 @@ import pytest
 
 from experiments.campaign import PlanTask, SimSettings, load_grid, plan_instance, variant_config
 from experiments.stay_bound import GainTable, best_capture, gain_table, stay_grid
+from experiments.stay_paths import Path, PathTable, best_path_capture, path_table
 from gateway.execution.commands import SolveRequest
+from gateway.execution.oneshot.executor import Mode
 from gateway.execution.oneshot.policies import RandomReplan
 from gateway.planning.plan import Plan
 from gateway.runtime.mapstore import resolve
@@ -100,3 +102,67 @@ def test_stay_grid_is_the_quantile_midpoints() -> None:
     grid = stay_grid(parse_stay("uniform:0-10"), 5)
     assert grid == pytest.approx((1.0, 3.0, 5.0, 7.0, 9.0), abs=0.05)
     assert stay_grid(parse_stay("fixed:4"), 3) == (4.0, 4.0, 4.0)
+
+
+class _Switching(_Assuming):
+    """A fresh run for a path table's entry: its replans assume ``assumed_ms``; once the
+    intruder is gone, a replan knows it (no obstacle)."""
+
+    def plan_for(self, request: SolveRequest, now: float) -> tuple[Plan | None, float]:
+        intr = self.intruder
+        assert intr is not None
+        if intr.state is IntruderState.GONE:
+            request = dataclasses.replace(request, obstacles=())
+        return super().plan_for(request, now)
+
+
+def _follow(config: SimConfig, path: Path, end: float, back: bool) -> float:
+    """The SOC of a fresh run that takes ``path``'s switches while the block lasts (each only
+    if the fleet runs then) and, with ``back``, replans back at the first tick from ``end``
+    the fleet runs (keeping its plan if it never does within 10 s)."""
+    sim = _Switching(dataclasses.replace(config, max_replans=3, informed=True))
+    sim.start()
+    for t, a in path:
+        if t >= end:
+            break
+        sim.run_until(t)
+        if sim.finished() or sim.executor.mode is not Mode.RUNNING:
+            break
+        sim.assumed_ms = 1000.0 * a
+        sim.replan_now(t)
+    t = end
+    while back and t <= end + 10_000.0:
+        sim.run_until(t)
+        if not sim.finished() and sim.executor.mode is Mode.RUNNING:
+            sim.replan_now(t)
+            break
+        t += 100.0
+    sim.run_until(None)
+    return sim.result().soc_ms
+
+
+def test_every_path_of_a_path_table_equals_fresh_runs() -> None:
+    rec = plan_instance(PlanTask("lab", MAP, 5, 0, 0, 20.0))
+    config = variant_config(load_grid(MAP), rec.plan, 1154091980, "intruder", SIM)
+    stays, assumed = (2.0, 9.0), (4.0, 12.0)
+    got = path_table(config, ("lab", 5, 0, 1154091980), stays, assumed, (0.0, 0.0),
+                     step_ms=2000.0, second_step_ms=2000.0)
+    assert max(len(p) for p in got.paths) == 2 and got.need_ms == 5000.0
+    for k, stay in enumerate(stays):
+        fixed = _fixed(config, stay)
+        none = run_simulation(fixed).soc_ms
+        end = got.need_ms + 1000.0 * stay
+        for path, savings in got.paths.items():
+            best = min(_follow(fixed, path, end, False), _follow(fixed, path, end, True))
+            assert savings[k] == none - best, (stay, path)
+    # a decision after the block ended is not taken: the path saves what its prefix saves
+    late = [p for p in got.paths if p and p[0][0] >= got.need_ms + 2000.0]
+    assert late and all(got.paths[p][0] == got.paths[()][0] for p in late)
+
+
+def test_the_paths_choice_reads_only_paths_within_the_switches() -> None:
+    one = PathTable(("m", 1, 0, 0), 5000.0, (10e3, 10e3),
+                    {(): (0.0, 0.0), ((5000.0, 1.0),): (5e3, 5e3),
+                     ((5000.0, 1.0), (7000.0, 2.0)): (10e3, 10e3)})
+    assert best_path_capture([one], 0.0, 1) == (0.5, 0.0, 0.5)
+    assert best_path_capture([one], 0.0, 2) == (1.0, 0.0, 1.0)

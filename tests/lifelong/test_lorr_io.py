@@ -119,6 +119,13 @@ def test_cli_default_bound_is_the_runner_s() -> None:
     assert CLI == MAX_WAIT_TICKS == LifelongConfig(small_problem(1)).max_wait
 
 
+def test_cli_default_lanes_are_the_runner_s() -> None:
+    from sim_clients.cmd_lifelong import LANES as CLI
+    from sim_clients.lifelong import LANES
+
+    assert CLI == LANES
+
+
 def test_cli_lanes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``--lanes`` runs the guided planner (a valid output), and is refused without turning or
     below 0, in one line each."""

@@ -14,7 +14,15 @@ from hypothesis.extra.numpy import arrays
 
 from gateway.planning.distance import turning_distance_tables
 from gateway.planning.grid import Grid
-from gateway.planning.guidance import MOVE, crisscross, guided_tables
+from gateway.planning.guidance import (
+    CROWD_AGE,
+    CROWD_WEIGHT,
+    MOVE,
+    crisscross,
+    crowd,
+    crowded,
+    guided_tables,
+)
 from gateway.planning.pibt import UNREACHABLE, StateSpace
 
 grids = arrays(bool, st.tuples(st.integers(1, 8), st.integers(1, 8)), elements=st.booleans())
@@ -118,3 +126,53 @@ def test_guidance_needs_exact_tables() -> None:
         guided_tables(grid, [0], np.full(4, MOVE, dtype=np.int32))
     with pytest.raises(ValueError, match="not a free cell"):
         guided_tables(Grid(np.array([[True, False]])), [1], crisscross(grid, 0)[:8])
+
+
+def test_the_crowd_counts_the_robots_in_each_cells_box() -> None:
+    grid = Grid(np.ones((3, 3), dtype=bool))
+    assert crowd(grid, [0, 2, 6, 8]).tolist() == [1, 2, 1,  # robots on the four corners
+                                                  2, 4, 2,
+                                                  1, 2, 1]
+
+
+def test_a_move_costs_more_for_each_robot_around_the_cell_it_enters() -> None:
+    grid = Grid(np.ones((3, 3), dtype=bool))
+    forward = crowded(grid, crisscross(grid, 0), [0, 2, 6, 8])
+    east, west, north = 0, 2, 3
+    assert forward[4 * 0 + east] == MOVE + 2 * CROWD_WEIGHT  # into cell 1: two robots around
+    assert forward[4 * 4 + north] == MOVE + 2 * CROWD_WEIGHT  # from the centre into cell 1
+    assert forward[4 * 1 + east] == MOVE + 1 * CROWD_WEIGHT  # into the corner cell 2
+    assert forward[4 * 0 + west] == MOVE  # off the map: no move, the lane's cost
+
+
+def test_tables_are_searched_again_with_the_crowd_once_old() -> None:
+    grid = Grid(np.ones((1, 5), dtype=bool))  # a corridor, the goal at its east end
+    space = StateSpace(grid, True, exact=True, guidance=crisscross(grid, 0))
+    goal, east = 4, 0
+    assert space.distances(goal)[4 * 0 + east] == 4 * MOVE
+    for _ in range(CROWD_AGE - 1):  # a robot on x=2: cells 1-3 cost more to enter
+        space.guide([2], [goal])
+        assert space.distances(goal)[4 * 0 + east] == 4 * MOVE  # not old enough yet
+    space.guide([2], [goal])
+    assert space.distances(goal)[4 * 0 + east] == 4 * MOVE + 3 * CROWD_WEIGHT
+    space.guide([], [goal])  # searched at the call before: kept for CROWD_AGE calls
+    assert space.distances(goal)[4 * 0 + east] == 4 * MOVE + 3 * CROWD_WEIGHT
+
+
+def test_crowd_guidance_needs_a_guidance() -> None:
+    grid = Grid(np.ones((1, 5), dtype=bool))
+    with pytest.raises(ValueError, match="needs a guidance"):
+        StateSpace(grid, True, exact=True).guide([2], [4])
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid_and_goal(), st.data())
+def test_crowded_tables_equal_a_textbook_dijkstra(case: tuple[Grid, int], data: st.DataObject
+                                                  ) -> None:
+    """Forward costs of many values (the crowd's) take the bucket search: the same costs."""
+    grid, goal = case
+    cells = np.flatnonzero(grid.free.ravel()).tolist()
+    robots = data.draw(st.lists(st.sampled_from(cells), unique=True))
+    forward = crowded(grid, crisscross(grid, data.draw(st.integers(0, 5))), robots)
+    assert guided_tables(grid, [goal], forward)[0].tolist() == dijkstra(grid, goal,
+                                                                       forward.tolist())

@@ -9,8 +9,13 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import signal
+import socket
 import ssl
+import subprocess
+import sys
+import time
 import urllib.request
 from collections import Counter
 from pathlib import Path
@@ -19,10 +24,11 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
+from bench.fuzz import FuzzStats, frames, fuzz
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.workers.remote import RemoteSession
-from protocol import ErrorCode, Finished, LoadPlan, Start, State
+from protocol import CloseCode, ErrorCode, Finished, LoadPlan, Start, State
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from tests.server.conftest import LAB_PATHS, connector, make_config
@@ -68,7 +74,10 @@ async def _run_with_a_kill(tmp_path: Path, kill: bool) -> None:
                 victim = pool.pids[0]
                 os.kill(victim, signal.SIGKILL)
             await asyncio.wait_for(gw.wait_done(), 90)
-            if kill:
+            if kill:  # its robots went on through the other worker; it is back too
+                async with asyncio.timeout(60):
+                    while pool.restarts == 0:
+                        await asyncio.sleep(0.05)
                 assert pool.restarts == 1 and victim not in pool.pids and len(pool.pids) == 2
         finally:
             await fleet.stop()
@@ -157,5 +166,99 @@ def test_tls_and_mutual_tls_end_in_the_workers(tmp_path: Path) -> None:
             status, body = await asyncio.to_thread(
                 _get, f"https://127.0.0.1:{port}/healthz", certs.client())
             assert status == 200 and json.loads(body)["robots"] == 1
+
+    asyncio.run(asyncio.wait_for(go(), 60))
+
+
+def test_fuzzing_the_workers_changes_nothing_for_the_fleet(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """bench/fuzz.py's hostile frames (robot tokens of ids outside the plan: served by the
+    workers; the world and an operator: relayed) while a fleet runs through the workers."""
+    stats = FuzzStats()
+    source = frames(2000, seed=2)
+
+    async def go() -> None:
+        trace = tmp_path / "trace.jsonl"
+        config = GatewayConfig(port=0, map=None, policy="none", trace=trace, speed=10.0,
+                               autostart=True, workers=2, close_timeout_s=1.0)
+        problem = workload(8, 20)
+        async with Gateway(config) as gw:
+            port = await gw.listen()
+            url = f"ws://127.0.0.1:{port}/ws"
+            fleet = SimFleet(websocket_connector(url), range(8), clock=gw.clock,
+                             send_state=False, reconnect_delay_s=0.05)
+            gw.engine.load(problem)
+            await fleet.start()
+            try:
+                await fleet.wait_connected()
+                await asyncio.gather(fuzz(url, source, stats, 8, 2), gw.wait_done())
+            finally:
+                await fleet.stop()
+            assert gw.workers is not None and gw.workers.restarts == 0
+            assert gw.metrics.value("fleetgate_handler_failures_total") == 0
+        report = check_trace(read_trace(trace))
+        assert report.ok, report.errors[:5]
+        assert report.actions_run == sum(len(p) - 1 for p in problem.plan.paths)
+
+    asyncio.run(asyncio.wait_for(go(), 240))
+    assert stats.sent >= 1500
+    for code in (ErrorCode.MALFORMED, ErrorCode.INVALID, ErrorCode.UNKNOWN_TYPE,
+                 ErrorCode.FORBIDDEN):
+        assert stats.replies.get(code.value, 0) > 0, (code, stats.replies)
+    assert set(stats.closes) <= {int(c) for c in CloseCode}, stats.closes
+    err = capfd.readouterr().err  # the workers' log lines (they share this stderr)
+    assert "Traceback" not in err and "handler failed" not in err, err[-2000:]
+
+
+def test_the_workers_end_with_a_killed_owner_and_free_the_port(tmp_path: Path) -> None:
+    """``fleetgate serve --workers 2`` killed with SIGKILL: its workers see their channel
+    close and end, so no orphan keeps serving (or holding) the port."""
+    env = {**os.environ, "XDG_STATE_HOME": str(tmp_path)}
+    env.pop("STATE_DIRECTORY", None)
+    owner = subprocess.Popen([sys.executable, "-m", "gateway", "serve", "--port", "0",
+                              "--workers", "2", "--no-journal", "--log-level", "WARNING"],
+                             stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert owner.stderr is not None
+        line = owner.stderr.readline()
+        found = re.search(r"ws://127\.0\.0\.1:(\d+)/ws", line)
+        assert found, line
+        port = int(found[1])
+        children = Path(f"/proc/{owner.pid}/task/{owner.pid}/children").read_text().split()
+        workers = [int(c) for c in children
+                   if "gateway.server.workers.worker" in
+                   Path(f"/proc/{c}/cmdline").read_text().replace("\0", " ")]
+        assert len(workers) == 2
+        status, _ = _get(f"http://127.0.0.1:{port}/healthz")
+        assert status == 200
+    finally:
+        owner.kill()
+        owner.wait(10)
+    deadline = time.monotonic() + 20
+    while any(Path(f"/proc/{w}").exists() and "Z" not in _state(w) for w in workers):
+        assert time.monotonic() < deadline, "a worker outlived its owner"
+        time.sleep(0.05)
+    with socket.socket() as s:  # nobody listens on the port any more
+        assert s.connect_ex(("127.0.0.1", port)) != 0
+
+
+def _state(pid: int) -> str:
+    """The state letter of a process (Z: a zombie, ended)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "Z"
+
+
+def test_a_port_taken_by_another_listener_is_refused_as_without_workers() -> None:
+    async def go() -> None:
+        with socket.socket() as taken:
+            taken.bind(("127.0.0.1", 0))
+            taken.listen()
+            port = taken.getsockname()[1]
+            async with Gateway(make_config(workers=1, port=port)) as gw:
+                with pytest.raises(OSError):
+                    await gw.listen()
+                assert gw.workers is None or gw.workers.pids == []
 
     asyncio.run(asyncio.wait_for(go(), 60))

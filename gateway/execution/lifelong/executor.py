@@ -732,12 +732,14 @@ class WindowPlanner:
     driver may run it in a worker thread, one call at a time). A request with priorities (the
     executor's) is planned from them and a random stream of its own (the call's number), so
     a restarted planner answers it as the first did; one without (the LoRR simulator's) goes
-    on from the priorities and the random stream the previous call left."""
+    on from the priorities and the random stream the previous call left. ``guided``: tables
+    guided by the crowd (:attr:`~gateway.planning.pibt.WindowedPIBT.guided`): the LoRR
+    simulator's, not the executor's, as a restarted planner would not answer as the first."""
 
     def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0,
-                 space: StateSpace | None = None) -> None:
+                 space: StateSpace | None = None, guided: bool = False) -> None:
         self.space = space if space is not None else StateSpace(grid, turning, robots=n_robots)
-        self.pibt = WindowedPIBT(self.space, n_robots, seed=seed)
+        self.pibt = WindowedPIBT(self.space, n_robots, seed=seed, guided=guided)
 
     def __call__(self, req: PlanRequest) -> Segment:
         """The window for ``req``."""

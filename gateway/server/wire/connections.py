@@ -26,7 +26,7 @@ from gateway.server.config import GatewayConfig
 from gateway.server.metrics import Metrics
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.wire.deadline import IdleDeadline
-from gateway.server.wire.session import LinkSession
+from gateway.server.wire.session import LinkSession, Wakeups
 from gateway.server.wire.transport import HARD_MAX_BYTES, Link, LinkClosed, WebSocketLink
 from gateway.server.wire.ws_endpoint import WsEndpoint
 from protocol import (
@@ -85,6 +85,7 @@ class ConnectionServer(ABC):
             weakref.WeakKeyDictionary())
         self._links: set[asyncio.Task[None]] = set()
         self._sessions: set[LinkSession] = set()
+        self._wakeups: Wakeups | None = None  # (made in the event loop, by the first session)
         self._max_connections = config.max_connections
 
     # ------------------------------------------------------------------ where traffic goes
@@ -176,7 +177,10 @@ class ConnectionServer(ABC):
         ``hello_timeout_s`` and then send something at least every ``idle_timeout_s``.
         """
         cfg = self.config
+        if self._wakeups is None:
+            self._wakeups = Wakeups()
         session = LinkSession(link, queue_size=cfg.send_queue, max_errors=cfg.max_errors,
+                              wakeups=self._wakeups,
                               error_decay_s=cfg.error_decay_s,
                               rate_per_s=cfg.rate_per_s, rate_burst=cfg.rate_burst,
                               on_error=lambda code: self.metrics.errors.labels(code.value).inc())

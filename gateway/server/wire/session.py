@@ -4,8 +4,11 @@ writer task. (A connection that a worker process serves is a
 :class:`~gateway.server.workers.remote.RemoteSession`.)
 
 The owner task never awaits a peer: it builds a message and puts it in the session's queue.
-If that queue is full the peer is too slow and the session is closed (code 1013), so one slow
-client never stalls the others. Also counts the peer's protocol errors (closing the connection
+The writers are woken in batches (:class:`Wakeups`): once per turn of the event loop, after
+the task that queued the messages yields, not once per message (the owner's messages could not
+leave earlier anyway: it commits the journal before it yields). If that queue is full the
+peer is too slow and the session is closed (code 1013), so one slow client never stalls the
+others. Also counts the peer's protocol errors (closing the connection
 on repeated abuse, code 1008: an error budget of ``max_errors`` that forgets one error every
 ``error_decay_s``) and rate-limits it (token bucket on the loop clock).
 """
@@ -16,6 +19,7 @@ import asyncio
 import itertools
 import logging
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -27,6 +31,27 @@ from protocol.messages import ProtocolVersion
 log = logging.getLogger("fleetgate.session")
 
 _ids = itertools.count(1)
+
+
+class Wakeups:
+    """The sessions with messages queued since the last turn of the event loop: their
+    writers are woken together by one callback, scheduled when the first one is added (the
+    queuing task pays a deque append per message, not a future and a loop callback)."""
+
+    def __init__(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._ready: list[LinkSession] = []
+
+    def add(self, session: LinkSession) -> None:
+        """``session`` has messages to write: wake its writer at the next turn of the loop."""
+        if not self._ready:
+            self._loop.call_soon(self._release)
+        self._ready.append(session)
+
+    def _release(self) -> None:
+        ready, self._ready = self._ready, []
+        for session in ready:
+            session.wake()
 
 
 class Session(ABC):
@@ -63,12 +88,18 @@ class LinkSession(Session):
     """A session served in this process: its messages go to a :class:`Link`."""
 
     def __init__(self, link: Link, *, queue_size: int, max_errors: int, rate_per_s: float,
-                 rate_burst: float, error_decay_s: float = 1.0,
+                 rate_burst: float, wakeups: Wakeups, error_decay_s: float = 1.0,
                  on_error: Callable[[ErrorCode], None] | None = None) -> None:
         self.link = link
         self.peer = link.peer
         self.id = next(_ids)
-        self._queue: asyncio.Queue[str | None] = asyncio.Queue(queue_size)
+        # the send queue: a deque and the writer's waiter (an asyncio.Queue costs the owner
+        # about twice as much per message: its bookkeeping and a wake-up per put)
+        self._queue: deque[str | None] = deque()
+        self._queue_size = queue_size
+        self._waiter: asyncio.Future[None] | None = None  # the idle writer's
+        self._wakeups = wakeups
+        self._in_wakeups = False  # the writer will be woken at the next turn of the loop
         self._seq = itertools.count()
         self._max_errors = max_errors
         self._error_decay_s = error_decay_s
@@ -104,13 +135,24 @@ class LinkSession(Session):
 
     def _put(self, text: str) -> bool:
         """Queue ``text`` for the writer; False (and the session closed) if it is too slow."""
-        try:
-            self._queue.put_nowait(text)
-        except asyncio.QueueFull:
+        if len(self._queue) >= self._queue_size:
             log.warning("send queue full, closing", extra={"peer": str(self)})
             self.close(1013, "too slow: send queue full")
             return False
+        self._queue.append(text)
+        if not self._in_wakeups:
+            self._in_wakeups = True
+            self._wakeups.add(self)
         return True
+
+    def wake(self) -> None:
+        """Wake the writer if it waits for the queue (:class:`Wakeups` calls this)."""
+        self._in_wakeups = False
+        waiter = self._waiter
+        if waiter is not None:
+            self._waiter = None
+            if not waiter.done():
+                waiter.set_result(None)
 
     def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
         """Reply ``error``; close the connection (1008) after too many in a short time."""
@@ -144,16 +186,21 @@ class LinkSession(Session):
             return
         self.closing = True
         self._close_args = (code, reason)
-        try:
-            self._queue.put_nowait(None)
-        except asyncio.QueueFull:
+        if len(self._queue) >= self._queue_size:
             self.writer.cancel()
             self._closer = self._loop.create_task(self.link.close(code, reason))
+        else:
+            self._queue.append(None)
+            self.wake()
 
     async def _write(self) -> None:
         try:
+            queue = self._queue
             while True:
-                text = await self._queue.get()
+                while not queue:
+                    self._waiter = self._loop.create_future()
+                    await self._waiter
+                text = queue.popleft()
                 if text is None:
                     await self.link.close(*self._close_args)
                     return

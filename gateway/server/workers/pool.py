@@ -95,17 +95,19 @@ class WorkerPool:
                 pass_fds=(theirs.fileno(),), start_new_session=True)  # no terminal Ctrl-C
         finally:
             theirs.close()
-        reader, writer = await asyncio.open_unix_connection(sock=ours)
-        writer.write(frame([("start", self._config, *self._where)]))
         try:
+            reader, writer = await asyncio.open_unix_connection(sock=ours)
+            writer.write(frame([("start", self._config, *self._where)]))
             async with asyncio.timeout(START_TIMEOUT_S):
                 ready = await read_batch(reader)
-        except (TimeoutError, asyncio.IncompleteReadError):
+        except BaseException as exc:  # no worker is left behind by a failed or cancelled start
             with contextlib.suppress(ProcessLookupError):
                 process.kill()
-            await process.wait()
-            raise RuntimeError(f"worker {index} did not start (exit {process.returncode})"
-                               ) from None
+            await asyncio.shield(process.wait())
+            if isinstance(exc, TimeoutError | asyncio.IncompleteReadError):
+                raise RuntimeError(f"worker {index} did not start (exit "
+                                   f"{process.returncode})") from None
+            raise
         assert ready == [("ready",)], ready
         handle = _Handle(index, process, reader, Outbox(writer), writer)
         self._handles[index] = handle

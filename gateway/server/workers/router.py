@@ -54,7 +54,11 @@ class Pump(asyncio.Protocol):
         self._peer.write(data)
 
     def eof_received(self) -> bool:
-        """The other end is done: so is the relay (HTTP peers do not half-close)."""
+        """The other end sent all it will: so does the relay (a half-close carries over where
+        the peer's transport can write one; else the peer is closed once flushed)."""
+        if self._peer.can_write_eof():
+            self._peer.write_eof()
+            return True
         self._peer.close()
         return False
 
