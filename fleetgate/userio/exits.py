@@ -85,9 +85,21 @@ def _say(prog: str, message: str) -> None:
         print(f"{prog}: {message}", file=sys.stderr, flush=True)
 
 
+_CTRL_C: list[bool] = []
+"""Not empty once a Ctrl-C (SIGINT) came: from then on an exception that ends the command is
+the interrupt's doing. A library may turn the KeyboardInterrupt raised inside it into an
+error of its own (pydantic-core building a validator: ``SchemaError: ... KeyboardInterrupt``)."""
+
+
+def _note_ctrl_c(signum: int, frame: Any) -> None:
+    """SIGINT: noted in :data:`_CTRL_C`, then Python's own handler (KeyboardInterrupt)."""
+    _CTRL_C.append(True)
+    signal.default_int_handler(signum, frame)
+
+
 def _ending(prog: str, exc: BaseException) -> int:
     """The exit code for ``exc`` escaping a command (its one line printed); re-raises what is
-    no user-facing ending (a bug keeps its traceback)."""
+    no user-facing ending (a bug keeps its traceback), unless a Ctrl-C came before it."""
     if isinstance(exc, UsageError):
         _say(prog, str(exc))
         return EXIT_BAD_INPUT
@@ -105,6 +117,9 @@ def _ending(prog: str, exc: BaseException) -> int:
             where = "cannot write the output: "
         _say(prog, f"{where}{exc.strerror or exc}")
         return EXIT_BAD_INPUT
+    if _CTRL_C and isinstance(exc, Exception):
+        _say(prog, "interrupted")
+        return EXIT_INTERRUPTED
     raise exc
 
 
@@ -148,7 +163,8 @@ def _bounded_interrupts(prog: str) -> Iterator[None]:
     where Python's own handler is in place, in the main thread); a swallowed one is sent
     again (:func:`_interrupt_again`)."""
     if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+            or signal.getsignal(signal.SIGINT) not in (signal.default_int_handler,
+                                                        _note_ctrl_c)):
         yield
         return
     started: list[threading.Timer] = []
@@ -158,7 +174,7 @@ def _bounded_interrupts(prog: str) -> Iterator[None]:
             started.append(threading.Timer(GRACE_S, _give_up, args=(prog,)))
             started[0].daemon = True
             started[0].start()
-        signal.default_int_handler(signum, frame)
+        _note_ctrl_c(signum, frame)
 
     previous = signal.signal(signal.SIGINT, on_sigint)
     previous_hook, sys.unraisablehook = sys.unraisablehook, _interrupt_again
@@ -194,6 +210,10 @@ def call(prog: str, main: Callable[..., int | None], *args: Any) -> int:
         if exc.code is not None and not isinstance(exc.code, int):
             _say(prog, str(exc.code))
         code = exc.code if isinstance(exc.code, int) else EXIT_OK if exc.code is None else 1
+    except Exception as exc:  # a bug keeps its traceback, unless a Ctrl-C came before it
+        if not _CTRL_C:
+            raise
+        code = _ending(prog, exc)
     flushed = _flush_stdout(prog)
     return code if flushed is None else flushed
 
@@ -221,6 +241,9 @@ def guard(prog: str) -> None:
 
     sys.excepthook = last_words
     sys.unraisablehook = _interrupt_again
+    if (threading.current_thread() is threading.main_thread()
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler):
+        signal.signal(signal.SIGINT, _note_ctrl_c)
     _deliver_held_interrupts()
 
 

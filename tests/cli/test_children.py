@@ -7,7 +7,8 @@ script starts its children in a session of their own, through one helper, and st
 itself. Here real bench scripts are interrupted at several moments just after their first
 child appeared, and each must end with 130, one line and no traceback, leaving no child
 behind. The command's own start-up: a SIGINT held (blocked) across ``exec`` is delivered once
-its guard is in place, at whatever moment it was sent.
+its guard is in place, at whatever moment it was sent. And after a Ctrl-C, an error that a
+library made of the KeyboardInterrupt ends the command as interrupted too.
 """
 
 from __future__ import annotations
@@ -138,3 +139,40 @@ def test_a_child_runs_in_a_session_of_its_own_and_is_stopped_with_sigterm_then_s
         assert child.stdout is not None and child.stdout.readline() == "\n"  # running
     children.stop(stubborn, polite, grace_s=0.5)
     assert (stubborn.returncode, polite.returncode) == (-signal.SIGKILL, -signal.SIGTERM)
+
+
+WRAPPED = '''
+import signal, sys
+from fleetgate.userio.exits import call, guard
+
+def main():
+    try:
+        if "ctrl-c" in sys.argv:
+            signal.raise_signal(signal.SIGINT)
+        sum(range(10**6))  # the KeyboardInterrupt is raised in here
+    except KeyboardInterrupt:  # as pydantic-core does, building a validator
+        raise ValueError("Error building validator: KeyboardInterrupt") from None
+    raise ValueError("a bug")
+
+if "guard" in sys.argv:
+    guard("prog")
+    main()
+sys.exit(call("prog", main))
+'''
+
+
+@pytest.mark.parametrize("where", ["call", "guard"])
+def test_after_a_ctrl_c_an_error_a_library_made_of_it_ends_the_command_as_interrupted(
+        where: str) -> None:
+    """test_exit_table[serve-full] once printed a traceback: the SIGINT came while
+    pydantic-core built a validator, and it raised SchemaError instead of KeyboardInterrupt.
+    Without a Ctrl-C the same error is a bug and keeps its traceback."""
+    interrupted = subprocess.run([sys.executable, "-c", WRAPPED, where, "ctrl-c"], cwd=ROOT,
+                                 capture_output=True, text=True, timeout=60,
+                                 preexec_fn=_hold_sigint)
+    assert (interrupted.returncode, interrupted.stderr) == (EXIT_INTERRUPTED,
+                                                            "prog: interrupted\n")
+    bug = subprocess.run([sys.executable, "-c", WRAPPED, where], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert bug.returncode == 1 and "Traceback" in bug.stderr
+    assert bug.stderr.strip().endswith("ValueError: a bug")
