@@ -34,15 +34,22 @@ def _fleetgate(*args: str, cwd: Path = ROOT, timeout: float = 120) -> subprocess
 
 
 def _cpu_s(pid: int) -> float:
-    """CPU seconds the process has used so far (user + system, from /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """CPU seconds the process and its live descendants have used so far (user + system, from
+    /proc): a benchmark's work may run in child processes (bench/load.py's gateway and robots)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        kids = [int(k) for t in Path(f"/proc/{pid}/task").iterdir()
+                for k in (t / "children").read_text().split()]
+    except (FileNotFoundError, ProcessLookupError):  # it ended meanwhile
+        return 0.0
+    own = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return own + sum(_cpu_s(k) for k in kids)
 
 
 def _until_busy(proc: subprocess.Popen[str], wall_s: float, cpu_s: float = 1.0) -> None:
-    """Waits ``wall_s`` and until the process has used ``cpu_s`` of CPU: past its start-up
-    (the interpreter and imports take about 0.5 s of CPU) and into its work, however loaded
-    the machine is (at load 20 the start-up alone took more than 3 s of wall time)."""
+    """Waits ``wall_s`` and until the process (with its children) has used ``cpu_s`` of CPU:
+    past its start-up (the interpreter and imports take about 0.5 s of CPU) and into its work,
+    however loaded the machine is (at load 20 the start-up alone took over 3 s of wall time)."""
     deadline = time.monotonic() + wall_s
     while (time.monotonic() < deadline or _cpu_s(proc.pid) < cpu_s) and proc.poll() is None:
         time.sleep(0.05)
