@@ -14,6 +14,7 @@ parent killed with SIGKILL leaves them running.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import signal
 import subprocess
 import threading
@@ -24,6 +25,9 @@ from typing import Any
 
 STOP_GRACE_S = 10.0
 """From SIGTERM to SIGKILL when a child is stopped."""
+REAP_S = 5.0
+"""How long a SIGKILLed child is waited for. Bounded: another thread may be reaping it (a
+blocking wait holds the child's wait lock), and a give-up must still end the process."""
 
 _LIVE: set[subprocess.Popen[Any]] = set()
 """The children started by :func:`spawn` and not yet stopped or seen ended."""
@@ -79,16 +83,21 @@ def stop(*procs: subprocess.Popen[Any], grace_s: float = STOP_GRACE_S) -> None:
         try:
             proc.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            _kill_and_reap(proc)
         _LIVE.discard(proc)
+
+
+def _kill_and_reap(proc: subprocess.Popen[Any]) -> None:
+    """SIGKILL ``proc`` and wait for it, at most :data:`REAP_S`."""
+    proc.kill()
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        proc.wait(REAP_S)
 
 
 def kill(proc: subprocess.Popen[Any]) -> None:
     """SIGKILL ``proc`` (a crash, on purpose) and reap it."""
     if proc.poll() is None:
-        proc.kill()
-        proc.wait()
+        _kill_and_reap(proc)
     _LIVE.discard(proc)
 
 

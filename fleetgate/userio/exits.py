@@ -144,8 +144,10 @@ wait behind a long computation)."""
 
 def _give_up(prog: str) -> None:
     _say(prog, f"interrupted (did not stop within {GRACE_S:g} s)")
-    _stop_children(at_once=True)
-    os._exit(EXIT_INTERRUPTED)
+    try:
+        _stop_children(at_once=True)
+    finally:  # the last resort ends the process, whatever stopping the children did
+        os._exit(EXIT_INTERRUPTED)
 
 
 def _stop_children(at_once: bool) -> None:
