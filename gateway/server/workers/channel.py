@@ -9,6 +9,8 @@ import pickle
 import struct
 from typing import Any
 
+from gateway.server.per_turn import PerTurn
+
 _HEADER = struct.Struct(">I")
 
 Op = tuple[Any, ...]
@@ -29,22 +31,16 @@ async def read_batch(reader: asyncio.StreamReader) -> list[Op]:
 
 
 class Outbox:
-    """Ops for the other end, written as ONE frame per event-loop turn: the first op of a
-    turn schedules the write with ``call_soon``, so it runs only after the task that queued
-    it yields (the owner task commits the journal before it yields)."""
+    """Ops for the other end, written as ONE frame per event-loop turn (a :class:`PerTurn`)."""
 
     def __init__(self, writer: asyncio.StreamWriter) -> None:
         self._writer = writer
-        self._ops: list[Op] = []
-        self._loop = asyncio.get_running_loop()
+        self._turn: PerTurn[Op] = PerTurn(self._write)
 
     def put(self, op: Op) -> None:
         """Queue ``op`` for this turn's frame."""
-        if not self._ops:
-            self._loop.call_soon(self._flush)
-        self._ops.append(op)
+        self._turn.add(op)
 
-    def _flush(self) -> None:
-        ops, self._ops = self._ops, []
+    def _write(self, ops: list[Op]) -> None:
         if not self._writer.is_closing():
             self._writer.write(frame(ops))
