@@ -31,6 +31,7 @@ from gateway.server.workers.remote import RemoteSession
 from protocol import CloseCode, ErrorCode, Finished, LoadPlan, Start, State
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
+from tests.procs import child_pids
 from tests.server.conftest import LAB_PATHS, connector, make_config
 from tests.server.robots import TestOperator, TestRobot
 from tests.server.test_journal import workload
@@ -224,8 +225,7 @@ def test_the_workers_end_with_a_killed_owner_and_free_the_port(tmp_path: Path) -
         found = re.search(r"ws://127\.0\.0\.1:(\d+)/ws", line)
         assert found, line
         port = int(found[1])
-        children = Path(f"/proc/{owner.pid}/task/{owner.pid}/children").read_text().split()
-        workers = [int(c) for c in children
+        workers = [c for c in child_pids(owner.pid)
                    if "gateway.server.workers.worker" in
                    Path(f"/proc/{c}/cmdline").read_text().replace("\0", " ")]
         assert len(workers) == 2
