@@ -27,7 +27,15 @@ from typing import Any
 from gateway.server.per_turn import PerTurn
 from gateway.server.wire.auth import Peer
 from gateway.server.wire.transport import Link, LinkClosed
-from protocol import PROTOCOL_VERSION, AnyMessage, Error, ErrorCode, encode, encode_action
+from protocol import (
+    PROTOCOL_VERSION,
+    AnyMessage,
+    Error,
+    ErrorCode,
+    action_text,
+    encode,
+    encode_action,
+)
 from protocol.messages import ProtocolVersion
 
 log = logging.getLogger("fleetgate.session")
@@ -119,6 +127,13 @@ class LinkSession(Session):
         if not self.closing:
             seq = next(self._seq)
             self._put(encode_action(self.version, f"g{self.id}-{seq}", seq, fields))
+
+    def send_action_body(self, body: str) -> None:
+        """Queue an ``action`` of this JSON body (:func:`~protocol.codec.action_body`: a
+        worker process gets the owner's actions so) and this session's next msg_id/seq."""
+        if not self.closing:
+            seq = next(self._seq)
+            self._put(action_text(self.version, f"g{self.id}-{seq}", seq, body))
 
     def _put(self, text: str) -> bool:
         """Queue ``text`` for the writer; False (and the session closed) if it is too slow."""
