@@ -690,15 +690,17 @@ class Journal:
                                f"{self._count} are there: its WAL was damaged or deleted): "
                                f"start with --fresh to abandon the run")
 
-    def commit(self) -> None:
+    def commit(self) -> bool:
         """Write the buffered records in one transaction (synced if one of them is of
-        :data:`DURABLE_KINDS`). On failure they stay buffered and nothing of them is written."""
+        :data:`DURABLE_KINDS`); False if there were none. On failure they stay buffered and
+        nothing of them is written."""
         if not self._buffer:
-            return
+            return False
         t0 = time.perf_counter()
         self._write([], self._buffer, self._chain, full=self._durable)
         self._buffer, self._durable = [], False
         self._after_write(t0)
+        return True
 
     def _after_write(self, t0: float) -> None:
         """Start the checkpointer on the first write; catch up the WAL if it asked."""

@@ -321,8 +321,8 @@ class Engine:
             hook()
         if self.journal is not None:
             t0 = time.perf_counter()
-            self.journal.commit()
-            self.metrics.journal_commit.observe(time.perf_counter() - t0)
+            if self.journal.commit():  # (a wake-up for acks and states alone writes none)
+                self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
 
     def _first_tick(self, now: float) -> float:
