@@ -61,7 +61,8 @@ invocation. ``DIR`` is a checkout of that version (``git worktree add DIR 1045d0
 each side interleaved ABBA on the same plan with this version's robots. Adds
 ``cpu_per_action_ratio`` (median gateway CPU per action, this / that: < 1 is leaner),
 ``p99_against_ratio``, every run's figures and the load average after each run; with
-``--journal`` both sides run journaled.
+``--journal`` both sides run journaled; with ``--workers W`` both sides run W worker
+processes (``owner_process_cpu_per_action_ratio``, ``workers_cpu_per_action_ratio``).
 
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --against ../base1045 --pairs 5 --json
     .venv/bin/python bench/load.py --robots 5000 --seconds 30 --lookahead 1 --journaled --json
@@ -484,7 +485,9 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
         if trace:
             cmd += ["--serve-trace", str(trace_file)]
         env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
-        with (children.running(cmd, stdout=subprocess.PIPE, text=True, env=env) as gw,
+        # (in ``tree``: its worker processes, started with ``-m``, import from there too)
+        with (children.running(cmd, stdout=subprocess.PIPE, text=True, env=env,
+                               cwd=tree) as gw,
               children.running([sys.executable, "-c", _SLEEPER, str(seconds)],
                                stdout=subprocess.PIPE, text=True) as sleeper):
             assert gw.stdout is not None
@@ -839,19 +842,27 @@ def median_ratio(key: str, these: list[dict[str, Any]], those: list[dict[str, An
 
 
 def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-                 pairs: int, tree: Path, journal: bool = False, generators: int = -1
-                 ) -> dict[str, Any]:
+                 pairs: int, tree: Path, journal: bool = False, generators: int = -1,
+                 workers: int = 0) -> dict[str, Any]:
     """``pairs`` runs of this gateway and of the one in ``tree`` (another version's checkout),
     interleaved ABBA, the same plan and this version's robots: the median run of this version
     (by CPU per action) plus ``cpu_per_action_ratio`` = median gateway CPU per action of this
     version / that of ``tree`` (< 1: this one is leaner), the same for p99, and the load
-    average after each run; with ``journal`` both sides journal (each its own way)."""
+    average after each run; with ``journal`` both sides journal (each its own way); with
+    ``workers`` both sides run that many worker processes, and the owner process's and the
+    workers' CPU per action get ratios of their own."""
     ours, theirs = interleaved(pairs, lambda other: run_once(
         robots, seconds, seed, jitter, lookahead, journal=journal,
-        tree=tree if other else None, generators=generators))
+        tree=tree if other else None, generators=generators, workers=workers))
     key = "gateway_cpu_ms_per_action"
     result = sorted(ours, key=lambda r: r[key])[(pairs - 1) // 2]
-    return {**result, "pairs": pairs, "against": str(tree),
+    split: dict[str, Any] = {}
+    for part in ("owner_process", "workers"):
+        name = f"{part}_cpu_ms_per_action"
+        split |= ({f"{part}_cpu_per_action_ratio": median_ratio(name, ours, theirs),
+                   f"{name}_runs": [r[name] for r in ours],
+                   f"against_{name}": [r[name] for r in theirs]} if workers else {})
+    return {**result, **split, "pairs": pairs, "against": str(tree),
             "cpu_ms_per_action": [r[key] for r in ours],
             "against_cpu_ms_per_action": [r[key] for r in theirs],
             "load_1min_runs": [r["load_1min"] for r in ours],
@@ -1015,9 +1026,10 @@ def main() -> int:
                    help="the gateway on uvloop's event loop (pip install uvloop) and on "
                         "asyncio's, interleaved (--pairs): uvloop_cpu_per_action_ratio")
     p.add_argument("--workers", type=int, default=0, metavar="N",
-                   help="one run (or --find-max): the gateway with N worker processes serving "
-                        "the robots' websockets (its config's workers; default 0: one "
-                        "process); gateway_cpu_ms_per_action then counts them too")
+                   help="one run, --pairs, --against (both sides) or --find-max: the gateway "
+                        "with N worker processes serving the robots' websockets (its config's "
+                        "workers; default 0: one process); gateway_cpu_ms_per_action then "
+                        "counts them too")
     p.add_argument("--serve-workers", type=int, default=0, help=argparse.SUPPRESS)
     p.add_argument("--serve", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--serve-uvloop", action="store_true", help=argparse.SUPPRESS)
@@ -1065,9 +1077,10 @@ def main() -> int:
                 "--uvloop, --find-max or --lifelong")
     if args.workers < 0:
         p.error("--workers must be >= 0")
-    if args.workers and (args.against or args.journal or args.uvloop or args.lifelong):
-        p.error("--workers is for one run, --pairs or --find-max: not with --against, "
-                "--journal, --uvloop or --lifelong")
+    if args.workers and ((args.journal and args.against is None) or args.uvloop
+                         or args.lifelong):
+        p.error("--workers is for one run, --pairs, --against or --find-max: not with "
+                "--journal (but with --against --journal), --uvloop or --lifelong")
     if args.profile is not None:
         check_writable(args.profile)  # the gateway writes it at the end of the run
     if args.vda5050 and not args.lifelong:
@@ -1108,7 +1121,7 @@ def main() -> int:
     elif args.against is not None:
         result = against_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.pairs, args.against.resolve(),
-                              args.journal, gens)
+                              args.journal, gens, args.workers)
     elif args.workers and args.pairs > 1:
         result = workers_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.pairs, args.workers, args.journaled, gens)

@@ -220,6 +220,13 @@ class GatewayConfig(BaseSettings):
     """Worker processes that serve the robots' websockets (TLS, handshake, message checks) on
     the gateway's port and pass them to its own process, the only writer of the executor and
     the journal (docs/workers.md); 0: the gateway's own process serves everything."""
+    worker_timeout_s: float = Field(default=10.0, gt=0)
+    """A worker that has not answered the gateway's ping (one a second) for this long hangs:
+    it is killed and started again (its robots reconnect, as after a cut link)."""
+    worker_buffer_bytes: int = Field(default=32 * 1024 * 1024, ge=0)
+    """Bytes the gateway's process may hold for a worker that does not read them: one more
+    and the worker is killed and started again (so a hung worker cannot grow the gateway's
+    memory without bound)."""
     max_http_connections: int = Field(default=1000, ge=1)
     """Open HTTP connections at most (websockets not counted): each is unauthenticated until
     its request's head is read; a request on a connection over this gets 503."""

@@ -61,6 +61,7 @@ from gateway.server.items import (
     InternalCommand,
     Item,
     OwnerCall,
+    RobotReport,
     SolverDone,
 )
 from gateway.server.metrics import Metrics
@@ -92,8 +93,15 @@ from protocol import (
     Unblocked,
     action_id,
 )
-from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot, hello_refusal
-from protocol.messages import HEADINGS, GatewayStatus, PolicyName
+from protocol.gateway_session import (
+    GatewaySession,
+    Refuse,
+    Report,
+    ReportKind,
+    ToRobot,
+    hello_refusal,
+)
+from protocol.messages import HEADINGS, GatewayStatus, PolicyName, Pose
 
 log = logging.getLogger("fleetgate.engine")
 
@@ -347,10 +355,14 @@ class Engine:
             log.exception("internal error handling %s", type(item).__name__)
             if isinstance(item, Inbound):
                 item.session.error(ErrorCode.INTERNAL, item.message.msg_id, "internal error")
+            elif isinstance(item, RobotReport):
+                item.session.error(ErrorCode.INTERNAL, item.msg_id or None, "internal error")
 
     def _handle(self, item: Item) -> None:
         if isinstance(item, Inbound):
             self._inbound(item)
+        elif isinstance(item, RobotReport):
+            self._robot_report(item)
         elif isinstance(item, Connected):
             self._connected(item.session)
         elif isinstance(item, Disconnected):
@@ -406,11 +418,11 @@ class Engine:
         match msg:  # the most frequent first: two reports and an ack per action
             case Started() | Finished() | Blocked() | Unblocked() | Cancelled() \
                     | ActionRefused():
-                self._report(session, msg, item.received, item.at_ms)
+                reason = f"{msg.code}: {msg.detail}" if isinstance(msg, ActionRefused) else ""
+                self._report(session, msg.type, msg.action_id, msg.msg_id, msg.pose,
+                             item.received, item.at_ms, reason)
             case Ack():
-                gs = self._sender(session)
-                gs.ack(msg.action_id, msg.msg_id, session)
-                self.flush(gs, session)
+                self._ack(session, msg.action_id, msg.msg_id)
             case Hello():
                 self._hello(session, msg)
             case State():
@@ -419,6 +431,22 @@ class Engine:
                 self._intruder(session, msg, self._arrival_ms(item.at_ms))
             case _:
                 self.operator.handle(msg, session)  # type: ignore[arg-type]
+
+    def _robot_report(self, item: RobotReport) -> None:
+        """What a worker process passed on as a :class:`RobotReport`."""
+        session, kind = item.session, item.kind
+        if kind == "ack":
+            self._ack(session, item.action_id, item.msg_id)
+        elif kind == "state":
+            self._sender(session).state(item.pose, session)
+        else:
+            self._report(session, cast(ReportKind, kind), item.action_id, item.msg_id,
+                         item.pose, item.received, item.at_ms)
+
+    def _ack(self, session: Session, aid: str, ref: str) -> None:
+        gs = self._sender(session)
+        gs.ack(aid, ref, session)
+        self.flush(gs, session)
 
     def _sender(self, session: Session) -> GatewaySession:
         """The protocol session of the robot a connection speaks for."""
@@ -456,15 +484,15 @@ class Engine:
         log.info("robot connected", extra={"robot": r, "resent": resent})
         self.operator.maybe_autostart()
 
-    def _report(self, session: Session,
-                msg: Started | Finished | Blocked | Unblocked | Cancelled | ActionRefused,
-                received: float, at_ms: float | None = None) -> None:
+    def _report(self, session: Session, kind: ReportKind, aid: str, ref: str,
+                pose: Pose | None, received: float, at_ms: float | None, reason: str = ""
+                ) -> None:
+        """A robot's report about action ``aid`` (``ref``: the report's msg_id)."""
         gs = self._sender(session)
         now = self._arrival_ms(at_ms)
-        reason = f"{msg.code}: {msg.detail}" if isinstance(msg, ActionRefused) else ""
         try:
-            self._unlocked_at = received if msg.type == "finished" else None
-            gs.report(msg.type, msg.action_id, msg.msg_id, session, now, msg.pose, reason)
+            self._unlocked_at = received if kind == "finished" else None
+            gs.report(kind, aid, ref, session, now, pose, reason)
             self.flush(gs, session)
         finally:
             self._unlocked_at = None

@@ -283,7 +283,7 @@ class Gateway(ConnectionServer):
             self._private = tempfile.TemporaryDirectory(prefix="fleetgate-")
             owner_path = os.path.join(self._private.name, "owner.sock")
             await self._server.start_unix(owner_path)
-            self.workers = WorkerPool(cfg, self.engine.queue, self.clock)
+            self.workers = WorkerPool(cfg, self.engine.queue, self.clock, self.metrics)
             try:
                 self.port = await self.workers.start(host, port, owner_path)
             except RuntimeError as exc:

@@ -13,6 +13,7 @@ from gateway.planning.plan import Plan
 from gateway.server.planner import Problem
 from gateway.server.wire.session import Session
 from protocol import AnyMessage, ErrorCode, OperatorCommand
+from protocol.messages import Pose
 
 
 @dataclass
@@ -27,6 +28,22 @@ class Inbound:
     message: AnyMessage
     received: float
     at_ms: float | None = None
+
+
+@dataclass(slots=True)
+class RobotReport:
+    """A robot's ``ack``, action report (``kind``: its type) or ``state`` (``kind`` "state",
+    no ``action_id`` or ``msg_id``) that a worker process admitted, as the fields the owner
+    uses: no message model is built for it (:mod:`~gateway.server.workers.records`).
+    ``received`` and ``at_ms`` as in :class:`Inbound`."""
+
+    session: Session
+    kind: str
+    action_id: str
+    msg_id: str
+    pose: Pose | None
+    received: float
+    at_ms: float
 
 
 @dataclass
@@ -71,5 +88,5 @@ class OwnerCall:
     fn: Callable[[], None]
 
 
-Item = Inbound | Connected | Disconnected | InternalCommand | SolverDone | OwnerCall
+Item = Inbound | RobotReport | Connected | Disconnected | InternalCommand | SolverDone | OwnerCall
 Reply = Session | asyncio.Future[tuple[ErrorCode | None, str]] | None

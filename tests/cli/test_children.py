@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 
 from fleetgate.userio.exits import EXIT_INTERRUPTED
+from tests.procs import child_pids
 
 ROOT = Path(__file__).resolve().parents[2]
 SPAWNING = ("bench", "sim_clients")
@@ -33,17 +34,6 @@ SPAWNING = ("bench", "sim_clients")
 def _hold_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # a shell's background job ignores it
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # until its guard: see above
-
-
-def _children(pid: int) -> set[int]:
-    """The processes ``pid`` started (any of its threads) that are still there."""
-    found: set[int] = set()
-    try:
-        for task in Path(f"/proc/{pid}/task").iterdir():
-            found.update(int(c) for c in (task / "children").read_text().split())
-    except OSError:  # it ended meanwhile
-        pass
-    return found
 
 
 def _alive(pid: int) -> bool:
@@ -68,11 +58,11 @@ def test_ctrl_c_as_a_bench_scripts_children_start_ends_it_with_one_line(
     seen: set[int] = set()
     try:
         deadline = time.monotonic() + 120.0
-        while not (seen := _children(proc.pid)):
+        while not (seen := child_pids(proc.pid)):
             assert proc.poll() is None and time.monotonic() < deadline, proc.stderr
             time.sleep(0.001)
         time.sleep(after_s)
-        seen |= _children(proc.pid)
+        seen |= child_pids(proc.pid)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:

@@ -18,6 +18,8 @@ from typing import Any
 
 import pytest
 
+from tests.procs import child_pids
+
 ROOT = Path(__file__).resolve().parents[2]
 FLEETGATE = [sys.executable, "-m", "fleetgate"]
 LAB = ["--map", "lab", "--scen", "lab-random-1"]
@@ -38,12 +40,10 @@ def _cpu_s(pid: int) -> float:
     /proc): a benchmark's work may run in child processes (bench/load.py's gateway and robots)."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        kids = [int(k) for t in Path(f"/proc/{pid}/task").iterdir()
-                for k in (t / "children").read_text().split()]
     except (FileNotFoundError, ProcessLookupError):  # it ended meanwhile
         return 0.0
     own = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    return own + sum(_cpu_s(k) for k in kids)
+    return own + sum(_cpu_s(k) for k in child_pids(pid))
 
 
 def _until_busy(proc: subprocess.Popen[str], wall_s: float, cpu_s: float = 1.0) -> None:

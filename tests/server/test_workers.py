@@ -1,12 +1,15 @@
 """Worker processes (``workers = N``) over real websockets on 127.0.0.1, in real time (they are
 real processes): the robots are served by the workers and complete a journaled run exactly once
-(tracecheck), also when a worker is killed with SIGKILL mid-run; everything else (HTTP,
-operators, refused handshakes) is relayed to the gateway's own process and answered as on its
-own port; TLS and mutual TLS end in the workers; bad robot input is refused there."""
+(tracecheck), also when a worker is killed with SIGKILL mid-run or hangs (SIGSTOP: it is killed
+and restarted, whether found by its unanswered ping or by the owner's unread writes);
+everything else (HTTP, operators, refused handshakes) is relayed to the gateway's own process
+and answered as on its own port; TLS and mutual TLS end in the workers; bad robot input is
+refused there and counted in the owner's metrics."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import re
@@ -31,6 +34,7 @@ from gateway.server.workers.remote import RemoteSession
 from protocol import CloseCode, ErrorCode, Finished, LoadPlan, Start, State
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
+from tests.procs import child_pids
 from tests.server.conftest import LAB_PATHS, connector, make_config
 from tests.server.robots import TestOperator, TestRobot
 from tests.server.test_journal import workload
@@ -43,10 +47,13 @@ def _get(url: str, context: ssl.SSLContext | None = None) -> tuple[int, bytes]:
         return answer.status, answer.read()
 
 
-async def _run_with_a_kill(tmp_path: Path, kill: bool) -> None:
+async def _run_with_a_kill(tmp_path: Path, kill: signal.Signals | None) -> None:
+    """A journaled run of 8 robots through 2 workers; with ``kill``, that signal hits one of
+    them a third of the way through (SIGSTOP: it hangs, and the owner's ping finds it)."""
     trace = tmp_path / "trace.jsonl"
     config = GatewayConfig(port=0, map=None, policy="none", journal=tmp_path / "j.sqlite",
-                           trace=trace, speed=20.0, autostart=True, workers=2)
+                           trace=trace, speed=20.0, autostart=True, workers=2,
+                           worker_timeout_s=2.0)
     problem = workload(8, 30)
     executed: Counter[tuple[int, int, int]] = Counter()
 
@@ -72,15 +79,19 @@ async def _run_with_a_kill(tmp_path: Path, kill: bool) -> None:
                 while sum(executed.values()) < total // 3:
                     await asyncio.sleep(0.01)
                 victim = pool.pids[0]
-                os.kill(victim, signal.SIGKILL)
+                os.kill(victim, kill)
             await asyncio.wait_for(gw.wait_done(), 90)
             if kill:  # its robots went on through the other worker; it is back too
                 async with asyncio.timeout(60):
                     while pool.restarts == 0:
                         await asyncio.sleep(0.05)
                 assert pool.restarts == 1 and victim not in pool.pids and len(pool.pids) == 2
+                assert pool.hangs == (1 if kill == signal.SIGSTOP else 0)
         finally:
             await fleet.stop()
+            if kill:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(victim, signal.SIGKILL)
     report = check_trace(read_trace(trace))
     assert report.ok, report.errors[:5]
     assert report.actions_run == sum(len(p) - 1 for p in problem.plan.paths)
@@ -89,12 +100,55 @@ async def _run_with_a_kill(tmp_path: Path, kill: bool) -> None:
 
 
 def test_robots_served_by_workers_complete_a_journaled_run(tmp_path: Path) -> None:
-    asyncio.run(_run_with_a_kill(tmp_path, kill=False))
+    asyncio.run(_run_with_a_kill(tmp_path, kill=None))
 
 
-def test_a_worker_killed_mid_run_is_restarted_and_nothing_is_lost_or_doubled(
-        tmp_path: Path) -> None:
-    asyncio.run(_run_with_a_kill(tmp_path, kill=True))
+@pytest.mark.parametrize("kill", [signal.SIGKILL, signal.SIGSTOP], ids=["killed", "stopped"])
+def test_a_worker_killed_or_hung_mid_run_is_restarted_and_nothing_is_lost_or_doubled(
+        tmp_path: Path, kill: signal.Signals) -> None:
+    asyncio.run(_run_with_a_kill(tmp_path, kill))
+
+
+def test_a_hung_worker_that_leaves_the_owners_writes_unread_is_killed_and_restarted() -> None:
+    """A stopped worker (SIGSTOP) reads nothing: once more than ``worker_buffer_bytes`` of the
+    owner's commands wait for it (beyond what the socket itself holds), the owner kills it
+    rather than grow its buffer; its robot's link is cut, and the robot reconnects through the
+    worker started in its place. (Its ping is not what finds it here: the timeout is long.)"""
+    async def go() -> None:
+        config = make_config(workers=1, worker_buffer_bytes=256 * 1024,
+                             worker_timeout_s=600.0)
+        async with Gateway(config) as gw:
+            await gw.listen()
+            pool = gw.workers
+            assert pool is not None
+            robot = TestRobot(await connector(gw)("demo-robot-0"), 0)
+            await robot.hello()
+            session = gw.engine.robots[0].link
+            assert isinstance(session, RemoteSession)
+            victim = pool.pids[0]
+            os.kill(victim, signal.SIGSTOP)
+            try:
+                for _ in range(400):  # up to 400 turns x 64 KiB of error replies for it
+                    session.error(ErrorCode.MALFORMED, None, "x" * 65536)
+                    await asyncio.sleep(0.001)
+                    if pool.hangs:
+                        break
+                assert pool.hangs == 1
+                async with asyncio.timeout(30):
+                    while pool.restarts == 0 or gw.engine.robots[0].link is not None:
+                        await asyncio.sleep(0.05)
+                assert victim not in pool.pids and len(pool.pids) == 1
+                with pytest.raises(ConnectionClosed):  # its link was cut
+                    while True:
+                        await robot.recv()
+                again = TestRobot(await connector(gw)("demo-robot-0"), 0)
+                assert (await again.hello()).robot_id == 0
+                assert isinstance(gw.engine.robots[0].link, RemoteSession)
+            finally:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(victim, signal.SIGKILL)
+
+    asyncio.run(asyncio.wait_for(go(), 60))
 
 
 def test_http_operators_and_refusals_reach_the_owner_through_the_workers() -> None:
@@ -143,6 +197,16 @@ def test_bad_robot_input_is_refused_in_the_worker() -> None:
                 while True:
                     await robot.recv()
             assert closed.value.rcvd is not None and closed.value.rcvd.code == 1008
+            with pytest.raises(InvalidStatus):
+                await connector(gw)("no-such-token")
+            # the worker's counts reach the owner's /metrics with its next ping's answer
+            errors = "fleetgate_protocol_errors_total"
+            async with asyncio.timeout(10):
+                while gw.metrics.value(errors, code="not_yourself") < 2 or gw.metrics.value(
+                        "fleetgate_handshakes_refused_total", status="403") < 1:
+                    await asyncio.sleep(0.05)
+            assert gw.metrics.value(errors, code="malformed") == 2
+            assert gw.metrics.value(errors, code="not_yourself") == 2
 
     asyncio.run(asyncio.wait_for(go(), 60))
 
@@ -224,8 +288,7 @@ def test_the_workers_end_with_a_killed_owner_and_free_the_port(tmp_path: Path) -
         found = re.search(r"ws://127\.0\.0\.1:(\d+)/ws", line)
         assert found, line
         port = int(found[1])
-        children = Path(f"/proc/{owner.pid}/task/{owner.pid}/children").read_text().split()
-        workers = [int(c) for c in children
+        workers = [c for c in child_pids(owner.pid)
                    if "gateway.server.workers.worker" in
                    Path(f"/proc/{c}/cmdline").read_text().replace("\0", " ")]
         assert len(workers) == 2

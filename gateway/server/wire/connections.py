@@ -24,9 +24,10 @@ from websockets.http11 import Request, Response
 
 from gateway.server.config import GatewayConfig
 from gateway.server.metrics import Metrics
+from gateway.server.per_turn import PerTurn
 from gateway.server.wire.auth import Authenticator, AuthError, Peer, origin_allowed, single_header
 from gateway.server.wire.deadline import IdleDeadline
-from gateway.server.wire.session import LinkSession, Wakeups
+from gateway.server.wire.session import LinkSession, wake_writers
 from gateway.server.wire.transport import HARD_MAX_BYTES, Link, LinkClosed, WebSocketLink
 from gateway.server.wire.ws_endpoint import WsEndpoint
 from protocol import (
@@ -85,7 +86,8 @@ class ConnectionServer(ABC):
             weakref.WeakKeyDictionary())
         self._links: set[asyncio.Task[None]] = set()
         self._sessions: set[LinkSession] = set()
-        self._wakeups: Wakeups | None = None  # (made in the event loop, by the first session)
+        # made in the event loop, by the first session:
+        self._wakeups: PerTurn[LinkSession] | None = None
         self._max_connections = config.max_connections
 
     # ------------------------------------------------------------------ where traffic goes
@@ -178,7 +180,7 @@ class ConnectionServer(ABC):
         """
         cfg = self.config
         if self._wakeups is None:
-            self._wakeups = Wakeups()
+            self._wakeups = PerTurn(wake_writers)
         session = LinkSession(link, queue_size=cfg.send_queue, max_errors=cfg.max_errors,
                               wakeups=self._wakeups,
                               error_decay_s=cfg.error_decay_s,

@@ -4,7 +4,8 @@ writer task. (A connection that a worker process serves is a
 :class:`~gateway.server.workers.remote.RemoteSession`.)
 
 The owner task never awaits a peer: it builds a message and puts it in the session's queue.
-The writers are woken in batches (:class:`Wakeups`): once per turn of the event loop, after
+The writers are woken in batches (:func:`wake_writers`, released by a
+:class:`~gateway.server.per_turn.PerTurn`): once per turn of the event loop, after
 the task that queued the messages yields, not once per message (the owner's messages could not
 leave earlier anyway: it commits the journal before it yields). If that queue is full the
 peer is too slow and the session is closed (code 1013), so one slow client never stalls the
@@ -23,9 +24,18 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from gateway.server.per_turn import PerTurn
 from gateway.server.wire.auth import Peer
 from gateway.server.wire.transport import Link, LinkClosed
-from protocol import PROTOCOL_VERSION, AnyMessage, Error, ErrorCode, encode, encode_action
+from protocol import (
+    PROTOCOL_VERSION,
+    AnyMessage,
+    Error,
+    ErrorCode,
+    action_text,
+    encode,
+    encode_action,
+)
 from protocol.messages import ProtocolVersion
 
 log = logging.getLogger("fleetgate.session")
@@ -33,25 +43,10 @@ log = logging.getLogger("fleetgate.session")
 _ids = itertools.count(1)
 
 
-class Wakeups:
-    """The sessions with messages queued since the last turn of the event loop: their
-    writers are woken together by one callback, scheduled when the first one is added (the
-    queuing task pays a deque append per message, not a future and a loop callback)."""
-
-    def __init__(self) -> None:
-        self._loop = asyncio.get_running_loop()
-        self._ready: list[LinkSession] = []
-
-    def add(self, session: LinkSession) -> None:
-        """``session`` has messages to write: wake its writer at the next turn of the loop."""
-        if not self._ready:
-            self._loop.call_soon(self._release)
-        self._ready.append(session)
-
-    def _release(self) -> None:
-        ready, self._ready = self._ready, []
-        for session in ready:
-            session.wake()
+def wake_writers(sessions: list[LinkSession]) -> None:
+    """Wake the writers of ``sessions`` (released once per loop turn by a :class:`PerTurn`)."""
+    for session in sessions:
+        session.wake()
 
 
 class Session(ABC):
@@ -88,7 +83,7 @@ class LinkSession(Session):
     """A session served in this process: its messages go to a :class:`Link`."""
 
     def __init__(self, link: Link, *, queue_size: int, max_errors: int, rate_per_s: float,
-                 rate_burst: float, wakeups: Wakeups, error_decay_s: float = 1.0,
+                 rate_burst: float, wakeups: PerTurn[LinkSession], error_decay_s: float = 1.0,
                  on_error: Callable[[ErrorCode], None] | None = None) -> None:
         self.link = link
         self.peer = link.peer
@@ -133,6 +128,13 @@ class LinkSession(Session):
             seq = next(self._seq)
             self._put(encode_action(self.version, f"g{self.id}-{seq}", seq, fields))
 
+    def send_action_body(self, body: str) -> None:
+        """Queue an ``action`` of this JSON body (:func:`~protocol.codec.action_body`: a
+        worker process gets the owner's actions so) and this session's next msg_id/seq."""
+        if not self.closing:
+            seq = next(self._seq)
+            self._put(action_text(self.version, f"g{self.id}-{seq}", seq, body))
+
     def _put(self, text: str) -> bool:
         """Queue ``text`` for the writer; False (and the session closed) if it is too slow."""
         if len(self._queue) >= self._queue_size:
@@ -146,7 +148,7 @@ class LinkSession(Session):
         return True
 
     def wake(self) -> None:
-        """Wake the writer if it waits for the queue (:class:`Wakeups` calls this)."""
+        """Wake the writer if it waits for the queue (:func:`wake_writers` calls this)."""
         self._in_wakeups = False
         waiter = self._waiter
         if waiter is not None:

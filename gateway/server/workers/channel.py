@@ -1,50 +1,78 @@
 """The owner <-> worker channel: a unix socket pair carrying length-prefixed frames, each a
-pickled batch (a list of tuples). Both ends trust each other (the pair is created by the
-owner and inherited by the worker it starts; nothing else can reach it)."""
+batch of records (:mod:`~gateway.server.workers.records`) written with :mod:`marshal`, except
+the first, the worker's start (its config, pickled). Both ends trust each other (the pair is
+created by the owner and inherited by the worker it starts; nothing else can reach it) and run
+the same interpreter (marshal's format is its own)."""
 
 from __future__ import annotations
 
 import asyncio
+import marshal
 import pickle
 import struct
+from collections.abc import Callable
 from typing import Any
 
-_HEADER = struct.Struct(">I")
+from gateway.server.per_turn import PerTurn
+from gateway.server.workers.records import Op
 
-Op = tuple[Any, ...]
-"""One event or command: its kind first (see :mod:`~gateway.server.workers.worker`)."""
+_HEADER = struct.Struct(">I")
 
 
 def frame(ops: list[Op]) -> bytes:
     """The frame of one batch."""
-    data = pickle.dumps(ops, protocol=pickle.HIGHEST_PROTOCOL)
+    data = marshal.dumps(ops)
     return _HEADER.pack(len(data)) + data
+
+
+async def _payload(reader: asyncio.StreamReader) -> bytes:
+    (size,) = _HEADER.unpack(await reader.readexactly(_HEADER.size))
+    return await reader.readexactly(size)
 
 
 async def read_batch(reader: asyncio.StreamReader) -> list[Op]:
     """The next batch; :class:`asyncio.IncompleteReadError` once the other end is gone."""
-    (size,) = _HEADER.unpack(await reader.readexactly(_HEADER.size))
-    batch: list[Op] = pickle.loads(await reader.readexactly(size))
+    batch: list[Op] = marshal.loads(await _payload(reader))
     return batch
 
 
-class Outbox:
-    """Ops for the other end, written as ONE frame per event-loop turn: the first op of a
-    turn schedules the write with ``call_soon``, so it runs only after the task that queued
-    it yields (the owner task commits the journal before it yields)."""
+def start_frame(start: tuple[Any, ...]) -> bytes:
+    """The frame of a worker's start (pickled: it carries the config)."""
+    data = pickle.dumps(start, protocol=pickle.HIGHEST_PROTOCOL)
+    return _HEADER.pack(len(data)) + data
 
-    def __init__(self, writer: asyncio.StreamWriter) -> None:
+
+async def read_start(reader: asyncio.StreamReader) -> tuple[Any, ...]:
+    """A worker's start (:func:`start_frame`)."""
+    start: tuple[Any, ...] = pickle.loads(await _payload(reader))
+    return start
+
+
+class Outbox:
+    """Ops for the other end, written as ONE frame per event-loop turn (a :class:`PerTurn`).
+    ``limit``: once more than that many bytes wait in this process for the other end to read
+    them, ``overflow`` is called (and nothing more is written)."""
+
+    def __init__(self, writer: asyncio.StreamWriter, limit: int | None = None,
+                 overflow: Callable[[int], None] | None = None) -> None:
         self._writer = writer
-        self._ops: list[Op] = []
-        self._loop = asyncio.get_running_loop()
+        self._turn: PerTurn[Op] = PerTurn(self._write)
+        self._limit = limit
+        self._overflow = overflow
+        self.overflowed = False
 
     def put(self, op: Op) -> None:
         """Queue ``op`` for this turn's frame."""
-        if not self._ops:
-            self._loop.call_soon(self._flush)
-        self._ops.append(op)
+        self._turn.add(op)
 
-    def _flush(self) -> None:
-        ops, self._ops = self._ops, []
-        if not self._writer.is_closing():
-            self._writer.write(frame(ops))
+    def _write(self, ops: list[Op]) -> None:
+        writer = self._writer
+        if self.overflowed or writer.is_closing():
+            return
+        writer.write(frame(ops))
+        if self._limit is not None:
+            waiting = writer.transport.get_write_buffer_size()
+            if waiting > self._limit:
+                self.overflowed = True
+                if self._overflow is not None:
+                    self._overflow(waiting)

@@ -1,6 +1,9 @@
 """The owner's side of the workers: starts them on the gateway's port, turns their events
 into the engine's queue items, and restarts one that dies (its robots were cut off: each is
-``Disconnected``, and they reconnect as after any cut link)."""
+``Disconnected``, and they reconnect as after any cut link). A worker that hangs without dying
+(it does not answer the ping of every second within ``worker_timeout_s``, or leaves more than
+``worker_buffer_bytes`` unread) is killed, and so restarted too. The workers' counts of
+protocol errors, refused handshakes and failed handlers are added to the owner's metrics."""
 
 from __future__ import annotations
 
@@ -12,11 +15,26 @@ import resource
 import socket
 import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
-from gateway.server.items import Connected, Disconnected, Inbound, Item
-from gateway.server.workers.channel import Op, Outbox, frame, read_batch
+from gateway.server.items import Connected, Disconnected, Inbound, Item, RobotReport
+from gateway.server.metrics import Metrics
+from gateway.server.wire.auth import Peer
+from gateway.server.workers.channel import Outbox, read_batch, start_frame
+from gateway.server.workers.records import (
+    CLOSED,
+    MESSAGE,
+    OPENED,
+    PING,
+    PONG,
+    REPORT,
+    STATE,
+    Op,
+    message,
+    pose,
+)
 from gateway.server.workers.remote import RemoteSession
 
 log = logging.getLogger("fleetgate.workers")
@@ -24,7 +42,19 @@ log = logging.getLogger("fleetgate.workers")
 START_TIMEOUT_S = 60.0
 """A worker not listening within this is a failed start."""
 
+PING_S = 1.0
+"""How often the owner pings each worker."""
+
 _TICK_S = os.sysconf("SC_CLK_TCK")
+
+_ROOT = str(Path(__file__).resolve().parents[3])
+
+
+def _worker_env() -> dict[str, str]:
+    """A worker's environment: it imports this very code (its directory first on the path;
+    and ``-P``: not the working directory's, which could hold another version's)."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(
+        p for p in (_ROOT, os.environ.get("PYTHONPATH")) if p)}
 
 
 @dataclass
@@ -37,6 +67,10 @@ class _Handle:
     outbox: Outbox
     writer: asyncio.StreamWriter
     sessions: dict[int, RemoteSession] = field(default_factory=dict)
+    ping_at: float | None = None
+    """Loop time of its oldest ping not answered yet."""
+    counts: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Its counts (:meth:`~gateway.server.workers.worker.Worker.counts`) at its last answer."""
 
 
 def _reserve(host: str, port: int) -> tuple[list[socket.socket], int]:
@@ -63,16 +97,20 @@ def _reserve(host: str, port: int) -> tuple[list[socket.socket], int]:
 class WorkerPool:
     """``count`` worker processes serving the robots on one port for the owner's engine."""
 
-    def __init__(self, config: GatewayConfig, queue: asyncio.Queue[Item], clock: Clock) -> None:
+    def __init__(self, config: GatewayConfig, queue: asyncio.Queue[Item], clock: Clock,
+                 metrics: Metrics) -> None:
         self._config = config
         self._queue = queue
         self._clock = clock
+        self._metrics = metrics
         self._handles: dict[int, _Handle] = {}
         self._tasks: set[asyncio.Task[None]] = set()
         self._reserved: list[socket.socket] = []
         self._stopping = False
         self.restarts = 0
         """Workers started again after one died."""
+        self.hangs = 0
+        """Workers killed because they hung."""
 
     @property
     def pids(self) -> list[int]:
@@ -85,19 +123,23 @@ class WorkerPool:
         self._reserved, port = _reserve(host, port)
         self._where = (host, port, owner_path)
         await asyncio.gather(*(self._start(i) for i in range(self._config.workers)))
+        watch = asyncio.get_running_loop().create_task(self._watch(), name="workers-watch")
+        self._tasks.add(watch)
+        watch.add_done_callback(self._tasks.discard)
         return port
 
     async def _start(self, index: int) -> None:
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             process = await asyncio.create_subprocess_exec(
-                sys.executable, "-m", "gateway.server.workers.worker", str(theirs.fileno()),
-                pass_fds=(theirs.fileno(),), start_new_session=True)  # no terminal Ctrl-C
+                sys.executable, "-P", "-m", "gateway.server.workers.worker",
+                str(theirs.fileno()), pass_fds=(theirs.fileno(),), env=_worker_env(),
+                start_new_session=True)  # no terminal Ctrl-C
         finally:
             theirs.close()
         try:
             reader, writer = await asyncio.open_unix_connection(sock=ours)
-            writer.write(frame([("start", self._config, *self._where)]))
+            writer.write(start_frame(("start", self._config, *self._where)))
             async with asyncio.timeout(START_TIMEOUT_S):
                 ready = await read_batch(reader)
         except BaseException as exc:  # no worker is left behind by a failed or cancelled start
@@ -109,7 +151,9 @@ class WorkerPool:
                                    f"{process.returncode})") from None
             raise
         assert ready == [("ready",)], ready
-        handle = _Handle(index, process, reader, Outbox(writer), writer)
+        outbox = Outbox(writer, self._config.worker_buffer_bytes,
+                        lambda n: self._hung(index, f"{n} bytes unread"))
+        handle = _Handle(index, process, reader, outbox, writer)
         self._handles[index] = handle
         task = asyncio.get_running_loop().create_task(self._serve(handle),
                                                       name=f"worker-{index}")
@@ -150,15 +194,64 @@ class WorkerPool:
         put = self._queue.put_nowait
         sessions = handle.sessions
         for op in ops:
-            if op[0] == "i":
-                put(Inbound(sessions[op[1]], op[2], op[3], now_ms))
-            elif op[0] == "o":
-                session = sessions[op[1]] = RemoteSession(handle.outbox, op[1], op[2])
+            code = op[0]
+            if code == REPORT:
+                _, sid, received, kind, ref, aid, x, y, heading = op
+                put(RobotReport(sessions[sid], kind, aid, ref, pose(x, y, heading), received,
+                                now_ms))
+            elif code == STATE:
+                _, sid, received, x, y, heading = op
+                put(RobotReport(sessions[sid], "state", "", "", pose(x, y, heading), received,
+                                now_ms))
+            elif code == MESSAGE:
+                put(Inbound(sessions[op[1]], message(op), op[2], now_ms))
+            elif code == OPENED:
+                session = sessions[op[1]] = RemoteSession(handle.outbox, op[1],
+                                                          Peer(op[2], op[3]))
                 put(Connected(session))
-            else:
+            elif code == CLOSED:
                 gone = sessions.pop(op[1])
                 gone.closing = True
                 put(Disconnected(gone))
+            elif code == PONG:
+                handle.ping_at = None
+                self._count(handle, op[1])
+
+    def _count(self, handle: _Handle, counts: dict[str, dict[str, float]]) -> None:
+        """Add what a worker counted since its last answer to the owner's metrics."""
+        metrics = self._metrics
+        for name, by_label in counts.items():
+            before = handle.counts.get(name, {})
+            for label, total in by_label.items():
+                more = total - before.get(label, 0.0)
+                if more > 0:
+                    counter = getattr(metrics, name)
+                    (counter.labels(label) if label else counter).inc(more)
+        handle.counts = counts
+
+    async def _watch(self) -> None:
+        """Ping every worker each :data:`PING_S` (once it answered the last ping); kill one
+        whose answer is more than ``worker_timeout_s`` late."""
+        loop = asyncio.get_running_loop()
+        while True:
+            await asyncio.sleep(PING_S)
+            now = loop.time()
+            for handle in list(self._handles.values()):
+                if handle.ping_at is None:
+                    handle.ping_at = now
+                    handle.outbox.put((PING,))
+                elif now - handle.ping_at > self._config.worker_timeout_s:
+                    self._hung(handle.index, f"no answer for {now - handle.ping_at:.1f} s")
+
+    def _hung(self, index: int, why: str) -> None:
+        """Kill a worker that hangs: it ends, and is restarted as one that died."""
+        handle = self._handles.get(index)
+        if handle is None or handle.process.returncode is not None:
+            return
+        log.error("worker %d hangs (%s): killing it", index, why)
+        self.hangs += 1
+        with contextlib.suppress(ProcessLookupError):
+            handle.process.kill()
 
     def cpu_s(self) -> float:
         """CPU seconds of the workers: those running now plus those that ended (and any

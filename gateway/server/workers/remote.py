@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import pickle
 from typing import Any
 
 from gateway.server.wire.auth import Peer
 from gateway.server.wire.session import Session
 from gateway.server.workers.channel import Outbox
-from protocol import PROTOCOL_VERSION, AnyMessage, ErrorCode
+from gateway.server.workers.records import ACTION, CLOSE, ERROR, SEND, VERSION
+from protocol import PROTOCOL_VERSION, AnyMessage, ErrorCode, action_body
 from protocol.messages import ProtocolVersion
 
 
@@ -32,25 +34,26 @@ class RemoteSession(Session):
     def version(self, v: ProtocolVersion) -> None:
         if v != self._version:
             self._version = v
-            self._outbox.put(("v", self.id, v))
+            self._outbox.put((VERSION, self.id, v))
 
     def send(self, kind: type[AnyMessage], **fields: Any) -> None:
         """Have the worker send a ``kind`` message with these fields."""
         if not self.closing:
-            self._outbox.put(("m", self.id, kind, fields))
+            self._outbox.put((SEND, self.id, pickle.dumps((kind, fields),
+                                                          protocol=pickle.HIGHEST_PROTOCOL)))
 
     def send_action(self, fields: dict[str, Any]) -> None:
-        """Have the worker send an ``action`` with these fields."""
+        """Have the worker send an ``action`` with these fields (as its JSON body)."""
         if not self.closing:
-            self._outbox.put(("a", self.id, fields))
+            self._outbox.put((ACTION, self.id, action_body(fields)))
 
     def error(self, code: ErrorCode, ref: str | None, detail: str) -> None:
         """Have the worker reply ``error`` (counted against the connection's budget there)."""
         if not self.closing:
-            self._outbox.put(("e", self.id, code, ref, detail))
+            self._outbox.put((ERROR, self.id, code.value, ref, detail))
 
     def close(self, code: int = 1000, reason: str = "") -> None:
         """Have the worker flush and close the connection."""
         if not self.closing:
             self.closing = True
-            self._outbox.put(("c", self.id, code, reason))
+            self._outbox.put((CLOSE, self.id, int(code), reason))

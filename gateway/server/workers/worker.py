@@ -3,25 +3,18 @@ owner (``python -m gateway.server.workers.worker FD``; the owner's
 :class:`~gateway.server.workers.pool.WorkerPool` starts it with its end of the channel as
 ``FD``).
 
-The channel's first batch is ``[("start", config, host, port, owner_path)]``; the worker
-listens on ``host:port`` beside the others (``SO_REUSEPORT``) and answers ``[("ready",)]``.
-
-Events to the owner, one batch per event-loop turn:
-
-- ``("o", sid, peer)``: a robot's connection was authenticated (``sid``: its session here);
-- ``("i", sid, message, received)``: a message it admitted (``received``: perf_counter);
-- ``("x", sid)``: the connection ended.
-
-Commands from the owner, applied in order to the session ``sid`` (ignored once it ended):
-``("a", sid, fields)`` an action, ``("m", sid, kind, fields)`` any other message, ``("e",
-sid, code, ref, detail)`` an error reply, ``("c", sid, code, reason)`` close, ``("v", sid,
-version)`` the protocol version to answer in. The worker ends when the owner's end closes.
+The channel's first frame is the start, ``("start", config, host, port, owner_path)``; the
+worker listens on ``host:port`` beside the others (``SO_REUSEPORT``) and answers
+``[("ready",)]``. Then it sends its events and carries out the owner's commands, both as the
+records of :mod:`~gateway.server.workers.records`, one batch per event-loop turn. The worker
+ends when the owner's end closes.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import pickle
 import socket
 import sys
 
@@ -32,9 +25,22 @@ from gateway.server.wire.auth import Authenticator
 from gateway.server.wire.connections import ConnectionServer, raise_fd_limit
 from gateway.server.wire.session import LinkSession
 from gateway.server.wire.tls import server_context
-from gateway.server.workers.channel import Op, Outbox, read_batch
+from gateway.server.workers.channel import Outbox, read_batch, read_start
+from gateway.server.workers.records import (
+    ACTION,
+    CLOSE,
+    CLOSED,
+    ERROR,
+    OPENED,
+    PING,
+    PONG,
+    SEND,
+    VERSION,
+    Op,
+    event,
+)
 from gateway.server.workers.router import Router
-from protocol import AnyMessage
+from protocol import AnyMessage, ErrorCode
 
 
 class Worker(ConnectionServer):
@@ -51,14 +57,14 @@ class Worker(ConnectionServer):
 
     def _opened(self, session: LinkSession) -> None:
         self._by_id[session.id] = session
-        self._outbox.put(("o", session.id, session.peer))
+        self._outbox.put((OPENED, session.id, session.peer.role, session.peer.robot_id))
 
     def _received(self, session: LinkSession, message: AnyMessage, received: float) -> None:
-        self._outbox.put(("i", session.id, message, received))
+        self._outbox.put(event(session.id, message, received))
 
     def _closed(self, session: LinkSession) -> None:
         self._by_id.pop(session.id, None)
-        self._outbox.put(("x", session.id))
+        self._outbox.put((CLOSED, session.id))
 
     async def listen(self, host: str, port: int, owner_path: str) -> None:
         """Listen on ``host:port`` beside the other workers."""
@@ -77,20 +83,34 @@ class Worker(ConnectionServer):
     def apply(self, ops: list[Op]) -> None:
         """Carry out the owner's commands, in order."""
         for op in ops:
+            code = op[0]
+            if code == PING:
+                self._outbox.put((PONG, self.counts()))
+                continue
             session = self._by_id.get(op[1])
             if session is None:
                 continue
-            match op[0]:
-                case "a":
-                    session.send_action(op[2])
-                case "m":
-                    session.send(op[2], **op[3])
-                case "e":
-                    session.error(op[2], op[3], op[4])
-                case "c":
-                    session.close(op[2], op[3])
-                case "v":
-                    session.version = op[2]
+            if code == ACTION:
+                session.send_action_body(op[2])
+            elif code == SEND:
+                kind, fields = pickle.loads(op[2])
+                session.send(kind, **fields)
+            elif code == ERROR:
+                session.error(ErrorCode(op[2]), op[3], op[4])
+            elif code == CLOSE:
+                session.close(op[2], op[3])
+            elif code == VERSION:
+                session.version = op[2]
+
+    def counts(self) -> dict[str, dict[str, float]]:
+        """This worker's counts of protocol errors, refused handshakes and failed handlers
+        (their totals so far, by label), for the owner's ``/metrics``."""
+        return {name: {_label(sample.labels): sample.value
+                       for family in metric.collect() for sample in family.samples
+                       if sample.name.endswith("_total")}
+                for name, metric in (("errors", self.metrics.errors),
+                                     ("refused", self.metrics.refused),
+                                     ("handler_failures", self.metrics.handler_failures))}
 
     async def stop(self) -> None:
         """Stop listening and close every connection (1001)."""
@@ -103,7 +123,7 @@ class Worker(ConnectionServer):
 async def serve(fd: int) -> None:
     """Run a worker on the channel ``fd`` until the owner's end closes."""
     reader, writer = await asyncio.open_unix_connection(sock=socket.socket(fileno=fd))
-    [(_, config, host, port, owner_path)] = await read_batch(reader)
+    _, config, host, port, owner_path = await read_start(reader)
     configure_logging(config.log_level, config.log_format, config.log_file)
     outbox = Outbox(writer)
     worker = Worker(config, outbox)
@@ -116,6 +136,10 @@ async def serve(fd: int) -> None:
         pass  # the owner stopped (or died): so does this worker
     finally:
         await worker.stop()
+
+
+def _label(labels: dict[str, str]) -> str:
+    return next(iter(labels.values()), "")
 
 
 def main() -> None:
