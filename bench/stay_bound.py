@@ -4,7 +4,7 @@ capture, at best, with one replan? (:mod:`experiments.stay_bound`; not a timed t
 Reads a campaign folder of ``fleetgate experiment`` (its instances, settings and
 experiments; the campaign must have a varying ``--intruder-stay``), simulates a seeded
 sample of its experiments over a grid of equally likely stays (no replan; a forced informed
-replan every second from ``T_a`` for each assumed stay; the clairvoyant's), and prints one
+replan every ``--step`` s from ``T_a`` for each assumed stay; the clairvoyant's), and prints one
 line: the best pooled capture of the clairvoyant's expected saving (the baseline, measured in
 the same run) with at most ``--budget`` of the experiments worse than not replanning, for
 replans from the block's first report (what an online policy can know), from one second
@@ -69,6 +69,8 @@ def main() -> None:
     p.add_argument("--tables", type=Path, default=None, help="write the savings tables here")
     p.add_argument("--switches", type=int, default=0,
                    help="also bound policies with up to this many switches (0, 1 or 2)")
+    p.add_argument("--step", type=float, default=1.0,
+                   help="seconds between the replan (first switch) times (default 1)")
     p.add_argument("--second-step", type=float, default=2.0,
                    help="seconds between the second switch's times (default 2)")
     args = p.parse_args()
@@ -82,9 +84,9 @@ def main() -> None:
     if not settings.get("intruder_stay"):
         raise UsageError(f"{args.folder}: the campaign has the paper's fixed stay")
     if not (args.points >= 2 and args.sample >= 1 and 0 <= args.budget < 1
-            and args.switches in (0, 1, 2) and args.second_step > 0):
+            and args.switches in (0, 1, 2) and args.step > 0 and args.second_step > 0):
         raise UsageError("need --points >= 2, --sample >= 1, 0 <= --budget < 1, --switches "
-                         "0, 1 or 2 and --second-step > 0")
+                         "0, 1 or 2 and --step, --second-step > 0")
     spec = parse_stay(settings["intruder_stay"])
     levels = [float(x) for x in args.assumed.split(",")]
     grid = stay_grid(spec, args.points)
@@ -106,9 +108,10 @@ def main() -> None:
         except (OSError, ValueError, KeyError, MapNotFound) as exc:
             raise UsageError(f"{args.folder}: {m}-{n}-{i}: {exc}") from None
         config = variant_config(load_grid(str(path)), rec.plan, seed, "intruder", sim)
-        tables.append(gain_table(config, keys[j], grid, assumed_s))
+        tables.append(gain_table(config, keys[j], grid, assumed_s, 1000.0 * args.step))
         if args.switches:
             paths.append(path_table(config, keys[j], grid, assumed_s, tables[-1].clairvoyant,
+                                    step_ms=1000.0 * args.step,
                                     second_step_ms=1000.0 * args.second_step,
                                     switches=args.switches))
     if args.tables is not None:

@@ -204,7 +204,14 @@ def sweep(config: SimConfig, step_ms: float = DEFAULT_STEP_MS, *,
         raise ValueError("the oracle forces its own replans: give policy 'none' and "
                          "max_replans >= 1")
     memo = Memo()
-    base = (ClairvoyantSimulation if clairvoyant else _OracleSimulation)(config, memo)
+    return sweep_from((ClairvoyantSimulation if clairvoyant else _OracleSimulation)(config, memo),
+                      step_ms, clairvoyant=clairvoyant)
+
+
+def sweep_from(base: _OracleSimulation, step_ms: float, *, clairvoyant: bool = False) -> Sweep:
+    """:func:`sweep` from its base simulation ``base`` (not started; a subclass may watch the
+    run, e.g. :mod:`experiments.stay_info`)."""
+    config, memo = base.cfg, base.memo
     base.start()
     curve = []
     t = config.intruder_config.appear_ms if clairvoyant else 0.0

@@ -129,6 +129,8 @@ ROWS = [
     Row("bench-demo-stays", ("bench/demo_stays.py", "--runs", "1")),
     Row("bench-stay-bound", ("bench/stay_bound.py", "{camp}", "--sample", "1", "--points",
                              "2", "--tables", "{out}"), previous=False),
+    Row("bench-stay-info", ("bench/stay_info.py", "{camp}", "--sample", "1"),
+        folder=("bench/stay_info.py", "{file}/x")),
     Row("bench-faults", ("bench/faults.py", "--trials", "1", "--modes", "oneshot"), long=True),
 ]
 NO_PATH = {"bench-monitor", "bench-sim-speed", "bench-feed", "bench-lifelong", "bench-crash",
