@@ -755,8 +755,10 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
         lost = len(dispatched - set(got))
     t0 = time.process_time()
     virtual = run_lifelong(LifelongConfig(problem, ticks=seconds, period=1, tick_ms=1000.0,
-                                          seed=seed, window=window, lanes=0)
-                           ) if reference else None  # no lanes: the gateway's planner has none
+                                          seed=seed, window=window, lanes=0,
+                                          doors=0)
+                           ) if reference else None  # no lanes nor doors: the gateway's
+    # planner has none
     virtual_cpu = time.process_time() - t0
     minutes = gateway.get("elapsed_ms", 0.0) / 60_000.0
     network_rate = gateway.get("finished", 0) / minutes if minutes else 0.0

@@ -17,6 +17,10 @@ MAX_WAIT_TICKS = 600
 """``sim_clients.lifelong.MAX_WAIT_TICKS`` (a test checks), named here for the same reason."""
 LANES = 3
 """``sim_clients.lifelong.LANES`` (a test checks), named here for the same reason."""
+LANES_ROOMS = 1
+"""``sim_clients.lifelong.LANES_ROOMS`` (a test checks), named here for the same reason."""
+DOORS = 20
+"""``sim_clients.lifelong.DOORS`` (a test checks), named here for the same reason."""
 
 
 def _planner_time(text: str) -> str | float:
@@ -51,7 +55,7 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("ticks", "period"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name} must be positive, got {getattr(args, name)}")
-    for name in ("window", "reassign", "max_wait", "lanes"):
+    for name in ("window", "reassign", "max_wait", "lanes", "doors"):
         if (getattr(args, name) or 0) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, "
                              f"got {getattr(args, name)}")
@@ -62,19 +66,21 @@ def _run(args: argparse.Namespace) -> int:
     if args.delay_seed is not None:
         problem = dataclasses.replace(problem, delay=dataclasses.replace(problem.delay,
                                                                          seed=args.delay_seed))
-    if args.lanes and (args.motion != "turning"
-                       or not exact_fits(problem.grid, problem.team_size, PLANNER_BUDGET)):
-        raise UsageError("--lanes needs the turning motion and a map whose exact tables fit "
-                         f"2 GB ({problem.name}: {problem.grid.width}x{problem.grid.height}, "
-                         f"{problem.team_size} robots)" if args.motion == "turning"
-                         else "--lanes needs --motion turning")
+    for name in ("lanes", "doors"):
+        if getattr(args, name) and (args.motion != "turning" or not exact_fits(
+                problem.grid, problem.team_size, PLANNER_BUDGET)):
+            raise UsageError(f"--{name} needs the turning motion and a map whose exact tables "
+                             f"fit 2 GB ({problem.name}: {problem.grid.width}x"
+                             f"{problem.grid.height}, {problem.team_size} robots)"
+                             if args.motion == "turning" else f"--{name} needs --motion turning")
     if args.output:
         check_writable(args.output)  # before the run, not after it
     cfg = LifelongConfig(problem=problem, ticks=args.ticks, turning=args.motion == "turning",
                          period=args.period, window=args.window,
                          planner_time=args.planner_time, scheduler=args.scheduler,
                          max_wait=args.max_wait or None,
-                         reassign=args.reassign, lanes=args.lanes, seed=args.seed)
+                         reassign=args.reassign, lanes=args.lanes, doors=args.doors,
+                         seed=args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("ticks, {task.fields[done]} tasks"),
                   disable=not args.progress, transient=True,
@@ -127,7 +133,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="guide the turning planner by crisscross lanes (even rows east, odd "
                         "rows west, even columns south, odd columns north): a move against its "
                         "lane costs PENALTY half-moves more; 0: no lanes (default: "
-                        f"{LANES} where the exact tables fit the planner's 2 GB, else none)")
+                        f"{LANES} where the exact tables fit the planner's 2 GB, {LANES_ROOMS} "
+                        "there on a map with one-way doors, else none)")
+    p.add_argument("--doors", type=int, default=None, metavar="PENALTY",
+                   help="make the one-cell doors between two rooms that have two or more "
+                        "one way, taking turns: a move against a door costs PENALTY half-moves "
+                        f"more; 0: no one-way doors (default: {DOORS} where the exact tables "
+                        "fit the planner's 2 GB, else none)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
     p.add_argument("--delay-seed", type=int, default=None, metavar="SEED",
                    help="seed of the delay model (default: the problem's delayConfig seed)")

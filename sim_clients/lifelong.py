@@ -37,7 +37,7 @@ from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.executor import WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
-from gateway.planning.guidance import crisscross
+from gateway.planning.guidance import crisscross, one_way_doors
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
 from gateway.planning.pibt import StateSpace, exact_fits
 
@@ -71,6 +71,16 @@ Shared LoRR problems, 600 ticks, delay seeds 0-2, load 14-25, tasks without lane
 132.9), random 456 (2 seeds) / 499.7 / 500.0, city 246.3 / 251.0 / 250.0; random-400 under
 the 2024 rules (planner seeds 0-4) 445.2 / 493.8 / 497.8 (penalty 4: 499.8, 6: 486.4; room
 penalty 5: 131.0, maze 83.3)."""
+LANES_ROOMS = 1
+"""The default lanes' penalty on a map with one-way doors (:data:`DOORS`): inside rooms the
+crisscross lanes only break ties. Room, 600 ticks, doors 20, delay seeds 0-23: lanes 1 143.5
+tasks, 3 140.6, 2 140.3 (seeds 0-11), 5 139.4 (seeds 0-11); lanes 1 without doors 133.0 (seeds
+0-11)."""
+DOORS = 20
+"""The default penalty of a move against a one-way door (:func:`~gateway.planning.guidance.
+one_way_doors`, half-moves) of a run whose exact tables fit :data:`PLANNER_BUDGET` (else
+none). Room, 600 ticks, lanes 3, delay seeds 0-11: no doors 133.9 tasks, 16 140.8, 20 140.75,
+24 137.75, 30 140.7, 40 138.1; the other shared maps have no such doors (no change)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -139,6 +149,9 @@ class LifelongConfig:
     station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
     lanes: int | None = None  # penalty of a move against its crisscross lane
     # (gateway.planning.guidance; turning, exact tables); 0: no lanes; None: LANES if they fit
+    # (LANES_ROOMS on a map with one-way doors)
+    doors: int | None = None  # penalty of a move against a one-way door (guidance.
+    # one_way_doors; turning, exact tables); 0: none; None: DOORS if exact tables fit
     crowd: bool = True  # tables guided by the crowd (StateSpace.guide) where they are exact
     warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     seed: int = 0
@@ -198,17 +211,18 @@ def run_lifelong(cfg: LifelongConfig,
     if cfg.scheduler not in SCHEDULERS:
         raise ValueError(f"unknown scheduler {cfg.scheduler!r}")
     schedule = SCHEDULERS[cfg.scheduler]
+    exact = cfg.turning and exact_fits(grid, n, PLANNER_BUDGET)
+    doors = cfg.doors if cfg.doors is not None else DOORS if exact else 0
+    if (doors or cfg.lanes) and not cfg.turning:
+        raise ValueError("lanes and doors guide the turning model only")
+    one_way = one_way_doors(grid, doors)
     lanes = cfg.lanes
     if lanes is None:
-        lanes = LANES if cfg.turning and exact_fits(grid, n, PLANNER_BUDGET) else 0
-    if lanes and not cfg.turning:
-        raise ValueError("lanes guide the turning model only")
+        lanes = (LANES_ROOMS if one_way.any() else LANES) if exact else 0
+    guided = cfg.crowd and exact  # the crowd weighs exact tables (lanes 0: none)
     space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
-                       guidance=crisscross(grid, lanes) if lanes else None)
-    guided = cfg.crowd and space.exact  # the crowd weighs exact tables (lanes 0: none)
-    if guided and not lanes:
-        space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
-                           guidance=crisscross(grid, 0))
+                       guidance=crisscross(grid, lanes) + one_way
+                       if lanes or one_way.any() or guided else None)
     planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space, guided=guided)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)

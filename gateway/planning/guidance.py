@@ -218,3 +218,86 @@ def _ahead(grid: Grid) -> npt.NDArray[np.int64]:
         inside = (nx >= 0) & (nx < grid.width) & (ny >= 0) & (ny < grid.height)
         out[inside, h] = (ny * grid.width + nx)[inside]
     return out.ravel()
+
+
+
+DOOR_ROOM = 16
+"""Cells a region needs for its doors to be made one way (:func:`one_way_doors`): a pocket of a
+few cells behind a gap among obstacles is no room (random-64-64-10 has two such; the shared
+maze and city maps none either way)."""
+
+
+def door_cells(grid: Grid) -> list[tuple[int, int]]:
+    """The one-cell doors of ``grid`` as ``(cell, axis)``, in cell order: a free cell whose
+    two neighbours on one axis are blocked (or off the map) and whose two on the other axis are
+    free (axis 0: walls west and east, the passage runs north-south; 1: walls north and
+    south)."""
+    free = np.pad(grid.free, 1, constant_values=False)
+    mid = free[1:-1, 1:-1]
+    north, south = free[:-2, 1:-1], free[2:, 1:-1]
+    west, east = free[1:-1, :-2], free[1:-1, 2:]
+    axis0 = mid & ~west & ~east & north & south
+    axis1 = mid & ~north & ~south & west & east
+    cells = np.flatnonzero(axis0 | axis1)
+    return [(c, 0 if axis0.flat[c] else 1) for c in cells.tolist()]
+
+
+def regions(grid: Grid, cut: Sequence[int]) -> npt.NDArray[np.int64]:
+    """Each cell's region (0, 1, ...): the connected parts (4-neighbours) of the free cells
+    of ``grid`` without the cells ``cut``; -1 on a blocked or cut cell."""
+    free = grid.free.ravel().copy()
+    free[np.asarray(cut, dtype=np.int64)] = False
+    w, n = grid.width, grid.size
+    label = np.full(n, -1, dtype=np.int64)
+    k = 0
+    for s in np.flatnonzero(free).tolist():
+        if label[s] >= 0:
+            continue
+        label[s] = k
+        stack = [s]
+        while stack:
+            c = stack.pop()
+            x = c % w
+            for v, ok in ((c + 1, x < w - 1), (c - 1, x > 0), (c + w, c + w < n),
+                          (c - w, c >= w)):
+                if ok and free[v] and label[v] < 0:
+                    label[v] = k
+                    stack.append(v)
+        k += 1
+    return label
+
+
+def one_way_doors(grid: Grid, penalty: int) -> npt.NDArray[np.int32]:
+    """What one-way doors add to each state's forward-move cost (``4 * cell + heading``, as
+    :func:`crisscross`): where two regions (:func:`regions` of the map cut at its
+    :func:`door_cells`, :data:`DOOR_ROOM` cells or more each) have two or more doors between
+    them, those doors take turns, in cell order, at running from the region of the lower number
+    to the other and back, and a move into a door against its direction, or on through it,
+    costs ``penalty`` more (soft: a robot may still go against it). On the LoRR room map,
+    robots bound both ways had queued on both sides of its doors."""
+    if penalty < 0:
+        raise ValueError(f"a door penalty must be at least 0, not {penalty}")
+    out = np.zeros(4 * grid.size, dtype=np.int32)
+    if not penalty:
+        return out
+    w = grid.width
+    doors = door_cells(grid)
+    label = regions(grid, [c for c, _ in doors])
+    sizes = np.bincount(label[label >= 0], minlength=1)
+    pairs: dict[tuple[int, int], list[tuple[int, int, bool]]] = {}
+    for c, axis in doors:
+        step = w if axis == 0 else 1
+        a, b = int(label[c - step]), int(label[c + step])
+        if a != b and min(a, b) >= 0 and min(sizes[a], sizes[b]) >= DOOR_ROOM:
+            pairs.setdefault((min(a, b), max(a, b)), []).append((c, step, a < b))
+    for members in pairs.values():
+        if len(members) < 2:
+            continue
+        for i, (c, step, low_first) in enumerate(members):
+            forth = low_first == (i % 2 == 0)  # the door runs from c - step to c + step
+            # against it: heading north (3) or west (2) when it runs south or east, from c + step
+            against = (3 if step == w else 2) if forth else (1 if step == w else 0)
+            back = c + step if forth else c - step
+            out[4 * back + against] += penalty
+            out[4 * c + against] += penalty
+    return out

@@ -17,11 +17,14 @@ from gateway.planning.grid import Grid
 from gateway.planning.guidance import (
     CROWD_AGE,
     CROWD_WEIGHT,
+    DOOR_ROOM,
     MOVE,
     crisscross,
     crowd,
     crowded,
+    door_cells,
     guided_tables,
+    one_way_doors,
 )
 from gateway.planning.pibt import UNREACHABLE, StateSpace
 
@@ -116,6 +119,86 @@ def test_the_best_option_costs_the_table_entry(case: tuple[Grid, int], penalty: 
         costs = space.costs(table, opts)
         assert costs[0] == table[s] + MOVE
         assert min(costs[1:]) == table[s]
+
+
+def two_rooms(width: int, height: int, doors: list[int]) -> Grid:
+    """Two rooms of ``width`` x ``height`` cells, one above the other, split by a wall row
+    with one-cell doors at the columns ``doors``."""
+    free = np.ones((2 * height + 1, width), dtype=bool)
+    free[height] = False
+    free[height, doors] = True
+    return Grid(free)
+
+
+def test_two_doors_between_two_rooms_run_opposite_ways_by_hand() -> None:
+    """9 x 4 rooms (36 cells each), doors in columns 2 and 6 of wall row 4: the first door
+    runs south (a move north into it, or on through it, costs the penalty more), the second
+    north; nothing else costs more."""
+    grid = two_rooms(9, 4, [2, 6])
+    w = grid.width
+    assert door_cells(grid) == [(4 * w + 2, 0), (4 * w + 6, 0)]
+    extra = one_way_doors(grid, 7)
+    north, south = 3, 1
+    want = {4 * (5 * w + 2) + north, 4 * (4 * w + 2) + north,
+            4 * (3 * w + 6) + south, 4 * (4 * w + 6) + south}
+    assert set(np.flatnonzero(extra).tolist()) == want
+    assert (extra[list(want)] == 7).all()
+    assert not one_way_doors(grid, 0).any()
+    with pytest.raises(ValueError, match="at least 0"):
+        one_way_doors(grid, -1)
+
+
+def test_a_lone_door_or_a_pocket_is_not_made_one_way() -> None:
+    """A single door between two rooms, or two into a pocket of fewer than DOOR_ROOM cells:
+    both ways cost the same."""
+    assert not one_way_doors(two_rooms(9, 4, [4]), 5).any()
+    pocket = two_rooms(3, 2, [0, 2])  # rooms of 6 cells
+    assert len(door_cells(pocket)) == 2 and DOOR_ROOM > 6
+    assert not one_way_doors(pocket, 5).any()
+
+
+@st.composite
+def rooms_and_goal(draw: st.DrawFn) -> tuple[Grid, int]:
+    """Two rooms split by a wall row with drawn doors, a few drawn obstacles, and a goal."""
+    width, height = draw(st.integers(4, 9)), draw(st.integers(3, 5))  # 12-45 cells a room
+    doors = draw(st.lists(st.integers(0, width - 1), min_size=2, max_size=4, unique=True))
+    grid = two_rooms(width, height, sorted(doors))
+    free = grid.free.copy()
+    for y, x in draw(st.lists(st.tuples(st.integers(0, 2 * height), st.integers(0, width - 1)),
+                              max_size=3)):
+        free[y, x] = False
+    grid = Grid(free)
+    cells = np.flatnonzero(grid.free.ravel()).tolist()
+    if not cells:
+        grid = Grid(np.ones((1, 1), dtype=bool))
+        cells = [0]
+    return grid, draw(st.sampled_from(cells))
+
+
+@settings(max_examples=80, deadline=None)
+@given(rooms_and_goal(), st.integers(1, 30))
+def test_one_way_doors_cost_only_against_a_door(case: tuple[Grid, int], penalty: int) -> None:
+    """Only moves into a door along its passage, or on through it, cost more, by the penalty,
+    and each door costs more one way at most; the tables under lanes plus doors equal the
+    textbook Dijkstra's, and doors only lengthen a path."""
+    grid, goal = case
+    extra = one_way_doors(grid, penalty)
+    w = grid.width
+    doors = dict(door_cells(grid))
+    against: dict[int, set[int]] = {}
+    for s in np.flatnonzero(extra).tolist():
+        assert extra[s] == penalty
+        c, heading = s >> 2, s & 3
+        step = (1, w, -1, -w)[heading]
+        door = c if c in doors else c + step
+        assert door in doors and (heading % 2 == 1) == (doors[door] == 0)
+        against.setdefault(door, set()).add(heading)
+    assert all(len(h) == 1 for h in against.values())
+    forward = crisscross(grid, 2) + extra
+    got = guided_tables(grid, [goal], forward)[0].tolist()
+    assert got == dijkstra(grid, goal, forward.tolist())
+    lanes = guided_tables(grid, [goal], crisscross(grid, 2))[0].tolist()
+    assert all((a < 0) == (b < 0) and a <= b for a, b in zip(lanes, got, strict=True))
 
 
 def test_guidance_needs_exact_tables() -> None:
