@@ -133,6 +133,8 @@ ROWS = [
                              "2", "--tables", "{out}"), previous=False),
     Row("bench-stay-info", ("bench/stay_info.py", "{camp}", "--sample", "1"),
         folder=("bench/stay_info.py", "{file}/x")),
+    Row("bench-stay-frontier", ("bench/stay_frontier.py", "{file}"),
+        folder=("bench/stay_frontier.py", "{file}/x"), code=EXIT_BAD_INPUT),
     Row("bench-faults", ("bench/faults.py", "--trials", "1", "--modes", "oneshot"), long=True),
 ]
 NO_PATH = {"bench-monitor", "bench-sim-speed", "bench-feed", "bench-lifelong", "bench-crash",
