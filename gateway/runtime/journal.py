@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import hashlib
 import json
 import math
@@ -388,9 +389,18 @@ def chain_next(prev: str, kind: str, body: str) -> str:
     """The hash chain's value after a record: SHA-256 over the previous value, the record's
     kind and its JSON (the first 32 hex digits). Replay recomputes it: an edited, reordered or
     deleted record (but the last ones: a lost tail) breaks the chain."""
-    h = hashlib.sha256(prev.encode())
-    h.update(b"\0" + kind.encode() + b"\0" + body.encode())
-    return h.hexdigest()[:32]
+    return hashlib.sha256(f"{prev}\0{kind}\0{body}".encode()).hexdigest()[:32]
+
+
+ROWS_PER_INSERT = 256
+"""Rows a commit of reports and ticks writes with one multi-row ``INSERT`` (768 values, below
+the 999 an SQLite may allow); a bigger one is a transaction of several."""
+
+
+@functools.cache
+def _insert_rows(n: int) -> str:
+    """The ``INSERT`` of ``n`` records (kind, body, chain)."""
+    return "INSERT INTO records (kind, body, chain) VALUES " + ", ".join(["(?, ?, ?)"] * n)
 
 
 class JournalLock:
@@ -599,15 +609,12 @@ class Journal:
         if replace:
             self._seal([(self._count, self._chain), (count, chain)])
         try:
-            if full:
-                db.execute("PRAGMA synchronous=FULL")
-            db.execute("BEGIN")
-            for sql, args in statements:
-                db.execute(sql, args)
-            db.executemany("INSERT INTO records (kind, body, chain) VALUES (?, ?, ?)", chained)
-            db.execute("COMMIT")
-            if full:
-                db.execute("PRAGMA synchronous=NORMAL")
+            if not (full or statements or len(chained) > ROWS_PER_INSERT):
+                # a report or tick commit (the owner's hot path): one statement, which SQLite
+                # makes a transaction of its own (autocommit), not BEGIN + insert + COMMIT
+                db.execute(_insert_rows(len(chained)), [v for row in chained for v in row])
+            else:
+                self._transaction(db, statements, chained, full)
         except sqlite3.Error as exc:
             with contextlib.suppress(sqlite3.Error):
                 db.execute("ROLLBACK")
@@ -617,6 +624,21 @@ class Journal:
         self.synced_commits += full
         if full:
             self._seal([(count, chain)])
+
+    @staticmethod
+    def _transaction(db: sqlite3.Connection, statements: list[tuple[str, tuple[object, ...]]],
+                     chained: list[tuple[str, str, str]], full: bool) -> None:
+        """``statements``, then the ``chained`` rows, in one transaction (synced if
+        ``full``)."""
+        if full:
+            db.execute("PRAGMA synchronous=FULL")
+        db.execute("BEGIN")
+        for sql, args in statements:
+            db.execute(sql, args)
+        db.executemany("INSERT INTO records (kind, body, chain) VALUES (?, ?, ?)", chained)
+        db.execute("COMMIT")
+        if full:
+            db.execute("PRAGMA synchronous=NORMAL")
 
     def _seal(self, states: list[tuple[int, str]]) -> None:
         """Write and sync the seal: the journal holds (at least) one of ``states`` (record
@@ -668,15 +690,17 @@ class Journal:
                                f"{self._count} are there: its WAL was damaged or deleted): "
                                f"start with --fresh to abandon the run")
 
-    def commit(self) -> None:
+    def commit(self) -> bool:
         """Write the buffered records in one transaction (synced if one of them is of
-        :data:`DURABLE_KINDS`). On failure they stay buffered and nothing of them is written."""
+        :data:`DURABLE_KINDS`); False if there were none. On failure they stay buffered and
+        nothing of them is written."""
         if not self._buffer:
-            return
+            return False
         t0 = time.perf_counter()
         self._write([], self._buffer, self._chain, full=self._durable)
         self._buffer, self._durable = [], False
         self._after_write(t0)
+        return True
 
     def _after_write(self, t0: float) -> None:
         """Start the checkpointer on the first write; catch up the WAL if it asked."""

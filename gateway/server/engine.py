@@ -117,6 +117,11 @@ task events of as many batches of ``MAX_BATCH`` tasks are still in the task pool
 (``KEEP``) when they are journaled."""
 
 
+def _tick_marker() -> None:
+    """What a tick item calls if it comes after ticking stopped: nothing (the owner task
+    recognises the armed tick's item itself)."""
+
+
 def _pose(cell: tuple[int, int], heading: int | None) -> dict[str, Any]:
     """A pose as the plain JSON values an action carries (:func:`protocol.encode_action`)."""
     return {"cell": [int(cell[0]), int(cell[1])],
@@ -190,6 +195,9 @@ class Engine:
         self._resumed = 0.0  # thread CPU time when the owner task last woke up
         self._handled = 0  # items handled (the queue depth gauge samples every 64th)
         self._uncommitted = 0  # items handled since the last commit
+        self._tick_item: OwnerCall | None = None  # the next tick's queue item, once armed
+        self._tick_timer: asyncio.TimerHandle | None = None  # the loop timer that queues it
+        self._tick_ms = 0.0  # the plan time of the next tick
 
     # -------------------------------------------------------------------------- status
     @property
@@ -232,43 +240,55 @@ class Engine:
 
     # -------------------------------------------------------------------------- the loop
     async def run(self) -> None:
-        """Process queue items forever; tick while running."""
-        next_tick: float | None = None
+        """Process queue items forever; tick while running. Each tick is an item that a loop
+        timer queues at its time (one timer per tick, not one armed and cancelled per
+        wake-up of this task)."""
         self._resumed = time.thread_time()
         while True:
-            if not self.current_run.ticking:
-                next_tick = None
-                if self.queue.empty() or self._commit_due():
-                    self.commit()
-                item = await self._get()  # at once if the queue is not empty
+            ticking = self.current_run.ticking
+            if not ticking:
+                self._stop_ticking()
+            elif self._tick_item is None:
+                self._arm_tick(self._first_tick(self.now_ms()))
+            if self.queue.empty():
+                self.commit()
+                item = await self._get()
             else:
-                if next_tick is None:
-                    next_tick = self._first_tick(self.now_ms())
-                if not self.queue.empty():
-                    # what ``get`` under the timeout would return at once, without arming and
-                    # cancelling a timer per item (a busy fleet keeps this queue non-empty)
-                    if self._commit_due():
-                        self.commit()
-                    item = self.queue.get_nowait()
-                else:
+                if self._commit_due():
                     self.commit()
-                    delay = (next_tick - self.clock.now_ms()) / self.clock.speed / 1000.0
-                    try:
-                        async with asyncio.timeout(max(0.0, delay)):
-                            item = await self._get()
-                    except TimeoutError:
-                        await self._quiesce()
-                        for hook in self.before_tick:
-                            hook(next_tick)
-                        await self._quiesce()
-                        self._tick_safely()
-                        next_tick = self._next_tick(next_tick)
-                        continue
+                item = self.queue.get_nowait()
+            if item is self._tick_item:
+                await self._tick_at(self._tick_ms)
+                continue
             self._handled += 1
             if not self._handled & 63:  # a gauge: a sample every 64 items is enough
                 self.metrics.queue_depth.set(self.queue.qsize())
             self._handle_safely(item)
             self._uncommitted += 1
+
+    def _arm_tick(self, at_ms: float) -> None:
+        """Queue a tick item at plan time ``at_ms``."""
+        self._tick_ms = at_ms
+        item = self._tick_item = OwnerCall(_tick_marker)
+        delay = (at_ms - self.clock.now_ms()) / self.clock.speed / 1000.0
+        self._tick_timer = asyncio.get_running_loop().call_later(
+            max(0.0, delay), self.queue.put_nowait, item)
+
+    def _stop_ticking(self) -> None:
+        """No more ticks (a tick item already queued is then a no-op call)."""
+        if self._tick_timer is not None:
+            self._tick_timer.cancel()
+        self._tick_timer = self._tick_item = None
+
+    async def _tick_at(self, t_ms: float) -> None:
+        """The tick due at ``t_ms``: once the instant is quiet, the hooks, then the monitor;
+        then the next tick is armed."""
+        await self._quiesce()
+        for hook in self.before_tick:
+            hook(t_ms)
+        await self._quiesce()
+        self._tick_safely()
+        self._arm_tick(self._next_tick(t_ms))
 
     def _commit_due(self) -> bool:
         """A group commit is full: :data:`GROUP_COMMIT_ITEMS` items handled since the last
@@ -309,8 +329,8 @@ class Engine:
             hook()
         if self.journal is not None:
             t0 = time.perf_counter()
-            self.journal.commit()
-            self.metrics.journal_commit.observe(time.perf_counter() - t0)
+            if self.journal.commit():  # (a wake-up for acks and states alone writes none)
+                self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
 
     def _first_tick(self, now: float) -> float:
@@ -688,6 +708,7 @@ class Engine:
     async def aclose(self) -> None:
         """Cancel running planner tasks and close the trace."""
         self.solvers.cancel_all()
+        self._stop_ticking()
         self.current_run.cancel()
         self.commit()
         self.feed.close_trace()
