@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from fleetgate.userio import children
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.instance import Instance
 from gateway.planning.random_plans import open_grid
@@ -99,10 +100,11 @@ def run_child(args: argparse.Namespace, tree: Path | None) -> dict[str, Any]:
     cmd = [sys.executable, __file__, "--child", "--robots", str(args.robots), "--steps",
            str(args.steps), "--seed", str(args.seed), "--jitter", str(args.jitter)]
     env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
-    done = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, text=True, check=False)
-    if done.returncode != 0:
+    with children.running(cmd, env=env, stdout=subprocess.PIPE, text=True) as proc:
+        out, _ = proc.communicate()
+    if proc.returncode != 0 or not out.strip():
         raise UsageError(f"the run with {tree or 'this checkout'} failed (its error is above)")
-    run: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    run: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
     n = run["actions"]
     run["owner_cpu_ms_per_action"] = round(1000.0 * run["owner_cpu_s"] / n, 4)
     run["owner_over_bare"] = round(run["owner_cpu_s"] / run["bare_cpu_s"], 3)

@@ -94,6 +94,14 @@ class GainTable:
                 "clairvoyant": list(self.clairvoyant),
                 "actions": [[t, a, list(g)] for (t, a), g in self.actions.items()]}
 
+    @staticmethod
+    def from_json(row: dict[str, Any]) -> GainTable:
+        """The table of one line of the bench's output file (:meth:`to_json`)."""
+        m, n, i, seed = row["key"]
+        return GainTable((str(m), int(n), int(i), int(seed)), row["need_ms"],
+                         tuple(row["clairvoyant"]),
+                         {(float(t), float(a)): tuple(g) for t, a, g in row["actions"]})
+
 
 def gain_table(config: SimConfig, key: ExperimentKey, stays_s: Sequence[float],
                assumed_s: Sequence[float], step_ms: float = 1000.0) -> GainTable:

@@ -118,6 +118,15 @@ class PathTable:
                 "clairvoyant": list(self.clairvoyant),
                 "paths": [[[list(s) for s in p], list(g)] for p, g in self.paths.items()]}
 
+    @staticmethod
+    def from_json(row: dict[str, Any]) -> PathTable:
+        """The table of one line of the bench's output file (:meth:`to_json`)."""
+        m, n, i, seed = row["key"]
+        return PathTable((str(m), int(n), int(i), int(seed)), float(row["need_ms"]),
+                         tuple(row["clairvoyant"]),
+                         {tuple((float(t), float(a)) for t, a in p): tuple(g)
+                          for p, g in row["paths"]})
+
     def options(self) -> Options:
         """The expected saving and worse-than-none chance of each path (for
         :func:`choose_capture`)."""

@@ -121,6 +121,8 @@ ROWS = [
                            "30", "--json")),
     Row("bench-load", ("bench/load.py", "--robots", "20", "--seconds", "5", "--json"),
         folder=("bench/load.py", "--profile", "{file}/p.prof"), long=True),
+    Row("bench-owner", ("bench/owner.py", "--robots", "20", "--steps", "3", "--json"),
+        folder=("bench/owner.py", "--against", "{file}/x")),
     Row("bench-crash", ("bench/crash.py", "--kills", "2", "--json"), long=True),
     Row("bench-api", ("bench/api.py", "--clients", "4", "--seconds", "2", "--pairs", "1",
                       "--against", "."),
@@ -131,6 +133,8 @@ ROWS = [
                              "2", "--tables", "{out}"), previous=False),
     Row("bench-stay-info", ("bench/stay_info.py", "{camp}", "--sample", "1"),
         folder=("bench/stay_info.py", "{file}/x")),
+    Row("bench-stay-frontier", ("bench/stay_frontier.py", "{file}"),
+        folder=("bench/stay_frontier.py", "{file}/x"), code=EXIT_BAD_INPUT),
     Row("bench-faults", ("bench/faults.py", "--trials", "1", "--modes", "oneshot"), long=True),
 ]
 NO_PATH = {"bench-monitor", "bench-sim-speed", "bench-feed", "bench-lifelong", "bench-crash",

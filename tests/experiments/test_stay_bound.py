@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import pytest
 
@@ -66,6 +67,7 @@ def test_every_entry_of_a_table_equals_fresh_runs() -> None:
                 or watch.intruder.state is IntruderState.GONE
             assert savings[k] == (0.0 if gone else none - res.soc_ms)
     assert any(max(c, 0.0) > 0 for c in got.clairvoyant)
+    assert GainTable.from_json(json.loads(json.dumps(got.to_json()))) == got
 
 
 def _table(need: float, clair: tuple[float, ...],
@@ -158,6 +160,8 @@ def test_every_path_of_a_path_table_equals_fresh_runs() -> None:
     # a decision after the block ended is not taken: the path saves what its prefix saves
     late = [p for p in got.paths if p and p[0][0] >= got.need_ms + 2000.0]
     assert late and all(got.paths[p][0] == got.paths[()][0] for p in late)
+    # what bench/stay_frontier.py reads back is what bench/stay_bound.py wrote
+    assert PathTable.from_json(json.loads(json.dumps(got.to_json()))) == got
 
 
 def test_the_paths_choice_reads_only_paths_within_the_switches() -> None:
