@@ -33,7 +33,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from fleetgate.userio import children
 from fleetgate.userio.exits import CommandParser, run_main
 from gateway.planning.instance import Instance
 from gateway.planning.random_plans import open_grid
@@ -99,6 +98,9 @@ def run_child(args: argparse.Namespace, tree: Path | None) -> dict[str, Any]:
     """One run in a child process (with ``tree``'s packages first on the path)."""
     cmd = [sys.executable, __file__, "--child", "--robots", str(args.robots), "--steps",
            str(args.steps), "--seed", str(args.seed), "--jitter", str(args.jitter)]
+    # here, not at the top: a child runs with DIR's packages, which may predate this module
+    from fleetgate.userio import children
+
     env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
     with children.running(cmd, env=env, stdout=subprocess.PIPE, text=True) as proc:
         out, _ = proc.communicate()
