@@ -12,8 +12,10 @@ the same step (the 2024 rules allow that; swaps stay forbidden), everything else
 A third run, :class:`GhostPIBT`, is free flow (robots pass through each other): what the
 scheduler and the turns allow without any congestion. Each step of the first two is checked
 (no two robots on a cell, no swap; the 1-robust run also: nobody enters a cell held the step
-before). ``--lanes P``: every planner guided by crisscross lanes of penalty P
-(:mod:`gateway.planning.guidance`). Prints one result line: tasks finished per planner seed
+before). Turns towards a cell being left are allowed, as the LoRR simulator's planner does under
+the 2024 rules (:attr:`~gateway.planning.pibt.WindowedPIBT.turn_to_leaving`). ``--lanes P``:
+every planner guided by crisscross lanes of penalty P (:mod:`gateway.planning.guidance`).
+Prints one result line: tasks finished per planner seed
 by each, and ``ratio`` = following / 1-robust (how much the rule costs, at the same
 planner), beside the 2024 winner's 698 tasks.
 
@@ -127,7 +129,7 @@ def pure_run(problem: LorrProblem, planner: str, seed: int, steps: int,
     grid = problem.grid
     space = StateSpace(grid, True, robots=n, exact=True if lanes else None,
                        guidance=crisscross(grid, lanes) if lanes else None)
-    pibt = PLANNERS[planner](space, n, seed=seed)
+    pibt = PLANNERS[planner](space, n, seed=seed, turn_to_leaving=True)  # as the 2024 rules'
     distances = TaskDistances(grid)
     pool = TaskPool(problem.tasks, max(1, int(problem.num_tasks_reveal * n)),
                     leg=distances.leg)

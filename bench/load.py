@@ -22,7 +22,9 @@ never received, ``duplicated`` = actions received twice (there is no reconnect h
 
 Prints ONE JSON line: ``{"robots", "actions", "p50_ms", "p99_ms", "lost", "duplicated", ...}``
 plus the gateway's own finish-received -> dispatch-queued p99, the achieved/offered action
-rate, and ``p99_ratio``: p99 against a 10-robot baseline run measured in the same invocation.
+rate, ``p99_ratio``: p99 against a 10-robot baseline run measured in the same invocation, and
+the machine's 1-minute load average at the run's end and start (``load_1min``,
+``load_1min_start``).
 ``--find-max`` searches the largest fleet with p99 <= 50 ms, nothing lost or duplicated.
 Also for information: ``p99_after_step1_ms`` leaves out the dispatches unlocked by the first
 finishes (all robots start together, so those come in a burst of ~R / (2 x jitter) per second,
@@ -467,6 +469,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
     size, plan = workload(robots, seconds, seed)
     if generators < 0:
         generators = generators_for(robots)
+    load_start = round(os.getloadavg()[0], 1)
     with tempfile.TemporaryDirectory() as tmp:
         plan_file = Path(tmp) / "plan.json"
         plan_file.write_text(json.dumps({"size": size, "paths": [list(p) for p in plan.paths]}))
@@ -551,7 +554,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             "robots_cpu_s": round(robots_cpu, 1), "wall_s": round(wall_s, 1),
             "offered_per_s": round(offered, 1), "achieved_per_s": round(achieved, 1),
             "rate_ratio": round(achieved / offered, 4) if offered else None,
-            "load_1min": round(os.getloadavg()[0], 1)}
+            "load_1min": round(os.getloadavg()[0], 1), "load_1min_start": load_start}
 
 
 # ------------------------------------------------------------------ lifelong (--lifelong)

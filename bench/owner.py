@@ -1,12 +1,14 @@
-"""In-process owner benchmark: the owner task's CPU per action, independent of machine load.
+"""In-process owner benchmark: the owner task's CPU per action for the same work in every run.
 
 One gateway and its simulated robots (:mod:`sim_clients.fleet` on in-memory links) run in one
 process on virtual time: every robot event reaches the owner at the same virtual instant in
 every run, so each run hands the owner the same sequence of wake-ups, reports, ticks and
 journal commits however loaded the machine is (a real-time run batches more events per
-wake-up, and per commit, when the machine is busy). Only the owner task's thread CPU is
-counted (the robots and the connections' decoding run in tasks of their own). The journal and
-the trace are on, dispatch lookahead 1, as in ``bench/load.py --lookahead 1 --journal``.
+wake-up, and per commit, when the machine is busy). The CPU time that work takes still moves
+with the load (shared caches and cores): read the ratio against a baseline of the same run.
+Only the owner task's thread CPU is counted (the robots and the connections' decoding run in
+tasks of their own). The journal and the trace are on, dispatch lookahead 1, as in
+``bench/load.py --lookahead 1 --journal``.
 
 Each run is a child process. With ``--against DIR`` the gateway of DIR's checkout runs the
 same workload (this script with DIR first on the path), interleaved with this one, and
@@ -98,11 +100,15 @@ def run_child(args: argparse.Namespace, tree: Path | None) -> dict[str, Any]:
     """One run in a child process (with ``tree``'s packages first on the path)."""
     cmd = [sys.executable, __file__, "--child", "--robots", str(args.robots), "--steps",
            str(args.steps), "--seed", str(args.seed), "--jitter", str(args.jitter)]
+    # here, not at the top: a child runs with DIR's packages, which may predate this module
+    from fleetgate.userio import children
+
     env = {**os.environ, "PYTHONPATH": str(tree)} if tree else None
-    done = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, text=True, check=False)
-    if done.returncode != 0:
+    with children.running(cmd, env=env, stdout=subprocess.PIPE, text=True) as proc:
+        out, _ = proc.communicate()
+    if proc.returncode != 0 or not out.strip():
         raise UsageError(f"the run with {tree or 'this checkout'} failed (its error is above)")
-    run: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    run: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
     n = run["actions"]
     run["owner_cpu_ms_per_action"] = round(1000.0 * run["owner_cpu_s"] / n, 4)
     run["owner_over_bare"] = round(run["owner_cpu_s"] / run["bare_cpu_s"], 3)

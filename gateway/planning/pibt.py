@@ -290,12 +290,15 @@ class WindowedPIBT:
     """1-robust PIBT over a :class:`StateSpace`, keeping priorities between calls."""
 
     def __init__(self, space: StateSpace, n_robots: int, seed: int = 0,
-                 guided: bool = False) -> None:
+                 guided: bool = False, turn_to_leaving: bool = False) -> None:
         self.space = space
         self.guided = guided
         """Whether each call guides the tables by the crowd (:meth:`StateSpace.guide`; the
         space needs a guidance): a call then depends on the calls before it, not only on its
         inputs."""
+        self.turn_to_leaving = turn_to_leaving
+        """Whether a robot may turn in place towards a cell whose robot leaves it at that
+        timestep (:meth:`_enter_held`; else it never turns towards a held cell)."""
         self.n = n_robots
         self.seed = seed
         self.rng = random.Random(seed)
@@ -430,15 +433,17 @@ class WindowedPIBT:
                     nxt: list[int], tables: list[array[int] | None], depth: int) -> bool:
         """Whether robot r may take state ``rs`` towards the cell robot ``o`` holds now: it
         asks ``o`` to clear the cell; r may not enter it (1-robust: at the next timestep it
-        may), but it may turn towards it in place if ``o`` leaves it. A turn towards a cell
-        held at this timestep was never allowed before: with it, robots whose best move is
-        a turn towards a leaving robot's cell (2.2% of the robot-timesteps of random-400 under
-        the 2024 rules) turn instead of waiting, and random-400 under the 2024 rules finishes
-        525 tasks instead of 509 (3 planner seeds)."""
+        may), and it may turn towards it in place only if :attr:`turn_to_leaving` and ``o``
+        leaves it. With that, robots whose best move is a turn towards a leaving robot's cell
+        (2.2% of the robot-timesteps of random-400 under the 2024 rules) turn instead of
+        waiting: random-400 under the 2024 rules 509 -> 525 tasks (3 planner seeds); under the
+        2026 rules maze, random and city unchanged, room with its one-way doors 144.7 -> 138.0
+        (delay seeds 0-2), so the LoRR simulator turns it on under the 2024 rules only."""
         if o != pusher and self._planned[o] != self._stamp and depth < MAX_PUSH_DEPTH:
             self._decide(o, r, cur, nxt, tables, depth + 1)
         cell_of = self.space.cell_of
-        return cell_of[rs] == cell_of[cur[r]] and cell_of[nxt[o]] != cell_of[cur[o]]
+        return (self.turn_to_leaving and cell_of[rs] == cell_of[cur[r]]
+                and cell_of[nxt[o]] != cell_of[cur[o]])
 
     def _decide(self, r: int, pusher: int, cur: list[int], nxt: list[int],
                 tables: list[array[int] | None], depth: int) -> None:

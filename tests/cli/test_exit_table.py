@@ -121,6 +121,8 @@ ROWS = [
                            "30", "--json")),
     Row("bench-load", ("bench/load.py", "--robots", "20", "--seconds", "5", "--json"),
         folder=("bench/load.py", "--profile", "{file}/p.prof"), long=True),
+    Row("bench-owner", ("bench/owner.py", "--robots", "20", "--steps", "3", "--json"),
+        folder=("bench/owner.py", "--against", "{file}/x")),
     Row("bench-crash", ("bench/crash.py", "--kills", "2", "--json"), long=True),
     Row("bench-api", ("bench/api.py", "--clients", "4", "--seconds", "2", "--pairs", "1",
                       "--against", "."),

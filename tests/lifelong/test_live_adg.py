@@ -222,23 +222,24 @@ def test_a_robot_on_its_last_goal_decides_first() -> None:
         assert win.states[1][winner] == 4, goals
 
 
-@pytest.mark.parametrize("width", [4, 2])
-def test_a_robot_turns_towards_a_held_cell_only_if_it_is_left(width: int) -> None:
+@pytest.mark.parametrize(("width", "turn"), [(4, True), (2, True), (4, False)])
+def test_a_robot_turns_towards_a_held_cell_only_if_it_is_left(width: int, turn: bool) -> None:
     """Robot 0 faces north on the west end of a 1-row corridor and must turn east towards
     cell 1, held by robot 1 (facing east, goal at the east end). In a corridor of 4 cells
-    robot 1 moves on, so robot 0 turns at once (it enters cell 1 a timestep later, 1-robust);
-    in one of 2 cells robot 1 cannot leave (asked to, it turns in place), so robot 0 waits."""
+    robot 1 moves on, so robot 0 turns at once with ``turn_to_leaving`` (it enters cell 1 a
+    timestep later, 1-robust), and waits without; in one of 2 cells robot 1 cannot leave
+    (asked to, it turns in place), so robot 0 waits."""
     grid = Grid(np.ones((1, width), dtype=bool))
     space = StateSpace(grid, turning=True)
-    planner = WindowedPIBT(space, 2, seed=1)
+    planner = WindowedPIBT(space, 2, seed=1, turn_to_leaving=turn)
     planner.elapsed[0] = 10  # robot 0 decides first and asks robot 1 to move
     north, east = 3, 0
     win = planner.plan([space.state(0, north), space.state(1, east)], [[width - 1], [width - 1]],
                        2)
     first = win.states[1]
-    if width == 4:
+    if width == 4 and turn:
         assert first == [space.state(0, east), space.state(2, east)]
         assert win.states[2][0] == space.state(1, east)
     else:
         assert first[0] == space.state(0, north)
-        assert space.cell_of[first[1]] == 1
+        assert space.cell_of[first[1]] == (2 if width == 4 else 1)  # it leaves if it can

@@ -734,12 +734,15 @@ class WindowPlanner:
     a restarted planner answers it as the first did; one without (the LoRR simulator's) goes
     on from the priorities and the random stream the previous call left. ``guided``: tables
     guided by the crowd (:attr:`~gateway.planning.pibt.WindowedPIBT.guided`): the LoRR
-    simulator's, not the executor's, as a restarted planner would not answer as the first."""
+    simulator's, not the executor's, as a restarted planner would not answer as the first.
+    ``turn_to_leaving``: :attr:`~gateway.planning.pibt.WindowedPIBT.turn_to_leaving`."""
 
     def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0,
-                 space: StateSpace | None = None, guided: bool = False) -> None:
+                 space: StateSpace | None = None, guided: bool = False,
+                 turn_to_leaving: bool = False) -> None:
         self.space = space if space is not None else StateSpace(grid, turning, robots=n_robots)
-        self.pibt = WindowedPIBT(self.space, n_robots, seed=seed, guided=guided)
+        self.pibt = WindowedPIBT(self.space, n_robots, seed=seed, guided=guided,
+                                 turn_to_leaving=turn_to_leaving)
 
     def __call__(self, req: PlanRequest) -> Segment:
         """The window for ``req``."""

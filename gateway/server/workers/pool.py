@@ -71,6 +71,8 @@ class _Handle:
     """Loop time of its oldest ping not answered yet."""
     counts: dict[str, dict[str, float]] = field(default_factory=dict)
     """Its counts (:meth:`~gateway.server.workers.worker.Worker.counts`) at its last answer."""
+    killed: bool = False
+    """Killed because it hung (it is ending)."""
 
 
 def _reserve(host: str, port: int) -> tuple[list[socket.socket], int]:
@@ -152,7 +154,7 @@ class WorkerPool:
             raise
         assert ready == [("ready",)], ready
         outbox = Outbox(writer, self._config.worker_buffer_bytes,
-                        lambda n: self._hung(index, f"{n} bytes unread"))
+                        lambda n: self._hung(handle, f"{n} bytes unread"))
         handle = _Handle(index, process, reader, outbox, writer)
         self._handles[index] = handle
         task = asyncio.get_running_loop().create_task(self._serve(handle),
@@ -241,14 +243,14 @@ class WorkerPool:
                     handle.ping_at = now
                     handle.outbox.put((PING,))
                 elif now - handle.ping_at > self._config.worker_timeout_s:
-                    self._hung(handle.index, f"no answer for {now - handle.ping_at:.1f} s")
+                    self._hung(handle, f"no answer for {now - handle.ping_at:.1f} s")
 
-    def _hung(self, index: int, why: str) -> None:
+    def _hung(self, handle: _Handle, why: str) -> None:
         """Kill a worker that hangs: it ends, and is restarted as one that died."""
-        handle = self._handles.get(index)
-        if handle is None or handle.process.returncode is not None:
+        if handle.killed or handle.process.returncode is not None:
             return
-        log.error("worker %d hangs (%s): killing it", index, why)
+        log.error("worker %d hangs (%s): killing it", handle.index, why)
+        handle.killed = True
         self.hangs += 1
         with contextlib.suppress(ProcessLookupError):
             handle.process.kill()
