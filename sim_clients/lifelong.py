@@ -37,7 +37,7 @@ from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.executor import WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
-from gateway.planning.guidance import crisscross, one_way_doors
+from gateway.planning.guidance import MOVE, crisscross, one_way_doors
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
 from gateway.planning.pibt import StateSpace, exact_fits
 
@@ -81,6 +81,13 @@ DOORS = 20
 one_way_doors`, half-moves) of a run whose exact tables fit :data:`PLANNER_BUDGET` (else
 none). Room, 600 ticks, lanes 3, delay seeds 0-11: no doors 133.9 tasks, 16 140.8, 20 140.75,
 24 137.75, 30 140.7, 40 138.1; the other shared maps have no such doors (no change)."""
+TURN_COST = 6
+"""What a turn costs in the guided tables (half-moves: 3 moves, though it takes one action) on a
+map without one-way doors: paths with fewer turns are preferred, and a robot switches less
+between routes as the crowd changes. Random-64-64-10, 600 ticks, delay seeds 0-11: turns of 2
+(one move) 523.3 tasks, 4 529.4, 6 531.6 (seeds 0-5: 5 527.5, 8 528.0); maze 85.8 -> 86.1; under
+the 2024 rules random-400 525.7 -> 527.0 (planner seeds 0-2). Room, with its one-way doors,
+keeps 2 (143.8 over seeds 0-11; 4: 142.1, 6: 142.8)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -152,6 +159,8 @@ class LifelongConfig:
     # (LANES_ROOMS on a map with one-way doors)
     doors: int | None = None  # penalty of a move against a one-way door (guidance.
     # one_way_doors; turning, exact tables); 0: none; None: DOORS if exact tables fit
+    turn_cost: int | None = None  # a turn's cost in the guided tables (StateSpace.turn);
+    # None: TURN_COST, MOVE on a map with one-way doors
     crowd: bool = True  # tables guided by the crowd (StateSpace.guide) where they are exact
     warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     turn_to_leaving: bool | None = None  # WindowedPIBT.turn_to_leaving; None: under one tick
@@ -223,9 +232,13 @@ def run_lifelong(cfg: LifelongConfig,
     if lanes is None:
         lanes = (LANES_ROOMS if one_way.any() else LANES) if exact else 0
     guided = cfg.crowd and exact  # the crowd weighs exact tables (lanes 0: none)
+    forward = (crisscross(grid, lanes) + one_way if lanes or one_way.any() or guided
+               else None)
+    turn_cost = cfg.turn_cost
+    if turn_cost is None:
+        turn_cost = MOVE if one_way.any() or forward is None else TURN_COST
     space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
-                       guidance=crisscross(grid, lanes) + one_way
-                       if lanes or one_way.any() or guided else None)
+                       guidance=forward, turn=turn_cost)
     turn = cfg.turn_to_leaving if cfg.turn_to_leaving is not None else counter == 1
     planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space, guided=guided,
                             turn_to_leaving=turn)
