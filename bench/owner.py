@@ -1,12 +1,14 @@
-"""In-process owner benchmark: the owner task's CPU per action, independent of machine load.
+"""In-process owner benchmark: the owner task's CPU per action for the same work in every run.
 
 One gateway and its simulated robots (:mod:`sim_clients.fleet` on in-memory links) run in one
 process on virtual time: every robot event reaches the owner at the same virtual instant in
 every run, so each run hands the owner the same sequence of wake-ups, reports, ticks and
 journal commits however loaded the machine is (a real-time run batches more events per
-wake-up, and per commit, when the machine is busy). Only the owner task's thread CPU is
-counted (the robots and the connections' decoding run in tasks of their own). The journal and
-the trace are on, dispatch lookahead 1, as in ``bench/load.py --lookahead 1 --journal``.
+wake-up, and per commit, when the machine is busy). The CPU time that work takes still moves
+with the load (shared caches and cores): read the ratio against a baseline of the same run.
+Only the owner task's thread CPU is counted (the robots and the connections' decoding run in
+tasks of their own). The journal and the trace are on, dispatch lookahead 1, as in
+``bench/load.py --lookahead 1 --journal``.
 
 Each run is a child process. With ``--against DIR`` the gateway of DIR's checkout runs the
 same workload (this script with DIR first on the path), interleaved with this one, and

@@ -7,7 +7,9 @@ The owner task never awaits a peer: it builds a message and puts it in the sessi
 The writers are woken in batches (:func:`wake_writers`, released by a
 :class:`~gateway.server.per_turn.PerTurn`): once per turn of the event loop, after
 the task that queued the messages yields, not once per message (the owner's messages could not
-leave earlier anyway: it commits the journal before it yields). If that queue is full the
+leave earlier anyway: it commits the journal before it yields); an idle writer's messages are
+written by the wake-up itself while the link can take them without waiting (no task switch
+per message), the writer task takes what must wait. If that queue is full the
 peer is too slow and the session is closed (code 1013), so one slow client never stalls the
 others. Also counts the peer's protocol errors (closing the connection
 on repeated abuse, code 1008: an error budget of ``max_errors`` that forgets one error every
@@ -148,8 +150,24 @@ class LinkSession(Session):
         return True
 
     def wake(self) -> None:
-        """Wake the writer if it waits for the queue (:func:`wake_writers` calls this)."""
+        """Write what is queued (:func:`wake_writers` calls this, once the owner task
+        yielded). If the writer is idle, the link writes each message at once while it can
+        without waiting (:meth:`~gateway.server.wire.transport.Link.send_now`: no task switch,
+        future or flow-control wait per message); the writer task takes the rest, if any."""
         self._in_wakeups = False
+        if self._waiter is None:
+            return  # the writer is at work: it will get to the queue
+        queue = self._queue
+        send_now = self.link.send_now
+        while queue:
+            text = queue[0]
+            if text is None or not send_now(text):
+                break
+            queue.popleft()
+        if queue:
+            self._wake_writer()
+
+    def _wake_writer(self) -> None:
         waiter = self._waiter
         if waiter is not None:
             self._waiter = None
@@ -191,9 +209,9 @@ class LinkSession(Session):
         if len(self._queue) >= self._queue_size:
             self.writer.cancel()
             self._closer = self._loop.create_task(self.link.close(code, reason))
-        else:
+        else:  # (the writer, not wake: this may run in the owner task, before its commit)
             self._queue.append(None)
-            self.wake()
+            self._wake_writer()
 
     async def _write(self) -> None:
         try:

@@ -12,9 +12,10 @@ import asyncio
 from collections.abc import AsyncIterator
 from typing import Protocol
 
-from websockets.asyncio.server import ServerConnection
+from websockets.asyncio.server import ServerConnection, broadcast
 from websockets.exceptions import ConnectionClosed, ConnectionClosedError, ConnectionClosedOK
 from websockets.frames import Close
+from websockets.protocol import State as WsState
 
 from gateway.server.wire.auth import Peer
 
@@ -38,6 +39,11 @@ class Link(Protocol):
 
     async def send(self, text: str) -> None:
         """Send one message; LinkClosed when the peer is gone."""
+        ...
+
+    def send_now(self, text: str) -> bool:
+        """Send one message at once if that needs no waiting; False: nothing was sent (use
+        :meth:`send`)."""
         ...
 
     async def close(self, code: int = 1000, reason: str = "") -> None:
@@ -100,6 +106,10 @@ class MemoryLink:
         if isinstance(item, _Closed):
             raise LinkClosed(item.reason)
         return item
+
+    def send_now(self, text: str) -> bool:
+        """Never at once: the in-memory link always goes through :meth:`send`."""
+        return False
 
     async def send(self, text: str) -> None:
         """Queue a message for the client (waits while its queue is full)."""
@@ -174,6 +184,18 @@ class WebSocketLink:
             return await self._conn.recv()
         except ConnectionClosed as exc:
             raise LinkClosed(str(exc)) from None
+
+    def send_now(self, text: str) -> bool:
+        """Write one message at once if the connection is open and its socket's write buffer
+        is within its high-water mark (what :meth:`send` would do without waiting; written
+        with websockets' ``broadcast``, its public unawaited send); False otherwise."""
+        conn = self._conn
+        transport = conn.transport
+        if (conn.protocol.state is not WsState.OPEN
+                or transport.get_write_buffer_size() > transport.get_write_buffer_limits()[1]):
+            return False
+        broadcast((conn,), text)
+        return True
 
     async def send(self, text: str) -> None:
         """Send one message (waits while the socket's write buffer is full)."""
