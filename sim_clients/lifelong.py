@@ -87,9 +87,10 @@ TURN_COST = 6
 """What a turn costs in the guided tables (half-moves: 3 moves, though it takes one action) on a
 map without one-way doors: paths with fewer turns are preferred, and a robot switches less
 between routes as the crowd changes. Random-64-64-10, 600 ticks, delay seeds 0-11: turns of 2
-(one move) 523.3 tasks, 4 529.4, 6 531.6 (seeds 0-5: 5 527.5, 8 528.0); maze 85.8 -> 86.1; under
-the 2024 rules random-400 525.7 -> 527.0 (planner seeds 0-2). Room, with its one-way doors,
-keeps 2 (143.8 over seeds 0-11; 4: 142.1, 6: 142.8)."""
+(one move) 523.3 tasks, 4 529.4, 6 531.6 (seeds 0-5: 5 527.5, 8 528.0); maze 85.8 -> 86.1, city
+seed 0 250 -> 257. Room, with its one-way doors, keeps 2 (143.8 over seeds 0-11; 4: 142.1, 6:
+142.8), and so does a run under the 2024 rules (one tick an action: random-400 529.0 with 2,
+527.5 with 6, planner seeds 0-5)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -162,7 +163,8 @@ class LifelongConfig:
     doors: int | None = None  # penalty of a move against a one-way door (guidance.
     # one_way_doors; turning, exact tables); 0: none; None: DOORS if exact tables fit
     turn_cost: int | None = None  # a turn's cost in the guided tables (StateSpace.turn);
-    # None: TURN_COST, MOVE on a map with one-way doors
+    # None: TURN_COST under an action of more ticks than one, else or on a map with one-way
+    # doors MOVE
     crowd: bool = True  # tables guided by the crowd (StateSpace.guide) where they are exact
     warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     turn_to_leaving: bool | None = None  # WindowedPIBT.turn_to_leaving; None: under one tick
@@ -254,7 +256,7 @@ def run_lifelong(cfg: LifelongConfig,
                else None)
     turn_cost = cfg.turn_cost
     if turn_cost is None:
-        turn_cost = MOVE if one_way.any() or forward is None else TURN_COST
+        turn_cost = MOVE if one_way.any() or forward is None or counter == 1 else TURN_COST
     space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
                        guidance=forward, turn=turn_cost)
     turn = cfg.turn_to_leaving if cfg.turn_to_leaving is not None else counter == 1
