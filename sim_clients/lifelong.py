@@ -25,9 +25,11 @@ An errand is done when its robot completes the action that brings it onto the er
 
 from __future__ import annotations
 
+import gc
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,7 +39,7 @@ from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.executor import WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
-from gateway.planning.guidance import crisscross, one_way_doors
+from gateway.planning.guidance import MOVE, crisscross, one_way_doors
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
 from gateway.planning.pibt import StateSpace, exact_fits
 
@@ -81,6 +83,14 @@ DOORS = 20
 one_way_doors`, half-moves) of a run whose exact tables fit :data:`PLANNER_BUDGET` (else
 none). Room, 600 ticks, lanes 3, delay seeds 0-11: no doors 133.9 tasks, 16 140.8, 20 140.75,
 24 137.75, 30 140.7, 40 138.1; the other shared maps have no such doors (no change)."""
+TURN_COST = 6
+"""What a turn costs in the guided tables (half-moves: 3 moves, though it takes one action) on a
+map without one-way doors: paths with fewer turns are preferred, and a robot switches less
+between routes as the crowd changes. Random-64-64-10, 600 ticks, delay seeds 0-11: turns of 2
+(one move) 523.3 tasks, 4 529.4, 6 531.6 (seeds 0-5: 5 527.5, 8 528.0); maze 85.8 -> 86.1, city
+seed 0 250 -> 257. Room, with its one-way doors, keeps 2 (143.8 over seeds 0-11; 4: 142.1, 6:
+142.8), and so does a run under the 2024 rules (one tick an action: random-400 529.0 with 2,
+527.5 with 6, planner seeds 0-5)."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -152,6 +162,9 @@ class LifelongConfig:
     # (LANES_ROOMS on a map with one-way doors)
     doors: int | None = None  # penalty of a move against a one-way door (guidance.
     # one_way_doors; turning, exact tables); 0: none; None: DOORS if exact tables fit
+    turn_cost: int | None = None  # a turn's cost in the guided tables (StateSpace.turn);
+    # None: TURN_COST under an action of more ticks than one, else or on a map with one-way
+    # doors MOVE
     crowd: bool = True  # tables guided by the crowd (StateSpace.guide) where they are exact
     warm: bool = True  # compute the robots' later errands' tables between calls (warm_times)
     turn_to_leaving: bool | None = None  # WindowedPIBT.turn_to_leaving; None: under one tick
@@ -204,6 +217,22 @@ def _planner_ms(mode: str | float, cpu_s: float) -> float:
     return float(mode)
 
 
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off inside (a planning call), as it was after, so
+    it collects between calls, when the planner would otherwise wait for the next one. On
+    random-400 under the 2024 rules a collection that fell inside a call made it 105-127 ms
+    instead of about 50: a tick of latency more, and one run of the bench finished 503 tasks
+    instead of 532."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
 def run_lifelong(cfg: LifelongConfig,
                  on_progress: Callable[[int, int], None] | None = None) -> LifelongResult:
     """Simulate ``cfg.ticks`` ticks; ``on_progress(tick, finished)`` after each planning call."""
@@ -223,9 +252,13 @@ def run_lifelong(cfg: LifelongConfig,
     if lanes is None:
         lanes = (LANES_ROOMS if one_way.any() else LANES) if exact else 0
     guided = cfg.crowd and exact  # the crowd weighs exact tables (lanes 0: none)
+    forward = (crisscross(grid, lanes) + one_way if lanes or one_way.any() or guided
+               else None)
+    turn_cost = cfg.turn_cost
+    if turn_cost is None:
+        turn_cost = MOVE if one_way.any() or forward is None or counter == 1 else TURN_COST
     space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
-                       guidance=crisscross(grid, lanes) + one_way
-                       if lanes or one_way.any() or guided else None)
+                       guidance=forward, turn=turn_cost)
     turn = cfg.turn_to_leaving if cfg.turn_to_leaving is not None else counter == 1
     planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space, guided=guided,
                             turn_to_leaving=turn)
@@ -297,36 +330,37 @@ def run_lifelong(cfg: LifelongConfig,
             apply(t, pending.states, pending.reached, pending.tasks_of)
             pending = None
         if pending is None and t >= next_call:
-            cpu0 = time.thread_time()
-            # a delayed robot's actions not started yet are taken back, with every action
-            # that waits on them (a robot behind it), so the window plans those robots anew
-            # around it instead of leaving them queued behind it for the whole delay
-            adg.retract([(1 if progress[r] else 0) if delayed[r] else adg.pending(r)
-                         for r in range(n)], cell, heading)
-            book.retract(adg.appended, t)
-            # a robot's new moves start when it can make them: it waits in the window for its
-            # committed actions but one (the one it finishes while the next window arrives), so
-            # others do not plan to enter cells it leaves long after the plan says; robots in a
-            # delay compete for tasks with a charge, and others are planned around them
-            hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
-                    for r in range(n)]
-            # unstarted tasks go back to the scheduler, of at most reassign_batch robots in
-            # turn (the matching's work grows with the robots it places)
-            first = len(planner_times) // max(1, cfg.reassign) * cfg.reassign_batch
-            req, assigned = window_request(
-                len(planner_times), book, adg, schedule, distances, t,
-                release=bool(cfg.reassign) and len(planner_times) % cfg.reassign == 0,
-                release_robots=None if cfg.reassign_batch >= n else
-                [(first + i) % n for i in range(cfg.reassign_batch)],
-                late=delayed, hold=hold, steps=window, turning=cfg.turning)
-            for _, task_id in assigned:
-                if task_id not in recorded:
-                    recorded.add(task_id)
-                    task = pool.tasks[task_id]
-                    released.append((task_id, task.release_tick, task.errands))
-            win = planner(req)
-            tasks_of = book.planned(win.reached)
-            cpu = time.thread_time() - cpu0
+            with _collector_paused():  # Python's cyclic collector runs between calls
+                cpu0 = time.thread_time()
+                # a delayed robot's actions not started yet are taken back, with every action
+                # that waits on them (a robot behind it), so the window plans those robots anew
+                # around it instead of leaving them queued behind it for the whole delay
+                adg.retract([(1 if progress[r] else 0) if delayed[r] else adg.pending(r)
+                             for r in range(n)], cell, heading)
+                book.retract(adg.appended, t)
+                # a robot's new moves start when it can make them: it waits in the window for its
+                # committed actions but one (the one it finishes while the next window arrives), so
+                # others do not plan to enter cells it leaves long after the plan says; robots in a
+                # delay compete for tasks with a charge, and others are planned around them
+                hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
+                        for r in range(n)]
+                # unstarted tasks go back to the scheduler, of at most reassign_batch robots in
+                # turn (the matching's work grows with the robots it places)
+                first = len(planner_times) // max(1, cfg.reassign) * cfg.reassign_batch
+                req, assigned = window_request(
+                    len(planner_times), book, adg, schedule, distances, t,
+                    release=bool(cfg.reassign) and len(planner_times) % cfg.reassign == 0,
+                    release_robots=None if cfg.reassign_batch >= n else
+                    [(first + i) % n for i in range(cfg.reassign_batch)],
+                    late=delayed, hold=hold, steps=window, turning=cfg.turning)
+                for _, task_id in assigned:
+                    if task_id not in recorded:
+                        recorded.add(task_id)
+                        task = pool.tasks[task_id]
+                        released.append((task_id, task.release_tick, task.errands))
+                win = planner(req)
+                tasks_of = book.planned(win.reached)
+                cpu = time.thread_time() - cpu0
             planner_times.append(cpu)
             if cfg.warm:  # tables for after the robots' present errands, before they are due
                 cpu0 = time.thread_time()

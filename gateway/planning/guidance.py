@@ -98,11 +98,12 @@ def _two_queue_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int3
 @njit(cache=True, nogil=True)
 def _bucket_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
                    sources: npt.NDArray[np.int64], bounds: npt.NDArray[np.int64],
-                   out: npt.NDArray[np.int32]) -> None:
-    """:func:`_two_queue_groups` for any forward costs (:func:`crowded`'s): Dijkstra with a
-    bucket queue (Dial's), one bucket per cost modulo the dearest step plus one."""
+                   out: npt.NDArray[np.int32], turn: int) -> None:
+    """:func:`_two_queue_groups` for any forward costs (:func:`crowded`'s) and a turn costing
+    ``turn``: Dijkstra with a bucket queue (Dial's), one bucket per cost modulo the dearest
+    step plus one."""
     n = table.shape[0] - 1
-    buckets = max(int(forward.max()), MOVE) + 1
+    buckets = max(int(forward.max()), turn) + 1
     cap = 3 * n + 8
     node = np.empty(cap, dtype=np.int64)
     link = np.empty(cap, dtype=np.int64)
@@ -134,7 +135,7 @@ def _bucket_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
                     u = table[v, j]
                     if u >= n:
                         continue
-                    nd = d + (MOVE if j < 2 else forward[u])
+                    nd = d + (turn if j < 2 else forward[u])
                     if row[u] < 0 or nd < row[u]:
                         row[u] = nd
                         node[used] = u
@@ -145,16 +146,18 @@ def _bucket_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
             d += 1
 
 
-def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int32]
-                  ) -> npt.NDArray[np.int32]:
+def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int32],
+                  turn: int = MOVE) -> npt.NDArray[np.int32]:
     """``out[k, 4 * cell + heading]``: the cheapest cost from that state to standing on cell
-    ``goals[k]`` (flat ids, any heading) when a turn costs :data:`MOVE` and the forward move
-    of state u ``forward[u]`` (:func:`crisscross`, or :func:`crowded`: any costs of at least
-    :data:`MOVE`); -1 if unreachable. With every forward cost
-    :data:`MOVE` it is :data:`MOVE` times the exact timesteps."""
+    ``goals[k]`` (flat ids, any heading) when a turn costs ``turn`` (at least :data:`MOVE`)
+    and the forward move of state u ``forward[u]`` (:func:`crisscross`, or :func:`crowded`:
+    any costs of at least :data:`MOVE`); -1 if unreachable. With every forward cost and the
+    turn :data:`MOVE` it is :data:`MOVE` times the exact timesteps."""
     if forward.shape != (4 * grid.size,):
         raise ValueError(f"a guidance of {forward.shape[0]} states for a map of "
                          f"{4 * grid.size}")
+    if turn < MOVE:
+        raise ValueError(f"a turn must cost at least {MOVE}, not {turn}")
     free = grid.free.ravel()
     for g in goals:
         if not 0 <= g < grid.size or not free[g]:
@@ -163,9 +166,11 @@ def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int3
     if goals:
         flat = np.array([4 * g + h for g in goals for h in range(4)], dtype=np.int64)
         bounds = np.arange(0, 4 * len(goals) + 1, 4, dtype=np.int64)
-        two = np.unique(forward[forward != MOVE]).size <= 1  # lanes alone: two queues
-        (_two_queue_groups if two else _bucket_groups)(
-            turning_predecessor_table(grid), forward.astype(np.int32), flat, bounds, out)
+        pred, costs = turning_predecessor_table(grid), forward.astype(np.int32)
+        if turn == MOVE and np.unique(forward[forward != MOVE]).size <= 1:  # two costs
+            _two_queue_groups(pred, costs, flat, bounds, out)
+        else:
+            _bucket_groups(pred, costs, flat, bounds, out, turn)
     return out
 
 

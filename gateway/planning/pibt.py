@@ -72,7 +72,7 @@ class StateSpace:
 
     def __init__(self, grid: Grid, turning: bool, budget_bytes: int = 1 << 30,
                  robots: int = 0, exact: bool | None = None,
-                 guidance: npt.NDArray[np.int32] | None = None) -> None:
+                 guidance: npt.NDArray[np.int32] | None = None, turn: int = MOVE) -> None:
         self.grid = grid
         self.turning = turning
         n = grid.size
@@ -85,6 +85,8 @@ class StateSpace:
         self.guidance = guidance
         """Each state's forward-move cost (:mod:`gateway.planning.guidance`; None: every
         action costs one): tables and :meth:`costs` are then in its units."""
+        self.turn = turn
+        """What a turn costs under a :attr:`guidance` (tables and :meth:`costs`)."""
         self._forward: list[int] = guidance.tolist() if guidance is not None else []
         self._lanes = guidance
         self._calls = 0  # guided calls so far (:meth:`guide`)
@@ -139,7 +141,7 @@ class StateSpace:
         missing = self.missing(goals)
         if missing:
             self.offer(goal_tables(self.grid, self.exact, missing, self.compact,
-                                   self.guidance))
+                                   self.guidance, self.turn))
             if self._calls:
                 self._searched.update(dict.fromkeys(missing, self._calls))
 
@@ -168,12 +170,13 @@ class StateSpace:
         relative to the robot's own cell (neighbours differ by exactly one move on a grid), plus
         :data:`COMPACT_BASE`: the same order and differences as the moves themselves. Under a
         :attr:`guidance`, each move's own cost (the wait and a turn :data:`~gateway.planning.
-        guidance.MOVE`, a move its lane's cost) plus the table entry after it."""
+        guidance.MOVE`, a turn :attr:`turn`, a move its lane's cost) plus the table entry after
+        it."""
         if self.guidance is not None:
-            forward = self._forward
+            forward, turn = self._forward, self.turn
             own = opts[0][1]
             c = own >> 2
-            return [table[es] + (MOVE if es == own else MOVE * turns + forward[4 * c + (es & 3)])
+            return [table[es] + (MOVE if es == own else turn * turns + forward[4 * c + (es & 3)])
                     for _, es, turns, _ in opts]
         if not self.compact:
             return [table[es] + turns for _, es, turns, _ in opts]
@@ -245,17 +248,19 @@ class _Options:
 
 
 def goal_tables(grid: Grid, exact: bool, goals: Sequence[int], compact: bool = False,
-                guidance: npt.NDArray[np.int32] | None = None) -> dict[int, array[int]]:
+                guidance: npt.NDArray[np.int32] | None = None, turn: int = MOVE
+                ) -> dict[int, array[int]]:
     """The distance table of each goal cell (:meth:`StateSpace.distances`: int16, capped at
     :data:`UNREACHABLE`): over the ``turning`` states if ``exact`` (the costs under
-    ``guidance`` if given: :func:`~gateway.planning.guidance.guided_tables`), else over the
+    ``guidance`` if given, a turn costing ``turn``: :func:`~gateway.planning.guidance.
+    guided_tables`), else over the
     free cells (exact moves, a lower bound of the turning cost), searched in batches;
     ``compact`` (not with ``exact``): :func:`compact_rows` of those over the free cells."""
     out: dict[int, array[int]] = {}
     for i in range(0, len(goals), 32):
         chunk = goals[i : i + 32]
         if guidance is not None:
-            found = guided_tables(grid, chunk, guidance)
+            found = guided_tables(grid, chunk, guidance, turn)
         else:
             found = (turning_distance_tables(grid, [grid.cell(g) for g in chunk]) if exact
                      else cell_distance_rows(grid, chunk))

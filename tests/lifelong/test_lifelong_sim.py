@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import gc
 import json
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.execution.lifelong.executor import PlanRequest, Segment, WindowPlanner
 from gateway.execution.lifelong.tasks import SCHEDULERS
 from gateway.planning.lorr import read_problem
 from gateway.planning.movingai import format_map
@@ -60,6 +62,29 @@ def test_checker_catches_a_shared_cell() -> None:
         check_output(out, free)
     out["actualPaths"][1] = "[(0,0,2,0,0):(R 1,R 1,W 1)]"  # stays: fine
     assert check_output(out, free) == 3
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_the_collector_is_off_inside_calls_only(monkeypatch: pytest.MonkeyPatch,
+                                                enabled: bool) -> None:
+    """Python's garbage collector never runs inside a planning call (a collection there cost a
+    tick of latency), and the run leaves it as it found it, on or off."""
+    seen: list[bool] = []
+
+    class Recording(WindowPlanner):
+        def __call__(self, req: PlanRequest) -> Segment:
+            seen.append(gc.isenabled())
+            return super().__call__(req)
+
+    monkeypatch.setattr("sim_clients.lifelong.WindowPlanner", Recording)
+    (gc.enable if enabled else gc.disable)()
+    try:
+        res = run_lifelong(LifelongConfig(small_problem(3), ticks=40, period=4))
+        assert gc.isenabled() == enabled
+    finally:
+        gc.enable()
+    assert len(seen) == res.calls > 0
+    assert not any(seen)
 
 
 def test_same_seed_same_run() -> None:

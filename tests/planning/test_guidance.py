@@ -42,9 +42,9 @@ def grid_and_goal(draw: st.DrawFn) -> tuple[Grid, int]:
     return grid, draw(st.sampled_from(np.flatnonzero(grid.free.ravel()).tolist()))
 
 
-def dijkstra(grid: Grid, goal: int, forward: list[int]) -> list[int]:
+def dijkstra(grid: Grid, goal: int, forward: list[int], turn: int = MOVE) -> list[int]:
     """Textbook forward Dijkstra from every state to the goal cell (the oracle): a turn costs
-    MOVE, a forward move out of state s ``forward[s]``; -1 if unreachable."""
+    ``turn``, a forward move out of state s ``forward[s]``; -1 if unreachable."""
     w, h = grid.width, grid.height
     out = []
     for start in range(4 * grid.size):
@@ -64,7 +64,7 @@ def dijkstra(grid: Grid, goal: int, forward: list[int]) -> list[int]:
                 break
             c, hd = s >> 2, s & 3
             x, y = c % w, c // w
-            nxt = [(4 * c + (hd + 1) % 4, MOVE), (4 * c + (hd + 3) % 4, MOVE)]
+            nxt = [(4 * c + (hd + 1) % 4, turn), (4 * c + (hd + 3) % 4, turn)]
             nx, ny = x + STEP[hd][0], y + STEP[hd][1]
             if 0 <= nx < w and 0 <= ny < h and grid.free[ny, nx]:
                 nxt.append((4 * (ny * w + nx) + hd, forward[s]))
@@ -104,13 +104,31 @@ def test_guided_tables_equal_a_textbook_dijkstra(case: tuple[Grid, int], penalty
 
 
 @settings(max_examples=40, deadline=None)
-@given(grid_and_goal(), st.integers(1, 4))
-def test_the_best_option_costs_the_table_entry(case: tuple[Grid, int], penalty: int) -> None:
+@given(grid_and_goal(), st.integers(0, 5), st.sampled_from([MOVE, 3, 6]))
+def test_dearer_turns_equal_a_textbook_dijkstra(case: tuple[Grid, int], penalty: int,
+                                                turn: int) -> None:
+    """With a turn costing more than a move: the textbook Dijkstra's costs, between the
+    costs with turns of one move and those with every action costing the turn."""
+    grid, goal = case
+    forward = crisscross(grid, penalty)
+    got = guided_tables(grid, [goal], forward, turn)[0].tolist()
+    assert got == dijkstra(grid, goal, forward.tolist(), turn)
+    low = guided_tables(grid, [goal], forward)[0].tolist()
+    high = guided_tables(grid, [goal], forward + (turn - MOVE), turn)[0].tolist()
+    for a, b, c in zip(low, got, high, strict=True):
+        assert (a < 0) == (b < 0) == (c < 0)
+        assert a <= b <= c
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid_and_goal(), st.integers(1, 4), st.sampled_from([MOVE, 6]))
+def test_the_best_option_costs_the_table_entry(case: tuple[Grid, int], penalty: int,
+                                               turn: int) -> None:
     """From every state off the goal that can reach it, the cheapest move (forward, or a turn
     towards a cell) costs exactly the state's table entry (Bellman), none less, and waiting
-    costs one MOVE more."""
+    costs one MOVE more; with turns costing more too."""
     grid, goal = case
-    space = StateSpace(grid, True, exact=True, guidance=crisscross(grid, penalty))
+    space = StateSpace(grid, True, exact=True, guidance=crisscross(grid, penalty), turn=turn)
     table = space.distances(goal)
     for s in range(space.n_states):
         opts = space.options[s]
@@ -207,6 +225,8 @@ def test_guidance_needs_exact_tables() -> None:
         StateSpace(grid, True, exact=False, guidance=crisscross(grid, 1))
     with pytest.raises(ValueError, match="guidance of 4 states"):
         guided_tables(grid, [0], np.full(4, MOVE, dtype=np.int32))
+    with pytest.raises(ValueError, match="turn must cost at least 2, not 1"):
+        guided_tables(grid, [0], crisscross(grid, 0), 1)
     with pytest.raises(ValueError, match="not a free cell"):
         guided_tables(Grid(np.array([[True, False]])), [1], crisscross(grid, 0)[:8])
 
