@@ -9,7 +9,8 @@ reference counting, and with the default thresholds the collector ran every 700 
 only: a collection first, so that no garbage of an earlier run is frozen and a gateway serving
 many runs does not grow; the defaults come back when the run is complete. A lifelong gateway
 is tuned from its start too (its shift's task pool takes a WMS's tasks before the shift
-starts).
+starts), and so is a worker process (:mod:`~gateway.server.workers.worker`) once it listens:
+its connections' objects are freed by reference counting too.
 """
 
 from __future__ import annotations

@@ -18,6 +18,7 @@ import pickle
 import socket
 import sys
 
+from gateway.server import gc_tuning
 from gateway.server.config import GatewayConfig
 from gateway.server.logs import configure_logging
 from gateway.server.metrics import Metrics
@@ -128,6 +129,7 @@ async def serve(fd: int) -> None:
     outbox = Outbox(writer)
     worker = Worker(config, outbox)
     await worker.listen(host, port, owner_path)
+    gc_tuning.tune_for_run()
     outbox.put(("ready",))
     try:
         while True:
