@@ -331,26 +331,6 @@ class GatewaySession:
         else:
             self._report(kind, aid, t_ms, ref, reason)
 
-    def plain(self, kind: ReportKind, aid: str, link: object, pose: Pose | None
-              ) -> tuple[int, int] | None:
-        """``(plan, index)`` of ``aid`` if this report is a plain one: a ``started`` or
-        ``finished`` on the robot's connection of an action it holds (not started yet, for a
-        ``started``), with no effect queued; the pose is then kept, and the driver gives it
-        to the executor itself and tells :meth:`took` or answers the refusal (the same as
-        :meth:`report`'s :class:`Report`, without building and draining one). None: anything
-        else, for :meth:`report`."""
-        if (link is not self.link or link is None or self._out
-                or (kind != "finished" and kind != "started")):
-            return None
-        h = self.held.get(aid)
-        if (h is None or (kind == "started" and h.phase == "running") or aid in self.pending
-                or aid in self.applied):
-            return None
-        if pose is not None:
-            self.pose = pose
-        plan, _, index = parse_action_id(aid)
-        return plan, index
-
     def state(self, pose: Pose | None, link: object) -> None:
         """A periodic ``state``: only the pose is kept."""
         if link is self.link and link is not None and pose is not None:
@@ -358,39 +338,26 @@ class GatewaySession:
 
     def accepted(self, r: Report) -> None:
         """The executor took report ``r``: update the bookkeeping."""
-        if r.kind == "refused":
-            self._took_back(r)
-        else:
-            self.took(r.kind, r.action_id, r.index)
-
-    def took(self, kind: ExecutorEvent, aid: str, index: int) -> None:
-        """The executor took a report other than a refusal of action ``aid`` (index
-        ``index``): update the bookkeeping."""
-        h = self.held.get(aid)
+        h = self.held.get(r.action_id)
         if h is None:
             return
-        if kind == "started":
+        if r.kind == "started":
             h.phase, h.moved = "running", True
-        elif kind in ("blocked", "stopped"):
+        elif r.kind in ("blocked", "stopped"):
             h.phase = "blocked"
-        elif kind == "unblocked":
+        elif r.kind == "unblocked":
             h.phase = "running" if h.moved else "dispatched"
+        elif r.kind == "refused":  # the executor took back this action and the later ones
+            for aid in [a for a in self.held if self._taken_back_with(a, r)]:
+                if aid != r.action_id and not self.held[aid].acked:
+                    self.owed.add(aid)
+                del self.held[aid]
+                self._applied(aid, "refused")
         else:
-            del self.held[aid]
-            self._applied(aid, kind)
-            if kind == "finished":
-                self.next_index = max(self.next_index, index + 1)
-
-    def _took_back(self, r: Report) -> None:
-        """The executor took the refusal ``r``: it took back this action and the later
-        ones."""
-        if r.action_id not in self.held:
-            return
-        for aid in [a for a in self.held if self._taken_back_with(a, r)]:
-            if aid != r.action_id and not self.held[aid].acked:
-                self.owed.add(aid)
-            del self.held[aid]
-            self._applied(aid, "refused")
+            del self.held[r.action_id]
+            self._applied(r.action_id, r.kind)
+            if r.kind == "finished":
+                self.next_index = max(self.next_index, r.index + 1)
 
     def _applied(self, aid: str, kind: str) -> None:
         """Remember that ``aid`` ended as ``kind``; forget the oldest beyond the bound."""

@@ -492,35 +492,10 @@ class Engine:
         now = self._arrival_ms(at_ms)
         try:
             self._unlocked_at = received if kind == "finished" else None
-            plain = gs.plain(kind, aid, session, pose) \
-                if gs.robot_id not in self._flushing else None
-            if plain is not None:  # (most reports: no effects to build, drain and flush)
-                self._apply_plain(gs, session, kind, aid, ref, plain, now)
-                return
             gs.report(kind, aid, ref, session, now, pose, reason)
             self.flush(gs, session)
         finally:
             self._unlocked_at = None
-
-    def _apply_plain(self, gs: GatewaySession, session: Session, kind: ReportKind, aid: str,
-                     ref: str, at: tuple[int, int], now: float) -> None:
-        """Feed a plain ``started`` / ``finished`` (:meth:`GatewaySession.plain`) of action
-        ``at`` (plan, index) to the executor, as :meth:`_apply` does a session's report."""
-        ex = self._core()
-        if ex is None:
-            session.error(ErrorCode.REJECTED, ref, "no execution is running")
-            return
-        apply = ex.finished if kind == "finished" else ex.started
-        plan, index = at
-        try:
-            apply(gs.robot_id, plan, index, max(now, ex.now_ms))
-        except ExecutionError as exc:
-            session.error(ErrorCode.REJECTED, ref, str(exc))
-            return
-        gs.took(kind, aid, index)
-        if kind == "finished":
-            self.metrics.finished_pending += 1
-        self.current_run.route()
 
     def _arrival_ms(self, at_ms: float | None) -> float:
         """The plan time at which a message that arrived at ``at_ms`` takes effect: its arrival,

@@ -16,7 +16,7 @@ from protocol import AnyMessage, ErrorCode, OperatorCommand
 from protocol.messages import Pose
 
 
-@dataclass(slots=True)  # one per message: cheaper to build and read
+@dataclass
 class Inbound:
     """A validated message from a session (``received`` = perf_counter at arrival).
 

@@ -10,7 +10,6 @@ never both), the robot executed exactly the finished ones, once each and in inde
 
 from __future__ import annotations
 
-import copy
 from collections import deque
 from typing import Any
 
@@ -345,38 +344,3 @@ def test_a_v1_robot_is_refused_only_on_a_turning_plan() -> None:
     assert hello_refusal(v2, turning_plan=True) is None
     refusal = hello_refusal(v1, turning_plan=True)
     assert refusal is not None and "v2" in refusal
-
-
-_KINDS = st.sampled_from(["started", "finished", "blocked", "unblocked"])
-
-
-@settings(max_examples=150, deadline=None)
-@given(st.lists(st.tuples(_KINDS, st.integers(0, 4), st.booleans()), max_size=25))
-def test_a_plain_report_is_the_report_an_executor_takes(ops: list[tuple[Any, int, bool]]
-                                                       ) -> None:
-    """``plain`` + ``took`` (the driver's fast path) do what ``report`` + ``accepted`` do:
-    where ``plain`` answers, ``report`` queues exactly that one Report and nothing else, and
-    both sessions end the same; where it does not, the report is left to ``report``."""
-    gs = GatewaySession(0)
-    link, other = object(), object()
-    gs.hello(hello(), 0.0)
-    gs.welcome(link, version=2, start=None, plan=0, state_period_ms=100.0, paused=False)
-    accept_all(gs)
-    for i in range(4):
-        gs.dispatch(fields(i))
-    gs.drain()
-    for t, (kind, i, on_link) in enumerate(ops):
-        aid, via = f"0.0.{i}", link if on_link else other
-        twin = copy.deepcopy(gs, {id(link): link, id(other): other})
-        at = gs.plain(kind, aid, via, None)
-        twin.report(kind, aid, "m", via, float(t))
-        if at is None:
-            gs.report(kind, aid, "m", via, float(t))
-            accept_all(gs)
-            accept_all(twin)
-            continue
-        assert kind in ("started", "finished") and at == (0, i)
-        assert twin.drain() == [Report(kind, 0, 0, i, aid, float(t), "m")]
-        twin.accepted(Report(kind, 0, 0, i, aid, float(t), "m"))
-        gs.took(kind, aid, i)
-        assert gs == twin
