@@ -635,7 +635,7 @@ class Journal:
         db.execute("BEGIN")
         for sql, args in statements:
             db.execute(sql, args)
-        db.executemany("INSERT INTO records (kind, body, chain) VALUES (?, ?, ?)", chained)
+        db.executemany(_insert_rows(1), chained)
         db.execute("COMMIT")
         if full:
             db.execute("PRAGMA synchronous=NORMAL")

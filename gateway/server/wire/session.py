@@ -34,9 +34,9 @@ from protocol import (
     AnyMessage,
     Error,
     ErrorCode,
+    action_body,
     action_text,
     encode,
-    encode_action,
 )
 from protocol.messages import ProtocolVersion
 
@@ -127,8 +127,7 @@ class LinkSession(Session):
         :func:`~protocol.codec.encode_action`) and this session's next msg_id/seq, written
         without building its model (the owner's hot path)."""
         if not self.closing:
-            seq = next(self._seq)
-            self._put(encode_action(self.version, f"g{self.id}-{seq}", seq, fields))
+            self.send_action_body(action_body(fields))
 
     def send_action_body(self, body: str) -> None:
         """Queue an ``action`` of this JSON body (:func:`~protocol.codec.action_body`: a

@@ -19,10 +19,13 @@ from gateway.server.workers.records import Op
 _HEADER = struct.Struct(">I")
 
 
+def _framed(data: bytes) -> bytes:
+    return _HEADER.pack(len(data)) + data
+
+
 def frame(ops: list[Op]) -> bytes:
     """The frame of one batch."""
-    data = marshal.dumps(ops)
-    return _HEADER.pack(len(data)) + data
+    return _framed(marshal.dumps(ops))
 
 
 async def _payload(reader: asyncio.StreamReader) -> bytes:
@@ -38,8 +41,7 @@ async def read_batch(reader: asyncio.StreamReader) -> list[Op]:
 
 def start_frame(start: tuple[Any, ...]) -> bytes:
     """The frame of a worker's start (pickled: it carries the config)."""
-    data = pickle.dumps(start, protocol=pickle.HIGHEST_PROTOCOL)
-    return _HEADER.pack(len(data)) + data
+    return _framed(pickle.dumps(start, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 async def read_start(reader: asyncio.StreamReader) -> tuple[Any, ...]:
