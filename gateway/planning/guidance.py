@@ -24,8 +24,10 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from gateway.planning.connectivity import component_labels
 from gateway.planning.distance import turning_predecessor_table
 from gateway.planning.grid import Grid
+from gateway.planning.motion import HEADING_MOVES
 
 MOVE = 2
 """Cost of one action (a move along its lane, a turn, a wait) in a guided table: an even unit,
@@ -218,12 +220,11 @@ def _ahead(grid: Grid) -> npt.NDArray[np.int64]:
     cells = np.arange(grid.size)
     x, y = cells % grid.width, cells // grid.width
     out = np.full((grid.size, 4), grid.size, dtype=np.int64)
-    for h, (dx, dy) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
+    for h, (dx, dy) in enumerate(HEADING_MOVES):
         nx, ny = x + dx, y + dy
         inside = (nx >= 0) & (nx < grid.width) & (ny >= 0) & (ny < grid.height)
         out[inside, h] = (ny * grid.width + nx)[inside]
     return out.ravel()
-
 
 
 DOOR_ROOM = 16
@@ -248,28 +249,12 @@ def door_cells(grid: Grid) -> list[tuple[int, int]]:
 
 
 def regions(grid: Grid, cut: Sequence[int]) -> npt.NDArray[np.int64]:
-    """Each cell's region (0, 1, ...): the connected parts (4-neighbours) of the free cells
-    of ``grid`` without the cells ``cut``; -1 on a blocked or cut cell."""
-    free = grid.free.ravel().copy()
-    free[np.asarray(cut, dtype=np.int64)] = False
-    w, n = grid.width, grid.size
-    label = np.full(n, -1, dtype=np.int64)
-    k = 0
-    for s in np.flatnonzero(free).tolist():
-        if label[s] >= 0:
-            continue
-        label[s] = k
-        stack = [s]
-        while stack:
-            c = stack.pop()
-            x = c % w
-            for v, ok in ((c + 1, x < w - 1), (c - 1, x > 0), (c + w, c + w < n),
-                          (c - w, c >= w)):
-                if ok and free[v] and label[v] < 0:
-                    label[v] = k
-                    stack.append(v)
-        k += 1
-    return label
+    """Each cell's region (0, 1, ..., in row-major order of their first cell): the connected
+    parts (4-neighbours, :func:`~gateway.planning.connectivity.component_labels`) of the free
+    cells of ``grid`` without the cells ``cut``; -1 on a blocked or cut cell."""
+    free = grid.free.copy()
+    free.ravel()[np.asarray(cut, dtype=np.int64)] = False
+    return component_labels(Grid(free)).ravel().astype(np.int64) - 1
 
 
 def one_way_doors(grid: Grid, penalty: int) -> npt.NDArray[np.int32]:
