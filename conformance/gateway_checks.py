@@ -164,6 +164,24 @@ async def _version_1(t: Target) -> None:
             raise CheckFailed(f"a version 1 robot got version 2 messages: {late}")
 
 
+@check("version-2-robot-acks-and-is-served", "VER-2")
+async def _version_2(t: Target) -> None:
+    """A robot whose `hello` is version 2 (it acknowledges with ``ack``) is answered in
+    version 2 (welcome and actions), its ``ack`` taken."""
+    async with _single(t) as run:
+        robot = await t.robot(hello=False)
+        robot.conn.version = 2
+        run.robots[robot.id] = robot
+        welcome = await robot.hello()
+        await run.start()
+        first = await robot.action(0)
+        await robot.execute(first)  # ack, started, finished
+        got: list[Welcome | Action] = [welcome, first, *welcome.resend]
+        late = [f"{m.type} v{m.v}" for m in got if m.v != 2]
+        if late:
+            raise CheckFailed(f"a version 2 robot got messages of another version: {late}")
+
+
 @check("hello-as-another-robot", "AUTH-4")
 async def _hello_other(t: Target) -> None:
     """``hello`` claiming another robot id gets ``not_yourself`` and no welcome."""
@@ -300,9 +318,9 @@ BAD_FRAMES = [
              "null.", lambda t: "{not json", ErrorCode.MALFORMED),
     BadFrame("not-a-json-object", "MSG-1", "A JSON value that is not an object gets "
              "``malformed``.", lambda t: "[1, 2]", ErrorCode.MALFORMED),
-    BadFrame("unsupported-version", "VER-1", "``v`` 3 (not 1 or 2) gets ``unsupported_version`` "
+    BadFrame("unsupported-version", "VER-1", "``v`` 4 (not 1, 2 or 3) gets ``unsupported_version`` "
              "naming the msg_id.",
-             lambda t: _raw("x", type="state", robot_id=t.options.robot_id, v=3),
+             lambda t: _raw("x", type="state", robot_id=t.options.robot_id, v=4),
              ErrorCode.UNSUPPORTED_VERSION, "x-raw"),
     BadFrame("missing-version", "VER-1", "A message without ``v`` gets "
              "``unsupported_version``.",
