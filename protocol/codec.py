@@ -47,7 +47,7 @@ def _types(union: Any) -> frozenset[str]:
 
 
 MESSAGE_TYPES: frozenset[str] = _types(AnyMessage)
-"""Every value of ``type`` that protocol v1 defines."""
+"""Every value of ``type`` that the protocol defines."""
 
 ROBOT_TYPES: frozenset[str] = _types(RobotMessage)
 """The types a robot may send."""
@@ -198,7 +198,9 @@ def action_body(fields: dict[str, Any]) -> str:
 
 def action_text(v: int, msg_id: str, seq: int, body: str) -> str:
     """The ``action`` message of an :func:`action_body` with these envelope fields:
-    ``encode_action``'s text."""
+    ``encode_action``'s text. ``body`` must be what :func:`action_body` wrote, a JSON object
+    that is never empty (it always holds ``duration_ms``): its opening brace is dropped and
+    the envelope's fields go before the rest, with a comma."""
     return f'{{"v":{v},"msg_id":{orjson.dumps(msg_id).decode()},"seq":{seq},"type":"action",' \
         f'{body[1:]}'
 
