@@ -162,7 +162,7 @@ from gateway.server.items import OwnerCall
 from gateway.server.planner import Problem
 from gateway.vda5050.broker import BrokerConfig
 from gateway.vda5050.transport import VdaTransport
-from protocol import parse_action_id
+from protocol import PROTOCOL_VERSION, parse_action_id
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import FleetStats, SimFleet
 from sim_clients.lean_fleet import LeanFleet, LeanStats
@@ -401,6 +401,16 @@ async def _drive(port: int, plan: Plan, deadline_s: float, jitter: float
         return fleet.stats, last - first, total, pauses.max_ms
 
 
+def newest_version(tree: Path) -> int:
+    """The newest protocol version the checkout ``tree`` serves (its
+    ``protocol.messages.SUPPORTED_VERSIONS``, imported from there)."""
+    out = subprocess.run(
+        [sys.executable, "-c", "from protocol.messages import SUPPORTED_VERSIONS as v; "
+         "print(max(v))"], env={**os.environ, "PYTHONPATH": str(tree)}, cwd=tree,
+        capture_output=True, text=True, check=True)
+    return int(out.stdout)
+
+
 def generators_for(robots: int) -> int:
     """How many lean generator processes load ``robots`` robots by default (one per 2,500
     robots, at most 4): one process's event loop would add its own queueing to the latency."""
@@ -424,23 +434,24 @@ def lean_main(args: argparse.Namespace) -> None:
     mine = {r: path for r, path in enumerate(paths) if r % n == k}
 
     async def go() -> LeanStats:
-        fleet = LeanFleet(args.port, mine, args.jitter, args.seed)
+        fleet = LeanFleet(args.port, mine, args.jitter, args.seed, args.protocol)
         return await fleet.run(lean_deadline_s(args.seconds))
 
     write_text(out, json.dumps(dataclasses.asdict(asyncio.run(go()))))
 
 
 def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
-                jitter: float) -> tuple[FleetStats, float, float]:
-    """Run the plan's robots in ``parts`` lean generator processes; their merged stats, the
-    execution's wall time and the processes' CPU time during it."""
+                jitter: float, protocol: int) -> tuple[FleetStats, float, float]:
+    """Run the plan's robots in ``parts`` lean generator processes (speaking ``protocol``);
+    their merged stats, the execution's wall time and the processes' CPU time during it."""
     outs = [plan_file.with_name(f"robots-{k}.json") for k in range(parts)]
     stats, cpu = FleetStats(), 0.0
     with contextlib.ExitStack() as stack:
         procs = [stack.enter_context(children.running(
             [sys.executable, __file__, "--lean-part", f"{k}/{parts}", "--lean-files",
              str(plan_file), str(out), "--port", str(port), "--seconds", str(seconds),
-             "--seed", str(seed), "--jitter", str(jitter)])) for k, out in enumerate(outs)]
+             "--seed", str(seed), "--jitter", str(jitter), "--protocol", str(protocol)]))
+            for k, out in enumerate(outs)]
         for proc, out in zip(procs, outs, strict=True):
             proc.wait(timeout=lean_deadline_s(seconds) + 900.0)  # + connecting, starting
             if proc.returncode != 0 or not out.exists():
@@ -460,12 +471,13 @@ def _drive_lean(port: int, plan_file: Path, parts: int, seconds: int, seed: int,
 def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int = 0,
              profile: Path | None = None, journal: bool = False, tree: Path | None = None,
              generators: int = -1, uvloop: bool = False, trace: bool = False,
-             workers: int = 0) -> dict[str, Any]:
+             workers: int = 0, protocol: int = PROTOCOL_VERSION) -> dict[str, Any]:
     """One gateway process + one fleet; the measurements as a dict. With ``tree`` (a checkout
     of another version) the gateway process is that version's (its ``bench/load.py --serve``
     with its packages first on the path); the robots are always this version's: ``generators``
     lean generator processes (:mod:`sim_clients.lean_fleet`; < 0: :func:`generators_for`), or
-    with 0 the full simulated robots of :mod:`sim_clients.fleet` in this process."""
+    with 0 the full simulated robots of :mod:`sim_clients.fleet` in this process (the
+    latest protocol version; the lean ones speak ``protocol``)."""
     size, plan = workload(robots, seconds, seed)
     if generators < 0:
         generators = generators_for(robots)
@@ -503,7 +515,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
             robots_gc_ms: float | None = None
             if generators:
                 stats, wall_s, robots_cpu = _drive_lean(port, plan_file, generators, seconds,
-                                                        seed, jitter)
+                                                        seed, jitter, protocol)
             else:
                 cpu0 = time.process_time()
                 stats, wall_s, total, robots_gc_ms = asyncio.run(
@@ -528,6 +540,7 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
     offered = total / plan.makespan  # actions per second if nobody is ever late
     achieved = total / wall_s if wall_s > 0 else 0.0
     return {"robots": robots, "lookahead": lookahead, "journal": journal, "uvloop": uvloop,
+            "protocol": protocol if generators else PROTOCOL_VERSION,
             "workers": workers, "actions": len(stats.received),
             "p50_ms": round(statistics.median(lat), 3) if lat else None,
             "p99_ms": round(_percentile(lat, 0.99), 3) if lat else None,
@@ -798,14 +811,15 @@ def run_shift(robots: int, seconds: int, seed: int, jitter: float, lookahead: in
 
 
 def journal_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-                 profile: Path | None, pairs: int, generators: int = -1) -> dict[str, Any]:
+                 profile: Path | None, pairs: int, generators: int = -1,
+                 protocol: int = PROTOCOL_VERSION) -> dict[str, Any]:
     """``pairs`` runs without and with the journal, interleaved (ABBA: a trend in the
     machine's load charges neither side); the median journaled run's measurements, plus
     ``p99_journal_ratio`` (median p99 with / without) and the same for the gateway's own
     p99 and its CPU per action."""
     plain, journaled = interleaved(pairs, lambda journal: run_once(
         robots, seconds, seed, jitter, lookahead, profile if journal else None, journal,
-        generators=generators))
+        generators=generators, protocol=protocol))
 
     def ratio(key: str) -> float | None:
         return median_ratio(key, journaled, plain)
@@ -848,17 +862,21 @@ def median_ratio(key: str, these: list[dict[str, Any]], those: list[dict[str, An
 
 def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
                  pairs: int, tree: Path, journal: bool = False, generators: int = -1,
-                 workers: int = 0) -> dict[str, Any]:
+                 workers: int = 0, protocol: int = PROTOCOL_VERSION) -> dict[str, Any]:
     """``pairs`` runs of this gateway and of the one in ``tree`` (another version's checkout),
     interleaved ABBA, the same plan and this version's robots: the median run of this version
     (by CPU per action) plus ``cpu_per_action_ratio`` = median gateway CPU per action of this
     version / that of ``tree`` (< 1: this one is leaner), the same for p99, and the load
     average after each run; with ``journal`` both sides journal (each its own way); with
     ``workers`` both sides run that many worker processes, and the owner process's and the
-    workers' CPU per action get ratios of their own."""
+    workers' CPU per action get ratios of their own. This version's robots speak
+    ``protocol`` to this gateway and the newest version ``tree`` serves, if older, to that
+    one."""
+    theirs_speak = min(protocol, newest_version(tree))
     ours, theirs = interleaved(pairs, lambda other: run_once(
         robots, seconds, seed, jitter, lookahead, journal=journal,
-        tree=tree if other else None, generators=generators, workers=workers))
+        tree=tree if other else None, generators=generators, workers=workers,
+        protocol=theirs_speak if other else protocol))
     key = "gateway_cpu_ms_per_action"
     result = sorted(ours, key=lambda r: r[key])[(pairs - 1) // 2]
     split: dict[str, Any] = {}
@@ -868,6 +886,7 @@ def against_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
                    f"{name}_runs": [r[name] for r in ours],
                    f"against_{name}": [r[name] for r in theirs]} if workers else {})
     return {**result, **split, "pairs": pairs, "against": str(tree),
+            "against_protocol": theirs_speak,
             "cpu_ms_per_action": [r[key] for r in ours],
             "against_cpu_ms_per_action": [r[key] for r in theirs],
             "load_1min_runs": [r["load_1min"] for r in ours],
@@ -905,13 +924,14 @@ def shift_against(robots: int, seconds: int, seed: int, jitter: float, lookahead
 
 
 def uvloop_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-                pairs: int, journal: bool, generators: int) -> dict[str, Any]:
+                pairs: int, journal: bool, generators: int,
+                protocol: int = PROTOCOL_VERSION) -> dict[str, Any]:
     """``pairs`` runs of the gateway on asyncio's own event loop and on uvloop's, interleaved
     ABBA: the median uvloop run plus ``uvloop_cpu_per_action_ratio`` (median gateway CPU per
     action, uvloop / asyncio: < 1 is leaner) and the same for the owner and for p99."""
     plain, fast = interleaved(pairs, lambda uv: run_once(
         robots, seconds, seed, jitter, lookahead, journal=journal, generators=generators,
-        uvloop=uv))
+        uvloop=uv, protocol=protocol))
     key = "gateway_cpu_ms_per_action"
     result = sorted(fast, key=lambda r: r[key])[(pairs - 1) // 2]
     return {**result, "pairs": pairs,
@@ -923,7 +943,8 @@ def uvloop_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: 
 
 
 def workers_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead: int,
-                 pairs: int, workers: int, journal: bool, generators: int) -> dict[str, Any]:
+                 pairs: int, workers: int, journal: bool, generators: int,
+                 protocol: int = PROTOCOL_VERSION) -> dict[str, Any]:
     """``pairs`` runs of the gateway in one process and with ``workers`` worker processes,
     interleaved ABBA: the median run with workers plus, with workers / without (the median of
     each side), ``workers_cpu_per_action_ratio`` (the whole gateway's: > 1 costs more),
@@ -931,7 +952,7 @@ def workers_cost(robots: int, seconds: int, seed: int, jitter: float, lookahead:
     ``workers_p99_ratio`` and ``workers_rate_ratio`` (served actions per second)."""
     one, split = interleaved(pairs, lambda w: run_once(
         robots, seconds, seed, jitter, lookahead, journal=journal, generators=generators,
-        workers=workers if w else 0))
+        workers=workers if w else 0, protocol=protocol))
     for r in one:  # one process: the owner process is the whole gateway
         r["owner_process_cpu_ms_per_action"] = r["gateway_cpu_ms_per_action"]
     key = "gateway_cpu_ms_per_action"
@@ -958,14 +979,15 @@ def holds(result: dict[str, Any]) -> bool:
 
 
 def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int, limit: int,
-             generators: int = -1, workers: int = 0) -> tuple[int, list[dict[str, Any]]]:
+             generators: int = -1, workers: int = 0, protocol: int = PROTOCOL_VERSION
+             ) -> tuple[int, list[dict[str, Any]]]:
     """Largest fleet (to within 10 %) that holds: double from ``start``, then bisect."""
     runs: list[dict[str, Any]] = []
     good, bad = 0, None
     r = start
     while r <= limit:
         res = run_once(r, seconds, seed, jitter, lookahead, generators=generators,
-                       workers=workers)
+                       workers=workers, protocol=protocol)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if not holds(res):
@@ -975,7 +997,7 @@ def find_max(seconds: int, seed: int, jitter: float, lookahead: int, start: int,
     while bad is not None and bad - good > max(50, good // 10):
         mid = (good + bad) // 2
         res = run_once(mid, seconds, seed, jitter, lookahead, generators=generators,
-                       workers=workers)
+                       workers=workers, protocol=protocol)
         runs.append(res)
         print(json.dumps(res), file=sys.stderr, flush=True)
         if holds(res):
@@ -997,6 +1019,10 @@ def main() -> int:
     p.add_argument("--find-max", action="store_true",
                    help="search the largest fleet with p99 <= 50 ms, 0 lost, 0 duplicated")
     p.add_argument("--max-robots", type=int, default=4000, help="upper bound of --find-max")
+    p.add_argument("--protocol", type=int, choices=[2, 3], default=PROTOCOL_VERSION,
+                   help="the protocol version the lean robots speak (default %(default)s: no "
+                        "ack; 2: an ack per action); with --against, the other side's robots "
+                        "speak the newest version it serves, if older")
     p.add_argument("--lookahead", type=int, default=0,
                    help="the gateway's dispatch_lookahead (default 0: classic dispatch, so that "
                    "every dispatch after the first is unlocked by a finish and measured)")
@@ -1117,29 +1143,30 @@ def main() -> int:
     gens = args.generators
     baseline = run_once(BASELINE_ROBOTS, min(args.seconds, 10), args.seed, args.jitter,
                         args.lookahead, journal=args.journal or args.journaled,
-                        generators=gens, workers=args.workers)
+                        generators=gens, workers=args.workers, protocol=args.protocol)
     if args.find_max:
         best, runs = find_max(args.seconds, args.seed, args.jitter, args.lookahead, 250,
-                              args.max_robots, gens, args.workers)
+                              args.max_robots, gens, args.workers, args.protocol)
         result = next((r for r in runs if r["robots"] == best), baseline)
         result = {"max_robots": best, **result}
     elif args.against is not None:
         result = against_cost(args.robots, args.seconds, args.seed, args.jitter,
                               args.lookahead, args.pairs, args.against.resolve(),
-                              args.journal, gens, args.workers)
+                              args.journal, gens, args.workers, args.protocol)
     elif args.workers and args.pairs > 1:
         result = workers_cost(args.robots, args.seconds, args.seed, args.jitter,
-                              args.lookahead, args.pairs, args.workers, args.journaled, gens)
+                              args.lookahead, args.pairs, args.workers, args.journaled, gens,
+                              args.protocol)
     elif args.uvloop:
         result = uvloop_cost(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
-                             args.pairs, args.journal, gens)
+                             args.pairs, args.journal, gens, args.protocol)
     elif args.journal:
         result = journal_cost(args.robots, args.seconds, args.seed, args.jitter,
-                              args.lookahead, args.profile, args.pairs, gens)
+                              args.lookahead, args.profile, args.pairs, gens, args.protocol)
     else:
         result = run_once(args.robots, args.seconds, args.seed, args.jitter, args.lookahead,
                           args.profile, journal=args.journaled, generators=gens,
-                          trace=args.trace, workers=args.workers)
+                          trace=args.trace, workers=args.workers, protocol=args.protocol)
     base_p99 = baseline["p99_ms"]
     result["baseline_robots"] = BASELINE_ROBOTS
     result["baseline_p99_ms"] = base_p99

@@ -79,7 +79,8 @@ def _gateway(args: argparse.Namespace) -> int:
         raise UsageProblem("--peer-id must differ from --robot-id")
     options = Options(url=_ws_url(args.url), token=args.token, robot_id=args.robot_id,
                       peer_id=args.peer_id, peer_token=args.peer_token,
-                      operator_token=args.operator_token, map=args.map, cafile=args.cafile)
+                      operator_token=args.operator_token, map=args.map, cafile=args.cafile,
+                      robot_version=args.robot_version)
     only = _only(args.only, GATEWAY_CHECKS)
     results = asyncio.run(run_gateway_checks(options, only))
     return _output(results, args, args.url)
@@ -191,6 +192,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--map", default="lab", help="map the plans are loaded on (default lab; "
                                                 "needs five free cells in a row)")
     g.add_argument("--cafile", help="CA certificate to trust for wss://")
+    g.add_argument("--robot-version", type=int, choices=[2, 3], default=3,
+                   help="the protocol version the checker's robots speak (default 3: no ack; "
+                        "2: an ack per action); one check plays a version 1 robot, one a "
+                        "version 2 robot whatever this says")
     _common(g)
     r = modes.add_parser(
         "robot", help="check a robot (the checker plays the gateway)",

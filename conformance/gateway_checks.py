@@ -43,6 +43,7 @@ from protocol import (
     parse_action_id,
 )
 from protocol import Blocked as BlockedReport
+from protocol.messages import ProtocolVersion
 
 GATEWAY_CHECKS: Checklist[Target] = Checklist()
 check = GATEWAY_CHECKS.check
@@ -147,21 +148,40 @@ async def _hello_welcome(t: Target) -> None:
         await robot.conn.close()
 
 
-@check("version-1-robot-is-served", "VER-2")
-async def _version_1(t: Target) -> None:
-    """A robot whose `hello` is version 1 is answered in version 1 (welcome and actions) on
-    a plan without headings."""
+async def _served_in(t: Target, version: ProtocolVersion) -> None:
+    """A robot speaking ``version`` is answered in it (welcome and actions) and executes its
+    first action (with an ``ack`` before 3) without an ``error``."""
     async with _single(t) as run:
         robot = await t.robot(hello=False)
-        robot.conn.version = 1
+        robot.conn.version = version
         run.robots[robot.id] = robot
         welcome = await robot.hello()
         await run.start()
         first = await robot.action(0)
+        await robot.execute(first)
         got: list[Welcome | Action] = [welcome, first, *welcome.resend]
-        late = [m.type for m in got if m.v != 1]
+        late = [f"{m.type} v{m.v}" for m in got if m.v != version]
         if late:
-            raise CheckFailed(f"a version 1 robot got version 2 messages: {late}")
+            raise CheckFailed(f"a version {version} robot got messages of another version: "
+                              f"{late}")
+        errors = [f"{m.code.value}: {m.detail}" for m in robot.conn.received
+                  if isinstance(m, Error)]
+        if errors:
+            raise CheckFailed(f"a version {version} robot's messages were refused: {errors}")
+
+
+@check("version-1-robot-is-served", "VER-2")
+async def _version_1(t: Target) -> None:
+    """A robot whose `hello` is version 1 is answered in version 1 (welcome and actions) on
+    a plan without headings."""
+    await _served_in(t, 1)
+
+
+@check("version-2-robot-acks-and-is-served", "VER-2")
+async def _version_2(t: Target) -> None:
+    """A robot whose `hello` is version 2 (it acknowledges with ``ack``) is answered in
+    version 2 (welcome and actions), its ``ack`` taken."""
+    await _served_in(t, 2)
 
 
 @check("hello-as-another-robot", "AUTH-4")
@@ -300,9 +320,9 @@ BAD_FRAMES = [
              "null.", lambda t: "{not json", ErrorCode.MALFORMED),
     BadFrame("not-a-json-object", "MSG-1", "A JSON value that is not an object gets "
              "``malformed``.", lambda t: "[1, 2]", ErrorCode.MALFORMED),
-    BadFrame("unsupported-version", "VER-1", "``v`` 3 (not 1 or 2) gets ``unsupported_version`` "
+    BadFrame("unsupported-version", "VER-1", "``v`` 4 (not 1, 2 or 3) gets ``unsupported_version`` "
              "naming the msg_id.",
-             lambda t: _raw("x", type="state", robot_id=t.options.robot_id, v=3),
+             lambda t: _raw("x", type="state", robot_id=t.options.robot_id, v=4),
              ErrorCode.UNSUPPORTED_VERSION, "x-raw"),
     BadFrame("missing-version", "VER-1", "A message without ``v`` gets "
              "``unsupported_version``.",

@@ -44,6 +44,7 @@ from protocol import (
     Welcome,
     parse_action_id,
 )
+from protocol.messages import FOLDED_ACK
 
 Cell = tuple[int, int]
 
@@ -267,10 +268,34 @@ class FakeGateway:
         self.cell = dst
         return aid
 
+    def folds_acks(self) -> bool:
+        """Whether the robot's current connection is of protocol v3 or later, whose robots
+        send no ``ack`` (their first report about an action acknowledges it)."""
+        return (self.c().version or PROTOCOL_VERSION) >= FOLDED_ACK
+
     async def acked(self, aid: str) -> None:
-        """The robot's next ``ack`` of ``aid``."""
-        await self.c().expect_type(Ack, ACT_S, lambda m: m.action_id == aid,
-                                   what=f"ack of {aid}")
+        """The robot's next ``ack`` of ``aid`` (v1, v2). A v3 robot sends none for an action
+        it holds: nothing to wait for (it reads its link in order, so it took ``aid`` before
+        anything the checker sends later)."""
+        if not self.folds_acks():
+            await self.c().expect_type(Ack, ACT_S, lambda m: m.action_id == aid,
+                                       what=f"ack of {aid}")
+
+    async def answered(self, aid: str) -> None:
+        """The robot acknowledges ``aid``: an ``ack`` (v1, v2), or (v3) a first report about it
+        and no ``ack`` (the report stays unclaimed for the checks that wait for it)."""
+        if not self.folds_acks():
+            await self.acked(aid)
+            return
+        loop = asyncio.get_running_loop()
+        end = loop.time() + ACT_S
+        while not self.reports[aid]:
+            if loop.time() > end:
+                raise CheckFailed(f"no report about {aid} within {ACT_S:g} s (protocol v3 "
+                                  "acknowledges an action with its first report)")
+            await asyncio.sleep(0.02)
+        if aid in self.acks:
+            raise CheckFailed(f"a version 3 robot sent an ack of {aid} (ACK-1: none in v3)")
 
     async def send(self, aid: str) -> None:
         """Send (or send again) action ``aid``."""
@@ -362,9 +387,10 @@ async def _hello_id(g: FakeGateway) -> None:
 
 @check("acks-an-action", "ACK-1")
 async def _ack(g: FakeGateway) -> None:
-    """The robot acknowledges an action."""
+    """The robot acknowledges an action: with ``ack`` in version 1 and 2, with its first
+    report and no ``ack`` in version 3."""
     aid = await g.dispatch(move=True)
-    await g.acked(aid)
+    await g.answered(aid)
 
 
 @check("executes-an-action", "REPORT-1")
@@ -414,9 +440,15 @@ async def _duplicate(g: FakeGateway) -> None:
 
 @check("duplicate-acknowledged", "ACK-1", required=False)
 async def _dup_ack(g: FakeGateway) -> None:
-    """A duplicate action is acknowledged again."""
+    """A duplicate action is acknowledged again (version 1 and 2; a version 3 robot sends no
+    ``ack`` for it)."""
     aid = await g.dispatch()
     await g.executes(aid)
+    if g.folds_acks():
+        await g.send(aid)
+        await g.c().quiet(f"ack of {aid}",
+                          lambda m: isinstance(m, Ack) and m.action_id == aid, QUIET_S)
+        return
     acks = sum(1 for m in g.c().received if isinstance(m, Ack) and m.action_id == aid)
     await g.send(aid)
     await g.acked(aid)
@@ -526,8 +558,8 @@ async def _error(g: FakeGateway) -> None:
 
 @check("bad-messages-are-ignored", "ERR-4")
 async def _garbage(g: FakeGateway) -> None:
-    """Undecodable messages (not JSON, version 3, unknown type) do not stop the robot."""
-    for raw in ("{not json", '{"v": 3, "type": "pause", "msg_id": "x", "seq": 0}',
+    """Undecodable messages (not JSON, version 4, unknown type) do not stop the robot."""
+    for raw in ("{not json", '{"v": 4, "type": "pause", "msg_id": "x", "seq": 0}',
                 '{"v": 1, "type": "teleport", "msg_id": "y", "seq": 0}'):
         await g.c().send_raw(raw)
     aid = await g.dispatch()
@@ -694,13 +726,18 @@ async def _welcome_paused(g: FakeGateway) -> None:
 @check("acks-every-action", "ACK-1")
 async def _all_acked(g: FakeGateway) -> None:
     """Every action the robot received was acknowledged (or, if the link lost the ack, listed
-    in its next `hello`), unless it refused it."""
+    in its next `hello`), unless it refused it: with ``ack`` in version 1 and 2, by a report
+    about it in version 3, whose robots send no ``ack`` at all."""
     await asyncio.sleep(0.1)
     held = {a for h in g.hellos for a in [*h.acked, *h.finished]}  # an ack the link lost
     refused = {a for a, kinds in g.reports.items() if "refused" in kinds}
-    missing = sorted(g.sent - g.acks - held - refused)
+    folded = bool(g.hellos) and g.hellos[-1].v >= FOLDED_ACK
+    answered = {a for a, kinds in g.reports.items() if kinds} if folded else g.acks
+    missing = sorted(g.sent - answered - held - refused)
     if missing:
         raise CheckFailed(f"never acknowledged: {missing[:5]}")
+    if folded and g.acks:
+        raise CheckFailed(f"a version 3 robot sent acks: of {sorted(g.acks)[:5]}")
 
 
 @check("reports-only-its-actions", "AUTH-5")

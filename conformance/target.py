@@ -38,6 +38,7 @@ from protocol import (
     Welcome,
     parse_action_id,
 )
+from protocol.messages import FOLDED_ACK, PROTOCOL_VERSION, ProtocolVersion
 
 Cell = tuple[int, int]
 
@@ -80,6 +81,9 @@ class Options:
     operator_token: str | None = None
     map: str = "lab"
     cafile: str | None = None
+    robot_version: ProtocolVersion = PROTOCOL_VERSION
+    """The protocol version the checker's robots speak (3: no ``ack``; 2: an ``ack`` per
+    action)."""
 
     def robot_token(self, robot: int) -> str | None:
         """The token of ``robot``: ``--token`` (a ``{id}`` template works for any robot) or
@@ -195,6 +199,13 @@ class Robot:
         self.done: set[str] = set()  # finished or cancelled
         self.started: set[str] = set()
         self.paused = False
+        conn.version = target.options.robot_version
+
+    async def ack(self, aid: str) -> None:
+        """Acknowledge ``aid`` with an ``ack`` if the connection's version has one (v1, v2;
+        a v3 robot's ``started`` acknowledges it)."""
+        if (self.conn.version or PROTOCOL_VERSION) < FOLDED_ACK:
+            await self.conn.send(Ack, action_id=aid)
 
     async def hello(self, timeout: float = 5.0, **fields: Any) -> Welcome:
         """Say hello; the welcome (its resend list is taken as received actions)."""
@@ -233,7 +244,7 @@ class Robot:
 
     async def execute(self, a: Action) -> None:
         """Acknowledge, start and finish ``a``."""
-        await self.conn.send(Ack, action_id=a.action_id)
+        await self.ack(a.action_id)
         await self.report(Started, a.action_id)
         await self.report(Finished, a.action_id)
 
@@ -260,7 +271,7 @@ class Robot:
             if todo and not self.paused:
                 a = todo[0]
                 if a.action_id not in self.started:
-                    await self.conn.send(Ack, action_id=a.action_id)
+                    await self.ack(a.action_id)
                     await self.report(Started, a.action_id)
                 await self.report(Finished, a.action_id)
                 continue

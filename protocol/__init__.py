@@ -1,4 +1,5 @@
-"""fleetgate wire protocol v1: pydantic models for robot, gateway and operator messages.
+"""fleetgate wire protocol v3 (serving v1 and v2): pydantic models for robot, gateway and
+operator messages.
 
 One JSON object per websocket text frame, discriminated on ``type``; every message has ``v``
 (= :data:`PROTOCOL_VERSION`), a unique ``msg_id`` and a per-sender ``seq``; unknown fields are
@@ -21,19 +22,26 @@ cancel/pause/resume, state snapshots that make reconnecting simple, coded reject
                                           <-- welcome(start pose, plan, resend[actions], paused)
                                           <-- action(action_id "run.plan.robot.i", src, dst,
                                                      duration_ms, sequence=i)
-      ack(action_id)                        -->   (robot drops a duplicate action_id silently)
+      ack(action_id)                        -->   v1, v2 only (robot drops a duplicate silently)
       blocked(action_id, pose)              -->   target cell taken; re-check ...
       unblocked(action_id, pose)            -->
-      started(action_id, pose)              -->   begins to move
+      started(action_id, pose)              -->   begins to move (v3: acknowledges the action)
       finished(action_id, pose)             -->   arrived; applied once per action_id
                                           <-- action(...)  next one (see "Action queue")
                                           <-- cancel(action_id)   replan: drop it if not moving
       cancelled(action_id, pose)            -->   (or finished, if it was already moving)
       refused(action_id, code, detail, pose) -->  v2: will not execute it (instead of ack or
                                                   started), nor what follows it in the plan
+                                                  (v3: each action dropped with it refused too)
                                           <-- pause / resume
       state(robot_id, pose, activity, current) every welcome.state_period_ms
                                           <-- error(code, ref=offending msg_id, detail)
+
+Messages per action: v1 and v2 robots send ``ack``, ``started`` and ``finished``; a v3 robot
+sends no ``ack`` (its first report about an action acknowledges it; an action it holds
+without a report yet is in its ``hello.acked`` if the link drops, as in every version), so
+the gateway handles three messages per action instead of four. Each connection speaks the
+version of its robot's ``hello``.
 
 Action queue (lookahead dispatch, as a VDA 5050 order releases the part a robot may drive): a
 robot may hold a queue of actions. The gateway sends action i+1 of a robot once its

@@ -47,7 +47,7 @@ def _types(union: Any) -> frozenset[str]:
 
 
 MESSAGE_TYPES: frozenset[str] = _types(AnyMessage)
-"""Every value of ``type`` that protocol v1 defines."""
+"""Every value of ``type`` that the protocol defines."""
 
 ROBOT_TYPES: frozenset[str] = _types(RobotMessage)
 """The types a robot may send."""

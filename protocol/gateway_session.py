@@ -1,4 +1,4 @@
-"""The gateway's side of protocol v1 for one robot, as a sans-I/O state machine.
+"""The gateway's side of the protocol for one robot, as a sans-I/O state machine.
 
 One :class:`GatewaySession` per robot lives across that robot's connections. The driver (the
 gateway's engine) feeds it the robot's messages with the current plan time and the handle of
@@ -26,7 +26,9 @@ The rules, written once here:
   but the gateway does not stand behind (never dispatched in this run, e.g. after a restart
   that started a fresh run); their ``cancelled`` confirmations are taken silently;
 * each ``ack`` is recorded; an ``ack`` of an action never dispatched is refused
-  (``unknown_action``);
+  (``unknown_action``). A protocol v3 robot sends none (its first report about an action
+  acknowledges it); what the gateway resends never depended on the ``ack`` (the ``hello``
+  says what the robot holds), only which refusals it still owes (below);
 * a report about an applied action is a ``duplicate`` (a completion reported twice is applied
   once; a session remembers the latest :data:`APPLIED_KEEP` applied actions), a report about
   an action never dispatched (or of an earlier plan: REPORT-3) is ``unknown_action``, a
@@ -39,7 +41,9 @@ The rules, written once here:
   (of that plan, or of a lifelong shift's later segments) are no longer held, and a repeated,
   ``queued_behind`` or ``pose_mismatch`` refusal of them is dropped silently, also when it
   arrives after they were dispatched again (the robot had not answered them yet: its answer
-  is about the old dispatch).
+  is about the old dispatch). Which ones the robot still answers: in v1 and v2 those it had
+  not acknowledged (it drops acknowledged ones silently); in v3 all of them (it answers every
+  action it drops with a refusal, queued ones included).
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from protocol.messages import (
+    FOLDED_ACK,
     PROTOCOL_VERSION,
     Action,
     CancelAction,
@@ -307,6 +312,8 @@ class GatewaySession:
         if kind == "refused" and (self.applied.get(aid) == "refused" or aid in self.owed):
             self.owed.discard(aid)
             return  # taken back already (a refusal of an earlier action covered it)
+        if self.owed and kind in ("started", "blocked"):  # (v3: it took the action after all)
+            self.owed.discard(aid)
         if kind == "cancelled" and aid in self.disowned:
             self.disowned.discard(aid)  # the robot dropped what the gateway disowned
             return
@@ -348,8 +355,9 @@ class GatewaySession:
         elif r.kind == "unblocked":
             h.phase = "running" if h.moved else "dispatched"
         elif r.kind == "refused":  # the executor took back this action and the later ones
+            answers_all = self.version >= FOLDED_ACK  # a v3 robot answers each one it drops
             for aid in [a for a in self.held if self._taken_back_with(a, r)]:
-                if aid != r.action_id and not self.held[aid].acked:
+                if aid != r.action_id and (answers_all or not self.held[aid].acked):
                     self.owed.add(aid)
                 del self.held[aid]
                 self._applied(aid, "refused")

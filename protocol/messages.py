@@ -1,5 +1,5 @@
-"""The message models of protocol v2, which also serves v1 peers (:data:`PROTOCOL_VERSION`; see
-:mod:`protocol` for the message flow).
+"""The message models of protocol v3, which also serves v1 and v2 peers
+(:data:`PROTOCOL_VERSION`; see :mod:`protocol` for the message flow).
 
 Every message carries ``type`` (the discriminator), ``v`` (protocol version), ``msg_id`` (unique
 per sender) and ``seq`` (per-sender counter, +1 per message on a connection). Unknown fields are
@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-PROTOCOL_VERSION: Literal[2] = 2
+PROTOCOL_VERSION: Literal[3] = 3
 """The version this module speaks (the default ``v`` of every message).
 
 Version 2 adds the ``turning`` motion model: an action's ``src`` and ``dst`` poses carry
@@ -24,14 +24,24 @@ headings, a turn is an action whose cell stays (only the heading changes by 90 d
 move keeps its heading and goes one cell forward; and a ``blocked`` after ``started`` reports a
 move stopped on the way (a bumper contact), which a ``cancel`` may then void (the robot goes
 back to the move's source cell and answers ``cancelled``); a robot may refuse an action
-(``refused``, e.g. its start pose or heading is not the robot's). A robot's ``hello`` fixes the
-version of its connection: the gateway answers in it, and serves version 1 robots (no
-headings: ``omni`` plans only)."""
+(``refused``, e.g. its start pose or heading is not the robot's).
 
-SUPPORTED_VERSIONS: tuple[int, ...] = (1, 2)
+Version 3 sends one message less per action: a robot sends no ``ack``. Its first answer about
+an action acknowledges it (``started`` or ``blocked`` when it takes it up, ``refused``,
+``cancelled``); an action it holds is listed in ``hello.acked`` as before, so the resends
+are unchanged. A robot that refuses an action answers every action it drops with it, queued
+ones included, with ``refused`` (``queued_behind``), so the gateway knows which refusals are
+still to come without an ``ack``. A robot's ``hello`` fixes the version of its connection: the
+gateway answers in it, and serves version 1 robots (no headings: ``omni`` plans only) and
+version 2 robots (with ``ack``) beside version 3 ones."""
+
+SUPPORTED_VERSIONS: tuple[int, ...] = (1, 2, 3)
 """The versions a peer may speak."""
 
-ProtocolVersion = Literal[1, 2]
+ProtocolVersion = Literal[1, 2, 3]
+
+FOLDED_ACK = 3
+"""The first version whose robots send no ``ack`` (see :data:`PROTOCOL_VERSION`)."""
 
 MAX_MESSAGE_BYTES = 64 * 1024
 """Largest message (encoded JSON) a peer must accept; larger ones are refused."""
@@ -171,7 +181,8 @@ class Hello(Envelope):
 
 
 class Ack(Envelope):
-    """The robot received action ``action_id`` (and will drop any duplicate of it)."""
+    """The robot received action ``action_id`` (and will drop any duplicate of it). Protocol
+    v1 and v2 only: a v3 robot's first report about an action acknowledges it."""
 
     type: Literal["ack"] = "ack"
     action_id: ActionId
@@ -641,4 +652,4 @@ AnyMessage = (
 )
 
 Message = Annotated[AnyMessage, Field(discriminator="type")]
-"""Every message of protocol v1, discriminated on ``type``."""
+"""Every message of the protocol (every version), discriminated on ``type``."""

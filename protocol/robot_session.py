@@ -1,4 +1,4 @@
-"""The robot's side of protocol v1 as a sans-I/O state machine (no I/O, no clock, no asyncio).
+"""The robot's side of the protocol as a sans-I/O state machine (no I/O, no clock, no asyncio).
 
 A driver (the real robot's :mod:`robot_client.client`, the simulated robots of
 :mod:`sim_clients.fleet`) owns the link and the body. It tells the session when a link is up
@@ -10,15 +10,20 @@ order. The rules, written once here for every robot:
 
 * ``hello`` on every new link: pose, the actions held (acknowledged, not finished), the recent
   finishes (:data:`HISTORY` of them: their reports may have been lost) and the current activity;
-* every ``action`` is acknowledged, unless the robot refuses it (protocol v2 ``refused``): its
-  ``src`` is not the pose the robot will stand on when the action is due (its own pose, or the
-  ``dst`` of the last action it holds; a heading counts when both have one) or ``check``
-  fails; every later action of the same plan is then refused too (``queued_behind``), and
+* every ``action`` is acknowledged (protocol v1 and v2: with an ``ack`` at once; v3,
+  :data:`~protocol.messages.FOLDED_ACK`: by the first report about it, ``started`` or
+  ``blocked`` when it is taken up, or its ``cancelled``, so a v3 robot sends two messages per
+  action instead of three), unless the robot refuses it (protocol v2 ``refused``): its ``src``
+  is not the pose the robot will stand on when the action is due (its own pose, or the ``dst``
+  of the last action it holds; a heading counts when both have one) or ``check`` fails; every
+  later action of the same plan is then refused too (``queued_behind``), and
   :meth:`RobotSession.refuse_current` refuses an action the body finds it cannot start when it
-  is due (the actions queued behind it are dropped with it); a duplicate (held, current or
-  recently finished) is acknowledged again but never executed twice, and a duplicate of a
-  finished action gets its ``finished`` again (the gateway resends an action only if it has no
-  finish for it);
+  is due (the actions queued behind it are dropped with it: silently in v1 and v2, whose
+  ``ack`` told the gateway they were held; in v3 each with ``refused`` ``queued_behind``, so
+  every action a v3 robot receives gets exactly one first answer); a duplicate (held, current
+  or recently finished) is acknowledged again in v1 and v2 (in v3 it gets nothing) but never
+  executed twice, and a duplicate of a finished action gets its ``finished`` again (the
+  gateway resends an action only if it has no finish for it);
 * actions are held in a queue and executed strictly in index order, one after the other, and
   only while the robot is welcomed on a live link and not paused (on link loss the current
   action completes, nothing new starts);
@@ -29,6 +34,8 @@ order. The rules, written once here for every robot:
   body goes back to the action's source, then :meth:`RobotSession.aborted` confirms); a moving
   robot finishes; a cancel of anything else is stale and ignored;
 * ``pause`` / ``resume`` stop and allow new starts (a running move completes);
+* a v3 robot whose ``hello`` a gateway refuses as ``unsupported_version`` (one that predates
+  v3) says ``hello`` again in v2 and speaks v2 from then on;
 * reports (``started``, ``finished``, ``blocked``, ``unblocked``) are sent while a link is up;
   what a link loss swallows is carried by the next ``hello``. A ``blocked`` after ``started``
   is a stop on the way (protocol v2, a bumper): ``unblocked`` makes the action run again.
@@ -43,6 +50,8 @@ from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
 from protocol.messages import (
+    FOLDED_ACK,
+    PROTOCOL_VERSION,
     Ack,
     Action,
     ActionRefused,
@@ -52,10 +61,12 @@ from protocol.messages import (
     CancelAction,
     Cancelled,
     Error,
+    ErrorCode,
     Finished,
     Hello,
     Pause,
     Pose,
+    ProtocolVersion,
     RefuseCode,
     Resume,
     RobotActivity,
@@ -140,13 +151,18 @@ class RobotSession:
     ``check`` may refuse an action the body cannot execute (raise ValueError with the reason);
     an action that does not start where the robot will stand is refused in any case.
     Messages get ``msg_id`` ``"<msg_prefix><n>"`` (``n`` counts every message of the session,
-    so ids stay unique across links) and ``seq`` counting from 0 on each link.
+    so ids stay unique across links) and ``seq`` counting from 0 on each link; every message
+    is of protocol ``version`` (default the latest: no ``ack``).
     """
 
     def __init__(self, robot_id: int, *, msg_prefix: str | None = None,
                  check: Callable[[Action], None] | None = None,
-                 repeat_finished: bool = True) -> None:
+                 repeat_finished: bool = True,
+                 version: ProtocolVersion = PROTOCOL_VERSION) -> None:
         self.robot_id = robot_id
+        self.version: ProtocolVersion = version
+        self._acks = version < FOLDED_ACK
+        """Acknowledge each action with an ``ack`` (v1, v2); v3 folds it into the reports."""
         self.repeat_finished = repeat_finished
         """Send ``finished`` again for a duplicate of a finished action (a MAY of DUP-1; a robot
         that implements only the MUST rules does not)."""
@@ -173,6 +189,7 @@ class RobotSession:
         self._check = check
         self._prefix = msg_prefix if msg_prefix is not None else f"r{robot_id}-"
         self._ids = itertools.count()
+        self._hello_id: str | None = None  # the msg_id of the latest hello
         self._seq = 0
         self._out: list[RobotEffect] = []
 
@@ -210,11 +227,16 @@ class RobotSession:
         if pose is not None:
             self.pose = pose
         self.link_up, self.welcomed, self._seq = True, False, 0
+        self._hello()
+
+    def _hello(self) -> None:
         held = [a.action_id for a in self.queue]
         if self.current is not None:
             held.insert(0, self.current)
         self._send(Hello, robot_id=self.robot_id, pose=self.pose, acked=held[-HISTORY:],
                    finished=list(self._finished), current=self.activity())
+        sent = self._out[-1] if self._out else None
+        self._hello_id = sent.message.msg_id if isinstance(sent, Send) else None
 
     def disconnected(self) -> None:
         """The link is gone: nothing is sent and nothing new starts until the next welcome."""
@@ -242,6 +264,11 @@ class RobotSession:
         elif isinstance(msg, Resume):
             self.paused = False
         elif isinstance(msg, Error):
+            if (msg.code is ErrorCode.UNSUPPORTED_VERSION and msg.ref == self._hello_id
+                    and not self.welcomed and self.version >= FOLDED_ACK):
+                self.version, self._acks = 2, True  # a gateway that predates v3: speak v2
+                self._hello()
+                return
             self._out.append(GatewayError(msg))
 
     def _action(self, msg: Action) -> None:
@@ -249,7 +276,8 @@ class RobotSession:
         if self.knows(aid):
             self.duplicates += 1
             self._out.append(Received(msg, True))
-            self._send(Ack, action_id=aid)
+            if self._acks:
+                self._send(Ack, action_id=aid)
             if aid in self._finished and self.repeat_finished:
                 self._send(Finished, action_id=aid, pose=self.pose)
             return
@@ -260,7 +288,8 @@ class RobotSession:
         self.queue.append(msg)
         self._queued.add(aid)
         self._out.append(Received(msg, False))
-        self._send(Ack, action_id=aid)
+        if self._acks:
+            self._send(Ack, action_id=aid)
 
     def _refusal(self, msg: Action) -> tuple[RefuseCode, str] | None:
         """Why the robot refuses ``msg`` (None: it takes it)."""
@@ -286,7 +315,8 @@ class RobotSession:
         return None
 
     def _refuse(self, msg: Action, code: RefuseCode, detail: str) -> None:
-        self._refused = (plan_key(msg.action_id), parse_action_id(msg.action_id)[2])
+        if code != "queued_behind":  # the first refused action stays the one that clears it
+            self._refused = (plan_key(msg.action_id), parse_action_id(msg.action_id)[2])
         self._out.append(Refused(msg, detail))
         self._send(ActionRefused, action_id=msg.action_id, pose=self.pose, code=code,
                    detail=detail[:500])
@@ -301,9 +331,15 @@ class RobotSession:
         if action is None or self._moved:
             return
         self.current, self._current_action, self.phase = None, None, "received"
+        behind = list(self.queue)
         self.queue.clear()
         self._queued.clear()
         self._refuse(action, code, detail)
+        if not self._acks:  # v3: no ack told the gateway these were held; answer each
+            why = f"action {action.action_id} before it was refused"
+            for queued in behind:
+                self._send(ActionRefused, action_id=queued.action_id, pose=self.pose,
+                           code="queued_behind", detail=why)
 
     def _cancel(self, aid: str) -> None:
         if aid in self._queued:
@@ -392,7 +428,8 @@ class RobotSession:
         if not self.link_up:
             return
         n = next(self._ids)
-        message = kind.model_construct(msg_id=f"{self._prefix}{n}", seq=self._seq, **fields)
+        message = kind.model_construct(v=self.version, msg_id=f"{self._prefix}{n}",
+                                       seq=self._seq, **fields)
         self._seq += 1
         self._out.append(Send(message))  # type: ignore[arg-type]
 

@@ -266,7 +266,8 @@ def _run(args: argparse.Namespace) -> int:
     async def main() -> int:
         world = None if args.world_token == "none" else args.world_token
         fleet = SimFleet(websocket_connector(args.connect, tls), robots, token=tokens,
-                         world_token=world, reconnect_delay_s=args.reconnect_s)
+                         world_token=world, reconnect_delay_s=args.reconnect_s,
+                         protocol=args.protocol)
         return await _run_fleet(fleet, args.connect)
 
     try:
@@ -300,6 +301,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "its robot id (e.g. certs/robot-{id}.pem)")
     p.add_argument("--key", metavar="TEMPLATE",
                    help="the certificates' PEM keys if not in them (e.g. certs/robot-{id}.key)")
+    p.add_argument("--protocol", type=int, choices=[2, 3], default=3,  # PROTOCOL_VERSION
+                   # (protocol.messages is not imported: building the parser stays light)
+                   help="the protocol version the robots speak (default %(default)s: no ack; "
+                        "2: an ack per action)")
     p.add_argument("--reconnect-s", type=float, default=1.0,
                    help="seconds between reconnection attempts (default 1)")
     vda = p.add_argument_group("VDA 5050 vehicles (docs/vda5050.md)")

@@ -57,7 +57,7 @@ from protocol import (
     encode,
     parse_action_id,
 )
-from protocol.messages import HEADINGS, Heading
+from protocol.messages import HEADINGS, PROTOCOL_VERSION, Heading, ProtocolVersion
 from protocol.robot_session import (
     Abort,
     GatewayError,
@@ -163,7 +163,8 @@ class FleetRobot:
         self.fleet = fleet
         self.robot_id = robot_id
         self.sim: SimRobot | None = None
-        self.session = RobotSession(robot_id, repeat_finished=not fleet.must_only)
+        self.session = RobotSession(robot_id, repeat_finished=not fleet.must_only,
+                                    version=fleet.protocol)
         self.connected = asyncio.Event()
         self.plan = -1
         """Plan of the latest started action (with :attr:`next_action`: first not started)."""
@@ -444,7 +445,8 @@ class SimFleet:
                  intruder_config: IntruderConfig | None = None,
                  recheck_ms: float = RECHECK_MS, reconnect_delay_s: float = 0.2,
                  send_state: bool = True, external_poll: bool = False,
-                 duration_jitter: float = 0.0, must_only: bool = False) -> None:
+                 duration_jitter: float = 0.0, must_only: bool = False,
+                 protocol: ProtocolVersion = PROTOCOL_VERSION) -> None:
         if not 0.0 <= duration_jitter < 1.0:
             raise ValueError(f"duration_jitter must be in [0, 1), got {duration_jitter}")
         self.connect = connect
@@ -459,6 +461,8 @@ class SimFleet:
         self.reconnect_delay_s = reconnect_delay_s
         self.send_state = send_state
         self.must_only = must_only
+        self.protocol: ProtocolVersion = protocol
+        """The protocol version the robots speak (3: no ``ack``)."""
         """Robots that implement only the protocol's MUST rules (no repeated ``finished`` for a
         duplicate of a finished action: a MAY of DUP-1)."""
         self.stats = FleetStats()

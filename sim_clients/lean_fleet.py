@@ -6,8 +6,10 @@ demos, but at a thousand robots they cost the machine about as much CPU as the g
 load. A :class:`LeanFleet` robot is one :class:`asyncio.Protocol` per connection: it speaks
 the HTTP upgrade and RFC 6455 frames itself (client frames masked with a fresh random key each,
 through websockets' C ``apply_mask``), parses what arrives with :func:`json.loads` and writes
-its few message shapes with f-strings. What it does is what a protocol v2 robot must do in a
-load run: ``hello`` with its start cell; every ``action`` acknowledged and queued; the queue
+its few message shapes with f-strings. What it does is what a protocol v3 robot (or, with
+``version=2``, a v2 one) must do in a load run: ``hello`` with its start cell; every
+``action`` queued (a v2 robot acknowledges it with an ``ack``; a v3 robot's ``started``
+does); the queue
 executed in order, each action lasting its ``duration_ms`` x U(1-J, 1+J) (a fixed seed per
 robot), ``started`` when it begins and ``finished`` when it ends (a ``finished`` and the next
 ``started`` in one write); a ``state`` every ``state_period_ms`` of the welcome (the first at a
@@ -80,6 +82,7 @@ class LeanRobot(asyncio.Protocol):
 
     def __init__(self, fleet: LeanFleet, robot: int, cell: list[int], actions: int) -> None:
         self.fleet = fleet
+        self.v = fleet.version
         self.robot = robot
         self.cell = cell
         self.left = actions
@@ -132,7 +135,7 @@ class LeanRobot(asyncio.Protocol):
                 return
             self.upgraded = True
             buf = buf[end + 4:]
-            self._send(f'{{"type":"hello","v":2,"msg_id":"h","seq":0,"robot_id":{self.robot},'
+            self._send(f'{{"type":"hello","v":{self.v},"msg_id":"h","seq":0,"robot_id":{self.robot},'
                        f'"pose":{{"cell":[{self.cell[0]},{self.cell[1]}]}}}}')
         pos, size = 0, len(buf)
         while size - pos >= 2:
@@ -171,7 +174,7 @@ class LeanRobot(asyncio.Protocol):
 
     def _envelope(self, kind: str) -> str:
         self.seq += 1
-        return f'{{"type":"{kind}","v":2,"msg_id":"m{self.seq}","seq":{self.seq}'
+        return f'{{"type":"{kind}","v":{self.v},"msg_id":"m{self.seq}","seq":{self.seq}'
 
     def _send(self, text: str) -> None:
         self._write(frame(text))
@@ -205,16 +208,16 @@ class LeanRobot(asyncio.Protocol):
             stats.duplicates += 1
         else:
             stats.received[aid] = time.perf_counter()
-        ack = f'{self._envelope("ack")},"action_id":"{aid}"}}'
         duration = msg["duration_ms"] / 1000.0
         jitter = self.fleet.jitter
         if jitter:
             duration *= 1.0 + self.rng.uniform(-jitter, jitter)
         self.queue.append((aid, duration, msg["dst"]["cell"]))
+        ack = frame(f'{self._envelope("ack")},"action_id":"{aid}"}}') if self.v < 3 else b""
         if self.current is None:
-            self._write(frame(ack) + self._start())
-        else:
-            self._send(ack)
+            self._write(ack + self._start())
+        elif ack:
+            self._write(ack)
 
     def _start(self) -> bytes:
         """Begin the next queued action; its ``started`` frame."""
@@ -254,8 +257,10 @@ class LeanFleet:
     """The robots of one process (see the module docstring)."""
 
     def __init__(self, port: int, paths: dict[int, list[list[int]]], jitter: float,
-                 seed: int) -> None:
+                 seed: int, version: int = 3) -> None:
         self.port = port
+        self.version = version
+        """The protocol version the robots speak (2: an ``ack`` per action; 3: none)."""
         self.paths = paths
         self.jitter = jitter
         self.seed = seed

@@ -62,11 +62,14 @@ def served(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequ
         proc.wait(10)
 
 
+@pytest.mark.parametrize("robot_version", ["3", "2"])
 def test_fleetgate_serve_passes_every_required_check(
-        served: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        served: str, robot_version: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     junit = tmp_path / "gateway.xml"
     code = main(["conformance", "gateway", served, "--token", "demo-robot-{id}",
-                 "--operator-token", "demo-operator", "--json", "--junit", str(junit)])
+                 "--operator-token", "demo-operator", "--robot-version", robot_version,
+                 "--json", "--junit", str(junit)])
     report = json.loads(capsys.readouterr().out)
     failed = {c["name"]: c["detail"] for c in report["checks"]
               if c["required"] and not c["passed"]}

@@ -1,6 +1,7 @@
 """`fleetgate conformance robot` against both robot implementations: the simulated robots of
-`fleetgate sim` and the real robot_client (its Kobuki motors simulated on a pty), each started
-by the checker through --command; and --url, where the robot is started by someone else."""
+`fleetgate sim` (protocol v3, and v2 with ``--protocol 2``) and the real robot_client (its
+Kobuki motors simulated on a pty, v3), each started by the checker through --command; and
+--url, where the robot is started by someone else."""
 
 from __future__ import annotations
 
@@ -24,12 +25,13 @@ SIM = (f"{shlex.quote(sys.executable)} -m gateway sim --connect {{url}} "
 KOBUKI = f"{shlex.quote(sys.executable)} {shlex.quote(str(HERE / 'kobuki_robot.py'))} " \
          "{url} {token} {robot_id}"
 
-KNOWN_FAILURES: dict[str, set[str]] = {"sim": set(), "robot_client": set()}
+KNOWN_FAILURES: dict[str, set[str]] = {"sim": set(), "sim-v2": set(), "robot_client": set()}
 """Required checks each robot implementation fails today (compared exactly). Both use the
 shared robot session (protocol.robot_session) and pass every required check."""
 
 
-@pytest.mark.parametrize(("name", "command"), [("sim", SIM), ("robot_client", KOBUKI)])
+@pytest.mark.parametrize(("name", "command"), [("sim", SIM), ("sim-v2", f"{SIM} --protocol 2"),
+                                               ("robot_client", KOBUKI)])
 def test_robot_implementations_pass_every_required_check(
         name: str, command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     junit = tmp_path / "robot.xml"

@@ -1,18 +1,23 @@
-"""The gateway's side of protocol v1 (protocol.gateway_session), by hand and wired to the
+"""The gateway's side of the protocol (protocol.gateway_session), by hand and wired to the
 robot's side (protocol.robot_session) over a lossy link.
 
-The property test runs both sans-I/O sessions against each other: the gateway dispatches a
+The property test runs both sans-I/O sessions against each other, in protocol v2 (an ``ack``
+per action) and v3 (no ``ack``: the first report acknowledges): the gateway dispatches a
 robot's actions in index order and cancels queued ones at random, messages in flight are
-delivered one at a time or lost with the link, the robot reconnects, duplicates are injected.
-Oracle: at the end every dispatched action was applied exactly once (finished or cancelled,
-never both), the robot executed exactly the finished ones, once each and in index order.
+delivered one at a time or lost with the link, the robot reconnects, duplicates are injected,
+the robot's body refuses an action when it is due (with the actions queued behind it) and the
+gateway dispatches what it took back again (as a lifelong shift does, with the same ids).
+Oracle: at the end every dispatched action ended exactly once (finished or cancelled, never
+both; a refusal is not an end), nothing is held, and the robot executed exactly the finished
+ones, once each and in index order.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
+from typing import Any, cast
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -34,6 +39,7 @@ from protocol.gateway_session import (
     ToRobot,
     hello_refusal,
 )
+from protocol.messages import ProtocolVersion
 from protocol.robot_session import Abort, RobotSession, Send
 
 _n = iter(range(10**9))
@@ -179,16 +185,18 @@ def test_a_long_shift_keeps_only_the_latest_applied_actions() -> None:
 # ---------------------------------------------------------------------------- property test
 OPS = st.lists(st.sampled_from(
     ["dispatch", "dispatch", "to_robot", "to_robot", "to_gateway", "to_gateway", "step",
-     "step", "duplicate", "cancel", "cut", "reconnect"]), max_size=80)
+     "step", "duplicate", "cancel", "cut", "reconnect", "refuse", "redispatch"]), max_size=80)
 
 
 class Wire:
-    """Both sessions, the link between them and the robot's body."""
+    """Both sessions (speaking protocol ``version``), the link between them and the robot's
+    body."""
 
-    def __init__(self, n: int) -> None:
-        self.robot = RobotSession(0)
+    def __init__(self, n: int, version: ProtocolVersion = 3) -> None:
+        self.version: ProtocolVersion = version
+        self.robot = RobotSession(0, version=version)
         self.gw = GatewaySession(0)
-        self.n, self.next = n, 0
+        self.n, self.next, self.plan, self.refusals = n, 0, 0, 0
         self.link: object | None = None
         self.to_robot: deque[AnyMessage] = deque()
         self.to_gw: deque[AnyMessage] = deque()
@@ -210,7 +218,7 @@ class Wire:
                     self.to_robot.append(g.kind(msg_id=f"g{n}", seq=n, **g.fields))
                 elif isinstance(g, Report):
                     self.gw.accepted(g)
-                    if g.kind in ("finished", "cancelled"):
+                    if g.kind in ("finished", "cancelled", "refused"):
                         self.applied.append((g.action_id, g.kind))
                 elif isinstance(g, Refuse):
                     assert g.code is ErrorCode.DUPLICATE, g
@@ -224,7 +232,8 @@ class Wire:
         assert isinstance(msg, Hello)
         self.gw.hello(msg, 0.0)
         self.pump()
-        self.gw.welcome(self.link, version=2, start=None, plan=0, state_period_ms=1e3, paused=False)
+        self.gw.welcome(self.link, version=self.version, start=None, plan=0,
+                        state_period_ms=1e3, paused=False)
         self.pump()
 
     def cut(self) -> None:
@@ -238,35 +247,57 @@ class Wire:
         if op == "dispatch" and self.next < self.n:
             # waits on one cell: this model's gateway goes on with the plan after a cancel,
             # which only actions that start where the robot stands allow (else: refused)
-            self.gw.dispatch(fields(self.next) | {"src": Pose(cell=(0, 0)),
-                                                  "dst": Pose(cell=(0, 0))})
+            self.gw.dispatch(self.wait(self.plan, self.next))
             self.next += 1
         elif op == "to_robot" and self.to_robot:
             self.robot.receive(self.to_robot.popleft())
         elif op == "to_gateway" and self.to_gw:
             msg = self.to_gw.popleft()
             kind = msg.type
+            assert msg.v == self.version
             if kind == "ack":
+                assert self.version < 3, "a v3 robot sends no ack"
                 self.gw.ack(msg.action_id, msg.msg_id, self.link)  # type: ignore[union-attr]
-            elif kind in ("started", "finished", "blocked", "unblocked", "cancelled"):
+            elif kind in ("started", "finished", "blocked", "unblocked", "cancelled",
+                          "refused"):
                 self.gw.report(kind, msg.action_id, msg.msg_id,  # type: ignore[union-attr]
-                               self.link, 0.0)
+                               self.link, 0.0, reason="test")
         elif op == "duplicate" and self.link is not None:  # a resend of a held action (the
             # gateway never sends one it is cancelling: a later copy would revive it)
             held = [h for h in self.gw.held.values() if not h.cancel]
             if held:
                 n = next(_n)
                 self.to_robot.append(Action(msg_id=f"d{n}", seq=n, **held[-1].fields))
-        elif op == "cancel":  # a replan: every queued action of the robot at once
+        elif op == "cancel" and not self.refusals:  # a replan: every queued action of the
+            # robot at once; the rest of the actions are of the next plan. (A run has either
+            # replans or refusals: a replan waits for every cancel to be confirmed, which
+            # this model's gateway does not.)
             for aid in reversed([a for a, h in self.gw.held.items() if h.phase != "running"]):
                 self.gw.cancel(aid)
+            self.plan += 1
         elif op == "step":
             self.step()
+        elif (op == "refuse" and self.plan == 0 and self.body is None
+              and self.robot.take() is not None):
+            self.robot.refuse_current("cannot_execute", "not now")  # and its queue
+            self.refusals += 1
+        elif op == "redispatch":  # what a refusal took back, again, in index order
+            for aid in sorted((a for a, k in self.gw.applied.items() if k == "refused"),
+                              key=lambda a: int(a.split(".")[2])):
+                plan, _, i = (int(x) for x in aid.split("."))
+                self.gw.dispatch(self.wait(plan, i))
         elif op == "cut" and self.link is not None:
             self.cut()
         elif op == "reconnect" and self.link is None:
             self.connect()
         self.pump()
+
+    @staticmethod
+    def wait(plan: int, i: int) -> dict[str, Any]:
+        """Action ``i`` of ``plan``: a wait on one cell (this model's gateway goes on with the
+        plan after a cancel, which only actions that start where the robot stands allow)."""
+        return {"action_id": f"{plan}.0.{i}", "sequence": i, "src": Pose(cell=(0, 0)),
+                "dst": Pose(cell=(0, 0)), "duration_ms": 1000.0}
 
     def step(self) -> None:
         if self.body is not None:
@@ -278,27 +309,32 @@ class Wire:
             self.robot.report("started", a.action_id)
 
 
-@settings(max_examples=120, deadline=None)
-@given(OPS)
-def test_random_interleavings_never_lose_or_double_an_action(ops: list[str]) -> None:
-    w = Wire(8)
+@settings(max_examples=200, deadline=None)
+@given(OPS, st.sampled_from([2, 3]))
+def test_random_interleavings_never_lose_or_double_an_action(ops: list[str], version: int
+                                                             ) -> None:
+    w = Wire(8, cast(ProtocolVersion, version))
     w.connect()
     for op in ops:
         w.op(op)
-    # settle: link up, everything dispatched, delivered and executed
+    # settle: link up, everything dispatched, delivered and executed, what was refused
+    # dispatched again
     if w.link is None:
         w.connect()
     while w.next < w.n:
         w.op("dispatch")
     for _ in range(500):
         if not (w.to_robot or w.to_gw or w.body or w.robot.queue):
-            break
+            if not any(k == "refused" for k in w.gw.applied.values()):
+                break
+            w.op("redispatch")
         for op in ("to_robot", "to_gateway", "step"):
             w.op(op)
     assert not w.gw.held, w.gw.held
-    ids = [aid for aid, _ in w.applied]
-    assert len(ids) == len(set(ids)) == w.n  # every action applied exactly once
-    finished = sorted(int(a.split(".")[2]) for a, k in w.applied if k == "finished")
+    ends = [(aid, k) for aid, k in w.applied if k != "refused"]
+    ids = [aid for aid, _ in ends]
+    assert len(ids) == len(set(ids)) == w.n  # every action ended exactly once
+    finished = sorted(int(a.split(".")[2]) for a, k in ends if k == "finished")
     assert w.executed == finished  # executed once each, in index order, only those
 
 
@@ -344,3 +380,33 @@ def test_a_v1_robot_is_refused_only_on_a_turning_plan() -> None:
     assert hello_refusal(v2, turning_plan=True) is None
     refusal = hello_refusal(v1, turning_plan=True)
     assert refusal is not None and "v2" in refusal
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_a_refusal_of_a_queued_action_from_before_its_new_dispatch_is_dropped(version: int
+                                                                             ) -> None:
+    # the robot holds actions 0 and 1 (its hello on a new link said so) and its body refuses 0
+    # when it is due: a v2 robot drops 1 silently (held, so acknowledged), a v3 robot refuses
+    # it too; the gateway dispatches both again before that refusal of 1 arrives, which must
+    # not take the new dispatch back
+    w = Wire(2, cast(ProtocolVersion, version))
+    w.connect()
+    for op in ["dispatch", "dispatch", "to_robot", "to_robot", "to_robot",  # welcome, 0, 1
+               "cut", "reconnect", "to_robot", "refuse"]:
+        w.op(op)
+    assert all(h.acked for h in w.gw.held.values())
+    told = [(m.type, getattr(m, "action_id", None)) for m in w.to_gw]
+    assert told == ([("refused", "0.0.0")] if version == 2
+                    else [("refused", "0.0.0"), ("refused", "0.0.1")])
+    while w.to_gw and w.to_gw[0].type != "refused":
+        w.op("to_gateway")
+    w.op("to_gateway")  # the refusal of 0 takes 0 and 1 back
+    assert not w.gw.held
+    w.op("redispatch")
+    while w.to_gw:
+        w.op("to_gateway")  # v3: the old refusal of 1
+    assert set(w.gw.held) == {"0.0.0", "0.0.1"}
+    for _ in range(20):
+        for op in ("to_robot", "to_gateway", "step"):
+            w.op(op)
+    assert not w.gw.held and w.executed == [0, 1]

@@ -62,7 +62,7 @@ def test_minimal_messages_round_trip(message: AnyMessage) -> None:
 def test_schema_rejects_extra_fields_and_other_versions(message: AnyMessage) -> None:
     data = json.loads(encode(message))
     assert not VALIDATOR.is_valid({**data, "surplus": 1})
-    assert not VALIDATOR.is_valid({**data, "v": 3})
+    assert not VALIDATOR.is_valid({**data, "v": 4})
     assert VALIDATOR.is_valid({**data, "v": 1})  # v2 serves v1 peers
     without_v = {k: v for k, v in data.items() if k != "v"}
     assert not VALIDATOR.is_valid(without_v)
@@ -122,7 +122,7 @@ def test_action_sequence_must_match_its_id() -> None:
         ("{not json", ErrorCode.MALFORMED, None),
         ("[1, 2]", ErrorCode.MALFORMED, None),
         (b"\xff\xfe", ErrorCode.MALFORMED, None),
-        ('{"v": 3, "type": "ack", "msg_id": "m1", "seq": 0}', ErrorCode.UNSUPPORTED_VERSION,
+        ('{"v": 4, "type": "ack", "msg_id": "m1", "seq": 0}', ErrorCode.UNSUPPORTED_VERSION,
          "m1"),
         ('{"type": "ack", "msg_id": "m2", "seq": 0}', ErrorCode.UNSUPPORTED_VERSION, "m2"),
         ('{"v": 1, "type": "teleport", "msg_id": "m3", "seq": 0}', ErrorCode.UNKNOWN_TYPE, "m3"),

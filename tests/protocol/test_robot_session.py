@@ -1,4 +1,4 @@
-"""The robot side of protocol v1 (protocol.robot_session), fed by hand: the one behaviour both
+"""The robot side of the protocol (protocol.robot_session), fed by hand: the one behaviour both
 robot implementations (robot_client and the simulated fleet) share.
 
 The property test plays a gateway that dispatches a robot's actions in index order, duplicates,
@@ -69,7 +69,7 @@ def welcomed(s: RobotSession, **fields: Any) -> list[RobotEffect]:
 
 
 def test_hello_then_welcome_then_acks_and_in_order_execution() -> None:
-    s = RobotSession(0)
+    s = RobotSession(0, version=2)
     s.connected(Pose(cell=(0, 0)))
     (hello,) = [e.message for e in s.drain() if isinstance(e, Send)]
     assert isinstance(hello, Hello) and hello.seq == 0 and hello.acked == []
@@ -98,7 +98,7 @@ def test_hello_then_welcome_then_acks_and_in_order_execution() -> None:
 
 def test_a_duplicate_is_acked_never_executed_twice_and_a_finished_one_is_reported_again(
 ) -> None:
-    s = RobotSession(0)
+    s = RobotSession(0, version=2)
     welcomed(s)
     s.receive(action(0))
     s.receive(action(0))
@@ -116,7 +116,7 @@ def test_a_duplicate_is_acked_never_executed_twice_and_a_finished_one_is_reporte
 
 
 def test_cancel_drops_the_queued_actions_behind_it_each_confirmed_once() -> None:
-    s = RobotSession(0)
+    s = RobotSession(0, version=2)
     welcomed(s, paused=True)
     for i in range(4):
         s.receive(action(i))
@@ -192,7 +192,7 @@ def refusals(effects: list[RobotEffect]) -> list[tuple[str, str]]:
 
 
 def test_an_action_that_does_not_start_where_the_robot_will_stand_is_refused() -> None:
-    s = RobotSession(0)
+    s = RobotSession(0, version=2)
     s.connected(Pose(cell=(0, 0), heading="E"))
     s.receive(msg(Welcome, robot_id=0))
     s.drain()
@@ -219,7 +219,7 @@ def test_an_action_that_does_not_start_where_the_robot_will_stand_is_refused() -
 
 
 def test_an_action_the_body_cannot_start_when_due_is_refused_with_its_queue() -> None:
-    s = RobotSession(0)
+    s = RobotSession(0, version=2)
     s.connected(Pose(cell=(0, 0), heading="E"))
     s.receive(msg(Welcome, robot_id=0))
     s.receive(turn_or_move(0, (0, 0), "E", (1, 0), "E"))
@@ -231,6 +231,49 @@ def test_an_action_the_body_cannot_start_when_due_is_refused_with_its_queue() ->
     assert s.current is None and not s.queue and s.take() is None
     s.receive(turn_or_move(2, (2, 0), "E", (3, 0), "E"))  # was in flight: refused too
     assert refusals(s.drain()) == [("0.0.2", "queued_behind")]
+
+
+def test_a_v3_robot_acknowledges_with_its_first_report_and_answers_what_it_drops() -> None:
+    s = RobotSession(0)  # the latest version: 3
+    s.connected(Pose(cell=(0, 0)))
+    (hello,) = [e.message for e in s.drain() if isinstance(e, Send)]
+    assert isinstance(hello, Hello) and hello.v == 3
+    s.receive(msg(Welcome, robot_id=0, resend=[action(0)]))
+    s.receive(action(1))
+    s.receive(action(1))  # a duplicate: nothing to say
+    effects = s.drain()
+    assert sent(effects) == [] and s.duplicates == 1
+    assert [a.action_id for a in s.queue] == ["0.0.0", "0.0.1"]
+    assert s.take() is not None
+    s.report("started", "0.0.0")  # acknowledges it
+    s.report("finished", "0.0.0", Pose(cell=(1, 0)))
+    s.receive(action(0))  # after it finished: its finished again, no ack
+    out = s.drain()
+    assert sent(out) == [("started", "0.0.0"), ("finished", "0.0.0"), ("finished", "0.0.0")]
+    assert [e.message.seq for e in out if isinstance(e, Send)] == [1, 2, 3]
+    assert {e.message.v for e in out if isinstance(e, Send)} == {3}
+    s.receive(action(2))
+    s.receive(action(3))
+    assert s.take() is not None  # 0.0.1; 2 and 3 queued behind it
+    s.refuse_current("cannot_execute", "no battery")
+    assert refusals(s.drain()) == [("0.0.1", "cannot_execute"), ("0.0.2", "queued_behind"),
+                                   ("0.0.3", "queued_behind")]
+    s.receive(action(2))  # a repeat of one refused behind it: refused again, not taken
+    assert refusals(s.drain()) == [("0.0.2", "queued_behind")]
+    s.receive(action(1))  # the refused one dispatched again: the chain is cleared
+    s.receive(action(2))
+    assert sent(s.drain()) == [] and [a.action_id for a in s.queue] == ["0.0.1", "0.0.2"]
+
+
+def test_a_v1_or_v2_robot_speaks_its_version() -> None:
+    for version in (1, 2):
+        s = RobotSession(0, version=version)  # type: ignore[arg-type]
+        welcomed(s)
+        s.receive(action(0))
+        assert s.take() is not None
+        s.report("started", "0.0.0")
+        out = [e.message for e in s.drain() if isinstance(e, Send)]
+        assert [(m.type, m.v) for m in out] == [("ack", version), ("started", version)]
 
 
 def test_pause_resume_and_a_link_loss_stop_new_starts() -> None:
@@ -429,3 +472,21 @@ def test_random_interleavings_never_lose_or_double_an_action(ops: list[str]) -> 
     assert all(any(c < r for c in gw.cancelled) for r in gw.refused), (gw.cancelled, gw.refused)
     assert len(executed) == len(set(executed)) and set(executed) == set(gw.finished)
     assert executed == sorted(executed)  # index order
+
+
+def test_a_v3_robot_refused_as_unsupported_says_hello_again_in_v2() -> None:
+    s = RobotSession(0)
+    s.connected(Pose(cell=(0, 0)))
+    (hello,) = [e.message for e in s.drain() if isinstance(e, Send)]
+    assert hello.v == 3
+    s.receive(msg(Error, code=ErrorCode.UNSUPPORTED_VERSION, ref="someone-else"))
+    assert [type(e) for e in s.drain()] == [GatewayError]  # not about its hello: passed on
+    s.receive(msg(Error, code=ErrorCode.UNSUPPORTED_VERSION, ref=hello.msg_id))
+    (again,) = [e.message for e in s.drain() if isinstance(e, Send)]
+    assert isinstance(again, Hello) and again.v == 2 and again.msg_id != hello.msg_id
+    s.receive(msg(Welcome, robot_id=0))
+    s.receive(action(0))
+    assert [(e.message.type, e.message.v) for e in s.drain() if isinstance(e, Send)] == [
+        ("ack", 2)]  # a v2 robot from now on
+    s.receive(msg(Error, code=ErrorCode.UNSUPPORTED_VERSION, ref=again.msg_id))
+    assert [type(e) for e in s.drain()] == [GatewayError]  # v2 is as low as it goes

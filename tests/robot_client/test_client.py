@@ -28,6 +28,8 @@ from protocol import (
     Blocked,
     CancelAction,
     Cancelled,
+    Error,
+    ErrorCode,
     Finished,
     Hello,
     Pose,
@@ -158,30 +160,33 @@ async def handshake(robot: Robot, **welcome: object) -> tuple[Conn, Hello]:
     return conn, hello
 
 
+async def holds(robot: Robot, ids: list[str]) -> None:
+    """Wait until the robot holds exactly ``ids`` (protocol v3 sends no ``ack`` to wait for)."""
+    async with asyncio.timeout(10):
+        while [a.action_id for a in robot.client.held] != ids:
+            await asyncio.sleep(0.01)
+
+
 async def test_executes_acknowledges_and_drops_duplicates(robot: Robot) -> None:
     conn, hello = await handshake(robot)
     assert hello.robot_id == 3 and hello.pose == Pose(cell=(1, 1), heading="E")
     assert hello.acked == [] and hello.finished == [] and hello.current is None
 
     await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
-    await conn.expect(Ack, "0.3.0")
     await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))  # duplicate dispatch
-    await conn.expect(Ack, "0.3.0")
-    await conn.expect(Started, "0.3.0")
+    await conn.expect(Started, "0.3.0")  # (protocol v3: started acknowledges it)
     done = await conn.expect(Finished, "0.3.0")
     assert done.pose == Pose(cell=(2, 1), heading="E")
     assert robot.at((2, 1)) < ARRIVED_M
 
     await conn.send(Action, **action(1, (2, 1), (2, 1), "E", "N"))  # turn left
-    await conn.expect(Ack, "0.3.1")
     await conn.expect(Started, "0.3.1")
     turned = await conn.expect(Finished, "0.3.1")
     assert turned.pose == Pose(cell=(2, 1), heading="N")
     assert abs(wrap_angle(robot.sim.theta - math.pi / 2)) < math.radians(4)
 
-    # A late duplicate of a finished action: acked, its finish repeated, never re-executed.
+    # A late duplicate of a finished action: its finish repeated, never re-executed.
     await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
-    await conn.expect(Ack, "0.3.0")
     await conn.expect(Finished, "0.3.0")
     await asyncio.sleep(0.3)
     async with asyncio.timeout(10):  # snapshots every 200 ms: one soon reports idle
@@ -190,6 +195,7 @@ async def test_executes_acknowledges_and_drops_duplicates(robot: Robot) -> None:
     assert state.robot_id == 3 and state.current is None
     assert state.battery == pytest.approx((16.0 - 13.2) / (16.5 - 13.2))
     assert [m.action_id for m in conn.of_type(Started)] == ["0.3.0", "0.3.1"]
+    assert not conn.of_type(Ack) and {m.v for m in conn.received} == {3}  # protocol v3
     assert robot.at((2, 1)) < ARRIVED_M
     seqs = [m.seq for m in conn.received]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs) and hello.seq == 0
@@ -204,9 +210,8 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
     conn, _ = await handshake(robot)
     await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
     await conn.send(Action, **action(1, (2, 1), (3, 1), "E", "E"))
-    await conn.expect(Ack, "0.3.0")
-    await conn.expect(Ack, "0.3.1")
     await conn.expect(Started, "0.3.0")
+    await holds(robot, ["0.3.1"])
     robot.gateway.refuse = True
     await conn.ws.close(1006, "link lost")  # the link dies without a close frame
     # The robot completes action 0 on its own...
@@ -228,7 +233,6 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
     assert hello.current.state == "received" and hello.pose == Pose(cell=(2, 1), heading="E")
     await conn2.send(Welcome, robot_id=3, plan=0, state_period_ms=500.0,
                      resend=[Action(msg_id="r1", seq=0, **action(1, (2, 1), (3, 1), "E", "E"))])
-    await conn2.expect(Ack, "0.3.1")
     await conn2.expect(Started, "0.3.1")
     await conn2.expect(Finished, "0.3.1")
     assert robot.at((3, 1)) < ARRIVED_M
@@ -239,7 +243,7 @@ async def test_link_loss_finishes_the_current_action_then_stops(robot: Robot) ->
 async def test_pause_cancel_and_a_bumper_hit(robot: Robot) -> None:
     conn, _ = await handshake(robot, paused=True, state_period_ms=60000.0)  # one snapshot only
     await conn.send(Action, **action(0, (1, 1), (2, 1), "E", "E"))
-    await conn.expect(Ack, "0.3.0")
+    await holds(robot, ["0.3.0"])
     await asyncio.sleep(0.3)
     # paused: the action is held, not started
     assert robot.at((1, 1)) < 0.005 and not conn.of_type(Started)
@@ -331,7 +335,7 @@ async def test_a_cancel_drops_the_queued_actions_behind_it(robot: Robot) -> None
     cells = [(1, 1), (2, 1), (3, 1), (4, 1)]
     for i in range(3):
         await conn.send(Action, **action(i, cells[i], cells[i + 1], "E", "E"))
-        await conn.expect(Ack, f"0.3.{i}")
+    await holds(robot, ["0.3.0", "0.3.1", "0.3.2"])
     assert [a.action_id for a in robot.client.held] == ["0.3.0", "0.3.1", "0.3.2"]
     await conn.send(CancelAction, action_id="0.3.1")
     await conn.expect(Cancelled, "0.3.1")
@@ -340,8 +344,7 @@ async def test_a_cancel_drops_the_queued_actions_behind_it(robot: Robot) -> None
     assert [a.action_id for a in robot.client.held] == ["0.3.0"]
     # an abandoned replan dispatches a cancelled action again: it is held again, in order
     await conn.send(Action, **action(1, cells[1], cells[2], "E", "E"))
-    await conn.expect(Ack, "0.3.1")
-    assert [a.action_id for a in robot.client.held] == ["0.3.0", "0.3.1"]
+    await holds(robot, ["0.3.0", "0.3.1"])
     await asyncio.sleep(0.2)
     assert [m.action_id for m in conn.of_type(Cancelled)] == ["0.3.1", "0.3.2"]
     assert not conn.of_type(Started) and robot.at((1, 1)) < 0.005  # paused: nothing moved
@@ -361,3 +364,23 @@ def test_example_config_file_loads() -> None:
     settings = load_settings(None, config_file=path)
     assert settings.floor() == FloorGrid(8, 6, 0.4, 0.12)
     assert settings.token.get_secret_value() == "change-me"
+
+
+@in_virtual_time()
+async def test_a_gateway_that_predates_v3_gets_a_v2_robot(robot: Robot) -> None:
+    # a gateway that speaks v1 and v2 only refuses the v3 hello as unsupported_version: the
+    # robot says hello again in v2 on the same link and acknowledges with ack from then on
+    conn = await robot.gateway.accept()
+    hello = await conn.expect(Hello)
+    assert hello.v == 3
+    await conn.send(Error, v=2, code=ErrorCode.UNSUPPORTED_VERSION, ref=hello.msg_id,
+                    detail="protocol version 3 not supported (this side speaks 1 and 2)")
+    again = await conn.expect(Hello)
+    assert again.v == 2 and again.robot_id == 3
+    await conn.send(Welcome, v=2, robot_id=3, start=Pose(cell=(1, 1), heading="E"), plan=0,
+                    state_period_ms=200.0)
+    await conn.send(Action, v=2, **action(0, (1, 1), (2, 1), "E", "E"))
+    ack = await conn.expect(Ack, "0.3.0")
+    assert ack.v == 2
+    await conn.expect(Finished, "0.3.0")
+    assert {m.v for m in conn.received[1:]} == {2}

@@ -85,7 +85,7 @@ def _msg(**fields: Any) -> str:
 BAD_INPUTS = [
     pytest.param("{not json", ErrorCode.MALFORMED, None, id="malformed-json"),
     pytest.param(_msg(type="teleport"), ErrorCode.UNKNOWN_TYPE, "bad-1", id="unknown-type"),
-    pytest.param(_msg(type="ack", action_id="0.0.0", v=3), ErrorCode.UNSUPPORTED_VERSION,
+    pytest.param(_msg(type="ack", action_id="0.0.0", v=4), ErrorCode.UNSUPPORTED_VERSION,
                  "bad-1", id="wrong-version"),
     pytest.param(_msg(type="ack", action_id="nonsense"), ErrorCode.INVALID, "bad-1",
                  id="invalid-field"),

@@ -5,14 +5,28 @@ robot session) losing its links mid-run."""
 from __future__ import annotations
 
 import asyncio
-from typing import Any
+from collections import Counter
+from typing import Any, cast
 
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
 from gateway.server.clock import VirtualClock
 from gateway.server.gateway import Gateway
-from protocol import Ack, Action, Activity, Finished, Hello, LoadPlan, Start, Started, Welcome
+from protocol import (
+    Ack,
+    Action,
+    Activity,
+    Finished,
+    Hello,
+    LoadPlan,
+    RobotMessage,
+    Start,
+    Started,
+    Welcome,
+)
+from protocol.messages import ProtocolVersion
+from protocol.robot_session import RobotEffect, RobotSession, Send
 from sim_clients.fleet import SimFleet
 from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import Peer, TestRobot
@@ -77,9 +91,12 @@ async def test_reconnect_resends_only_the_actions_the_robot_does_not_hold() -> N
         assert third.finished == [f"0.0.{i}" for i in range(1, 5)]
 
 
-async def test_a_fleet_that_loses_its_links_is_resent_nothing_it_holds() -> None:
-    # the simulated robots (the shared robot session) over websockets, lookahead dispatch:
-    # every reconnect happens while the robot holds a queued action, which is not resent
+@pytest.mark.parametrize("versions", [(3, 2, 3), (2, 3, 2)])
+async def test_a_fleet_that_loses_its_links_is_resent_nothing_it_holds(
+        versions: tuple[int, int, int]) -> None:
+    # the simulated robots (the shared robot session) over websockets, lookahead dispatch,
+    # protocol v2 and v3 robots side by side: every reconnect happens while robot 0 holds a
+    # queued action (which a v3 robot never acknowledged: no ack), which is not resent
     config = make_config(dispatch_lookahead=1, speed=10.0, policy="none")
     async with Gateway(config, clock=VirtualClock()) as gw:
         port = await gw.listen()
@@ -93,6 +110,10 @@ async def test_a_fleet_that_loses_its_links_is_resent_nothing_it_holds() -> None
         assert code is None, detail
         fleet = SimFleet(connect_robot, range(3), clock=gw.clock, send_state=False,
                          reconnect_delay_s=0.05)
+        sessions = [Recording(r, version=cast(ProtocolVersion, v))
+                    for r, v in enumerate(versions)]
+        for r, session in enumerate(sessions):
+            fleet.add_robot(r).session = session
         fleet.place_all([p[0] for p in LAB_PATHS])
         await fleet.start()
         await fleet.wait_connected(10)
@@ -108,3 +129,23 @@ async def test_a_fleet_that_loses_its_links_is_resent_nothing_it_holds() -> None
     assert fleet.stats.duplicates == 0  # nothing it held was sent to it again
     assert len(fleet.stats.received) == sum(len(p) - 1 for p in LAB_PATHS)
     assert soc >= 1000.0 * sum(len(p) - 1 for p in LAB_PATHS)
+    for session, path in zip(sessions, LAB_PATHS, strict=True):
+        kinds = Counter(m.type for m in session.sent)
+        assert {m.v for m in session.sent} == {session.version}
+        assert kinds["started"] == kinds["finished"] == len(path) - 1
+        # v2: an ack per action received (what a cut link swallowed excepted); v3: none
+        assert (kinds["ack"] >= len(path) - 1 - 2) if session.version == 2 else \
+            kinds["ack"] == 0
+
+
+class Recording(RobotSession):
+    """The shared robot session, keeping every message it sent."""
+
+    def __init__(self, robot_id: int, version: ProtocolVersion) -> None:
+        super().__init__(robot_id, version=version)
+        self.sent: list[RobotMessage] = []
+
+    def drain(self) -> list[RobotEffect]:
+        out = super().drain()
+        self.sent += [e.message for e in out if isinstance(e, Send)]
+        return out

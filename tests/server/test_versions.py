@@ -33,10 +33,10 @@ async def test_each_robot_is_answered_in_its_version() -> None:
         old = TestRobot(await ws_connect("demo-robot-0"), 0)
         new = TestRobot(await ws_connect("demo-robot-1"), 1)
         assert (await old.hello(v=1)).v == 1
-        assert (await new.hello()).v == 2
+        assert (await new.hello()).v == 3
         assert await gateway.command(Start(msg_id="s", seq=1)) == (None, "started")
         a_old, a_new = await old.expect(Action), await new.expect(Action)
-        assert (a_old.v, a_new.v) == (1, 2)
+        assert (a_old.v, a_new.v) == (1, 3)
         assert a_old.src.heading is None and a_new.dst.heading is None  # an omni plan
         # a v1 robot's bumper stop after started is refused (v1: blocked = target cell taken)
         await old.send(Started, v=1, action_id=a_old.action_id)

@@ -3,6 +3,7 @@ and ``fleetgate sim`` against a gateway over websockets."""
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import signal
 import subprocess
@@ -65,7 +66,7 @@ class FakeGateway:
         return decode(await self.link.recv())
 
 
-def test_duplicate_actions_are_acked_and_dropped() -> None:
+def test_duplicate_actions_are_dropped_unacknowledged_in_v3() -> None:
     async def main() -> tuple[list[AnyMessage], int]:
         links: list[MemoryLink] = []
 
@@ -99,7 +100,7 @@ def test_duplicate_actions_are_acked_and_dropped() -> None:
 
     got, duplicates = run_virtual(main())
     kinds = [type(m).__name__ for m in got]
-    assert kinds.count("Ack") == 2  # every copy is acknowledged
+    assert kinds.count("Ack") == 0  # protocol v3: started acknowledges it, a copy gets nothing
     assert kinds.count("Started") == 1 and kinds.count("Finished") == 1
     assert duplicates == 1
     finished = next(m for m in got if isinstance(m, Finished))
@@ -280,3 +281,14 @@ def test_the_shadow_policy_goes_around_a_reported_block_through_the_gateway(
     assert [2, 0] not in new["agents"][0]["path"]  # around, not through
     assert not [r for r in records if r["type"] == "blocked" and r["plan"] == 1]
     assert soc < waited
+
+
+def test_fleetgate_sim_speaks_the_latest_protocol_by_default() -> None:
+    from protocol.messages import PROTOCOL_VERSION
+    from sim_clients.cmd_sim import register
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    args = parser.parse_args(["sim", "--connect", "ws://127.0.0.1:1/ws"])
+    assert args.protocol == PROTOCOL_VERSION
+    assert parser.parse_args(["sim", "--protocol", "2"]).protocol == 2

@@ -13,7 +13,9 @@ Events, worker -> owner (``sid``: the connection's session in that worker; ``rec
 
 - ``(OPENED, sid, role, robot_id)``: a connection was authenticated;
 - ``(REPORT, sid, received, kind, msg_id, action_id, x, y, heading)``: an ``ack`` or an action
-  report of :data:`REPORT_TYPES` (``x`` < 0: no pose);
+  report of :data:`REPORT_TYPES` (``x`` < 0: no pose). The records are the same whatever the
+  connection's protocol version; a v3 robot sends no ``ack``, so its actions take one
+  ``REPORT`` less each;
 - ``(STATE, sid, received, x, y, heading)``: a robot's ``state`` (only its pose is used);
 - ``(MESSAGE, sid, received, pickled message)``: any other admitted message;
 - ``(CLOSED, sid)``: the connection ended;
