@@ -220,6 +220,14 @@ class GatewayConfig(BaseSettings):
     """Worker processes that serve the robots' websockets (TLS, handshake, message checks) on
     the gateway's port and pass them to its own process, the only writer of the executor and
     the journal (docs/workers.md); 0: the gateway's own process serves everything."""
+    batch_ms: float = Field(default=5.0, ge=0, le=100)
+    """Under a steady stream of events, how long one may wait to share its batch with the
+    next: the gateway's process handles them, commits the journal once and writes once to
+    each worker per batch, at most one batch per ``batch_ms``; with ``workers``, a worker
+    sends what it received to the gateway's process once per ``batch_ms`` too. An event after
+    a quiet spell is handled at once. Less CPU per action at high rates, up to this much more
+    latency (twice with workers); 0: one batch per turn of the event loop. Not in virtual
+    time (a simulation's events are batched by their instant)."""
     worker_timeout_s: float = Field(default=10.0, gt=0)
     """A worker that has not answered the gateway's ping (one a second) for this long hangs:
     it is killed and started again (its robots reconnect, as after a cut link)."""

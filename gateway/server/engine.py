@@ -52,7 +52,7 @@ from gateway.execution.trace_records import summary_record
 from gateway.planning.solver import Place
 from gateway.runtime.journal import IntruderRecord, Journal, ReportRecord, RunRecord
 from gateway.runtime.trace import trace_line
-from gateway.server.clock import Clock
+from gateway.server.clock import Clock, RealClock
 from gateway.server.config import GatewayConfig
 from gateway.server.items import (
     Connected,
@@ -198,6 +198,9 @@ class Engine:
         self._tick_item: OwnerCall | None = None  # the next tick's queue item, once armed
         self._tick_timer: asyncio.TimerHandle | None = None  # the loop timer that queues it
         self._tick_ms = 0.0  # the plan time of the next tick
+        self._batch_s = config.batch_ms / 1000.0 if isinstance(clock, RealClock) else 0.0
+        """The shortest loop time between two batches (``batch_ms``; 0 in virtual time)."""
+        self._batch_at = -self._batch_s  # loop time at which the last batch began
 
     # -------------------------------------------------------------------------- status
     @property
@@ -253,6 +256,8 @@ class Engine:
             if self.queue.empty():
                 self.commit()
                 item = await self._get()
+                if self._batch_s:
+                    await self._gather()
             else:
                 if self._commit_due():
                     self.commit()
@@ -265,6 +270,16 @@ class Engine:
                 self.metrics.queue_depth.set(self.queue.qsize())
             self._handle_safely(item)
             self._uncommitted += 1
+
+    async def _gather(self) -> None:
+        """Woken by an item less than ``batch_ms`` after the last batch began: let the items
+        queue until then, to be handled as one batch (one commit, one write to each worker).
+        Nothing is waiting to be committed meanwhile (this follows a commit)."""
+        loop = asyncio.get_running_loop()
+        wait = self._batch_at + self._batch_s - loop.time()
+        if wait > 0:
+            await self._waiting(asyncio.sleep(wait))
+        self._batch_at = loop.time()
 
     def _arm_tick(self, at_ms: float) -> None:
         """Queue a tick item at plan time ``at_ms``."""

@@ -51,14 +51,16 @@ async def read_start(reader: asyncio.StreamReader) -> tuple[Any, ...]:
 
 
 class Outbox:
-    """Ops for the other end, written as ONE frame per event-loop turn (a :class:`PerTurn`).
+    """Ops for the other end, written as ONE frame per event-loop turn (a :class:`PerTurn`),
+    or with ``interval_s`` > 0 one frame per interval at most (the :class:`PerTurn`'s).
     ``limit``: once more than that many bytes wait in this process for the other end to read
     them, ``overflow`` is called (and nothing more is written)."""
 
     def __init__(self, writer: asyncio.StreamWriter, limit: int | None = None,
-                 overflow: Callable[[int], None] | None = None) -> None:
+                 overflow: Callable[[int], None] | None = None, interval_s: float = 0.0
+                 ) -> None:
         self._writer = writer
-        self._turn: PerTurn[Op] = PerTurn(self._write)
+        self._turn: PerTurn[Op] = PerTurn(self._write, interval_s)
         self._limit = limit
         self._overflow = overflow
         self.overflowed = False

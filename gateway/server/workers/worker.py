@@ -126,7 +126,7 @@ async def serve(fd: int) -> None:
     reader, writer = await asyncio.open_unix_connection(sock=socket.socket(fileno=fd))
     _, config, host, port, owner_path = await read_start(reader)
     configure_logging(config.log_level, config.log_format, config.log_file)
-    outbox = Outbox(writer)
+    outbox = Outbox(writer, interval_s=config.batch_ms / 1000.0)
     worker = Worker(config, outbox)
     await worker.listen(host, port, owner_path)
     gc_tuning.tune_for_run()
