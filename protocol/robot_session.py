@@ -34,6 +34,8 @@ order. The rules, written once here for every robot:
   body goes back to the action's source, then :meth:`RobotSession.aborted` confirms); a moving
   robot finishes; a cancel of anything else is stale and ignored;
 * ``pause`` / ``resume`` stop and allow new starts (a running move completes);
+* a v3 robot whose ``hello`` a gateway refuses as ``unsupported_version`` (one that predates
+  v3) says ``hello`` again in v2 and speaks v2 from then on;
 * reports (``started``, ``finished``, ``blocked``, ``unblocked``) are sent while a link is up;
   what a link loss swallows is carried by the next ``hello``. A ``blocked`` after ``started``
   is a stop on the way (protocol v2, a bumper): ``unblocked`` makes the action run again.
@@ -59,6 +61,7 @@ from protocol.messages import (
     CancelAction,
     Cancelled,
     Error,
+    ErrorCode,
     Finished,
     Hello,
     Pause,
@@ -186,6 +189,7 @@ class RobotSession:
         self._check = check
         self._prefix = msg_prefix if msg_prefix is not None else f"r{robot_id}-"
         self._ids = itertools.count()
+        self._hello_id: str | None = None  # the msg_id of the latest hello
         self._seq = 0
         self._out: list[RobotEffect] = []
 
@@ -223,11 +227,16 @@ class RobotSession:
         if pose is not None:
             self.pose = pose
         self.link_up, self.welcomed, self._seq = True, False, 0
+        self._hello()
+
+    def _hello(self) -> None:
         held = [a.action_id for a in self.queue]
         if self.current is not None:
             held.insert(0, self.current)
         self._send(Hello, robot_id=self.robot_id, pose=self.pose, acked=held[-HISTORY:],
                    finished=list(self._finished), current=self.activity())
+        sent = self._out[-1] if self._out else None
+        self._hello_id = sent.message.msg_id if isinstance(sent, Send) else None
 
     def disconnected(self) -> None:
         """The link is gone: nothing is sent and nothing new starts until the next welcome."""
@@ -255,6 +264,11 @@ class RobotSession:
         elif isinstance(msg, Resume):
             self.paused = False
         elif isinstance(msg, Error):
+            if (msg.code is ErrorCode.UNSUPPORTED_VERSION and msg.ref == self._hello_id
+                    and not self.welcomed and self.version >= FOLDED_ACK):
+                self.version, self._acks = 2, True  # a gateway that predates v3: speak v2
+                self._hello()
+                return
             self._out.append(GatewayError(msg))
 
     def _action(self, msg: Action) -> None:

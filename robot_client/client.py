@@ -316,6 +316,13 @@ class RobotClient:
             self.session.connected(self.wire_pose())
             await self._flush()
             first = decode(await asyncio.wait_for(conn.recv(), self.settings.ping_timeout_s * 2))
+            if isinstance(first, Error):  # a gateway that predates v3: hello again in v2
+                spoke = self.session.version
+                self.session.receive(first)
+                await self._flush()
+                if self.session.version != spoke:
+                    first = decode(await asyncio.wait_for(conn.recv(),
+                                                          self.settings.ping_timeout_s * 2))
             if not isinstance(first, Welcome):
                 detail = f" {first.code}: {first.detail}" if isinstance(first, Error) else ""
                 raise SessionRefused(f"expected welcome, got {first.type}{detail}")

@@ -21,6 +21,8 @@ LANES_ROOMS = 1
 """``sim_clients.lifelong.LANES_ROOMS`` (a test checks), named here for the same reason."""
 DOORS = 20
 """``sim_clients.lifelong.DOORS`` (a test checks), named here for the same reason."""
+CORRIDOR_LANES = 20
+"""``sim_clients.lifelong.CORRIDOR_LANES`` (a test checks), named here for the same reason."""
 
 
 def _planner_time(text: str) -> str | float:
@@ -132,9 +134,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--lanes", type=int, default=None, metavar="PENALTY",
                    help="guide the turning planner by crisscross lanes (even rows east, odd "
                         "rows west, even columns south, odd columns north): a move against its "
-                        "lane costs PENALTY half-moves more; 0: no lanes (default: "
-                        f"{LANES} where the exact tables fit the planner's 2 GB, {LANES_ROOMS} "
-                        "there on a map with one-way doors, else none)")
+                        "lane costs PENALTY half-moves more; where the exact tables do not fit "
+                        "the planner's 2 GB, the one-cell corridors' lanes instead, taking "
+                        "turns; 0: no lanes (default: "
+                        f"{LANES} where the exact tables fit, {LANES_ROOMS} there on a map with "
+                        f"one-way doors, else {CORRIDOR_LANES} on a map of one-cell corridors "
+                        "if a table of moves per robot fits, else none)")
     p.add_argument("--doors", type=int, default=None, metavar="PENALTY",
                    help="make the one-cell doors between two rooms that have two or more "
                         "one way, taking turns: a move against a door costs PENALTY half-moves "

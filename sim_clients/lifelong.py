@@ -39,9 +39,15 @@ from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
 from gateway.execution.lifelong.executor import WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
-from gateway.planning.guidance import MOVE, crisscross, one_way_doors
+from gateway.planning.guidance import (
+    MOVE,
+    corridor_lanes,
+    corridor_share,
+    crisscross,
+    one_way_doors,
+)
 from gateway.planning.lorr import DelayConfig, LorrProblem, compress_path
-from gateway.planning.pibt import StateSpace, exact_fits
+from gateway.planning.pibt import StateSpace, compact_needed, exact_fits
 
 TICK_MS = 100.0
 """LoRR's default execution tick (``actionMoveTimeLimit``)."""
@@ -78,6 +84,16 @@ LANES_ROOMS = 1
 crisscross lanes only break ties. Room, 600 ticks, doors 20, delay seeds 0-23: lanes 1 143.5
 tasks, 3 140.6, 2 140.3 (seeds 0-11), 5 139.4 (seeds 0-11); lanes 1 without doors 133.0 (seeds
 0-11)."""
+CORRIDORS = 0.5
+"""The share of a map's free cells in one-cell corridors (:func:`~gateway.planning.guidance.
+corridor_share`) from which a run whose tables are over the cells, not exact (thousands of
+robots on a large map), is guided by :func:`~gateway.planning.guidance.corridor_lanes`
+(:data:`CORRIDOR_LANES`): LoRR's warehouse_large (0.63), not the game map brc202d (0.009)."""
+CORRIDOR_LANES = 20
+"""The default penalty of a move against its corridor's lane (half-moves: ten moves, nearly
+one way) where :data:`CORRIDORS` applies. warehouse_large, 10,000 robots, 600 ticks, station
+cap 4, one run each at load 6-9: no lanes 1,105 tasks (1,168 at load 1-3), penalty 1 1,300,
+3 1,314, 8 1,358, 20 1,377, 40 1,327."""
 DOORS = 20
 """The default penalty of a move against a one-way door (:func:`~gateway.planning.guidance.
 one_way_doors`, half-moves) of a run whose exact tables fit :data:`PLANNER_BUDGET` (else
@@ -91,6 +107,15 @@ between routes as the crowd changes. Random-64-64-10, 600 ticks, delay seeds 0-1
 seed 0 250 -> 257. Room, with its one-way doors, keeps 2 (143.8 over seeds 0-11; 4: 142.1, 6:
 142.8), and so does a run under the 2024 rules (one tick an action: random-400 529.0 with 2,
 527.5 with 6, planner seeds 0-5)."""
+LNS_ROUNDS = 200
+"""Rounds of LNS (:func:`~gateway.planning.lns.refine`, groups replanned by priority) over
+each window under an action of more ticks than one; a planning call takes about 25 ms more
+(random-400: 0.026 -> 0.050 s on an idle machine). Shared LoRR problems, 600 ticks, delay
+seeds 0-5, tasks without LNS / with: random 531.5 / 539.7 (each seed 536 or more, 519 before),
+room 142.5 / 142.7, maze 85.8 / 84.3, city (no priority order) 248.8 / 249.0; 100 rounds
+(random order) random 538.5, 150: 539.0, 500: 542.7 with calls over 100 ms (a tick of latency
+more). Not under the 2024 rules (one tick an action): its windows of 10 timesteps make the
+searches about 300 ms a call, random-400 530.3 -> 464.7 tasks."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -158,7 +183,8 @@ class LifelongConfig:
     reassign_batch: int = REASSIGN_BATCH  # robots whose unstarted task a reassignment releases
     station_cap: int | None = None  # robots sent to one first-errand cell at a time (TaskPool)
     lanes: int | None = None  # penalty of a move against its crisscross lane
-    # (gateway.planning.guidance; turning, exact tables); 0: no lanes; None: LANES if they fit
+    # (gateway.planning.guidance; turning, exact tables), or with tables over the cells its
+    # corridor's lane (corridor_lanes); 0: no lanes; None: LANES if exact tables fit
     # (LANES_ROOMS on a map with one-way doors)
     doors: int | None = None  # penalty of a move against a one-way door (guidance.
     # one_way_doors; turning, exact tables); 0: none; None: DOORS if exact tables fit
@@ -170,6 +196,8 @@ class LifelongConfig:
     turn_to_leaving: bool | None = None  # WindowedPIBT.turn_to_leaving; None: under one tick
     # an action (the 2024 rules) only: there random-400 509 -> 525 tasks, under the 2026 rules
     # room with its one-way doors 144.7 -> 138.0 (maze, random, city unchanged)
+    lns: int | None = None  # rounds of LNS over each window (gateway.planning.lns); None:
+    # LNS_ROUNDS under an action of more ticks than one (the 2026 rules), else none
     seed: int = 0
     output_window: int = 1000
 
@@ -249,19 +277,28 @@ def run_lifelong(cfg: LifelongConfig,
         raise ValueError("lanes and doors guide the turning model only")
     one_way = one_way_doors(grid, doors)
     lanes = cfg.lanes
-    if lanes is None:
-        lanes = (LANES_ROOMS if one_way.any() else LANES) if exact else 0
+    if lanes is None and exact:
+        lanes = LANES_ROOMS if one_way.any() else LANES
+    elif lanes is None:
+        lanes = (CORRIDOR_LANES if not compact_needed(grid, n, PLANNER_BUDGET)
+                 and corridor_share(grid) >= CORRIDORS else 0)
     guided = cfg.crowd and exact  # the crowd weighs exact tables (lanes 0: none)
-    forward = (crisscross(grid, lanes) + one_way if lanes or one_way.any() or guided
-               else None)
+    if exact:
+        forward = (crisscross(grid, lanes) + one_way if lanes or one_way.any() or guided
+                   else None)
+    else:  # tables over the cells: lanes along a warehouse's one-cell aisles
+        forward = corridor_lanes(grid, lanes) if lanes else None
     turn_cost = cfg.turn_cost
     if turn_cost is None:
-        turn_cost = MOVE if one_way.any() or forward is None or counter == 1 else TURN_COST
+        turn_cost = (MOVE if one_way.any() or forward is None or counter == 1 or not exact
+                     else TURN_COST)
     space = StateSpace(grid, cfg.turning, budget_bytes=PLANNER_BUDGET, robots=n,
                        guidance=forward, turn=turn_cost)
     turn = cfg.turn_to_leaving if cfg.turn_to_leaving is not None else counter == 1
     planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space, guided=guided,
-                            turn_to_leaving=turn)
+                            turn_to_leaving=turn,
+                            lns=cfg.lns if cfg.lns is not None else
+                            LNS_ROUNDS if counter > 1 else 0)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)
@@ -271,7 +308,8 @@ def run_lifelong(cfg: LifelongConfig,
     # moves over the free cells too: one cache serves both (the robots' goals are errands)
     distances = TaskDistances(grid, charge=round(DELAY_CHARGE * prob.delay.mean_duration
                                                  / counter),
-                              space=None if space.exact or space.compact else space)
+                              space=None if space.exact or space.compact
+                              or space.guidance is not None else space)
     pool = TaskPool(prob.tasks, max(1, int(prob.num_tasks_reveal * n)), leg=distances.leg,
                     max_wait=cfg.max_wait, station_cap=cfg.station_cap)
     book = ErrandBook(pool, n)
@@ -283,11 +321,12 @@ def run_lifelong(cfg: LifelongConfig,
     if guided:  # the crowd at the start weighs the first tables (and its search is compiled
         # here, not in the first call: 0.6 s of CPU on a fresh machine)
         space.guide(prob.starts, ())
-    if space.exact or space.compact:  # and the planner's own tables of the first goals (the
-        # city's first call took 2.5 s of CPU without them: 25 ticks before any robot moved);
-        # guided tables cost five breadth-first ones: all the errands' (a first call of 0.4 s)
+    if space.exact or space.compact or space.guidance is not None:  # and the planner's own
+        # tables of the first goals (the city's first call took 2.5 s of CPU without them: 25
+        # ticks before any robot moved); exact guided tables cost five breadth-first ones: all
+        # the errands' (a first call of 0.4 s)
         space.prefetch([c for task in pool.open.values()
-                        for c in (task.errands if space.guidance is not None
+                        for c in (task.errands if space.guidance is not None and space.exact
                                   else task.errands[:1])])
     preprocess_s = time.thread_time() - cpu0
 

@@ -13,7 +13,9 @@ they age (:meth:`~gateway.planning.pibt.StateSpace.guide`): on the LoRR room map
 robots had waited 40-70 ticks on both sides of one-cell doors while other doors of the same
 wall stood empty. :func:`guided_tables` are the exact costs to a goal under a guidance (a
 Dijkstra search backwards over the states with a bucket queue, compiled with numba as
-:mod:`gateway.planning.bfs_kernel` is).
+:mod:`gateway.planning.bfs_kernel` is). Where tables over the states do not fit (10,000 robots
+on LoRR's warehouse_large), :func:`corridor_lanes` set the one-cell aisles of a warehouse one
+way in turns, and :func:`guided_cell_tables` are the costs over the cells, turns free.
 """
 
 from __future__ import annotations
@@ -47,21 +49,21 @@ def crisscross(grid: Grid, penalty: int) -> npt.NDArray[np.int32]:
 
 
 @njit(cache=True, nogil=True)
-def _bucket_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
+def _bucket_groups(pred: npt.NDArray[np.int32], cost: npt.NDArray[np.int32],
                    sources: npt.NDArray[np.int64], bounds: npt.NDArray[np.int64],
-                   out: npt.NDArray[np.int32], turn: int) -> None:
+                   out: npt.NDArray[np.int32]) -> None:
     """Fill ``out[k]`` (all -1) with the cheapest costs to the sources
-    ``sources[bounds[k]:bounds[k + 1]]``: ``table`` is :func:`turning_predecessor_table`
-    (columns 0 and 1 turn into the state, column 2 moves forward into it), a turn costs
-    ``turn``, the forward move out of state u ``forward[u]``.
+    ``sources[bounds[k]:bounds[k + 1]]`` over a graph given backwards: ``pred[v, j]`` is a
+    node one step before v (``pred.shape[0] - 1``: none), ``cost[v, j]`` (at least 1) that
+    step's cost (:func:`guided_tables`: turning states; :func:`guided_cell_tables`: cells).
 
     Dijkstra with a bucket queue (Dial's), one bucket per cost modulo the dearest step plus
     one; a stale entry, reached cheaper since, is skipped. (A two-FIFO variant for two
     distinct costs was no faster: 14-20 ms against 14-18 ms for 64 tables of random-400,
     158-232 ms against 189-262 ms on the city map; removed.)"""
-    n = table.shape[0] - 1
-    buckets = max(int(forward.max()), turn) + 1
-    cap = 3 * n + 8
+    n = pred.shape[0] - 1
+    buckets = int(cost.max()) + 1
+    cap = pred.shape[1] * n + 8
     node = np.empty(cap, dtype=np.int64)
     link = np.empty(cap, dtype=np.int64)
     for k in range(bounds.shape[0] - 1):
@@ -88,11 +90,11 @@ def _bucket_groups(table: npt.NDArray[np.int32], forward: npt.NDArray[np.int32],
                 pending -= 1
                 if row[v] != d:
                     continue
-                for j in range(3):
-                    u = table[v, j]
+                for j in range(pred.shape[1]):
+                    u = pred[v, j]
                     if u >= n:
                         continue
-                    nd = d + (turn if j < 2 else forward[u])
+                    nd = d + cost[v, j]
                     if row[u] < 0 or nd < row[u]:
                         row[u] = nd
                         node[used] = u
@@ -123,8 +125,75 @@ def guided_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int3
     if goals:
         flat = np.array([4 * g + h for g in goals for h in range(4)], dtype=np.int64)
         bounds = np.arange(0, 4 * len(goals) + 1, 4, dtype=np.int64)
-        pred, costs = turning_predecessor_table(grid), forward.astype(np.int32)
-        _bucket_groups(pred, costs, flat, bounds, out, turn)
+        pred = turning_predecessor_table(grid)  # columns 0 and 1 turn, 2 moves forward
+        cost = np.full(pred.shape, turn, dtype=np.int32)
+        cost[:, 2] = np.append(forward, np.int32(MOVE)).astype(np.int32)[pred[:, 2]]
+        _bucket_groups(pred, cost, flat, bounds, out)
+    return out
+
+
+def _corridors(grid: Grid) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """The free cells walled north and south (in an east-west corridor) and those walled west
+    and east (north-south), as ``(height, width)`` masks; off the map is a wall."""
+    free = np.pad(grid.free, 1, constant_values=False)
+    mid = free[1:-1, 1:-1]
+    return (mid & ~free[:-2, 1:-1] & ~free[2:, 1:-1], mid & ~free[1:-1, :-2] & ~free[1:-1, 2:])
+
+
+def corridor_share(grid: Grid) -> float:
+    """The share of the free cells of ``grid`` in one-cell corridors (:func:`corridor_lanes`):
+    0.63 on LoRR's warehouse_large, 0.009 on the game map brc202d."""
+    ns, we = _corridors(grid)
+    return float((ns | we).sum()) / max(1, int(grid.free.sum()))
+
+
+def corridor_lanes(grid: Grid, penalty: int) -> npt.NDArray[np.int32]:
+    """The forward-move cost of each state ``4 * cell + heading`` (as :func:`crisscross`) on a
+    map of one-cell corridors (a warehouse's aisles between shelves): the rows that hold a
+    stretch of corridor running east-west (free cells walled north and south) take turns, in
+    order from the north, at running east and west, and the columns of north-south corridors
+    (walled east and west) at running south and north; a move against its row's or column's
+    lane costs ``penalty`` more. Rows and columns without such a corridor have no lane. On
+    LoRR's warehouse_large the corridors lie every third row and every fourth column, which
+    :func:`crisscross`'s parity lanes would set all one way."""
+    if penalty < 0:
+        raise ValueError(f"a lane penalty must be at least 0, not {penalty}")
+    walled_ns, walled_we = _corridors(grid)
+    rows, cols = np.asarray(walled_ns.any(axis=1)), np.asarray(walled_we.any(axis=0))
+    h, w = grid.height, grid.width
+    has_row, has_col = np.repeat(rows, w), np.tile(cols, h)  # per cell, row by row
+    east = np.repeat(np.cumsum(rows) % 2 == 1, w)  # odd: the first, third, ... corridor row
+    south = np.tile(np.cumsum(cols) % 2 == 1, h)
+    out = np.full((grid.size, 4), MOVE, dtype=np.int32)  # headings east, south, west, north
+    out[has_row & ~east, 0] += penalty
+    out[has_row & east, 2] += penalty
+    out[has_col & ~south, 1] += penalty
+    out[has_col & south, 3] += penalty
+    return out.ravel()
+
+
+def guided_cell_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np.int32]
+                       ) -> npt.NDArray[np.int32]:
+    """``out[k, cell]``: the cheapest cost from ``cell`` to ``goals[k]`` when the move from a
+    cell u in heading d costs ``forward[4 * u + d]`` (a lane guidance, :func:`corridor_lanes`)
+    and turns cost nothing: a table per cell, not per state, for maps where those do not fit;
+    -1 if unreachable."""
+    free = grid.free.ravel()
+    for g in goals:
+        if not 0 <= g < grid.size or not free[g]:
+            raise ValueError(f"goal {g} is not a free cell of {grid!r}")
+    out = np.full((len(goals), grid.size), -1, dtype=np.int32)
+    if goals:
+        n = grid.size
+        # the cell behind each cell in each heading: the one whose forward move enters it
+        behind = _ahead(grid).reshape(n, 4)[:, [2, 3, 0, 1]]
+        behind[~free] = n
+        behind[behind < n] = np.where(free[np.minimum(behind, n - 1)], behind, n)[behind < n]
+        pred = np.vstack([behind, np.full((1, 4), n)]).astype(np.int32)
+        cost = np.append(forward, np.full(4, MOVE)).astype(np.int32)[
+            np.minimum(4 * pred.astype(np.int64) + np.arange(4), 4 * n)]
+        _bucket_groups(pred, cost, np.asarray(goals, dtype=np.int64),
+                       np.arange(len(goals) + 1, dtype=np.int64), out)
     return out
 
 

@@ -34,7 +34,15 @@ import numpy.typing as npt
 from gateway.planning.bfs_kernel import pack_mod3
 from gateway.planning.distance import cell_distance_rows, free_index, turning_distance_tables
 from gateway.planning.grid import Grid
-from gateway.planning.guidance import CROWD_AGE, CROWD_BUDGET, MOVE, crowded, guided_tables
+from gateway.planning.guidance import (
+    CROWD_AGE,
+    CROWD_BUDGET,
+    MOVE,
+    crowded,
+    guided_cell_tables,
+    guided_tables,
+)
+from gateway.planning.lns import refine
 
 UNREACHABLE = 32000
 """Distance of a state that cannot reach the goal (tables are int16)."""
@@ -49,6 +57,13 @@ def exact_fits(grid: Grid, robots: int, budget_bytes: int) -> bool:
     """Whether two exact tables over the ``turning`` states per robot (of ``robots``, 32 at
     least) fit ``budget_bytes``: :class:`StateSpace`'s default for ``exact``."""
     return 2 * max(robots, 32) * 8 * grid.size <= budget_bytes
+
+
+def compact_needed(grid: Grid, robots: int, budget_bytes: int) -> bool:
+    """Whether a table over the free cells (2 bytes a cell) per robot of ``robots`` would
+    not fit ``budget_bytes``: :class:`StateSpace`'s tables are then :attr:`~StateSpace.compact`
+    (when not exact)."""
+    return 2 * robots * int(grid.free.sum()) > budget_bytes
 
 
 class StateSpace:
@@ -67,7 +82,9 @@ class StateSpace:
     move is weighed by accordingly. Tables over the free cells are :attr:`compact` (2 bits a
     cell: the moves modulo 3, :func:`compact_rows`) when one of 2 bytes a cell per robot would
     not fit the budget (10,000 robots on a million-cell map); :meth:`costs` weighs a robot's
-    moves alike from either kind.
+    moves alike from either kind. A ``guidance`` (forward-move costs per state, :mod:`gateway.
+    planning.guidance`) weighs exact tables, or tables over the free cells (turns free in the
+    table: :func:`~gateway.planning.guidance.guided_cell_tables`), not compact ones.
     """
 
     def __init__(self, grid: Grid, turning: bool, budget_bytes: int = 1 << 30,
@@ -80,14 +97,15 @@ class StateSpace:
             exact = exact_fits(grid, robots, budget_bytes)
         self.exact = turning and exact
         """Whether tables are over the states (else over the free cells)."""
-        if guidance is not None and not self.exact:
-            raise ValueError("a guidance needs exact tables over the turning states")
+        if guidance is not None and not turning:
+            raise ValueError("a guidance needs the turning model")
         self.guidance = guidance
         """Each state's forward-move cost (:mod:`gateway.planning.guidance`; None: every
         action costs one): tables and :meth:`costs` are then in its units."""
         self.turn = turn
         """What a turn costs under a :attr:`guidance` (tables and :meth:`costs`)."""
         self._forward: list[int] = guidance.tolist() if guidance is not None else []
+        self._heading_to = {1: 0, grid.width: 1, -1: 2, -grid.width: 3}
         self._lanes = guidance
         self._calls = 0  # guided calls so far (:meth:`guide`)
         self._searched: dict[int, int] = {}  # goal -> the guided call its table is from
@@ -97,9 +115,12 @@ class StateSpace:
         self.cell_of: list[int] = ([s >> 2 for s in range(self.n_states)] if turning
                                    else list(range(n)))
         self.options = _Options(grid, turning, self.exact, self.index)
+        self._moves: dict[int, tuple[tuple[int, int, int], ...]] = {}
         self._cache: OrderedDict[int, array[int]] = OrderedDict()
         entries = self.n_states if self.exact else int(grid.free.sum())
-        self.compact = not self.exact and 2 * robots * entries > budget_bytes
+        self.compact = not self.exact and compact_needed(grid, robots, budget_bytes)
+        if self.compact and guidance is not None:
+            raise ValueError("a guidance needs tables of costs, not compact ones")
         """Whether tables hold the moves modulo 3 (:func:`compact_rows`), not the moves."""
         size = (entries + 3) // 4 if self.compact else 2 * entries
         self._capacity = max(16, budget_bytes // size)
@@ -172,12 +193,18 @@ class StateSpace:
         :attr:`guidance`, each move's own cost (the wait and a turn :data:`~gateway.planning.
         guidance.MOVE`, a turn :attr:`turn`, a move its lane's cost) plus the table entry after
         it."""
-        if self.guidance is not None:
+        if self.guidance is not None and self.exact:
             forward, turn = self._forward, self.turn
             own = opts[0][1]
             c = own >> 2
             return [table[es] + (MOVE if es == own else turn * turns + forward[4 * c + (es & 3)])
                     for _, es, turns, _ in opts]
+        if self.guidance is not None:  # tables over the cells: a move's heading from its cell
+            forward, turn, c = self._forward, self.turn, opts[0][0]
+            heading = self._heading_to
+            return [table[opts[0][1]] + MOVE] + [
+                table[es] + turn * turns + forward[4 * c + heading[nxt - c]]
+                for nxt, es, turns, _ in opts[1:]]
         if not self.compact:
             return [table[es] + turns for _, es, turns, _ in opts]
         own = (table[opts[0][1] >> 2] >> ((opts[0][1] & 3) << 1)) & 3
@@ -186,6 +213,22 @@ class StateSpace:
             code = (table[es >> 2] >> ((es & 3) << 1)) & 3
             out.append(UNREACHABLE + turns if code == 3
                        else COMPACT_BASE + (code - own + 1) % 3 - 1 + turns)
+        return out
+
+    def moves(self, state: int) -> tuple[tuple[int, int, int], ...]:
+        """Each action from ``state`` under a :attr:`guidance` as ``(resulting state, its
+        cell, the action's own cost)``, each resulting state once, the wait first: a wait
+        :data:`~gateway.planning.guidance.MOVE`, a turn :attr:`turn`, a forward move its
+        lane's cost (what :meth:`costs` weighs a move by, :mod:`gateway.planning.lns`)."""
+        out = self._moves.get(state)
+        if out is None:
+            cell_of, seen = self.cell_of, []
+            for _, _, _, rs in self.options[state]:
+                if rs not in seen:
+                    seen.append(rs)
+            out = self._moves[state] = tuple(
+                (rs, cell_of[rs], MOVE if rs == state else self.turn
+                 if cell_of[rs] == cell_of[state] else self._forward[state]) for rs in seen)
         return out
 
     def offer(self, tables: Mapping[int, array[int]]) -> None:
@@ -254,13 +297,16 @@ def goal_tables(grid: Grid, exact: bool, goals: Sequence[int], compact: bool = F
     :data:`UNREACHABLE`): over the ``turning`` states if ``exact`` (the costs under
     ``guidance`` if given, a turn costing ``turn``: :func:`~gateway.planning.guidance.
     guided_tables`), else over the
-    free cells (exact moves, a lower bound of the turning cost), searched in batches;
+    free cells (exact moves, a lower bound of the turning cost, or the costs under ``guidance``
+    with turns free: :func:`~gateway.planning.guidance.guided_cell_tables`), searched in batches;
     ``compact`` (not with ``exact``): :func:`compact_rows` of those over the free cells."""
     out: dict[int, array[int]] = {}
     for i in range(0, len(goals), 32):
         chunk = goals[i : i + 32]
-        if guidance is not None:
+        if guidance is not None and exact:
             found = guided_tables(grid, chunk, guidance, turn)
+        elif guidance is not None:
+            found = guided_cell_tables(grid, chunk, guidance)[:, grid.free.ravel()]
         else:
             found = (turning_distance_tables(grid, [grid.cell(g) for g in chunk]) if exact
                      else cell_distance_rows(grid, chunk))
@@ -295,8 +341,11 @@ class WindowedPIBT:
     """1-robust PIBT over a :class:`StateSpace`, keeping priorities between calls."""
 
     def __init__(self, space: StateSpace, n_robots: int, seed: int = 0,
-                 guided: bool = False, turn_to_leaving: bool = False) -> None:
+                 guided: bool = False, turn_to_leaving: bool = False, lns: int = 0) -> None:
         self.space = space
+        self.lns = lns if space.guidance is not None and space.exact else 0
+        """Rounds of :func:`~gateway.planning.lns.refine` over each window (guided exact
+        tables only; 0: none)."""
         self.guided = guided
         """Whether each call guides the tables by the crowd (:meth:`StateSpace.guide`; the
         space needs a guidance): a call then depends on the calls before it, not only on its
@@ -343,6 +392,7 @@ class WindowedPIBT:
         if self.guided:
             space.guide([cell_of[s] for s in cur], [g[0] for g in goals if g])
         space.prefetch([g[0] for g in goals if g])
+        elapsed = list(self.elapsed)
         progress = [0] * n
         reached: list[list[int]] = [[] for _ in range(n)]
         for r in range(n):
@@ -369,6 +419,16 @@ class WindowedPIBT:
             cur = nxt
         for s in cur:
             occupant[cell_of[s]] = -1
+        if self.lns:
+            rng = random.Random(f"{self.seed}/lns/{self._call}")
+            if refine(space, space.grid.width, out, goals, hold, avoid, self.lns, rng,
+                      elapsed):
+                self.elapsed = elapsed  # the refined window's arrivals and priorities
+                progress = [0] * n
+                reached = [[] for _ in range(n)]
+                for step, row in enumerate(out):
+                    for r in range(n):
+                        self._arrive(r, row[r], goals[r], progress, reached, step)
         return Window(out, reached)
 
     def _arrive(self, r: int, state: int, goals: Sequence[int], progress: list[int],

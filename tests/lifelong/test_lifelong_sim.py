@@ -13,9 +13,18 @@ from hypothesis import strategies as st
 
 from gateway.execution.lifelong.executor import PlanRequest, Segment, WindowPlanner
 from gateway.execution.lifelong.tasks import SCHEDULERS
-from gateway.planning.lorr import read_problem
+from gateway.planning.generators import warehouse_map
+from gateway.planning.guidance import corridor_share
+from gateway.planning.lorr import LorrProblem, random_problem, read_problem
 from gateway.planning.movingai import format_map
-from sim_clients.lifelong import LifelongConfig, lorr_output, run_lifelong
+from gateway.planning.pibt import exact_fits
+from sim_clients.lifelong import (
+    CORRIDOR_LANES,
+    CORRIDORS,
+    LifelongConfig,
+    lorr_output,
+    run_lifelong,
+)
 from tests.lifelong.support import small_problem
 from tracecheck.lorr import check_output, read_free
 
@@ -27,23 +36,27 @@ SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "lorr"
        p_delay=st.sampled_from([0.0, 0.05, 0.3]),
        scheduler=st.sampled_from(sorted(SCHEDULERS)), max_wait=st.sampled_from([None, 6, 30]),
        station_cap=st.sampled_from([None, 1]), lanes=st.sampled_from([0, 1, 4]),
-       doors=st.sampled_from([0, 20]), turn=st.sampled_from([None, False, True]))
+       doors=st.sampled_from([0, 20]), turn=st.sampled_from([None, False, True]),
+       lns=st.sampled_from([None, 0, 30]))
 def test_no_robot_enters_a_held_cell_under_any_delays(seed: int, turning: bool, counter: int,
                                                       p_delay: float, scheduler: str,
                                                       max_wait: int | None,
                                                       station_cap: int | None,
                                                       lanes: int, doors: int,
-                                                      turn: bool | None) -> None:
+                                                      turn: bool | None,
+                                                      lns: int | None) -> None:
     """Random maps, tasks and delays, every scheduler with and without a (tight) fairness
     bound and a station cap, with and without lanes and one-way doors (turning), turns towards
-    cells being left allowed or not (by default under one tick an action only): the checker
+    cells being left allowed or not (by default under one tick an action only), with and
+    without LNS over the windows (by default under more ticks an action only): the checker
     replays the output and finds no shared cell; tasks get done and every finished task has an
     event per errand."""
     problem = small_problem(seed, counter=counter, p_delay=p_delay)
     cfg = LifelongConfig(problem, ticks=120, turning=turning, period=3,
                          planner_time="zero", scheduler=scheduler, max_wait=max_wait,
                          station_cap=station_cap, lanes=lanes if turning else 0,
-                         doors=doors if turning else 0, turn_to_leaving=turn, seed=seed)
+                         doors=doors if turning else 0, turn_to_leaving=turn, lns=lns,
+                         seed=seed)
     res = run_lifelong(cfg)
     out = lorr_output(cfg, res)
     assert check_output(out, read_free(format_map(problem.grid))) == 120
@@ -133,3 +146,32 @@ def test_shared_maze_problem(tmp_path: Path) -> None:
     assert out["teamSize"] == 40 and out["actionModel"] == "MAPF_T"
     assert check_output(out, read_free(format_map(prob.grid))) == 90
     assert out["events"]
+
+
+def one_cell_aisles(robots: int, seed: int) -> LorrProblem:
+    """Shelf blocks of 3 x 2 cells between aisles one cell wide (as on LoRR's warehouse_large),
+    ``robots`` robots, delays."""
+    grid = warehouse_map(4, 3, 3, shelf_depth=2, aisle=1, border=1, name="aisles")
+    return dataclasses.replace(random_problem(grid, robots, seed, p_delay=0.05),
+                               agent_counter=3)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_corridor_lanes_where_tables_are_over_the_cells(monkeypatch: pytest.MonkeyPatch,
+                                                        seed: int) -> None:
+    """A planner budget too small for exact tables (as 10,000 robots on warehouse_large are),
+    on a map of one-cell aisles: the default run is the run with CORRIDOR_LANES (the lanes
+    are on by default there, and change the run), and its output replays without a shared
+    cell."""
+    problem = one_cell_aisles(12, seed)
+    budget = 2 * 12 * int(problem.grid.free.sum())  # the cells' tables fit, the states' not
+    monkeypatch.setattr("sim_clients.lifelong.PLANNER_BUDGET", budget)
+    assert corridor_share(problem.grid) >= CORRIDORS
+    assert not exact_fits(problem.grid, 12, budget)
+    runs = {lanes: run_lifelong(LifelongConfig(problem, ticks=150, period=10,
+                                               planner_time="zero", lanes=lanes, seed=seed))
+            for lanes in (None, CORRIDOR_LANES, 0)}
+    assert runs[None].letters == runs[CORRIDOR_LANES].letters
+    assert runs[None].letters != runs[0].letters  # the lanes change the run (these seeds)
+    cfg = LifelongConfig(problem, ticks=150, period=10, planner_time="zero", seed=seed)
+    assert check_output(lorr_output(cfg, runs[None]), read_free(format_map(problem.grid))) == 150

@@ -122,7 +122,7 @@ def test_cli_default_bound_is_the_runner_s() -> None:
 def test_cli_default_lanes_are_the_runner_s() -> None:
     from sim_clients import cmd_lifelong, lifelong
 
-    for name in ("LANES", "LANES_ROOMS", "DOORS"):
+    for name in ("LANES", "LANES_ROOMS", "DOORS", "CORRIDOR_LANES"):
         assert getattr(cmd_lifelong, name) == getattr(lifelong, name)
 
 

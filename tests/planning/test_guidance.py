@@ -12,17 +12,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from gateway.planning.distance import turning_distance_tables
+from gateway.planning.distance import cell_distance_rows, turning_distance_tables
 from gateway.planning.grid import Grid
 from gateway.planning.guidance import (
     CROWD_AGE,
     CROWD_WEIGHT,
     DOOR_ROOM,
     MOVE,
+    corridor_lanes,
     crisscross,
     crowd,
     crowded,
     door_cells,
+    guided_cell_tables,
     guided_tables,
     one_way_doors,
 )
@@ -219,10 +221,13 @@ def test_one_way_doors_cost_only_against_a_door(case: tuple[Grid, int], penalty:
     assert all((a < 0) == (b < 0) and a <= b for a, b in zip(lanes, got, strict=True))
 
 
-def test_guidance_needs_exact_tables() -> None:
+def test_guidance_needs_the_turning_model_and_tables_of_costs() -> None:
     grid = Grid(np.ones((3, 3), dtype=bool))
-    with pytest.raises(ValueError, match="exact tables"):
-        StateSpace(grid, True, exact=False, guidance=crisscross(grid, 1))
+    with pytest.raises(ValueError, match="turning model"):
+        StateSpace(grid, False, guidance=crisscross(grid, 1))
+    with pytest.raises(ValueError, match="not compact"):  # 2 bytes x 9 cells x 100 > 1,000
+        StateSpace(grid, True, budget_bytes=1000, robots=100, exact=False,
+                   guidance=crisscross(grid, 1))
     with pytest.raises(ValueError, match="guidance of 4 states"):
         guided_tables(grid, [0], np.full(4, MOVE, dtype=np.int32))
     with pytest.raises(ValueError, match="turn must cost at least 2, not 1"):
@@ -279,3 +284,94 @@ def test_crowded_tables_equal_a_textbook_dijkstra(case: tuple[Grid, int], data: 
     forward = crowded(grid, crisscross(grid, data.draw(st.integers(0, 5))), robots)
     assert guided_tables(grid, [goal], forward)[0].tolist() == dijkstra(grid, goal,
                                                                        forward.tolist())
+
+
+def cell_dijkstra(grid: Grid, goal: int, forward: list[int]) -> list[int]:
+    """Textbook Dijkstra from every cell to the goal (the oracle of :func:`guided_cell_tables`):
+    a move from cell c heading d costs ``forward[4 * c + d]``, turns nothing; -1 if
+    unreachable."""
+    w, h = grid.width, grid.height
+    free = grid.free.ravel()
+    out = []
+    for start in range(grid.size):
+        if not free[start]:
+            out.append(-1)
+            continue
+        best, heap, found = {start: 0}, [(0, start)], -1
+        while heap:
+            d, c = heapq.heappop(heap)
+            if d > best[c]:
+                continue
+            if c == goal:
+                found = d
+                break
+            x, y = c % w, c // w
+            for hd, (dx, dy) in enumerate(STEP):
+                nx, ny = x + dx, y + dy
+                v = ny * w + nx
+                if 0 <= nx < w and 0 <= ny < h and free[v] and d + forward[4 * c + hd] < \
+                        best.get(v, 1 << 30):
+                    best[v] = d + forward[4 * c + hd]
+                    heapq.heappush(heap, (best[v], v))
+        out.append(found)
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(grid_and_goal(), st.data())
+def test_cell_tables_equal_a_textbook_dijkstra(case: tuple[Grid, int], data: st.DataObject
+                                               ) -> None:
+    """Any forward costs of at least MOVE (drawn per state); without a penalty, MOVE times the
+    moves of a breadth-first search."""
+    grid, goal = case
+    forward = np.array(data.draw(st.lists(st.integers(MOVE, 9), min_size=4 * grid.size,
+                                          max_size=4 * grid.size)), dtype=np.int32)
+    got = guided_cell_tables(grid, [goal], forward)[0].tolist()
+    assert got == cell_dijkstra(grid, goal, forward.tolist())
+    plain = guided_cell_tables(grid, [goal], corridor_lanes(grid, 0))[0]
+    moves = cell_distance_rows(grid, [goal])[0]
+    assert plain[grid.free.ravel()].tolist() == np.where(moves < 0, -1, MOVE * moves).tolist()
+
+
+def test_corridor_lanes_alternate_by_hand() -> None:
+    """Four shelf blocks between corridors: the corridor rows 0, 3, 6 run east, west, east
+    (in order from the north), the corridor columns 0, 4, 8 south, north, south; a move
+    against a lane costs the penalty more; an open map has no lanes."""
+    free = np.ones((7, 9), dtype=bool)
+    free[1:3, 1:4] = free[1:3, 5:8] = free[4:6, 1:4] = free[4:6, 5:8] = False
+    grid = Grid(free)
+    lanes = corridor_lanes(grid, 3).reshape(7, 9, 4)  # headings east, south, west, north
+    assert [lanes[y, 2, 0] for y in (0, 3, 6)] == [2, 5, 2]  # east: along, against, along
+    assert [lanes[y, 2, 2] for y in (0, 3, 6)] == [5, 2, 5]
+    assert [lanes[1, x, 1] for x in (0, 4, 8)] == [2, 5, 2]  # south
+    assert [lanes[1, x, 3] for x in (0, 4, 8)] == [5, 2, 5]
+    assert lanes[0, 0].tolist() == [2, 2, 5, 5]  # a crossing: both lanes
+    open_grid = Grid(np.ones((3, 3), dtype=bool))
+    assert (corridor_lanes(open_grid, 3) == MOVE).all()  # no corridors, no lanes
+    with pytest.raises(ValueError, match="at least 0"):
+        corridor_lanes(grid, -1)
+    with pytest.raises(ValueError, match="not a free cell"):
+        guided_cell_tables(grid, [10], corridor_lanes(grid, 0))
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid_and_goal(), st.integers(1, 4))
+def test_the_best_option_costs_the_cell_table_entry(case: tuple[Grid, int], penalty: int
+                                                    ) -> None:
+    """With tables over the cells under a guidance: from every state off the goal that can
+    reach it, the cheapest move facing its cell costs the cell's table entry (Bellman), a
+    wait one MOVE more, and a move that needs turns a MOVE more per turn."""
+    grid, goal = case
+    forward = corridor_lanes(grid, penalty)
+    space = StateSpace(grid, True, exact=False, guidance=forward)
+    table = space.distances(goal)
+    index = space.index
+    for s in range(space.n_states):
+        opts = space.options[s]
+        if not opts or table[index[s >> 2]] in (0, UNREACHABLE):
+            continue
+        costs = space.costs(table, opts)
+        own = table[index[s >> 2]]
+        assert costs[0] == own + MOVE
+        assert min(cost - MOVE * turns for cost, (_, _, turns, _) in zip(costs, opts,
+                                                                          strict=True)) == own

@@ -472,3 +472,21 @@ def test_random_interleavings_never_lose_or_double_an_action(ops: list[str]) -> 
     assert all(any(c < r for c in gw.cancelled) for r in gw.refused), (gw.cancelled, gw.refused)
     assert len(executed) == len(set(executed)) and set(executed) == set(gw.finished)
     assert executed == sorted(executed)  # index order
+
+
+def test_a_v3_robot_refused_as_unsupported_says_hello_again_in_v2() -> None:
+    s = RobotSession(0)
+    s.connected(Pose(cell=(0, 0)))
+    (hello,) = [e.message for e in s.drain() if isinstance(e, Send)]
+    assert hello.v == 3
+    s.receive(msg(Error, code=ErrorCode.UNSUPPORTED_VERSION, ref="someone-else"))
+    assert [type(e) for e in s.drain()] == [GatewayError]  # not about its hello: passed on
+    s.receive(msg(Error, code=ErrorCode.UNSUPPORTED_VERSION, ref=hello.msg_id))
+    (again,) = [e.message for e in s.drain() if isinstance(e, Send)]
+    assert isinstance(again, Hello) and again.v == 2 and again.msg_id != hello.msg_id
+    s.receive(msg(Welcome, robot_id=0))
+    s.receive(action(0))
+    assert [(e.message.type, e.message.v) for e in s.drain() if isinstance(e, Send)] == [
+        ("ack", 2)]  # a v2 robot from now on
+    s.receive(msg(Error, code=ErrorCode.UNSUPPORTED_VERSION, ref=again.msg_id))
+    assert [type(e) for e in s.drain()] == [GatewayError]  # v2 is as low as it goes

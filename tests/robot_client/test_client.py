@@ -28,6 +28,8 @@ from protocol import (
     Blocked,
     CancelAction,
     Cancelled,
+    Error,
+    ErrorCode,
     Finished,
     Hello,
     Pose,
@@ -362,3 +364,23 @@ def test_example_config_file_loads() -> None:
     settings = load_settings(None, config_file=path)
     assert settings.floor() == FloorGrid(8, 6, 0.4, 0.12)
     assert settings.token.get_secret_value() == "change-me"
+
+
+@in_virtual_time()
+async def test_a_gateway_that_predates_v3_gets_a_v2_robot(robot: Robot) -> None:
+    # a gateway that speaks v1 and v2 only refuses the v3 hello as unsupported_version: the
+    # robot says hello again in v2 on the same link and acknowledges with ack from then on
+    conn = await robot.gateway.accept()
+    hello = await conn.expect(Hello)
+    assert hello.v == 3
+    await conn.send(Error, v=2, code=ErrorCode.UNSUPPORTED_VERSION, ref=hello.msg_id,
+                    detail="protocol version 3 not supported (this side speaks 1 and 2)")
+    again = await conn.expect(Hello)
+    assert again.v == 2 and again.robot_id == 3
+    await conn.send(Welcome, v=2, robot_id=3, start=Pose(cell=(1, 1), heading="E"), plan=0,
+                    state_period_ms=200.0)
+    await conn.send(Action, v=2, **action(0, (1, 1), (2, 1), "E", "E"))
+    ack = await conn.expect(Ack, "0.3.0")
+    assert ack.v == 2
+    await conn.expect(Finished, "0.3.0")
+    assert {m.v for m in conn.received[1:]} == {2}

@@ -32,6 +32,7 @@ from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.workers.remote import RemoteSession
 from protocol import CloseCode, ErrorCode, Finished, LoadPlan, Start, State
+from protocol.robot_session import RobotSession
 from sim_clients.connect import websocket_connector
 from sim_clients.fleet import SimFleet
 from tests.procs import child_pids
@@ -48,8 +49,9 @@ def _get(url: str, context: ssl.SSLContext | None = None) -> tuple[int, bytes]:
 
 
 async def _run_with_a_kill(tmp_path: Path, kill: signal.Signals | None) -> None:
-    """A journaled run of 8 robots through 2 workers; with ``kill``, that signal hits one of
-    them a third of the way through (SIGSTOP: it hangs, and the owner's ping finds it)."""
+    """A journaled run of 8 robots through 2 workers, the even ones speaking protocol v2 (an
+    ``ack`` per action) and the odd ones v3; with ``kill``, that signal hits one of them a
+    third of the way through (SIGSTOP: it hangs, and the owner's ping finds it)."""
     trace = tmp_path / "trace.jsonl"
     config = GatewayConfig(port=0, map=None, policy="none", journal=tmp_path / "j.sqlite",
                            trace=trace, speed=20.0, autostart=True, workers=2,
@@ -68,12 +70,17 @@ async def _run_with_a_kill(tmp_path: Path, kill: signal.Signals | None) -> None:
         fleet = SimFleet(websocket_connector(f"ws://127.0.0.1:{port}/ws"), range(8),
                          clock=gw.clock, send_state=False, reconnect_delay_s=0.05)
         fleet.on_event = on_event
+        for r in range(0, 8, 2):
+            fleet.add_robot(r).session = RobotSession(r, version=2)
         gw.engine.load(problem)
         await fleet.start()
         try:
             await fleet.wait_connected()
-            # every robot is served by a worker: the owner sees it as a RemoteSession
+            # every robot is served by a worker: the owner sees it as a RemoteSession, in
+            # its robot's protocol version
             assert all(isinstance(gs.link, RemoteSession) for gs in gw.engine.robots.values())
+            assert {r: gs.version for r, gs in gw.engine.robots.items()} == {
+                r: 2 if r % 2 == 0 else 3 for r in range(8)}
             if kill:
                 total = sum(len(p) - 1 for p in problem.plan.paths)
                 while sum(executed.values()) < total // 3:
