@@ -42,6 +42,7 @@ from gateway.planning.guidance import (
     guided_cell_tables,
     guided_tables,
 )
+from gateway.planning.lns import refine
 
 UNREACHABLE = 32000
 """Distance of a state that cannot reach the goal (tables are int16)."""
@@ -114,6 +115,7 @@ class StateSpace:
         self.cell_of: list[int] = ([s >> 2 for s in range(self.n_states)] if turning
                                    else list(range(n)))
         self.options = _Options(grid, turning, self.exact, self.index)
+        self._moves: dict[int, tuple[tuple[int, int, int], ...]] = {}
         self._cache: OrderedDict[int, array[int]] = OrderedDict()
         entries = self.n_states if self.exact else int(grid.free.sum())
         self.compact = not self.exact and compact_needed(grid, robots, budget_bytes)
@@ -211,6 +213,22 @@ class StateSpace:
             code = (table[es >> 2] >> ((es & 3) << 1)) & 3
             out.append(UNREACHABLE + turns if code == 3
                        else COMPACT_BASE + (code - own + 1) % 3 - 1 + turns)
+        return out
+
+    def moves(self, state: int) -> tuple[tuple[int, int, int], ...]:
+        """Each action from ``state`` under a :attr:`guidance` as ``(resulting state, its
+        cell, the action's own cost)``, each resulting state once, the wait first: a wait
+        :data:`~gateway.planning.guidance.MOVE`, a turn :attr:`turn`, a forward move its
+        lane's cost (what :meth:`costs` weighs a move by, :mod:`gateway.planning.lns`)."""
+        out = self._moves.get(state)
+        if out is None:
+            cell_of, seen = self.cell_of, []
+            for _, _, _, rs in self.options[state]:
+                if rs not in seen:
+                    seen.append(rs)
+            out = self._moves[state] = tuple(
+                (rs, cell_of[rs], MOVE if rs == state else self.turn
+                 if cell_of[rs] == cell_of[state] else self._forward[state]) for rs in seen)
         return out
 
     def offer(self, tables: Mapping[int, array[int]]) -> None:
@@ -323,8 +341,11 @@ class WindowedPIBT:
     """1-robust PIBT over a :class:`StateSpace`, keeping priorities between calls."""
 
     def __init__(self, space: StateSpace, n_robots: int, seed: int = 0,
-                 guided: bool = False, turn_to_leaving: bool = False) -> None:
+                 guided: bool = False, turn_to_leaving: bool = False, lns: int = 0) -> None:
         self.space = space
+        self.lns = lns if space.guidance is not None and space.exact else 0
+        """Rounds of :func:`~gateway.planning.lns.refine` over each window (guided exact
+        tables only; 0: none)."""
         self.guided = guided
         """Whether each call guides the tables by the crowd (:meth:`StateSpace.guide`; the
         space needs a guidance): a call then depends on the calls before it, not only on its
@@ -371,6 +392,7 @@ class WindowedPIBT:
         if self.guided:
             space.guide([cell_of[s] for s in cur], [g[0] for g in goals if g])
         space.prefetch([g[0] for g in goals if g])
+        elapsed = list(self.elapsed)
         progress = [0] * n
         reached: list[list[int]] = [[] for _ in range(n)]
         for r in range(n):
@@ -397,6 +419,16 @@ class WindowedPIBT:
             cur = nxt
         for s in cur:
             occupant[cell_of[s]] = -1
+        if self.lns:
+            rng = random.Random(f"{self.seed}/lns/{self._call}")
+            if refine(space, space.grid.width, out, goals, hold, avoid, self.lns, rng,
+                      elapsed):
+                self.elapsed = elapsed  # the refined window's arrivals and priorities
+                progress = [0] * n
+                reached = [[] for _ in range(n)]
+                for step, row in enumerate(out):
+                    for r in range(n):
+                        self._arrive(r, row[r], goals[r], progress, reached, step)
         return Window(out, reached)
 
     def _arrive(self, r: int, state: int, goals: Sequence[int], progress: list[int],

@@ -36,23 +36,27 @@ SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "lorr"
        p_delay=st.sampled_from([0.0, 0.05, 0.3]),
        scheduler=st.sampled_from(sorted(SCHEDULERS)), max_wait=st.sampled_from([None, 6, 30]),
        station_cap=st.sampled_from([None, 1]), lanes=st.sampled_from([0, 1, 4]),
-       doors=st.sampled_from([0, 20]), turn=st.sampled_from([None, False, True]))
+       doors=st.sampled_from([0, 20]), turn=st.sampled_from([None, False, True]),
+       lns=st.sampled_from([None, 0, 30]))
 def test_no_robot_enters_a_held_cell_under_any_delays(seed: int, turning: bool, counter: int,
                                                       p_delay: float, scheduler: str,
                                                       max_wait: int | None,
                                                       station_cap: int | None,
                                                       lanes: int, doors: int,
-                                                      turn: bool | None) -> None:
+                                                      turn: bool | None,
+                                                      lns: int | None) -> None:
     """Random maps, tasks and delays, every scheduler with and without a (tight) fairness
     bound and a station cap, with and without lanes and one-way doors (turning), turns towards
-    cells being left allowed or not (by default under one tick an action only): the checker
+    cells being left allowed or not (by default under one tick an action only), with and
+    without LNS over the windows (by default under more ticks an action only): the checker
     replays the output and finds no shared cell; tasks get done and every finished task has an
     event per errand."""
     problem = small_problem(seed, counter=counter, p_delay=p_delay)
     cfg = LifelongConfig(problem, ticks=120, turning=turning, period=3,
                          planner_time="zero", scheduler=scheduler, max_wait=max_wait,
                          station_cap=station_cap, lanes=lanes if turning else 0,
-                         doors=doors if turning else 0, turn_to_leaving=turn, seed=seed)
+                         doors=doors if turning else 0, turn_to_leaving=turn, lns=lns,
+                         seed=seed)
     res = run_lifelong(cfg)
     out = lorr_output(cfg, res)
     assert check_output(out, read_free(format_map(problem.grid))) == 120

@@ -739,10 +739,10 @@ class WindowPlanner:
 
     def __init__(self, grid: Grid, n_robots: int, turning: bool, seed: int = 0,
                  space: StateSpace | None = None, guided: bool = False,
-                 turn_to_leaving: bool = False) -> None:
+                 turn_to_leaving: bool = False, lns: int = 0) -> None:
         self.space = space if space is not None else StateSpace(grid, turning, robots=n_robots)
         self.pibt = WindowedPIBT(self.space, n_robots, seed=seed, guided=guided,
-                                 turn_to_leaving=turn_to_leaving)
+                                 turn_to_leaving=turn_to_leaving, lns=lns)
 
     def __call__(self, req: PlanRequest) -> Segment:
         """The window for ``req``."""
