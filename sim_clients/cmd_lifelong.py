@@ -44,7 +44,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from gateway.execution.lifelong.tasks import wait_percentiles
     from gateway.planning.lorr import LorrFormatError, read_problem
-    from gateway.planning.pibt import exact_fits
+    from gateway.planning.pibt import compact_needed, exact_fits
     from sim_clients.lifelong import (
         PLANNER_BUDGET,
         LifelongConfig,
@@ -68,12 +68,14 @@ def _run(args: argparse.Namespace) -> int:
     if args.delay_seed is not None:
         problem = dataclasses.replace(problem, delay=dataclasses.replace(problem.delay,
                                                                          seed=args.delay_seed))
-    for name in ("lanes", "doors"):
-        if getattr(args, name) and (args.motion != "turning" or not exact_fits(
-                problem.grid, problem.team_size, PLANNER_BUDGET)):
-            raise UsageError(f"--{name} needs the turning motion and a map whose exact tables "
-                             f"fit 2 GB ({problem.name}: {problem.grid.width}x"
-                             f"{problem.grid.height}, {problem.team_size} robots)"
+    grid, robots = problem.grid, problem.team_size
+    fits = {"lanes": ("tables of moves", not compact_needed(grid, robots, PLANNER_BUDGET)),
+            "doors": ("exact tables", exact_fits(grid, robots, PLANNER_BUDGET))}
+    for name, (tables, fit) in fits.items():
+        if getattr(args, name) and (args.motion != "turning" or not fit):
+            raise UsageError(f"--{name} needs the turning motion and a map whose {tables} "
+                             f"fit 2 GB ({problem.name}: {grid.width}x{grid.height}, "
+                             f"{robots} robots)"
                              if args.motion == "turning" else f"--{name} needs --motion turning")
     if args.output:
         check_writable(args.output)  # before the run, not after it
