@@ -57,10 +57,15 @@ loop (``pip install uvloop``) and on asyncio's, interleaved: ``uvloop_cpu_per_ac
     .venv/bin/python bench/load.py --find-max --seconds 20 --json
     .venv/bin/python bench/load.py --robots 1000 --seconds 20 --profile /tmp/gw.prof
 
+The lean robots speak protocol v3 (no ``ack``: a ``started`` acknowledges its action), or v2
+with ``--protocol 2`` (an ``ack`` per action), so a run measures the gateway's v3 path by
+default.
+
 ``--against DIR --pairs N``: the CPU per action against another version, measured in the same
 invocation. ``DIR`` is a checkout of that version (``git worktree add DIR 1045d02``); its own
 ``bench/load.py --serve`` runs the gateway (with ``DIR`` first on the Python path), N runs of
-each side interleaved ABBA on the same plan with this version's robots. Adds
+each side interleaved ABBA on the same plan with this version's robots (speaking the newest
+protocol version DIR serves, if older than ``--protocol``: ``against_protocol``). Adds
 ``cpu_per_action_ratio`` (median gateway CPU per action, this / that: < 1 is leaner),
 ``p99_against_ratio``, every run's figures and the load average after each run; with
 ``--journal`` both sides run journaled; with ``--workers W`` both sides run W worker

@@ -44,7 +44,8 @@ ARCHIVE_ENV = "FLEETGATE_LORR_ARCHIVE"
 STATION_CAP = 4
 """Robots sent to one first-errand cell at a time in the scale runs
 (:attr:`~gateway.execution.lifelong.tasks.TaskPool.station_cap`; 600 ticks, warehouse_large:
-137 tasks without a cap, 591 with 12, 1,075 with 4)."""
+137 tasks without a cap, 591 with 12, 1,075 with 4; with its corridor lanes, one run each:
+1,309 without, 1,377 with 4, 1,461 with 12, 1,394 with 24, within the runs' spread)."""
 PUBLISHED_STEPS = 5000
 """Steps of the competitions' main-round runs of these instances."""
 

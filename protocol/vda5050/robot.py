@@ -16,6 +16,9 @@ vehicle.
   (or ``finished``, if it got there first);
 * ``pause`` / ``resume`` become ``startPause`` / ``stopPause``;
 * the master's reports become the matching messages.
+
+It speaks protocol v2 (an ``ack`` per action; a vehicle's refusal drops only the refused
+action, not the ones released behind it, so it does not answer each as protocol v3 asks).
 """
 
 from __future__ import annotations
@@ -235,8 +238,8 @@ class VdaRobot:
     def _send(self, kind: type[RobotMessage], **fields: Any) -> None:
         if not self.link_up or (self._hello_due and kind is not Hello):
             return
-        self._out.append(kind(msg_id=f"vda{self.robot_id}-{next(self._ids)}", seq=self._seq,
-                              **fields))
+        self._out.append(kind(v=2, msg_id=f"vda{self.robot_id}-{next(self._ids)}",
+                              seq=self._seq, **fields))
         self._seq += 1
 
     def drain(self) -> list[RobotMessage]:
