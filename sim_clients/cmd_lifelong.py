@@ -23,6 +23,8 @@ DOORS = 20
 """``sim_clients.lifelong.DOORS`` (a test checks), named here for the same reason."""
 CORRIDOR_LANES = 20
 """``sim_clients.lifelong.CORRIDOR_LANES`` (a test checks), named here for the same reason."""
+LNS_ROUNDS = 200
+"""``sim_clients.lifelong.LNS_ROUNDS`` (a test checks), named here for the same reason."""
 
 
 def _planner_time(text: str) -> str | float:
@@ -44,7 +46,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from gateway.execution.lifelong.tasks import wait_percentiles
     from gateway.planning.lorr import LorrFormatError, read_problem
-    from gateway.planning.pibt import exact_fits
+    from gateway.planning.pibt import compact_needed, exact_fits
     from sim_clients.lifelong import (
         PLANNER_BUDGET,
         LifelongConfig,
@@ -57,7 +59,7 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("ticks", "period"):
         if getattr(args, name) <= 0:
             raise UsageError(f"--{name} must be positive, got {getattr(args, name)}")
-    for name in ("window", "reassign", "max_wait", "lanes", "doors"):
+    for name in ("window", "reassign", "max_wait", "lanes", "doors", "lns"):
         if (getattr(args, name) or 0) < 0:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 0, "
                              f"got {getattr(args, name)}")
@@ -68,12 +70,14 @@ def _run(args: argparse.Namespace) -> int:
     if args.delay_seed is not None:
         problem = dataclasses.replace(problem, delay=dataclasses.replace(problem.delay,
                                                                          seed=args.delay_seed))
-    for name in ("lanes", "doors"):
-        if getattr(args, name) and (args.motion != "turning" or not exact_fits(
-                problem.grid, problem.team_size, PLANNER_BUDGET)):
-            raise UsageError(f"--{name} needs the turning motion and a map whose exact tables "
-                             f"fit 2 GB ({problem.name}: {problem.grid.width}x"
-                             f"{problem.grid.height}, {problem.team_size} robots)"
+    grid, robots = problem.grid, problem.team_size
+    fits = {"lanes": ("tables of moves", not compact_needed(grid, robots, PLANNER_BUDGET)),
+            "doors": ("exact tables", exact_fits(grid, robots, PLANNER_BUDGET))}
+    for name, (tables, fit) in fits.items():
+        if getattr(args, name) and (args.motion != "turning" or not fit):
+            raise UsageError(f"--{name} needs the turning motion and a map whose {tables} "
+                             f"fit 2 GB ({problem.name}: {grid.width}x{grid.height}, "
+                             f"{robots} robots)"
                              if args.motion == "turning" else f"--{name} needs --motion turning")
     if args.output:
         check_writable(args.output)  # before the run, not after it
@@ -82,7 +86,7 @@ def _run(args: argparse.Namespace) -> int:
                          planner_time=args.planner_time, scheduler=args.scheduler,
                          max_wait=args.max_wait or None,
                          reassign=args.reassign, lanes=args.lanes, doors=args.doors,
-                         seed=args.seed)
+                         lns=args.lns, seed=args.seed)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("ticks, {task.fields[done]} tasks"),
                   disable=not args.progress, transient=True,
@@ -145,6 +149,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "one way, taking turns: a move against a door costs PENALTY half-moves "
                         f"more; 0: no one-way doors (default: {DOORS} where the exact tables "
                         "fit the planner's 2 GB, else none)")
+    p.add_argument("--lns", type=int, default=None, metavar="ROUNDS",
+                   help="refine each planned window by ROUNDS rounds of large neighbourhood "
+                        "search (groups of neighbouring robots replanned, kept if cheaper; "
+                        "turning motion with exact tables only); 0: none (default: half a "
+                        f"round per robot up to {LNS_ROUNDS} when an action lasts more than "
+                        "one tick and the map has no one-way doors, else none)")
     p.add_argument("--seed", type=int, default=0, help="planner tie-break seed (default 0)")
     p.add_argument("--delay-seed", type=int, default=None, metavar="SEED",
                    help="seed of the delay model (default: the problem's delayConfig seed)")

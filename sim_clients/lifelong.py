@@ -108,14 +108,17 @@ seed 0 250 -> 257. Room, with its one-way doors, keeps 2 (143.8 over seeds 0-11;
 142.8), and so does a run under the 2024 rules (one tick an action: random-400 529.0 with 2,
 527.5 with 6, planner seeds 0-5)."""
 LNS_ROUNDS = 200
-"""Rounds of LNS (:func:`~gateway.planning.lns.refine`, groups replanned by priority) over
-each window under an action of more ticks than one; a planning call takes about 25 ms more
-(random-400: 0.026 -> 0.050 s on an idle machine). Shared LoRR problems, 600 ticks, delay
-seeds 0-5, tasks without LNS / with: random 531.5 / 539.7 (each seed 536 or more, 519 before),
-room 142.5 / 142.7, maze 85.8 / 84.3, city (no priority order) 248.8 / 249.0; 100 rounds
-(random order) random 538.5, 150: 539.0, 500: 542.7 with calls over 100 ms (a tick of latency
-more). Not under the 2024 rules (one tick an action): its windows of 10 timesteps make the
-searches about 300 ms a call, random-400 530.3 -> 464.7 tasks."""
+"""The most rounds of LNS (:func:`~gateway.planning.lns.refine`, groups replanned by priority)
+over each window: half a round per robot up to this, under an action of more ticks than one
+and on a map without one-way doors. A planning call takes about 25 ms more (random-400: 0.026
+-> 0.050 s on an idle machine). Shared LoRR problems, 600 ticks, tasks without LNS / with:
+random (200 rounds) delay seeds 0-5 531.5 / 539.7 (each seed 536 or more, 519-540 before);
+maze (20 rounds) seeds 0-23 85.4 / 84.9 (200 rounds: 83.9); city (200, groups in a random
+order) seeds 0-5 248.8 / 249.0; room seeds 0-11 143.8 / 142.0 (50 rounds 142.0, groups of 10
+within 3 cells 143.5, single robots 131.5): off there. Random, 100 rounds (random order)
+538.5, 150: 539.0, 500: 542.7 with calls over 100 ms (a tick of latency more). Not under the
+2024 rules (one tick an action): their windows of 10 timesteps make the searches about 300 ms
+a call, random-400 530.3 -> 464.7 tasks."""
 _LETTER = {FORWARD: "F", CW: "R", CCW: "C"}
 _OMNI_LETTER = {1: "e", -1: "w"}  # omni moves (not LoRR): e/s/w/n by direction
 
@@ -197,7 +200,8 @@ class LifelongConfig:
     # an action (the 2024 rules) only: there random-400 509 -> 525 tasks, under the 2026 rules
     # room with its one-way doors 144.7 -> 138.0 (maze, random, city unchanged)
     lns: int | None = None  # rounds of LNS over each window (gateway.planning.lns); None:
-    # LNS_ROUNDS under an action of more ticks than one (the 2026 rules), else none
+    # half a round per robot up to LNS_ROUNDS under an action of more ticks than one (the 2026
+    # rules) on a map without one-way doors, else none
     seed: int = 0
     output_window: int = 1000
 
@@ -298,7 +302,8 @@ def run_lifelong(cfg: LifelongConfig,
     planner = WindowPlanner(grid, n, cfg.turning, seed=cfg.seed, space=space, guided=guided,
                             turn_to_leaving=turn,
                             lns=cfg.lns if cfg.lns is not None else
-                            LNS_ROUNDS if counter > 1 else 0)
+                            min(LNS_ROUNDS, n // 2) if counter > 1 and not one_way.any()
+                            else 0)
     headings = [0] * n
     adg = LiveADG(grid, prob.starts, headings if cfg.turning else None)
     delays = DelayModel(prob.delay, n)

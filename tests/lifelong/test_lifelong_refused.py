@@ -15,7 +15,7 @@ again with the same id.
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
+from typing import Any, cast
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -37,7 +37,7 @@ from protocol import (
     action_id,
 )
 from protocol.gateway_session import GatewaySession, Refuse, Report, ToRobot
-from protocol.messages import HEADINGS
+from protocol.messages import HEADINGS, ProtocolVersion
 from protocol.robot_session import GatewayError, RobotSession, Send
 from tests.lifelong.support import small_problem
 from tracecheck import check_trace
@@ -53,7 +53,8 @@ class Shift:
     """A lifelong executor, one gateway session and one robot session per robot, the links
     between them (FIFO queues each way) and the robots' bodies."""
 
-    def __init__(self, seed: int, robots: int, turning: bool, lookahead: int) -> None:
+    def __init__(self, seed: int, robots: int, turning: bool, lookahead: int,
+                 version: ProtocolVersion = 3) -> None:
         prob = small_problem(seed, robots=robots, size=8, p_delay=0.0)
         self.grid = prob.grid
         self.records: list[dict[str, Any]] = []
@@ -66,7 +67,9 @@ class Shift:
         self.n = robots
         self.gs = [GatewaySession(r) for r in range(robots)]
         self.flaky = [False] * robots  # the body refuses the next action it is sent
-        self.rs = [RobotSession(r, check=self._checker(r)) for r in range(robots)]
+        self.version = version
+        self.rs = [RobotSession(r, check=self._checker(r), version=version)
+                   for r in range(robots)]
         self.to_robot: list[deque[AnyMessage]] = [deque() for _ in range(robots)]
         self.to_gateway: list[deque[AnyMessage]] = [deque() for _ in range(robots)]
         self.links = [0] * robots  # the gateway's handle of each robot's connection
@@ -145,7 +148,7 @@ class Shift:
         if isinstance(m, Hello):
             gs.hello(m, self.now)
             self.flush(r)
-            gs.welcome(link, version=2, start=self.pose(r), plan=None,
+            gs.welcome(link, version=self.version, start=self.pose(r), plan=None,
                        state_period_ms=5000.0, paused=False)
         elif isinstance(m, Ack):
             gs.ack(m.action_id, m.msg_id, link)
@@ -246,9 +249,11 @@ class Shift:
         raise AssertionError("the stopped shift never completed")
 
 
-def start(seed: int, robots: int = 3, turning: bool = True, lookahead: int = 1) -> Shift:
-    """A shift whose robots said hello and were welcomed, its first planning call out."""
-    s = Shift(seed, robots, turning, lookahead)
+def start(seed: int, robots: int = 3, turning: bool = True, lookahead: int = 1,
+          version: ProtocolVersion = 3) -> Shift:
+    """A shift whose robots (speaking protocol ``version``) said hello and were welcomed, its
+    first planning call out."""
+    s = Shift(seed, robots, turning, lookahead, version)
     for r in range(robots):
         s.connect(r)
         s.op("to_gateway", r)  # hello
@@ -284,10 +289,12 @@ OPS = st.lists(st.tuples(
 
 @settings(max_examples=100, deadline=None)
 @given(seed=st.integers(0, 1000), turning=st.booleans(), lookahead=st.integers(0, 2),
-       ops=OPS)
+       ops=OPS, version=st.sampled_from([2, 3]))
 def test_random_refusals_lose_and_duplicate_nothing(seed: int, turning: bool, lookahead: int,
-                                                   ops: list[tuple[str, int]]) -> None:
-    s = start(seed, turning=turning, lookahead=lookahead)
+                                                   ops: list[tuple[str, int]], version: int
+                                                   ) -> None:
+    s = start(seed, turning=turning, lookahead=lookahead,
+              version=cast(ProtocolVersion, version))
     for kind, r in ops:
         s.op(kind, r)
     s.settle()

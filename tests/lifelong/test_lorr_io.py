@@ -122,24 +122,50 @@ def test_cli_default_bound_is_the_runner_s() -> None:
 def test_cli_default_lanes_are_the_runner_s() -> None:
     from sim_clients import cmd_lifelong, lifelong
 
-    for name in ("LANES", "LANES_ROOMS", "DOORS", "CORRIDOR_LANES"):
+    for name in ("LANES", "LANES_ROOMS", "DOORS", "CORRIDOR_LANES", "LNS_ROUNDS"):
         assert getattr(cmd_lifelong, name) == getattr(lifelong, name)
 
 
+def test_cli_lanes_over_the_cells(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the exact tables do not fit the planner's budget but a table of moves per robot
+    does, ``--lanes`` runs (the corridors' lanes: a valid output) and ``--doors`` is refused;
+    where neither fits, ``--lanes`` is refused too, in one line."""
+    path = _write(tmp_path)
+    prob = read_problem(path)
+    cells = 2 * prob.team_size * int(prob.grid.free.sum())  # tables of moves just fit
+    monkeypatch.setattr("sim_clients.lifelong.PLANNER_BUDGET", cells)
+    out = tmp_path / "lanes.json"
+    assert main(["lifelong", "--problem", str(path), "--ticks", "40", "--output", str(out),
+                 "--planner-time", "zero", "--no-progress", "--lanes", "5"]) == 0
+    assert check_output(json.loads(out.read_text()), read_free(format_map(prob.grid))) == 40
+    capsys.readouterr()
+    assert main(["lifelong", "--problem", str(path), "--no-progress", "--doors", "5"]) == 2
+    assert "--doors needs the turning motion and a map whose exact tables fit 2 GB" in \
+        capsys.readouterr().err
+    monkeypatch.setattr("sim_clients.lifelong.PLANNER_BUDGET", cells - 1)
+    assert main(["lifelong", "--problem", str(path), "--no-progress", "--lanes", "5"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fleetgate: --lanes needs the turning motion and a map whose tables "
+                          "of moves fit 2 GB (") and err.count("\n") == 1
+
+
 def test_cli_lanes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """``--lanes`` runs the guided planner (a valid output), and is refused without turning or
-    below 0, in one line each."""
+    """``--lanes`` runs the guided planner (a valid output, with ``--lns`` too), and is refused
+    without turning or below 0, in one line each (``--lns`` below 0 too)."""
     path = _write(tmp_path)
     out = tmp_path / "lanes.json"
     assert main(["lifelong", "--problem", str(path), "--ticks", "40", "--output", str(out),
-                 "--planner-time", "zero", "--no-progress", "--lanes", "2", "--doors", "9"]) == 0
+                 "--planner-time", "zero", "--no-progress", "--lanes", "2", "--doors", "9",
+                 "--lns", "30"]) == 0
     prob = read_problem(path)
     assert check_output(json.loads(out.read_text()), read_free(format_map(prob.grid))) == 40
     capsys.readouterr()
     for extra, want in ((["--lanes", "-1"], "--lanes must be >= 0, got -1"),
                         (["--lanes", "1", "--motion", "omni"], "--lanes needs --motion turning"),
                         (["--doors", "-2"], "--doors must be >= 0, got -2"),
-                        (["--doors", "1", "--motion", "omni"], "--doors needs --motion turning")):
+                        (["--doors", "1", "--motion", "omni"], "--doors needs --motion turning"),
+                        (["--lns", "-1"], "--lns must be >= 0, got -1")):
         assert main(["lifelong", "--problem", str(path), "--no-progress", *extra]) == 2
         err = capsys.readouterr().err
         assert err == f"fleetgate: {want}\n"
