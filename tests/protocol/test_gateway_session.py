@@ -197,6 +197,7 @@ class Wire:
         self.robot = RobotSession(0, version=version)
         self.gw = GatewaySession(0)
         self.n, self.next, self.plan, self.refusals = n, 0, 0, 0
+        self.refused_on_link = False
         self.link: object | None = None
         self.to_robot: deque[AnyMessage] = deque()
         self.to_gw: deque[AnyMessage] = deque()
@@ -224,6 +225,7 @@ class Wire:
                     assert g.code is ErrorCode.DUPLICATE, g
 
     def connect(self) -> None:
+        self.refused_on_link = False
         self.to_robot.clear()
         self.to_gw.clear()
         self.link = object()
@@ -244,9 +246,11 @@ class Wire:
         self.to_gw.clear()
 
     def op(self, op: str) -> None:
-        if op == "dispatch" and self.next < self.n:
+        if op == "dispatch" and self.next < self.n and "refused" not in self.gw.applied.values():
             # waits on one cell: this model's gateway goes on with the plan after a cancel,
-            # which only actions that start where the robot stands allow (else: refused)
+            # which only actions that start where the robot stands allow (else: refused);
+            # after a refusal it sends nothing new until what it took back is sent again (in
+            # index order, as a lifelong shift's next planning call does)
             self.gw.dispatch(self.wait(self.plan, self.next))
             self.next += 1
         elif op == "to_robot" and self.to_robot:
@@ -262,8 +266,11 @@ class Wire:
                           "refused"):
                 self.gw.report(kind, msg.action_id, msg.msg_id,  # type: ignore[union-attr]
                                self.link, 0.0, reason="test")
-        elif op == "duplicate" and self.link is not None:  # a resend of a held action (the
-            # gateway never sends one it is cancelling: a later copy would revive it)
+        elif op == "duplicate" and self.link is not None and not self.refused_on_link:
+            # a resend of a held action (the gateway never sends one it is cancelling: a later
+            # copy would revive it; nor, on the live link, one the robot may have refused: a
+            # gateway resends only in a welcome, and the robot takes a copy of the action it
+            # refused for its dispatch again)
             held = [h for h in self.gw.held.values() if not h.cancel]
             if held:
                 n = next(_n)
@@ -278,9 +285,11 @@ class Wire:
         elif op == "step":
             self.step()
         elif (op == "refuse" and self.plan == 0 and self.body is None
+              and not any(m.msg_id.startswith("d") for m in self.to_robot)  # (as above)
               and self.robot.take() is not None):
             self.robot.refuse_current("cannot_execute", "not now")  # and its queue
             self.refusals += 1
+            self.refused_on_link = True
         elif op == "redispatch":  # what a refusal took back, again, in index order
             for aid in sorted((a for a, k in self.gw.applied.items() if k == "refused"),
                               key=lambda a: int(a.split(".")[2])):
@@ -291,6 +300,10 @@ class Wire:
         elif op == "reconnect" and self.link is None:
             self.connect()
         self.pump()
+        # the gateway never takes back (as refused) an action the robot holds: a late refusal
+        # of an earlier dispatch is not taken for the new one
+        holds = {a.action_id for a in self.robot.queue} | {self.robot.current} - {None}
+        assert not holds & {a for a, k in self.gw.applied.items() if k == "refused"}, holds
 
     @staticmethod
     def wait(plan: int, i: int) -> dict[str, Any]:
@@ -309,21 +322,70 @@ class Wire:
             self.robot.report("started", a.action_id)
 
 
+REFUSAL_OPS = st.lists(st.sampled_from(
+    ["dispatch", "to_robot", "to_gateway", "cut", "reconnect", "refuse", "redispatch"]),
+    max_size=30)
+"""Fewer kinds, so that refusals of held actions, reconnects and dispatches again meet often."""
+
+
 @settings(max_examples=200, deadline=None)
 @given(OPS, st.sampled_from([2, 3]))
 def test_random_interleavings_never_lose_or_double_an_action(ops: list[str], version: int
                                                              ) -> None:
+    run_wire(ops, version)
+
+
+@settings(max_examples=1000, deadline=None)
+@given(REFUSAL_OPS, st.sampled_from([2, 3]))
+def test_random_refusals_and_reconnects_never_lose_or_double_an_action(ops: list[str],
+                                                                       version: int) -> None:
+    run_wire(ops, version)
+
+
+def run_wire(ops: list[str], version: int) -> None:
+    """Run ``ops`` on a :class:`Wire` of 8 actions, settle, and check the oracle."""
     w = Wire(8, cast(ProtocolVersion, version))
     w.connect()
     for op in ops:
         w.op(op)
-    # settle: link up, everything dispatched, delivered and executed, what was refused
-    # dispatched again
+    settle_and_check(w)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(2, 4), st.booleans(), st.integers(0, 5), st.sampled_from([2, 3]))
+def test_a_refusal_of_held_actions_and_their_dispatch_again_in_any_order(
+        held: int, cut: bool, early: int, version: int) -> None:
+    # the robot holds ``held`` actions (said in a hello after a cut link, or acknowledged),
+    # its body refuses the first one when it is due (and the robot drops the rest); the
+    # gateway takes them back on the first refusal and dispatches them again after ``early``
+    # more of the robot's messages: the later refusals are about the old dispatch
+    w = Wire(held, cast(ProtocolVersion, version))
+    w.connect()
+    for op in ["dispatch"] * held + ["to_robot"] * (held + 1):  # the welcome, then the actions
+        w.op(op)
+    if cut:
+        for op in ["cut", "reconnect", "to_robot"]:
+            w.op(op)
+    w.op("refuse")
+    while w.to_gw and w.to_gw[0].type != "refused":
+        w.op("to_gateway")
+    w.op("to_gateway")
+    for _ in range(early):
+        w.op("to_gateway")
+    w.op("redispatch")
+    settle_and_check(w)
+
+
+def settle_and_check(w: Wire) -> None:
+    """Settle (link up, everything dispatched, delivered and executed, what was refused
+    dispatched again) and check the oracle."""
     if w.link is None:
         w.connect()
-    while w.next < w.n:
-        w.op("dispatch")
     for _ in range(500):
+        if w.next < w.n:  # the rest of the plan, after what a refusal took back
+            w.op("redispatch")
+            for _ in range(w.n):
+                w.op("dispatch")
         if not (w.to_robot or w.to_gw or w.body or w.robot.queue):
             if not any(k == "refused" for k in w.gw.applied.values()):
                 break
