@@ -203,3 +203,32 @@ def test_retracted_errands_go_back_to_the_plan_view() -> None:
     assert (book.plan_task, book.plan_idx) == ([0], [1])
     assert 1 in pool.open and pool.tasks[1].robot == -1
     assert book.reach(0, 2) == [0] and book.goals() == [(12,)]
+
+
+def test_a_large_first_matching_is_spread_over_calls(monkeypatch: pytest.MonkeyPatch) -> None:
+    # 6 robots, 6 tasks on 6 cells: 36 distances, over a bound of 12, so a call matches the
+    # first 2 robots (12 // 6) and the others wait for the next calls, in order: then 4
+    # robots for 4 tasks, 16 over 12, so 3 (12 // 4), then the last one
+    import gateway.execution.lifelong.tasks as tasks
+
+    monkeypatch.setattr(tasks, "MATCH_ENTRIES", 12)
+    pool = TaskPool([(10 * i, 10 * i + 1) for i in range(6)], reveal=6,
+                    leg=lambda a, b: abs(a - b))
+    book = ErrandBook(pool, 6)
+    seen: list[int] = []
+
+    def counted(cells: Sequence[int], targets: Sequence[int]) -> np.ndarray:
+        seen.append(len(cells) * len(targets))
+        return line(cells, targets)
+
+    cells = [50, 40, 30, 20, 10, 0]
+    calls = [sorted(r for r, _ in book.schedule(cells, shortest_first, counted, now))
+             for now in range(4)]
+    assert calls == [[0, 1], [2, 3, 4], [5], []]
+    assert seen == [12, 12, 1]
+    assert book.plan_task == [5, 4, 3, 2, 1, 0]  # each on the task on its own cell
+    # under the bound the whole matching is one call (every fleet of the shared problems)
+    monkeypatch.setattr(tasks, "MATCH_ENTRIES", 36)
+    pool = TaskPool([(10 * i, 10 * i + 1) for i in range(6)], reveal=6,
+                    leg=lambda a, b: abs(a - b))
+    assert len(shortest_first(list(enumerate(cells)), pool, line)) == 6
