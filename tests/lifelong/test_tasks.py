@@ -232,3 +232,16 @@ def test_a_large_first_matching_is_spread_over_calls(monkeypatch: pytest.MonkeyP
     pool = TaskPool([(10 * i, 10 * i + 1) for i in range(6)], reveal=6,
                     leg=lambda a, b: abs(a - b))
     assert len(shortest_first(list(enumerate(cells)), pool, line)) == 6
+
+
+def test_a_many_robot_first_call_does_not_match_every_robot() -> None:
+    # 3,000 robots for 4,000 tasks on as many cells: 12 million distances, over the bound, so
+    # the first call matches the first MATCH_ENTRIES // 4,000 robots (2,000) and no more
+    from gateway.execution.lifelong.tasks import MATCH_ENTRIES
+
+    pool = TaskPool([(2 * i, 2 * i + 1) for i in range(4000)], reveal=4000,
+                    leg=lambda a, b: abs(a - b))
+    book = ErrandBook(pool, 3000)
+    pairs = book.schedule([2 * r for r in range(3000)], shortest_first, line, 0)
+    assert sorted(r for r, _ in pairs) == list(range(MATCH_ENTRIES // 4000))
+    assert all(pool.tasks[t].errands[0] == 2 * r for r, t in pairs)  # each on its own cell
