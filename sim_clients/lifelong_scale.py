@@ -201,7 +201,7 @@ def scale_line(runs: list[dict[str, Any]]) -> str:
             f"{r['instance']} {r['robots']} robots x {r['ticks']} ticks: {r['finished']} tasks, "
             f"planner CPU per call p50 {r['cpu_p50_s']} s p99 {r['cpu_p99_s']} s max "
             f"{r['cpu_max_s']} s ({r['calls_over_1s']} of {r['calls']} calls over 1 s, the "
-            f"first included: {r['first_call_s']} s after {r['preprocess_s']} s of "
+            f"first included, which took {r['first_call_s']} s after {r['preprocess_s']} s of "
             f"preprocessing; tables ahead between calls p99 "
             f"{r['warm_p99_s']} s), peak RSS {r['peak_rss_mb']} MB "
             f"(validator {r['validator_peak_rss_mb']} MB), valid"
