@@ -188,7 +188,7 @@ def guided_cell_tables(grid: Grid, goals: Sequence[int], forward: npt.NDArray[np
         # the cell behind each cell in each heading: the one whose forward move enters it
         behind = _ahead(grid).reshape(n, 4)[:, [2, 3, 0, 1]]
         behind[~free] = n
-        behind[behind < n] = np.where(free[np.minimum(behind, n - 1)], behind, n)[behind < n]
+        behind[~np.append(free, False)[behind]] = n  # a blocked cell is behind nobody
         pred = np.vstack([behind, np.full((1, 4), n)]).astype(np.int32)
         cost = np.append(forward, np.full(4, MOVE)).astype(np.int32)[
             np.minimum(4 * pred.astype(np.int64) + np.arange(4), 4 * n)]

@@ -43,6 +43,7 @@ from gateway.planning.guidance import (
     guided_tables,
 )
 from gateway.planning.lns import refine
+from gateway.planning.motion import HEADING_MOVES
 
 UNREACHABLE = 32000
 """Distance of a state that cannot reach the goal (tables are int16)."""
@@ -105,7 +106,7 @@ class StateSpace:
         self.turn = turn
         """What a turn costs under a :attr:`guidance` (tables and :meth:`costs`)."""
         self._forward: list[int] = guidance.tolist() if guidance is not None else []
-        self._heading_to = {1: 0, grid.width: 1, -1: 2, -grid.width: 3}
+        self._heading_to = {dx + dy * grid.width: h for h, (dx, dy) in enumerate(HEADING_MOVES)}
         self._lanes = guidance
         self._calls = 0  # guided calls so far (:meth:`guide`)
         self._searched: dict[int, int] = {}  # goal -> the guided call its table is from
