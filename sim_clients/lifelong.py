@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gateway.execution.lifelong.errands import ErrandBook, TaskDistances
-from gateway.execution.lifelong.executor import WindowPlanner, window_request
+from gateway.execution.lifelong.executor import Segment, WindowPlanner, window_request
 from gateway.execution.lifelong.live_adg import CCW, CW, FORWARD, LiveADG
 from gateway.execution.lifelong.tasks import SCHEDULERS, TaskPool, wait_percentiles
 from gateway.planning.guidance import (
@@ -368,43 +368,48 @@ def run_lifelong(cfg: LifelongConfig,
         for r in range(n):
             errands_reached(r, t)
 
+    def plan(t: int) -> tuple[Segment, list[int], float]:
+        """The planning call at tick ``t``: its window, the tasks it works on (for
+        :meth:`~gateway.execution.lifelong.errands.ErrandBook.register`) and its CPU seconds.
+        Python's cyclic collector is paused in it: it runs between calls."""
+        with _collector_paused():
+            cpu0 = time.thread_time()
+            # a delayed robot's actions not started yet are taken back, with every action
+            # that waits on them (a robot behind it), so the window plans those robots anew
+            # around it instead of leaving them queued behind it for the whole delay
+            adg.retract([(1 if progress[r] else 0) if delayed[r] else adg.pending(r)
+                         for r in range(n)], cell, heading)
+            book.retract(adg.appended, t)
+            # a robot's new moves start when it can make them: it waits in the window for its
+            # committed actions but one (the one it finishes while the next window arrives), so
+            # others do not plan to enter cells it leaves long after the plan says; robots in a
+            # delay compete for tasks with a charge, and others are planned around them
+            hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
+                    for r in range(n)]
+            # unstarted tasks go back to the scheduler, of at most reassign_batch robots in
+            # turn (the matching's work grows with the robots it places)
+            first = len(planner_times) // max(1, cfg.reassign) * cfg.reassign_batch
+            req, assigned = window_request(
+                len(planner_times), book, adg, schedule, distances, t,
+                release=bool(cfg.reassign) and len(planner_times) % cfg.reassign == 0,
+                release_robots=None if cfg.reassign_batch >= n else
+                [(first + i) % n for i in range(cfg.reassign_batch)],
+                late=delayed, hold=hold, steps=window, turning=cfg.turning)
+            for _, task_id in assigned:
+                if task_id not in recorded:
+                    recorded.add(task_id)
+                    task = pool.tasks[task_id]
+                    released.append((task_id, task.release_tick, task.errands))
+            win = planner(req)
+            return win, book.planned(win.reached), time.thread_time() - cpu0
+
     delayed = [False] * n
     for t in range(cfg.ticks):
         if pending is not None and pending.arrival <= t:
             apply(t, pending.states, pending.reached, pending.tasks_of)
             pending = None
         if pending is None and t >= next_call:
-            with _collector_paused():  # Python's cyclic collector runs between calls
-                cpu0 = time.thread_time()
-                # a delayed robot's actions not started yet are taken back, with every action
-                # that waits on them (a robot behind it), so the window plans those robots anew
-                # around it instead of leaving them queued behind it for the whole delay
-                adg.retract([(1 if progress[r] else 0) if delayed[r] else adg.pending(r)
-                             for r in range(n)], cell, heading)
-                book.retract(adg.appended, t)
-                # a robot's new moves start when it can make them: it waits in the window for its
-                # committed actions but one (the one it finishes while the next window arrives), so
-                # others do not plan to enter cells it leaves long after the plan says; robots in a
-                # delay compete for tasks with a charge, and others are planned around them
-                hold = [-(-(adg.pending(r) * counter - progress[r]) // counter) - 1
-                        for r in range(n)]
-                # unstarted tasks go back to the scheduler, of at most reassign_batch robots in
-                # turn (the matching's work grows with the robots it places)
-                first = len(planner_times) // max(1, cfg.reassign) * cfg.reassign_batch
-                req, assigned = window_request(
-                    len(planner_times), book, adg, schedule, distances, t,
-                    release=bool(cfg.reassign) and len(planner_times) % cfg.reassign == 0,
-                    release_robots=None if cfg.reassign_batch >= n else
-                    [(first + i) % n for i in range(cfg.reassign_batch)],
-                    late=delayed, hold=hold, steps=window, turning=cfg.turning)
-                for _, task_id in assigned:
-                    if task_id not in recorded:
-                        recorded.add(task_id)
-                        task = pool.tasks[task_id]
-                        released.append((task_id, task.release_tick, task.errands))
-                win = planner(req)
-                tasks_of = book.planned(win.reached)
-                cpu = time.thread_time() - cpu0
+            win, tasks_of, cpu = plan(t)
             planner_times.append(cpu)
             if cfg.warm:  # tables for after the robots' present errands, before they are due
                 cpu0 = time.thread_time()
