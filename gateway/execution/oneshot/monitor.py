@@ -16,8 +16,8 @@ none is left).
 
 :class:`Monitor` keeps all of this up to date by re-evaluating only the descendants of what
 changed, in topological order, and stops where values do not change. On a large plan a tick that
-re-clamps many late frontier actions instead recomputes every vertex with numpy, plan step by
-plan step (the same operations, so the same values); fleet and robot slack are numpy maxima
+re-clamps many late frontier actions instead recomputes every vertex of the plan's future in
+one compiled pass (the same operations, so the same values); fleet and robot slack are numpy maxima
 over the not-started vertices. :func:`algorithm1` is the
 plain full recomputation (the paper's Algorithm 1, timestep by timestep); tests use it as the
 oracle and ``bench/monitor.py`` as the baseline.
@@ -37,69 +37,51 @@ import numpy.typing as npt
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.oneshot.adg import ADG
+from gateway.execution.oneshot.monitor_kernel import recompute
 from gateway.execution.params import PAPER
 
 NOT_STARTED, STARTED, DONE = 0, 1, 2
 _READY_KIND, _STARTED_KIND = 0, 1
 VECTOR_MIN_VERTICES = 4000
 """From this many vertices (and ``VECTOR_MIN_ACTIVE`` late frontier actions), a tick
-recomputes every estimate with numpy, step by step, instead of propagating vertex by vertex:
-with a large fleet about half the frontier is late at any tick and moves most of the plan's
-future, which costs ~2.5 us per vertex in Python but ~0.1 us vectorised."""
+recomputes every estimate of the plan's future in one compiled pass instead of propagating
+vertex by vertex: with a large fleet about half the frontier is late at any tick and moves most
+of the plan's future, which costs ~2.5 us per vertex in Python, a few ns compiled."""
 VECTOR_MIN_ACTIVE = 32
 
 IntArray = npt.NDArray[np.int64]
 
 
-def _gather(ptr: IntArray, flat: IntArray, verts: IntArray) -> tuple[IntArray, IntArray]:
-    """The CSR rows of ``verts`` concatenated, and where each starts (for ``reduceat``)."""
-    counts = ptr[verts + 1] - ptr[verts]
-    offsets = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.int64)
-    idx = np.repeat(ptr[verts] - offsets, counts) + np.arange(int(counts.sum()))
-    return flat[idx], offsets
-
-
 @dataclass(frozen=True)
-class _Layer:
-    """One plan step's vertices with the gather indices of a vectorised Algorithm 1 pass:
-    those with predecessors (``pred_flat``/``pred_off``), those without (their robots), and
-    those with Type 2 tails (``t2_flat``/``t2_off``; ``prev`` is the Type 1 predecessor, or
-    the robot in ``t2_robot`` for a first action)."""
+class _Layers:
+    """The ADG's vertices by level (every edge goes to a higher level: ``ADG.level``), as
+    the compiled full pass reads them (:func:`~gateway.execution.oneshot.monitor_kernel.
+    recompute`): ``order`` the vertices, level by level, ``layer_ptr`` where each level
+    starts in it; the ADG's CSR arrays and per-vertex robot and first-action flags."""
 
-    with_pred: IntArray
-    pred_flat: IntArray
-    pred_off: IntArray
-    no_pred: IntArray
-    no_pred_robot: IntArray
-    with_t2: IntArray
-    t2_flat: IntArray
-    t2_off: IntArray
-    t2_first: npt.NDArray[np.bool_]
-    t2_robot: IntArray
-    t2_prev: IntArray
+    order: IntArray
+    layer_ptr: IntArray
+    pred_ptr: IntArray
+    pred: IntArray
+    t2_ptr: IntArray
+    t2: IntArray
+    robot_of: IntArray
+    is_first: npt.NDArray[np.uint8]
+
+    @classmethod
+    def of(cls, adg: ADG) -> _Layers:
+        """``adg``'s layers."""
+        step = np.asarray(adg.level, dtype=np.int64)
+        order = np.argsort(step, kind="stable").astype(np.int64)
+        starts = np.flatnonzero(np.diff(step[order])) + 1
+        layer_ptr = np.concatenate(([0], starts, [len(order)])).astype(np.int64)
+        return cls(order, layer_ptr, np.asarray(adg.pred_ptr, np.int64),
+                   np.asarray(adg.pred, np.int64), np.asarray(adg.t2_pred_ptr, np.int64),
+                   np.asarray(adg.t2_pred, np.int64), np.asarray(adg.robot_of, np.int64),
+                   np.frombuffer(bytes(adg.is_first), np.uint8))
 
 
-def _layers(adg: ADG) -> list[_Layer]:
-    """The ADG's vertices by level: every edge goes to a higher level (``ADG.level``)."""
-    step = np.asarray(adg.level, dtype=np.int64)
-    order = np.argsort(step, kind="stable")
-    pred_ptr, pred = np.asarray(adg.pred_ptr, np.int64), np.asarray(adg.pred, np.int64)
-    t2_ptr, t2 = np.asarray(adg.t2_pred_ptr, np.int64), np.asarray(adg.t2_pred, np.int64)
-    robot_of = np.asarray(adg.robot_of, np.int64)
-    is_first = np.frombuffer(bytes(adg.is_first), np.uint8).astype(bool)
-    out = []
-    for verts in np.split(order, np.flatnonzero(np.diff(step[order])) + 1):
-        if not verts.size:
-            continue
-        has = pred_ptr[verts + 1] > pred_ptr[verts]
-        vp, vn = verts[has], verts[~has]
-        pflat, poff = _gather(pred_ptr, pred, vp)
-        vt = verts[t2_ptr[verts + 1] > t2_ptr[verts]]
-        tflat, toff = _gather(t2_ptr, t2, vt)
-        first = is_first[vt]
-        out.append(_Layer(vp, pflat, poff, vn, robot_of[vn], vt, tflat, toff, first,
-                          robot_of[vt], np.where(first, 0, vt - 1)))
-    return out
+_NO_HOLDS = np.empty(0, dtype=np.float64)
 
 
 def _per_vertex(action_ms: float | Sequence[float], nv: int) -> array[float]:
@@ -159,7 +141,7 @@ class Monitor:
         self._active: set[int] = set()
         self._queued = bytearray(nv)
         self._tc = array("d", [math.nan]) * nv  # every vertex "changes" at first evaluation
-        self._layer_cache: list[_Layer] | None = None
+        self._layer_cache: _Layers | None = None
         self._done_layers = 0  # leading layers of the cache that a full pass leaves alone
         self._hold: dict[int, float] = {}  # see with_holds
         self._hold_np: npt.NDArray[np.float64] | None = None
@@ -169,7 +151,7 @@ class Monitor:
         # is a function of its predecessors, evaluated in topological order)
         self._pending: list[int] = []
         self._delta0 = self._delta  # (a copy of Δ once it is computed, below)
-        if nv >= VECTOR_MIN_VERTICES:  # the same values, vectorised level by level
+        if nv >= VECTOR_MIN_VERTICES:  # the same values, in one compiled pass
             self._views()
             self._recompute()
         else:
@@ -332,7 +314,8 @@ class Monitor:
             self._propagate(seeds)
 
     def _recompute(self) -> None:
-        """Every estimate and Δ from scratch, vectorised step by step: the same operations as
+        """Every estimate and Δ from scratch, compiled vertex by vertex in level order
+        (:mod:`gateway.execution.oneshot.monitor_kernel`): the same operations as
         :meth:`_propagate` on every vertex (so the same values), for when most would move.
 
         Except the leading layers that are done: once every action of a layer and of all the
@@ -341,41 +324,15 @@ class Monitor:
         write the same values again and leave it out. A large fleet's tick then costs the
         plan's future, not the whole plan."""
         if self._layer_cache is None:
-            self._layer_cache = _layers(self.adg)
+            self._layer_cache = _Layers.of(self.adg)
             self._done_layers = 0
-        layers = self._layer_cache
-        state, remaining = self._np_state, self._np_remaining
-        ts, tc, delta = self._np_ts, self._np_tc, self._np_delta
-        release = np.asarray(self.release_ms, dtype=np.float64)
-        now, tx = self.now_ms, self._np_tx
-        done = self._done_layers
-        for layer in layers[done:]:
-            for verts, start in (
-                    (layer.with_pred, np.maximum.reduceat(tc[layer.pred_flat], layer.pred_off)
-                     if layer.with_pred.size else None),
-                    (layer.no_pred, release[layer.no_pred_robot])):
-                if start is None or not verts.size:
-                    continue
-                st = state[verts]
-                waiting = st == NOT_STARTED
-                v0, t0 = verts[waiting], start[waiting]
-                t0 = np.where((t0 < now) & (remaining[v0] == 0), now, t0)
-                if self._hold_np is not None:
-                    t0 = np.maximum(t0, self._hold_np[v0])
-                ts[v0] = t0
-                tc[v0] = t0 + tx[v0]
-                v1 = verts[st == STARTED]
-                tc[v1] = np.maximum(ts[v1] + tx[v1], now)
-                if self._hold_np is not None:
-                    tc[v1] = np.maximum(tc[v1], self._hold_np[v1])
-            if layer.with_t2.size:
-                prev = np.where(layer.t2_first, release[layer.t2_robot], tc[layer.t2_prev])
-                d = np.maximum.reduceat(tc[layer.t2_flat], layer.t2_off) - prev
-                delta[layer.with_t2] = np.maximum(d, 0.0)
-        while done < len(layers) and (state[layers[done].with_pred] == DONE).all() \
-                and (state[layers[done].no_pred] == DONE).all():
-            done += 1  # computed in this pass with it and every layer before it done
-        self._done_layers = done
+        lay = self._layer_cache
+        self._done_layers = recompute(
+            lay.order, lay.layer_ptr, self._done_layers, lay.pred_ptr, lay.pred, lay.t2_ptr,
+            lay.t2, lay.robot_of, lay.is_first, self._np_state, self._np_remaining,
+            self._np_ts, self._np_tc, self._np_delta,
+            np.asarray(self.release_ms, dtype=np.float64), self._np_tx,
+            _NO_HOLDS if self._hold_np is None else self._hold_np, self.now_ms)
 
     def _max_growth(self, lo: int, hi: int) -> float:
         """Largest Δ̄ over the not-started vertices ``lo..hi-1`` (0 if there is none)."""
