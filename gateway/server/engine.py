@@ -62,6 +62,7 @@ from gateway.server.items import (
     Item,
     OwnerCall,
     RobotReport,
+    RobotReports,
     SolverDone,
 )
 from gateway.server.metrics import Metrics
@@ -363,7 +364,7 @@ class Engine:
         wake = core.next_wakeup_ms() if core is not None else None
         return min(t, wake) if wake is not None and wake > after else t
 
-    def _handle_safely(self, item: Item) -> None:
+    def _handle_safely(self, item: Item | RobotReport) -> None:
         try:
             self._handle(item)
         except Exception:  # never let one bad item kill the owner task
@@ -373,8 +374,12 @@ class Engine:
             elif isinstance(item, RobotReport):
                 item.session.error(ErrorCode.INTERNAL, item.msg_id or None, "internal error")
 
-    def _handle(self, item: Item) -> None:
-        if isinstance(item, Inbound):
+    def _handle(self, item: Item | RobotReport) -> None:
+        if isinstance(item, RobotReports):
+            self._uncommitted += len(item.reports) - 1  # (a group commit counts reports)
+            for report in item.reports:
+                self._handle_safely(report)
+        elif isinstance(item, Inbound):
             self._inbound(item)
         elif isinstance(item, RobotReport):
             self._robot_report(item)
