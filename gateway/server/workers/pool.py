@@ -247,6 +247,16 @@ class WorkerPool:
         if reports:
             put(RobotReports(reports))
 
+    def hold(self, on: bool) -> None:
+        """Leave the workers' frames unread (``on``), or read them again (an
+        :attr:`Engine.holding <gateway.server.engine.Engine.holding>` hook: within a loop turn
+        of the release, what they sent meanwhile is delivered)."""
+        for handle in self._handles.values():
+            if on:
+                handle.channel.transport.pause_reading()
+            else:
+                handle.channel.transport.resume_reading()
+
     def _count(self, handle: _Handle, counts: dict[str, dict[str, float]]) -> None:
         """Add what a worker counted since its last answer to the owner's metrics."""
         metrics = self._metrics
