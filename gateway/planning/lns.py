@@ -168,7 +168,7 @@ def refine(space: GuidedSpace, width: int, states: list[list[int]],
     if n == 0 or steps == 0 or iterations <= 0:
         return 0
     cell_of = space.cell_of
-    size = len(cell_of) // 4
+    size = len(cell_of) // 4  # four headings a cell: the turning states
     paths = [[row[r] for row in states] for r in range(n)]
     occ = [[-1] * size for _ in range(steps + 1)]
     for r, path in enumerate(paths):
@@ -178,7 +178,7 @@ def refine(space: GuidedSpace, width: int, states: list[list[int]],
     avoided = set(avoid)
     holds = hold if hold is not None else [0] * n
     gained = 0
-    slow = [r for r in range(n) if goals[r] and _stalls(paths[r], holds[r])]
+    slow = [r for r in range(n) if goals[r] and _stalls(paths[r], holds[r], cell_of)]
     for _ in range(iterations if slow else 0):
         seed = slow[int(rng.random() * len(slow))]
         group = _neighbours(seed, paths, occ[0], cell_of, width, size)
@@ -217,9 +217,10 @@ def refine(space: GuidedSpace, width: int, states: list[list[int]],
     return gained
 
 
-def _stalls(path: Sequence[int], hold: int) -> bool:
-    """Whether a path waits or turns after its ``hold`` timesteps."""
-    return any(path[t] >> 2 == path[t - 1] >> 2 for t in range(hold + 1, len(path)))
+def _stalls(path: Sequence[int], hold: int, cell_of: Sequence[int]) -> bool:
+    """Whether a path (of states; ``cell_of``: state -> cell) waits or turns after its
+    ``hold`` timesteps."""
+    return any(cell_of[path[t]] == cell_of[path[t - 1]] for t in range(hold + 1, len(path)))
 
 
 def _neighbours(seed: int, paths: Sequence[Sequence[int]], first: Sequence[int],

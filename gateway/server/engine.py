@@ -62,6 +62,7 @@ from gateway.server.items import (
     Item,
     OwnerCall,
     RobotReport,
+    RobotReports,
     SolverDone,
 )
 from gateway.server.metrics import Metrics
@@ -181,6 +182,11 @@ class Engine:
         tunes the garbage collector here; what they take is not charged to the run)."""
         self.before_commit: list[Callable[[], None]] = []
         """Called before each commit (the task journal appends the task events here)."""
+        self.holding: list[Callable[[bool], None]] = []
+        """Called with True before the owner task's batch wait and with False after it: a
+        source of items may hold them meanwhile, if it queues them within a loop turn of the
+        release (the workers' channels: their frames are then read once a batch, and the owner
+        process is not woken for each)."""
         self._tick_failing = False  # the last monitor tick raised (logged once per streak)
         self._flushing: set[int] = set()  # robots whose session's effects are being carried out
         self._routing = False  # a batch of executor commands is being routed
@@ -278,7 +284,15 @@ class Engine:
         loop = asyncio.get_running_loop()
         wait = self._batch_at + self._batch_s - loop.time()
         if wait > 0:
+            for hold in self.holding:
+                hold(True)
             await self._waiting(asyncio.sleep(wait))
+            if self.holding:
+                for hold in self.holding:
+                    hold(False)
+                # what was held is queued in the next turn (its reads follow this task's step)
+                await self._waiting(asyncio.sleep(0))
+                await self._waiting(asyncio.sleep(0))
         self._batch_at = loop.time()
 
     def _arm_tick(self, at_ms: float) -> None:
@@ -363,7 +377,7 @@ class Engine:
         wake = core.next_wakeup_ms() if core is not None else None
         return min(t, wake) if wake is not None and wake > after else t
 
-    def _handle_safely(self, item: Item) -> None:
+    def _handle_safely(self, item: Item | RobotReport) -> None:
         try:
             self._handle(item)
         except Exception:  # never let one bad item kill the owner task
@@ -373,8 +387,12 @@ class Engine:
             elif isinstance(item, RobotReport):
                 item.session.error(ErrorCode.INTERNAL, item.msg_id or None, "internal error")
 
-    def _handle(self, item: Item) -> None:
-        if isinstance(item, Inbound):
+    def _handle(self, item: Item | RobotReport) -> None:
+        if isinstance(item, RobotReports):
+            self._uncommitted += len(item.reports) - 1  # (a group commit counts reports)
+            for report in item.reports:
+                self._handle_safely(report)
+        elif isinstance(item, Inbound):
             self._inbound(item)
         elif isinstance(item, RobotReport):
             self._robot_report(item)

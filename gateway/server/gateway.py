@@ -284,6 +284,7 @@ class Gateway(ConnectionServer):
             owner_path = os.path.join(self._private.name, "owner.sock")
             await self._server.start_unix(owner_path)
             self.workers = WorkerPool(cfg, self.engine.queue, self.clock, self.metrics)
+            self.engine.holding.append(self.workers.hold)
             try:
                 self.port = await self.workers.start(host, port, owner_path)
             except RuntimeError as exc:

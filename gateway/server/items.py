@@ -46,6 +46,14 @@ class RobotReport:
     at_ms: float
 
 
+@dataclass(slots=True)
+class RobotReports:
+    """The robot reports of one frame from a worker process, in order: one queue item (and
+    one turn of the owner task's loop) for them all."""
+
+    reports: list[RobotReport]
+
+
 @dataclass
 class Connected:
     """A session was opened."""
@@ -88,5 +96,5 @@ class OwnerCall:
     fn: Callable[[], None]
 
 
-Item = Inbound | RobotReport | Connected | Disconnected | InternalCommand | SolverDone | OwnerCall
+Item = Inbound | RobotReports | Connected | Disconnected | InternalCommand | SolverDone | OwnerCall
 Reply = Session | asyncio.Future[tuple[ErrorCode | None, str]] | None

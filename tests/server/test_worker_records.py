@@ -6,12 +6,13 @@ so a field added to one of them fails here rather than being dropped on the way.
 from __future__ import annotations
 
 import asyncio
+import itertools
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.server.workers.channel import frame, read_batch
+from gateway.server.workers.channel import Channel, batch_of, frame
 from gateway.server.workers.records import (
     MESSAGE,
     REPORT,
@@ -32,9 +33,10 @@ ROBOT_TYPES = {"hello", "ack", "started", "finished", "blocked", "unblocked", "c
 def _across(ops: list[Op]) -> list[Op]:
     """``ops`` after one trip through the channel's framing."""
     async def go() -> list[Op]:
-        reader = asyncio.StreamReader()
-        reader.feed_data(frame(ops))
-        return await read_batch(reader)
+        got: list[list[Op]] = []
+        Channel(lambda payload: got.append(batch_of(payload))).data_received(frame(ops))
+        [batch] = got
+        return batch
 
     return asyncio.run(go())
 
@@ -80,3 +82,26 @@ def test_reports_cross_unchanged(kind: type[AnyMessage], msg_id: str,
     [op] = _across([event(1, sent, 0.0)])
     assert op[3:6] == (sent.type, msg_id, fields["action_id"])
     assert pose(*op[6:9]) == fields.get("pose")
+
+
+@settings(max_examples=80, deadline=None)
+@given(batches=st.lists(st.lists(st.tuples(st.integers(0, 5), st.integers(0, 10**6),
+                                           st.text(max_size=300)), max_size=20),
+                        min_size=1, max_size=8),
+       cuts=st.lists(st.integers(0, 10**5), max_size=12))
+def test_the_channel_hands_over_each_frame_whole_however_the_bytes_arrive(
+        batches: list[list[Op]], cuts: list[int]) -> None:
+    frames = [frame(ops) for ops in batches]
+    stream = b"".join(frames)
+    ends = list(itertools.accumulate(len(f) for f in frames))
+    bounds = sorted({c % (len(stream) + 1) for c in cuts} | {0, len(stream)})
+
+    async def go() -> list[list[Op]]:
+        got: list[list[Op]] = []
+        channel = Channel(lambda payload: got.append(batch_of(payload)))
+        for a, b in itertools.pairwise(bounds):
+            channel.data_received(stream[a:b])
+            assert len(got) == sum(end <= b for end in ends)  # each frame once it is whole
+        return got
+
+    assert asyncio.run(go()) == batches

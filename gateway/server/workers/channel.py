@@ -28,26 +28,63 @@ def frame(ops: list[Op]) -> bytes:
     return _framed(marshal.dumps(ops))
 
 
-async def _payload(reader: asyncio.StreamReader) -> bytes:
-    (size,) = _HEADER.unpack(await reader.readexactly(_HEADER.size))
-    return await reader.readexactly(size)
-
-
-async def read_batch(reader: asyncio.StreamReader) -> list[Op]:
-    """The next batch; :class:`asyncio.IncompleteReadError` once the other end is gone."""
-    batch: list[Op] = marshal.loads(await _payload(reader))
-    return batch
-
-
 def start_frame(start: tuple[Any, ...]) -> bytes:
     """The frame of a worker's start (pickled: it carries the config)."""
     return _framed(pickle.dumps(start, protocol=pickle.HIGHEST_PROTOCOL))
 
 
-async def read_start(reader: asyncio.StreamReader) -> tuple[Any, ...]:
-    """A worker's start (:func:`start_frame`)."""
-    start: tuple[Any, ...] = pickle.loads(await _payload(reader))
-    return start
+def batch_of(payload: bytes | memoryview) -> list[Op]:
+    """The batch of a frame's payload."""
+    ops: list[Op] = marshal.loads(payload)
+    return ops
+
+
+def start_of(payload: bytes | memoryview) -> tuple[Any, ...]:
+    """The worker's start of a :func:`start_frame`'s payload."""
+    loaded: tuple[Any, ...] = pickle.loads(payload)
+    return loaded
+
+
+async def first_done(*futures: asyncio.Future[Any]) -> None:
+    """Wait until one of ``futures`` is done (a frame expected, or the channel closed)."""
+    await asyncio.wait(futures, return_when=asyncio.FIRST_COMPLETED)
+
+
+class Channel(asyncio.Protocol):
+    """One end of the channel as a protocol: the payload of each whole frame goes to
+    ``received`` as its bytes arrive (several frames of one read in one call each, no task
+    woken and no await per frame); ``closed`` is done once the other end is gone.
+    ``received`` may be replaced between frames (a start, then batches)."""
+
+    def __init__(self, received: Callable[[memoryview], None]) -> None:
+        self.received = received
+        self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._pending = b""  # the start of a frame not whole yet
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        """Keep the transport (to write to the other end)."""
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+
+    def data_received(self, data: bytes) -> None:
+        """Hand over every frame now whole; keep the rest."""
+        if self._pending:
+            data = self._pending + data
+        view = memoryview(data)
+        at, end = 0, len(data)
+        while end - at >= _HEADER.size:
+            (size,) = _HEADER.unpack_from(view, at)
+            stop = at + _HEADER.size + size
+            if stop > end:
+                break
+            self.received(view[at + _HEADER.size:stop])
+            at = stop
+        self._pending = data[at:]
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        """The other end is gone (or this one closed)."""
+        if not self.closed.done():
+            self.closed.set_result(None)
 
 
 class Outbox:
@@ -56,10 +93,10 @@ class Outbox:
     ``limit``: once more than that many bytes wait in this process for the other end to read
     them, ``overflow`` is called (and nothing more is written)."""
 
-    def __init__(self, writer: asyncio.StreamWriter, limit: int | None = None,
+    def __init__(self, transport: asyncio.Transport, limit: int | None = None,
                  overflow: Callable[[int], None] | None = None, interval_s: float = 0.0
                  ) -> None:
-        self._writer = writer
+        self._transport = transport
         self._turn: PerTurn[Op] = PerTurn(self._write, interval_s)
         self._limit = limit
         self._overflow = overflow
@@ -70,12 +107,12 @@ class Outbox:
         self._turn.add(op)
 
     def _write(self, ops: list[Op]) -> None:
-        writer = self._writer
-        if self.overflowed or writer.is_closing():
+        transport = self._transport
+        if self.overflowed or transport.is_closing():
             return
-        writer.write(frame(ops))
+        transport.write(frame(ops))
         if self._limit is not None:
-            waiting = writer.transport.get_write_buffer_size()
+            waiting = transport.get_write_buffer_size()
             if waiting > self._limit:
                 self.overflowed = True
                 if self._overflow is not None:

@@ -19,10 +19,17 @@ from pathlib import Path
 
 from gateway.server.clock import Clock
 from gateway.server.config import GatewayConfig
-from gateway.server.items import Connected, Disconnected, Inbound, Item, RobotReport
+from gateway.server.items import (
+    Connected,
+    Disconnected,
+    Inbound,
+    Item,
+    RobotReport,
+    RobotReports,
+)
 from gateway.server.metrics import Metrics
 from gateway.server.wire.auth import Peer
-from gateway.server.workers.channel import Outbox, read_batch, start_frame
+from gateway.server.workers.channel import Channel, Outbox, batch_of, first_done, start_frame
 from gateway.server.workers.records import (
     CLOSED,
     MESSAGE,
@@ -63,10 +70,12 @@ class _Handle:
 
     index: int
     process: asyncio.subprocess.Process
-    reader: asyncio.StreamReader
+    channel: Channel
     outbox: Outbox
-    writer: asyncio.StreamWriter
     sessions: dict[int, RemoteSession] = field(default_factory=dict)
+    ready: asyncio.Future[list[Op]] = field(
+        default_factory=lambda: asyncio.get_running_loop().create_future())
+    """Its first frame (its ready)."""
     ping_at: float | None = None
     """Loop time of its oldest ping not answered yet."""
     counts: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -139,42 +148,52 @@ class WorkerPool:
                 start_new_session=True)  # no terminal Ctrl-C
         finally:
             theirs.close()
+        loop = asyncio.get_running_loop()
+        channel = Channel(lambda payload: self._received(handle, payload))
         try:
-            reader, writer = await asyncio.open_unix_connection(sock=ours)
-            writer.write(start_frame(("start", self._config, *self._where)))
+            await loop.create_unix_connection(lambda: channel, sock=ours)
+            outbox = Outbox(channel.transport, self._config.worker_buffer_bytes,
+                            lambda n: self._hung(handle, f"{n} bytes unread"))
+            handle = _Handle(index, process, channel, outbox)
+            channel.transport.write(start_frame(("start", self._config, *self._where)))
             async with asyncio.timeout(START_TIMEOUT_S):
-                ready = await read_batch(reader)
+                await first_done(handle.ready, channel.closed)
+            if not handle.ready.done():
+                raise ConnectionError("the channel closed")
         except BaseException as exc:  # no worker is left behind by a failed or cancelled start
             with contextlib.suppress(ProcessLookupError):
                 process.kill()
             await asyncio.shield(process.wait())
-            if isinstance(exc, TimeoutError | asyncio.IncompleteReadError):
+            if isinstance(exc, TimeoutError | ConnectionError):
                 raise RuntimeError(f"worker {index} did not start (exit "
                                    f"{process.returncode})") from None
             raise
-        assert ready == [("ready",)], ready
-        outbox = Outbox(writer, self._config.worker_buffer_bytes,
-                        lambda n: self._hung(handle, f"{n} bytes unread"))
-        handle = _Handle(index, process, reader, outbox, writer)
+        assert handle.ready.result() == [("ready",)], handle.ready.result()
         self._handles[index] = handle
-        task = asyncio.get_running_loop().create_task(self._serve(handle),
-                                                      name=f"worker-{index}")
+        task = loop.create_task(self._serve(handle), name=f"worker-{index}")
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
+    def _received(self, handle: _Handle, payload: memoryview) -> None:
+        """A frame from a worker: its first is its ready, the rest its events."""
+        ops = batch_of(payload)
+        if handle.ready.done():
+            self._deliver(handle, ops)
+        else:
+            handle.ready.set_result(ops)
+
     async def _serve(self, handle: _Handle) -> None:
-        """Deliver a worker's events until it ends; then restart it (unless stopping)."""
+        """Once a worker's channel closes (its events were delivered as they arrived, by
+        :attr:`Channel.received`): its robots are disconnected; restart it (unless
+        stopping)."""
         try:
-            while True:
-                self._deliver(handle, await read_batch(handle.reader))
-        except (asyncio.IncompleteReadError, ConnectionError):
-            pass
+            await handle.channel.closed
         finally:
             for session in handle.sessions.values():
                 session.closing = True
                 self._queue.put_nowait(Disconnected(session))
             handle.sessions.clear()
-            handle.writer.close()
+            handle.channel.transport.close()
             self._handles.pop(handle.index, None)
         code = await handle.process.wait()
         delay = 0.1
@@ -191,21 +210,28 @@ class WorkerPool:
             return
 
     def _deliver(self, handle: _Handle, ops: list[Op]) -> None:
-        """A worker's batch as engine queue items (its messages arrive at this plan time)."""
+        """A worker's batch as engine queue items (its messages arrive at this plan time):
+        each run of robot reports and states as ONE item (:class:`RobotReports`)."""
         now_ms = self._clock.now_ms()
         put = self._queue.put_nowait
         sessions = handle.sessions
+        reports: list[RobotReport] = []
         for op in ops:
             code = op[0]
             if code == REPORT:
                 _, sid, received, kind, ref, aid, x, y, heading = op
-                put(RobotReport(sessions[sid], kind, aid, ref, pose(x, y, heading), received,
-                                now_ms))
-            elif code == STATE:
+                reports.append(RobotReport(sessions[sid], kind, aid, ref, pose(x, y, heading),
+                                           received, now_ms))
+                continue
+            if code == STATE:
                 _, sid, received, x, y, heading = op
-                put(RobotReport(sessions[sid], "state", "", "", pose(x, y, heading), received,
-                                now_ms))
-            elif code == MESSAGE:
+                reports.append(RobotReport(sessions[sid], "state", "", "", pose(x, y, heading),
+                                           received, now_ms))
+                continue
+            if reports:
+                put(RobotReports(reports))
+                reports = []
+            if code == MESSAGE:
                 put(Inbound(sessions[op[1]], message(op), op[2], now_ms))
             elif code == OPENED:
                 session = sessions[op[1]] = RemoteSession(handle.outbox, op[1],
@@ -218,6 +244,18 @@ class WorkerPool:
             elif code == PONG:
                 handle.ping_at = None
                 self._count(handle, op[1])
+        if reports:
+            put(RobotReports(reports))
+
+    def hold(self, on: bool) -> None:
+        """Leave the workers' frames unread (``on``), or read them again (an
+        :attr:`Engine.holding <gateway.server.engine.Engine.holding>` hook: within a loop turn
+        of the release, what they sent meanwhile is delivered)."""
+        for handle in self._handles.values():
+            if on:
+                handle.channel.transport.pause_reading()
+            else:
+                handle.channel.transport.resume_reading()
 
     def _count(self, handle: _Handle, counts: dict[str, dict[str, float]]) -> None:
         """Add what a worker counted since its last answer to the owner's metrics."""
@@ -271,7 +309,7 @@ class WorkerPool:
         """End the workers (each closes its connections with 1001 when its channel closes)."""
         self._stopping = True
         for handle in list(self._handles.values()):
-            handle.writer.close()
+            handle.channel.transport.close()
         processes = [h.process for h in self._handles.values()]
         if processes:
             _, late = await asyncio.wait([asyncio.ensure_future(p.wait())

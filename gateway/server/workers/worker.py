@@ -17,6 +17,7 @@ import contextlib
 import pickle
 import socket
 import sys
+from typing import Any
 
 from gateway.server import gc_tuning
 from gateway.server.config import GatewayConfig
@@ -26,7 +27,7 @@ from gateway.server.wire.auth import Authenticator
 from gateway.server.wire.connections import ConnectionServer, raise_fd_limit
 from gateway.server.wire.session import LinkSession
 from gateway.server.wire.tls import server_context
-from gateway.server.workers.channel import Outbox, read_batch, read_start
+from gateway.server.workers.channel import Channel, Outbox, batch_of, first_done, start_of
 from gateway.server.workers.records import (
     ACTION,
     CLOSE,
@@ -123,19 +124,23 @@ class Worker(ConnectionServer):
 
 async def serve(fd: int) -> None:
     """Run a worker on the channel ``fd`` until the owner's end closes."""
-    reader, writer = await asyncio.open_unix_connection(sock=socket.socket(fileno=fd))
-    _, config, host, port, owner_path = await read_start(reader)
+    loop = asyncio.get_running_loop()
+    started: asyncio.Future[tuple[Any, ...]] = loop.create_future()
+    channel = Channel(lambda payload: started.set_result(start_of(payload)))
+    await loop.create_unix_connection(lambda: channel, sock=socket.socket(fileno=fd))
+    await first_done(started, channel.closed)
+    if not started.done():
+        return  # the owner died before it started this worker
+    _, config, host, port, owner_path = started.result()  # (no more comes before the ready)
     configure_logging(config.log_level, config.log_format, config.log_file)
-    outbox = Outbox(writer, interval_s=config.batch_ms / 1000.0)
+    outbox = Outbox(channel.transport, interval_s=config.batch_ms / 1000.0)
     worker = Worker(config, outbox)
+    channel.received = lambda payload: worker.apply(batch_of(payload))
     await worker.listen(host, port, owner_path)
     gc_tuning.tune_for_run()
     outbox.put(("ready",))
     try:
-        while True:
-            worker.apply(await read_batch(reader))
-    except (asyncio.IncompleteReadError, ConnectionError):
-        pass  # the owner stopped (or died): so does this worker
+        await channel.closed  # the owner stopped (or died): so does this worker
     finally:
         await worker.stop()
 
