@@ -148,10 +148,8 @@ class WorkerPool:
                 start_new_session=True)  # no terminal Ctrl-C
         finally:
             theirs.close()
-        loop = asyncio.get_running_loop()
-        channel = Channel(lambda payload: self._received(handle, payload))
         try:
-            await loop.create_unix_connection(lambda: channel, sock=ours)
+            channel = await Channel.connect(ours, lambda payload: self._received(handle, payload))
             outbox = Outbox(channel.transport, self._config.worker_buffer_bytes,
                             lambda n: self._hung(handle, f"{n} bytes unread"))
             handle = _Handle(index, process, channel, outbox)
@@ -170,7 +168,8 @@ class WorkerPool:
             raise
         assert handle.ready.result() == [("ready",)], handle.ready.result()
         self._handles[index] = handle
-        task = loop.create_task(self._serve(handle), name=f"worker-{index}")
+        task = asyncio.get_running_loop().create_task(self._serve(handle),
+                                                      name=f"worker-{index}")
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
