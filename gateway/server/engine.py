@@ -61,7 +61,6 @@ from gateway.server.items import (
     InternalCommand,
     Item,
     OwnerCall,
-    RobotReport,
     RobotReports,
     SolverDone,
 )
@@ -377,25 +376,19 @@ class Engine:
         wake = core.next_wakeup_ms() if core is not None else None
         return min(t, wake) if wake is not None and wake > after else t
 
-    def _handle_safely(self, item: Item | RobotReport) -> None:
+    def _handle_safely(self, item: Item) -> None:
         try:
             self._handle(item)
         except Exception:  # never let one bad item kill the owner task
             log.exception("internal error handling %s", type(item).__name__)
             if isinstance(item, Inbound):
                 item.session.error(ErrorCode.INTERNAL, item.message.msg_id, "internal error")
-            elif isinstance(item, RobotReport):
-                item.session.error(ErrorCode.INTERNAL, item.msg_id or None, "internal error")
 
-    def _handle(self, item: Item | RobotReport) -> None:
+    def _handle(self, item: Item) -> None:
         if isinstance(item, RobotReports):
-            self._uncommitted += len(item.reports) - 1  # (a group commit counts reports)
-            for report in item.reports:
-                self._handle_safely(report)
+            self._robot_reports(item)
         elif isinstance(item, Inbound):
             self._inbound(item)
-        elif isinstance(item, RobotReport):
-            self._robot_report(item)
         elif isinstance(item, Connected):
             self._connected(item.session)
         elif isinstance(item, Disconnected):
@@ -465,16 +458,23 @@ class Engine:
             case _:
                 self.operator.handle(msg, session)  # type: ignore[arg-type]
 
-    def _robot_report(self, item: RobotReport) -> None:
-        """What a worker process passed on as a :class:`RobotReport`."""
-        session, kind = item.session, item.kind
-        if kind == "ack":
-            self._ack(session, item.action_id, item.msg_id)
-        elif kind == "state":
-            self._sender(session).state(item.pose, session)
-        else:
-            self._report(session, cast(ReportKind, kind), item.action_id, item.msg_id,
-                         item.pose, item.received, item.at_ms)
+    def _robot_reports(self, item: RobotReports) -> None:
+        """What a worker process passed on as :class:`RobotReports`, in order (an internal
+        error in one is logged and answered; the others are handled)."""
+        self._uncommitted += len(item.reports) - 1  # (a group commit counts reports)
+        at_ms = item.at_ms
+        for session, kind, aid, ref, pose, received in item.reports:
+            try:
+                if kind == "state":
+                    self._sender(session).state(pose, session)
+                elif kind == "ack":
+                    self._ack(session, aid, ref)
+                else:
+                    self._report(session, cast(ReportKind, kind), aid, ref, pose, received,
+                                 at_ms)
+            except Exception:  # as _handle_safely: never let one bad report kill the owner
+                log.exception("internal error handling a robot report")
+                session.error(ErrorCode.INTERNAL, ref or None, "internal error")
 
     def _ack(self, session: Session, aid: str, ref: str) -> None:
         gs = self._sender(session)

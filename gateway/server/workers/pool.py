@@ -218,17 +218,15 @@ class WorkerPool:
         for op in ops:
             code = op[0]
             if code == REPORT:
-                _, sid, received, kind, ref, aid, x, y, heading = op
-                reports.append(RobotReport(sessions[sid], kind, aid, ref, pose(x, y, heading),
-                                           received, now_ms))
+                reports.append((sessions[op[1]], op[3], op[5], op[4], pose(op[6], op[7], op[8]),
+                                op[2]))
                 continue
             if code == STATE:
-                _, sid, received, x, y, heading = op
-                reports.append(RobotReport(sessions[sid], "state", "", "", pose(x, y, heading),
-                                           received, now_ms))
+                reports.append((sessions[op[1]], "state", "", "", pose(op[3], op[4], op[5]),
+                                op[2]))
                 continue
             if reports:
-                put(RobotReports(reports))
+                put(RobotReports(reports, now_ms))
                 reports = []
             if code == MESSAGE:
                 put(Inbound(sessions[op[1]], message(op), op[2], now_ms))
@@ -244,7 +242,7 @@ class WorkerPool:
                 handle.ping_at = None
                 self._count(handle, op[1])
         if reports:
-            put(RobotReports(reports))
+            put(RobotReports(reports, now_ms))
 
     def hold(self, on: bool) -> None:
         """Leave the workers' frames unread (``on``), or read them again (an
