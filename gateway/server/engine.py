@@ -181,6 +181,9 @@ class Engine:
         tunes the garbage collector here; what they take is not charged to the run)."""
         self.before_commit: list[Callable[[], None]] = []
         """Called before each commit (the task journal appends the task events here)."""
+        self.after_commit: list[Callable[[], None]] = []
+        """Called after each commit (the workers' channels write the owner's commands here,
+        in this turn rather than the next: what caused them is durable)."""
         self.holding: list[Callable[[bool], None]] = []
         """Called with True before the owner task's batch wait and with False after it: a
         source of items may hold them meanwhile, if it queues them within a loop turn of the
@@ -360,6 +363,8 @@ class Engine:
             if self.journal.commit():  # (a wake-up for acks and states alone writes none)
                 self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
+        for hook in self.after_commit:
+            hook()
 
     def _first_tick(self, now: float) -> float:
         """When ticking begins (a start, a resume): now if the core's wake-up is already due

@@ -114,6 +114,10 @@ class Outbox:
         """Queue ``op`` for this turn's frame."""
         self._turn.add(op)
 
+    def flush(self) -> None:
+        """Write this turn's frame now."""
+        self._turn.flush()
+
     def _write(self, ops: list[Op]) -> None:
         transport = self._transport
         if self.overflowed or transport.is_closing():

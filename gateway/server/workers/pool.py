@@ -254,6 +254,12 @@ class WorkerPool:
             else:
                 handle.channel.transport.resume_reading()
 
+    def flush(self) -> None:
+        """Write the owner's commands to each worker now (an :attr:`Engine.after_commit
+        <gateway.server.engine.Engine.after_commit>` hook: they are durable)."""
+        for handle in self._handles.values():
+            handle.outbox.flush()
+
     def _count(self, handle: _Handle, counts: dict[str, dict[str, float]]) -> None:
         """Add what a worker counted since its last answer to the owner's metrics."""
         metrics = self._metrics
