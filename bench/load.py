@@ -252,7 +252,9 @@ async def _serve(plan_file: Path, lookahead: int, journal: Path | None,
             elif status == "done":
                 pauses.stop()
 
-        gw.engine.status_listeners.append(measure)
+        # first: the collection that the gateway's own listener lets run once the run is done
+        # (gc_tuning.restore_defaults) is not one of the run's pauses
+        gw.engine.status_listeners.insert(0, measure)
         gw.engine.load(Problem(inst, "load", plan))
         port = await gw.listen()
         print(port, flush=True)
@@ -536,7 +538,9 @@ def run_once(robots: int, seconds: int, seed: int, jitter: float, lookahead: int
         checked = check_trace(records) if trace else None
     if checked is not None:  # the dispatches each finish released, as the gateway traced them
         lat = traced_latencies_ms(records, stats)
-        steady = traced_latencies_ms(records, stats, from_step=2)
+        # with lookahead L a robot holds actions 0..L at the start: its first finish releases
+        # action L + 1
+        steady = traced_latencies_ms(records, stats, from_step=lookahead + 2)
     else:
         lat = latencies_ms(plan, stats)
         steady = latencies_ms(plan, stats, from_step=2)

@@ -88,7 +88,7 @@ class Gateway(ConnectionServer):
             robots_need_cert=tls is not None and tls.client_ca is not None), Metrics())
         self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
         self.engine = Engine(self.config, self.clock, self.metrics)
-        self.engine.before_start.append(gc_tuning.tune_for_run)
+        self.engine.before_start.append(gc_tuning.pause_for_run)
         self.engine.status_listeners.append(_restore_gc_when_done)
         self._owner: asyncio.Task[None] | None = None
         self._server: HttpServer | None = None

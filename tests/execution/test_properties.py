@@ -8,12 +8,9 @@ force from the definition) have finished and that the robot's actions come in or
 
 from __future__ import annotations
 
-from unittest import mock
-
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.execution.oneshot import monitor
 from gateway.execution.oneshot.executor import Executor
 from gateway.execution.oneshot.policies import SlackReplan
 from gateway.planning.plan import Plan
@@ -89,20 +86,3 @@ def check_replanned_run(ex: Executor, driver: Driver, plan: Plan, drop_waits: bo
     # every robot ends on its goal; SOC counts the stop and the solver time
     assert [ex.robot_cell(k) for k in range(len(plan.paths))] == [p[-1] for p in plan.paths]
     assert done.soc_ms == sum(driver.last_finish)
-
-
-@settings(max_examples=100, deadline=None)
-@given(paths=plans(), seed=st.integers(0, 10**6), drop_waits=st.booleans(),
-       replan_at=st.integers(0, 8000), slack=st.booleans())
-def test_vectorised_ticks_equal_algorithm1(
-        paths: list[list[tuple[int, int]]], seed: int, drop_waits: bool, replan_at: int,
-        slack: bool) -> None:
-    # large fleets re-clamp at ticks with a numpy pass over every vertex instead of the
-    # incremental propagation; force it on these small plans (the Driver compares the monitor
-    # with the full Algorithm 1 recomputation after every event, exactly)
-    plan = Plan.of(paths)
-    policy = SlackReplan(500) if slack else None
-    with mock.patch.multiple(monitor, VECTOR_MIN_VERTICES=0, VECTOR_MIN_ACTIVE=0):
-        ex = Executor(plan, drop_waits=drop_waits, max_replans=2, policy=policy)
-        Driver(ex, seed, replan_at_ms=replan_at, abandon_prob=0.5).run()
-    assert ex.done

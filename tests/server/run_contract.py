@@ -53,7 +53,7 @@ class RunSetup:
 
 
 NOT_STATE = {"_record", "sink", "_out", "link", "grid", "distances", "scheduler", "leg",
-             "space", "_layer_cache", "_np_state", "_np_remaining", "_np_ts", "_np_tc",
+             "space", "_graph", "_np_state", "_np_remaining", "_np_ts", "_np_tc",
              "_np_delta", "_np_tx"}
 """Callbacks, drained output, configuration and caches (a rebuilt run has its own), and
 numpy views of compared arrays."""

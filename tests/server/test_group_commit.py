@@ -1,7 +1,8 @@
 """What makes a WMS's submissions cheap: a group commit (what the owner task finds queued
 together is committed in one transaction, at most ``GROUP_COMMIT_ITEMS`` items, and nothing is
 answered before its commit: the oracle for "durable" is the journal file read through a SQLite
-connection of its own), and the run's collector settings from a lifelong gateway's start."""
+connection of its own), and the run's collector settings: from a lifelong gateway's start, and
+none during a one-shot run."""
 
 from __future__ import annotations
 
@@ -16,10 +17,15 @@ import pytest
 
 from gateway.execution.lifelong.tasks import KEEP, NewTask, TaskPool
 from gateway.server import gc_tuning
+from gateway.server.clock import VirtualClock
 from gateway.server.engine import GROUP_COMMIT_ITEMS
 from gateway.server.gateway import Gateway
 from gateway.server.task_api.models import MAX_BATCH
+from protocol import Start
+from tests.server.conftest import LAB_PATHS, make_config
+from tests.server.robots import TestRobot
 from tests.server.task_client import call
+from tests.server.test_end_to_end import load, ws
 from tests.server.test_task_api import cells, lifelong_config
 
 OPERATOR = {"Authorization": "Bearer demo-operator"}
@@ -92,5 +98,35 @@ async def test_a_lifelong_gateway_collects_rarely_before_its_shift_starts() -> N
             assert gw.engine.lifelong is not None and not gw.engine.current_run.ticking
             assert gc.get_threshold() == gc_tuning.GC_THRESHOLDS
             assert gc.get_freeze_count() > 0
+    finally:
+        gc_tuning.restore_defaults()
+
+
+@pytest.mark.looptime
+async def test_a_one_shot_run_has_no_cyclic_collection_until_it_is_complete() -> None:
+    """Once a one-shot run starts, its objects are frozen and the cyclic collector is off
+    until the run is complete (then the defaults are back): no pass stalls the owner task."""
+    gc_tuning.restore_defaults()
+    seen: list[tuple[str, bool, bool]] = []
+    try:
+        async with Gateway(make_config(), clock=VirtualClock()) as gw:
+            gw.engine.status_listeners.append(
+                lambda status: seen.append((status, gc.isenabled(), gc.get_freeze_count() > 0)))
+            await gw.listen()
+            await load(gw, LAB_PATHS)
+            robots = [TestRobot(await ws(gw, f"demo-robot-{i}"), i, move_s=0.02)
+                      for i in range(3)]
+            for r in robots:
+                await r.hello()
+            tasks = [asyncio.create_task(r.run()) for r in robots]
+            assert gc.isenabled()  # loaded, not started: the defaults
+            await gw.command(Start(msg_id="s", seq=1))
+            assert not gc.isenabled() and gc.get_freeze_count() > 0
+            await asyncio.wait_for(gw.wait_done(), 20)
+            for t in tasks:
+                t.cancel()
+        assert ("running", False, True) in seen
+        assert seen[-1] == ("done", True, False)
+        assert gc.get_threshold() == gc_tuning.GC_DEFAULT_THRESHOLDS
     finally:
         gc_tuning.restore_defaults()

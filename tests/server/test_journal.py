@@ -36,7 +36,7 @@ from sim_clients.intruder import IntruderConfig
 from tracecheck import check_trace, read_trace
 
 SKIP = {"_record", "sink", "_out", "link", "_np_state", "_np_remaining", "_np_ts", "_np_tc",
-        "_np_delta", "_np_tx", "_layer_cache"}
+        "_np_delta", "_np_tx", "_graph"}
 """Callbacks, the drained command buffer, connections, and numpy views of compared arrays."""
 
 

@@ -148,16 +148,10 @@ def test_an_abandoned_replan_resumes_the_old_plan() -> None:
         assert report.actions_run == sum(len(p) - 1 for p in plan.paths)
 
 
-@pytest.mark.parametrize("vectorised", [False, True])
-def test_a_fork_goes_on_exactly_as_the_run_it_was_forked_from(
-        vectorised: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_fork_goes_on_exactly_as_the_run_it_was_forked_from() -> None:
     # A forked run must keep the monitor's numpy views on its own flat arrays: fleet slack
-    # (numpy maxima) and, on large plans, the vectorised recomputation read and write them.
-    # ``vectorised`` lowers the size thresholds so that every tick of this small plan takes the
-    # vectorised path. The fork, taken at 2 s, is compared tick by tick with a fresh run.
-    if vectorised:
-        monkeypatch.setattr("gateway.execution.oneshot.monitor.VECTOR_MIN_VERTICES", 1)
-        monkeypatch.setattr("gateway.execution.oneshot.monitor.VECTOR_MIN_ACTIVE", 1)
+    # (numpy maxima) reads them and the compiled propagation writes them. The fork, taken at
+    # 2 s, is compared tick by tick with a fresh run.
     grid = open_grid(6, 5)
     plan = random_plan(grid, 7, 14, random.Random(5))
     config = SimConfig(grid, plan, seed=3, policy="slack", threshold_ms=500.0,

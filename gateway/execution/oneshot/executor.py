@@ -261,6 +261,8 @@ class Executor:
             )
         v = self.adg.vertex(robot, action)
         queue = self._queue[robot]
+        if queue and queue[0] == v:
+            return v  # (the usual case: the robot's current action)
         if v not in queue:
             state = ("finished" if self._status[v] == _DONE else "not dispatched")
             raise ExecutionError(
@@ -311,8 +313,9 @@ class Executor:
         v = self._event_vertex("start", robot, plan, action, now_ms)
         self._expect(self._status[v] == _DISPATCHED, "start", robot, action, "already started")
         p = self.adg.t1_pred(v)
-        self._expect(p < 0 or self._status[p] == _DONE, "start", robot, action,
-                     f"its predecessor action {self.adg.step_of[p]} has not finished")
+        if p >= 0 and self._status[p] != _DONE:
+            self._expect(False, "start", robot, action,
+                         f"its predecessor action {self.adg.step_of[p]} has not finished")
         self._advance(now_ms)
         self._status[v] = _STARTED
         self._blocked[v] = self._cancelling[v] = 0

@@ -15,10 +15,9 @@ Slack: for a Type 2 edge ``e = (a_i^{r1} -> a_j^{r2})``,
 none is left).
 
 :class:`Monitor` keeps all of this up to date by re-evaluating only the descendants of what
-changed, in topological order, and stops where values do not change. On a large plan a tick that
-re-clamps many late frontier actions instead recomputes every vertex with numpy, plan step by
-plan step (the same operations, so the same values); fleet and robot slack are numpy maxima
-over the not-started vertices. :func:`algorithm1` is the
+changed, in topological order, and stops where values do not change (compiled:
+:mod:`gateway.execution.oneshot.monitor_kernel`); fleet and robot slack are numpy maxima over
+the not-started vertices. :func:`algorithm1` is the
 plain full recomputation (the paper's Algorithm 1, timestep by timestep); tests use it as the
 oracle and ``bench/monitor.py`` as the baseline.
 """
@@ -37,69 +36,44 @@ import numpy.typing as npt
 
 from gateway.execution.errors import ExecutionError
 from gateway.execution.oneshot.adg import ADG
+from gateway.execution.oneshot.monitor_kernel import propagate
 from gateway.execution.params import PAPER
 
 NOT_STARTED, STARTED, DONE = 0, 1, 2
 _READY_KIND, _STARTED_KIND = 0, 1
-VECTOR_MIN_VERTICES = 4000
-"""From this many vertices (and ``VECTOR_MIN_ACTIVE`` late frontier actions), a tick
-recomputes every estimate with numpy, step by step, instead of propagating vertex by vertex:
-with a large fleet about half the frontier is late at any tick and moves most of the plan's
-future, which costs ~2.5 us per vertex in Python but ~0.1 us vectorised."""
-VECTOR_MIN_ACTIVE = 32
-
 IntArray = npt.NDArray[np.int64]
 
 
-def _gather(ptr: IntArray, flat: IntArray, verts: IntArray) -> tuple[IntArray, IntArray]:
-    """The CSR rows of ``verts`` concatenated, and where each starts (for ``reduceat``)."""
-    counts = ptr[verts + 1] - ptr[verts]
-    offsets = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.int64)
-    idx = np.repeat(ptr[verts] - offsets, counts) + np.arange(int(counts.sum()))
-    return flat[idx], offsets
-
-
 @dataclass(frozen=True)
-class _Layer:
-    """One plan step's vertices with the gather indices of a vectorised Algorithm 1 pass:
-    those with predecessors (``pred_flat``/``pred_off``), those without (their robots), and
-    those with Type 2 tails (``t2_flat``/``t2_off``; ``prev`` is the Type 1 predecessor, or
-    the robot in ``t2_robot`` for a first action)."""
+class _Graph:
+    """An ADG as the compiled propagation reads it (:func:`~gateway.execution.oneshot.
+    monitor_kernel.propagate`): its CSR arrays, each vertex's level (``top``: above them all),
+    robot and first-action flag."""
 
-    with_pred: IntArray
-    pred_flat: IntArray
-    pred_off: IntArray
-    no_pred: IntArray
-    no_pred_robot: IntArray
-    with_t2: IntArray
-    t2_flat: IntArray
-    t2_off: IntArray
-    t2_first: npt.NDArray[np.bool_]
-    t2_robot: IntArray
-    t2_prev: IntArray
+    level: IntArray
+    top: int
+    succ_ptr: IntArray
+    succ: IntArray
+    pred_ptr: IntArray
+    pred: IntArray
+    t2_ptr: IntArray
+    t2: IntArray
+    robot_of: IntArray
+    is_first: npt.NDArray[np.uint8]
+
+    @classmethod
+    def of(cls, adg: ADG) -> _Graph:
+        """``adg``'s arrays."""
+        level = np.asarray(adg.level, dtype=np.int64)
+        return cls(level, int(level.max()) + 1 if level.size else 0,
+                   np.asarray(adg.succ_ptr, np.int64), np.asarray(adg.succ, np.int64),
+                   np.asarray(adg.pred_ptr, np.int64), np.asarray(adg.pred, np.int64),
+                   np.asarray(adg.t2_pred_ptr, np.int64), np.asarray(adg.t2_pred, np.int64),
+                   np.asarray(adg.robot_of, np.int64),
+                   np.frombuffer(bytes(adg.is_first), np.uint8))
 
 
-def _layers(adg: ADG) -> list[_Layer]:
-    """The ADG's vertices by level: every edge goes to a higher level (``ADG.level``)."""
-    step = np.asarray(adg.level, dtype=np.int64)
-    order = np.argsort(step, kind="stable")
-    pred_ptr, pred = np.asarray(adg.pred_ptr, np.int64), np.asarray(adg.pred, np.int64)
-    t2_ptr, t2 = np.asarray(adg.t2_pred_ptr, np.int64), np.asarray(adg.t2_pred, np.int64)
-    robot_of = np.asarray(adg.robot_of, np.int64)
-    is_first = np.frombuffer(bytes(adg.is_first), np.uint8).astype(bool)
-    out = []
-    for verts in np.split(order, np.flatnonzero(np.diff(step[order])) + 1):
-        if not verts.size:
-            continue
-        has = pred_ptr[verts + 1] > pred_ptr[verts]
-        vp, vn = verts[has], verts[~has]
-        pflat, poff = _gather(pred_ptr, pred, vp)
-        vt = verts[t2_ptr[verts + 1] > t2_ptr[verts]]
-        tflat, toff = _gather(t2_ptr, t2, vt)
-        first = is_first[vt]
-        out.append(_Layer(vp, pflat, poff, vn, robot_of[vn], vt, tflat, toff, first,
-                          robot_of[vt], np.where(first, 0, vt - 1)))
-    return out
+_NO_HOLDS = np.empty(0, dtype=np.float64)
 
 
 def _per_vertex(action_ms: float | Sequence[float], nv: int) -> array[float]:
@@ -159,21 +133,16 @@ class Monitor:
         self._active: set[int] = set()
         self._queued = bytearray(nv)
         self._tc = array("d", [math.nan]) * nv  # every vertex "changes" at first evaluation
-        self._layer_cache: list[_Layer] | None = None
-        self._done_layers = 0  # leading layers of the cache that a full pass leaves alone
-        self._hold: dict[int, float] = {}  # see with_holds
-        self._hold_np: npt.NDArray[np.float64] | None = None
+        self._graph: _Graph | None = None  # the ADG's arrays, built on first use
+        self._hold_np = _NO_HOLDS  # see with_holds
         # seeds of starts and finishes not yet propagated: the work is deferred to the next
         # query or clamping step, so a burst of events between two ticks costs one pass over
         # the union of their descendants instead of one pass each (same values: every vertex
         # is a function of its predecessors, evaluated in topological order)
         self._pending: list[int] = []
         self._delta0 = self._delta  # (a copy of Δ once it is computed, below)
-        if nv >= VECTOR_MIN_VERTICES:  # the same values, vectorised level by level
-            self._views()
-            self._recompute()
-        else:
-            self._propagate(range(nv))
+        self._views()
+        self._propagate(range(nv))
         ready = np.flatnonzero(np.frombuffer(self._remaining, np.intc) == 0)
         self._thresholds = [(self._ts[v], v, _READY_KIND) for v in ready.tolist()]
         heapq.heapify(self._thresholds)
@@ -199,8 +168,7 @@ class Monitor:
         out._thresholds = list(self._thresholds)
         out._active = set(self._active)
         out._queued = bytearray(len(self._queued))
-        out._layer_cache = None
-        out._done_layers = 0
+        out._graph = None if adg is not old else self._graph
         out._pending = []
         changed = [v for v in range(adg.n_vertices)
                    if adg.predecessors(v) != old.predecessors(v)]
@@ -224,7 +192,6 @@ class Monitor:
         waiting for a blocked cell until the block's expected end, an action that runs late.
         Its copies (:meth:`rewired`) keep the holds. This monitor is left as it was."""
         out = self.rewired(self.adg)
-        out._hold = dict(holds)
         out._hold_np = np.full(self.adg.n_vertices, -math.inf)
         for v, until in holds.items():
             out._hold_np[v] = until
@@ -251,131 +218,31 @@ class Monitor:
         self._np_delta = np.frombuffer(self._delta, np.float64)
         self._np_delta0 = np.frombuffer(self._delta0, np.float64)
         self._np_tx = np.frombuffer(self.tx, np.float64)
+        self._np_release = np.asarray(self.release_ms, dtype=np.float64)  # (never changes)
 
     # ----------------------------------------------------------------- evaluation
     def _propagate(self, seeds: Iterable[int]) -> None:
-        """Re-evaluate ``seeds`` and, in topological order, every descendant whose inputs moved.
+        """Re-evaluate ``seeds`` and, in topological order, every descendant whose inputs moved
+        (compiled: :func:`~gateway.execution.oneshot.monitor_kernel.propagate`).
 
         A vertex's (t_s, t_c) follow from its predecessors' t_c (or its robot's release time),
         its real times and the clamping time; its Δ from its Type 2 tails' t_c and its Type 1
         predecessor's t_c. Successors are re-evaluated only if t_c changed.
         """
-        adg = self.adg
-        level_of, queued = adg.level, self._queued
-        pred_ptr, pred, succ_ptr, succ = adg.pred_ptr, adg.pred, adg.succ_ptr, adg.succ
-        t2_ptr, t2, is_first, robot_of = adg.t2_pred_ptr, adg.t2_pred, adg.is_first, adg.robot_of
-        state, remaining, release = self._state, self._remaining, self.release_ms
-        ts_of, tc_of, delta = self._ts, self._tc, self._delta
-        now, tx_of, hold = self.now_ms, self.tx, self._hold
-        # Every edge goes from a level (the plan step, unless rescheduled) to a higher one, so
-        # visiting the dirty vertices level by level is a topological order; a bucket per
-        # level and a heap of the levels that have one is much cheaper than a heap of
-        # vertices (a tick re-clamps every late frontier action and moves most of the
-        # plan's future).
-        buckets: dict[int, list[int]] = {}
-        steps: list[int] = []
-        for v in seeds:
-            if not queued[v]:
-                queued[v] = 1
-                bucket = buckets.get(level_of[v])
-                if bucket is None:
-                    buckets[level_of[v]] = [v]
-                    steps.append(level_of[v])
-                else:
-                    bucket.append(v)
-        heapq.heapify(steps)
-        while steps:
-            for v in buckets.pop(heapq.heappop(steps)):
-                queued[v] = 0
-                st = state[v]
-                if st == DONE:
-                    tc = tc_of[v]
-                elif st == STARTED:
-                    tc = ts_of[v] + tx_of[v]
-                    if tc < now:
-                        tc = now
-                    if hold and v in hold and tc < hold[v]:
-                        tc = hold[v]
-                else:
-                    lo, hi = pred_ptr[v], pred_ptr[v + 1]
-                    ts = max([tc_of[p] for p in pred[lo:hi]]) if lo < hi \
-                        else release[robot_of[v]]
-                    if ts < now and remaining[v] == 0:
-                        ts = now
-                    if hold and v in hold and ts < hold[v]:
-                        ts = hold[v]
-                    ts_of[v] = ts
-                    tc = ts + tx_of[v]
-                lo, hi = t2_ptr[v], t2_ptr[v + 1]
-                if lo < hi:
-                    prev = release[robot_of[v]] if is_first[v] else tc_of[v - 1]
-                    d = max([tc_of[u] for u in t2[lo:hi]]) - prev
-                    if d < 0.0:
-                        d = 0.0
-                    delta[v] = d
-                if tc != tc_of[v]:
-                    tc_of[v] = tc
-                    for w in succ[succ_ptr[v] : succ_ptr[v + 1]]:
-                        if not queued[w]:
-                            queued[w] = 1
-                            bucket = buckets.get(level_of[w])
-                            if bucket is None:
-                                buckets[level_of[w]] = [w]
-                                heapq.heappush(steps, level_of[w])
-                            else:
-                                bucket.append(w)
+        g = self._graph
+        if g is None:
+            g = self._graph = _Graph.of(self.adg)
+        propagate(np.fromiter(seeds, np.int64), g.level, g.top, g.succ_ptr, g.succ,
+                  g.pred_ptr, g.pred, g.t2_ptr, g.t2, g.robot_of, g.is_first, self._np_state,
+                  self._np_remaining, self._np_ts, self._np_tc, self._np_delta,
+                  self._np_release, self._np_tx, self._hold_np,
+                  self.now_ms, np.frombuffer(self._queued, np.uint8))
 
     def _flush(self) -> None:
         """Propagate the deferred starts and finishes (before any estimate is read)."""
         if self._pending:
             seeds, self._pending = self._pending, []
             self._propagate(seeds)
-
-    def _recompute(self) -> None:
-        """Every estimate and Δ from scratch, vectorised step by step: the same operations as
-        :meth:`_propagate` on every vertex (so the same values), for when most would move.
-
-        Except the leading layers that are done: once every action of a layer and of all the
-        layers before it is done, one pass computed its values from real times only (a done
-        action's t_c is its finish, its Δ depends on done tails' t_c), so later passes would
-        write the same values again and leave it out. A large fleet's tick then costs the
-        plan's future, not the whole plan."""
-        if self._layer_cache is None:
-            self._layer_cache = _layers(self.adg)
-            self._done_layers = 0
-        layers = self._layer_cache
-        state, remaining = self._np_state, self._np_remaining
-        ts, tc, delta = self._np_ts, self._np_tc, self._np_delta
-        release = np.asarray(self.release_ms, dtype=np.float64)
-        now, tx = self.now_ms, self._np_tx
-        done = self._done_layers
-        for layer in layers[done:]:
-            for verts, start in (
-                    (layer.with_pred, np.maximum.reduceat(tc[layer.pred_flat], layer.pred_off)
-                     if layer.with_pred.size else None),
-                    (layer.no_pred, release[layer.no_pred_robot])):
-                if start is None or not verts.size:
-                    continue
-                st = state[verts]
-                waiting = st == NOT_STARTED
-                v0, t0 = verts[waiting], start[waiting]
-                t0 = np.where((t0 < now) & (remaining[v0] == 0), now, t0)
-                if self._hold_np is not None:
-                    t0 = np.maximum(t0, self._hold_np[v0])
-                ts[v0] = t0
-                tc[v0] = t0 + tx[v0]
-                v1 = verts[st == STARTED]
-                tc[v1] = np.maximum(ts[v1] + tx[v1], now)
-                if self._hold_np is not None:
-                    tc[v1] = np.maximum(tc[v1], self._hold_np[v1])
-            if layer.with_t2.size:
-                prev = np.where(layer.t2_first, release[layer.t2_robot], tc[layer.t2_prev])
-                d = np.maximum.reduceat(tc[layer.t2_flat], layer.t2_off) - prev
-                delta[layer.with_t2] = np.maximum(d, 0.0)
-        while done < len(layers) and (state[layers[done].with_pred] == DONE).all() \
-                and (state[layers[done].no_pred] == DONE).all():
-            done += 1  # computed in this pass with it and every layer before it done
-        self._done_layers = done
 
     def _max_growth(self, lo: int, hi: int) -> float:
         """Largest Δ̄ over the not-started vertices ``lo..hi-1`` (0 if there is none)."""
@@ -417,12 +284,6 @@ class Monitor:
                 _, v, kind = heapq.heappop(thresholds)
                 if self._state[v] == (NOT_STARTED if kind == _READY_KIND else STARTED):
                     active.add(v)
-            if (len(active) >= VECTOR_MIN_ACTIVE
-                    and self.adg.n_vertices >= VECTOR_MIN_VERTICES):
-                self.now_ms = float(now_ms)
-                self._pending = []  # the full pass covers the deferred events too
-                self._recompute()
-                return
         self._flush()  # at the clamping time the deferred events happened under
         if now_ms == self.now_ms:
             return
