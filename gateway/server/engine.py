@@ -61,7 +61,6 @@ from gateway.server.items import (
     InternalCommand,
     Item,
     OwnerCall,
-    RobotReport,
     RobotReports,
     SolverDone,
 )
@@ -182,6 +181,9 @@ class Engine:
         tunes the garbage collector here; what they take is not charged to the run)."""
         self.before_commit: list[Callable[[], None]] = []
         """Called before each commit (the task journal appends the task events here)."""
+        self.after_commit: list[Callable[[], None]] = []
+        """Called after each commit (the workers' channels write the owner's commands here,
+        in this turn rather than the next: what caused them is durable)."""
         self.holding: list[Callable[[bool], None]] = []
         """Called with True before the owner task's batch wait and with False after it: a
         source of items may hold them meanwhile, if it queues them within a loop turn of the
@@ -361,6 +363,8 @@ class Engine:
             if self.journal.commit():  # (a wake-up for acks and states alone writes none)
                 self.metrics.journal_commit.observe(time.perf_counter() - t0)
         self.feed.flush_trace()
+        for hook in self.after_commit:
+            hook()
 
     def _first_tick(self, now: float) -> float:
         """When ticking begins (a start, a resume): now if the core's wake-up is already due
@@ -377,25 +381,19 @@ class Engine:
         wake = core.next_wakeup_ms() if core is not None else None
         return min(t, wake) if wake is not None and wake > after else t
 
-    def _handle_safely(self, item: Item | RobotReport) -> None:
+    def _handle_safely(self, item: Item) -> None:
         try:
             self._handle(item)
         except Exception:  # never let one bad item kill the owner task
             log.exception("internal error handling %s", type(item).__name__)
             if isinstance(item, Inbound):
                 item.session.error(ErrorCode.INTERNAL, item.message.msg_id, "internal error")
-            elif isinstance(item, RobotReport):
-                item.session.error(ErrorCode.INTERNAL, item.msg_id or None, "internal error")
 
-    def _handle(self, item: Item | RobotReport) -> None:
+    def _handle(self, item: Item) -> None:
         if isinstance(item, RobotReports):
-            self._uncommitted += len(item.reports) - 1  # (a group commit counts reports)
-            for report in item.reports:
-                self._handle_safely(report)
+            self._robot_reports(item)
         elif isinstance(item, Inbound):
             self._inbound(item)
-        elif isinstance(item, RobotReport):
-            self._robot_report(item)
         elif isinstance(item, Connected):
             self._connected(item.session)
         elif isinstance(item, Disconnected):
@@ -465,16 +463,23 @@ class Engine:
             case _:
                 self.operator.handle(msg, session)  # type: ignore[arg-type]
 
-    def _robot_report(self, item: RobotReport) -> None:
-        """What a worker process passed on as a :class:`RobotReport`."""
-        session, kind = item.session, item.kind
-        if kind == "ack":
-            self._ack(session, item.action_id, item.msg_id)
-        elif kind == "state":
-            self._sender(session).state(item.pose, session)
-        else:
-            self._report(session, cast(ReportKind, kind), item.action_id, item.msg_id,
-                         item.pose, item.received, item.at_ms)
+    def _robot_reports(self, item: RobotReports) -> None:
+        """What a worker process passed on as :class:`RobotReports`, in order (an internal
+        error in one is logged and answered; the others are handled)."""
+        self._uncommitted += len(item.reports) - 1  # (a group commit counts reports)
+        at_ms = item.at_ms
+        for session, kind, aid, ref, pose, received in item.reports:
+            try:
+                if kind == "state":
+                    self._sender(session).state(pose, session)
+                elif kind == "ack":
+                    self._ack(session, aid, ref)
+                else:
+                    self._report(session, cast(ReportKind, kind), aid, ref, pose, received,
+                                 at_ms)
+            except Exception:  # as _handle_safely: never let one bad report kill the owner
+                log.exception("internal error handling a robot report")
+                session.error(ErrorCode.INTERNAL, ref or None, "internal error")
 
     def _ack(self, session: Session, aid: str, ref: str) -> None:
         gs = self._sender(session)

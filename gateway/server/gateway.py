@@ -288,6 +288,7 @@ class Gateway(ConnectionServer):
             await self._server.start_unix(owner_path)
             self.workers = WorkerPool(cfg, self.engine.queue, self.clock, self.metrics)
             self.engine.holding.append(self.workers.hold)
+            self.engine.after_commit.append(self.workers.flush)
             try:
                 self.port = await self.workers.start(host, port, owner_path)
             except RuntimeError as exc:

@@ -30,28 +30,21 @@ class Inbound:
     at_ms: float | None = None
 
 
-@dataclass(slots=True)
-class RobotReport:
-    """A robot's ``ack``, action report (``kind``: its type) or ``state`` (``kind`` "state",
-    no ``action_id`` or ``msg_id``) that a worker process admitted, as the fields the owner
-    uses: no message model is built for it (:mod:`~gateway.server.workers.records`).
-    ``received`` and ``at_ms`` as in :class:`Inbound`."""
-
-    session: Session
-    kind: str
-    action_id: str
-    msg_id: str
-    pose: Pose | None
-    received: float
-    at_ms: float
+RobotReport = tuple[Session, str, str, str, Pose | None, float]
+"""A robot's ``ack``, action report or ``state`` that a worker process admitted, as the
+fields the owner uses (no message model is built for it:
+:mod:`~gateway.server.workers.records`): ``(session, kind, action_id, msg_id, pose,
+received)``; ``kind`` is the message's type ("state": no ``action_id`` or ``msg_id``),
+``received`` as in :class:`Inbound`. A plain tuple: nothing to construct per report."""
 
 
 @dataclass(slots=True)
 class RobotReports:
-    """The robot reports of one frame from a worker process, in order: one queue item (and
-    one turn of the owner task's loop) for them all."""
+    """The robot reports of one frame from a worker process, in order, arrived at plan time
+    ``at_ms`` (as in :class:`Inbound`): one queue item for them all."""
 
     reports: list[RobotReport]
+    at_ms: float
 
 
 @dataclass

@@ -33,10 +33,17 @@ class PerTurn(Generic[T]):
             loop = self._loop
             at = self._released_at + self._interval_s
             if self._interval_s and at > loop.time():
-                loop.call_at(at, self._flush)
+                self._due: asyncio.Handle = loop.call_at(at, self._flush)
             else:
-                loop.call_soon(self._flush)
+                self._due = loop.call_soon(self._flush)
         self._items.append(item)
+
+    def flush(self) -> None:
+        """Release what was added now, not at its turn (the owner task, once it committed
+        the journal: one loop turn less a batch)."""
+        if self._items:
+            self._due.cancel()
+            self._flush()
 
     def _flush(self) -> None:
         if self._interval_s:

@@ -22,6 +22,21 @@ async def test_one_release_per_turn_after_the_adder_yields() -> None:
     assert released == [[0, 1, 2], [3]]
 
 
+async def test_a_flush_releases_at_once_and_nothing_again_at_the_turn() -> None:
+    released: list[list[int]] = []
+    turn: PerTurn[int] = PerTurn(released.append)
+    turn.flush()
+    assert released == []  # nothing added: nothing released
+    turn.add(0)
+    turn.add(1)
+    turn.flush()
+    assert released == [[0, 1]]
+    turn.add(2)  # after a flush, the next item is released at its own turn again
+    await asyncio.sleep(0)
+    await asyncio.sleep(0)
+    assert released == [[0, 1], [2]]
+
+
 @pytest.mark.looptime
 async def test_an_interval_makes_one_release_per_interval_at_most() -> None:
     """With an interval: an item after a quiet spell goes at the next turn; items added

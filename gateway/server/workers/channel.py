@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import marshal
 import pickle
+import socket
 import struct
 from collections.abc import Callable
 from typing import Any
@@ -56,15 +57,22 @@ class Channel(asyncio.Protocol):
     woken and no await per frame); ``closed`` is done once the other end is gone.
     ``received`` may be replaced between frames (a start, then batches)."""
 
+    transport: asyncio.Transport
+    """Its transport (to write to the other end)."""
+
     def __init__(self, received: Callable[[memoryview], None]) -> None:
         self.received = received
         self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._pending = b""  # the start of a frame not whole yet
 
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        """Keep the transport (to write to the other end)."""
-        assert isinstance(transport, asyncio.Transport)
-        self.transport = transport
+    @classmethod
+    async def connect(cls, sock: socket.socket, received: Callable[[memoryview], None]
+                      ) -> Channel:
+        """The channel on ``sock``, this process's end of the socket pair."""
+        transport, channel = await asyncio.get_running_loop().create_unix_connection(
+            lambda: cls(received), sock=sock)
+        channel.transport = transport  # (not from connection_made: uvloop calls it later)
+        return channel
 
     def data_received(self, data: bytes) -> None:
         """Hand over every frame now whole; keep the rest."""
@@ -105,6 +113,10 @@ class Outbox:
     def put(self, op: Op) -> None:
         """Queue ``op`` for this turn's frame."""
         self._turn.add(op)
+
+    def flush(self) -> None:
+        """Write this turn's frame now."""
+        self._turn.flush()
 
     def _write(self, ops: list[Op]) -> None:
         transport = self._transport

@@ -148,10 +148,8 @@ class WorkerPool:
                 start_new_session=True)  # no terminal Ctrl-C
         finally:
             theirs.close()
-        loop = asyncio.get_running_loop()
-        channel = Channel(lambda payload: self._received(handle, payload))
         try:
-            await loop.create_unix_connection(lambda: channel, sock=ours)
+            channel = await Channel.connect(ours, lambda payload: self._received(handle, payload))
             outbox = Outbox(channel.transport, self._config.worker_buffer_bytes,
                             lambda n: self._hung(handle, f"{n} bytes unread"))
             handle = _Handle(index, process, channel, outbox)
@@ -170,7 +168,8 @@ class WorkerPool:
             raise
         assert handle.ready.result() == [("ready",)], handle.ready.result()
         self._handles[index] = handle
-        task = loop.create_task(self._serve(handle), name=f"worker-{index}")
+        task = asyncio.get_running_loop().create_task(self._serve(handle),
+                                                      name=f"worker-{index}")
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
@@ -219,17 +218,15 @@ class WorkerPool:
         for op in ops:
             code = op[0]
             if code == REPORT:
-                _, sid, received, kind, ref, aid, x, y, heading = op
-                reports.append(RobotReport(sessions[sid], kind, aid, ref, pose(x, y, heading),
-                                           received, now_ms))
+                reports.append((sessions[op[1]], op[3], op[5], op[4], pose(op[6], op[7], op[8]),
+                                op[2]))
                 continue
             if code == STATE:
-                _, sid, received, x, y, heading = op
-                reports.append(RobotReport(sessions[sid], "state", "", "", pose(x, y, heading),
-                                           received, now_ms))
+                reports.append((sessions[op[1]], "state", "", "", pose(op[3], op[4], op[5]),
+                                op[2]))
                 continue
             if reports:
-                put(RobotReports(reports))
+                put(RobotReports(reports, now_ms))
                 reports = []
             if code == MESSAGE:
                 put(Inbound(sessions[op[1]], message(op), op[2], now_ms))
@@ -245,7 +242,7 @@ class WorkerPool:
                 handle.ping_at = None
                 self._count(handle, op[1])
         if reports:
-            put(RobotReports(reports))
+            put(RobotReports(reports, now_ms))
 
     def hold(self, on: bool) -> None:
         """Leave the workers' frames unread (``on``), or read them again (an
@@ -256,6 +253,12 @@ class WorkerPool:
                 handle.channel.transport.pause_reading()
             else:
                 handle.channel.transport.resume_reading()
+
+    def flush(self) -> None:
+        """Write the owner's commands to each worker now (an :attr:`Engine.after_commit
+        <gateway.server.engine.Engine.after_commit>` hook: they are durable)."""
+        for handle in self._handles.values():
+            handle.outbox.flush()
 
     def _count(self, handle: _Handle, counts: dict[str, dict[str, float]]) -> None:
         """Add what a worker counted since its last answer to the owner's metrics."""

@@ -126,8 +126,8 @@ async def serve(fd: int) -> None:
     """Run a worker on the channel ``fd`` until the owner's end closes."""
     loop = asyncio.get_running_loop()
     started: asyncio.Future[tuple[Any, ...]] = loop.create_future()
-    channel = Channel(lambda payload: started.set_result(start_of(payload)))
-    await loop.create_unix_connection(lambda: channel, sock=socket.socket(fileno=fd))
+    channel = await Channel.connect(socket.socket(fileno=fd),
+                                    lambda payload: started.set_result(start_of(payload)))
     await first_done(started, channel.closed)
     if not started.done():
         return  # the owner died before it started this worker
