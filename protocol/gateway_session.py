@@ -395,7 +395,7 @@ class GatewaySession:
             if state == "finished":
                 self._report("finished", aid, t_ms, None)
         elif self.link is not None:
-            self._send(Action, **fields)
+            self._out.append(ToRobot(Action, fields))  # (as they are: no copy per dispatch)
 
     def cancel(self, aid: str) -> None:
         """The executor cancels ``aid`` (a replan): tell the robot if it is online; a robot

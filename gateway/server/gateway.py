@@ -38,6 +38,7 @@ import tempfile
 from collections.abc import Callable
 from types import TracebackType
 
+from gateway.execution.oneshot import monitor
 from gateway.runtime.exits import EXIT_JOURNAL, EXIT_SOFTWARE, fatal
 from gateway.runtime.journal import JournalError, JournalLock
 from gateway.server import gc_tuning
@@ -124,6 +125,8 @@ class Gateway(ConnectionServer):
         cfg = self.config
         if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
             self.engine.current_run = LifelongRun(self.engine, shift_from(cfg))
+        else:  # a one-shot run's monitor: its compiled kernel loaded before any run or replay
+            monitor.warm_up()
         try:
             self.resumed = self._resume()
         except BaseException:

@@ -38,6 +38,7 @@ from gateway.execution.errors import ExecutionError
 from gateway.execution.oneshot.adg import ADG
 from gateway.execution.oneshot.monitor_kernel import propagate
 from gateway.execution.params import PAPER
+from gateway.planning.plan import Plan
 
 NOT_STARTED, STARTED, DONE = 0, 1, 2
 _READY_KIND, _STARTED_KIND = 0, 1
@@ -418,6 +419,14 @@ class Monitor:
         """Copies of the current per-vertex t_s, t_c, Δ and Δ0 (indexed by vertex id)."""
         self._flush()
         return Estimate(list(self._ts), list(self._tc), list(self._delta), list(self._delta0))
+
+
+def warm_up() -> None:
+    """Load the compiled propagation now (from numba's cache; compiled on a machine's first
+    use) on a one-robot plan, so that its arguments' types are those of every run: a gateway
+    calls this as it starts, else its first run's start pays it (~0.1 s of the owner task,
+    the whole fleet waiting for its first actions)."""
+    Monitor(ADG(Plan((((0, 0), (1, 0)),))), now_ms=0.0)
 
 
 @dataclass(frozen=True)
