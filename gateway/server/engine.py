@@ -288,10 +288,12 @@ class Engine:
         if wait > 0:
             for hold in self.holding:
                 hold(True)
-            await self._waiting(asyncio.sleep(wait))
-            if self.holding:
+            try:
+                await self._waiting(asyncio.sleep(wait))
+            finally:
                 for hold in self.holding:
                     hold(False)
+            if self.holding:
                 # what was held is queued in the next turn (its reads follow this task's step)
                 await self._waiting(asyncio.sleep(0))
                 await self._waiting(asyncio.sleep(0))
