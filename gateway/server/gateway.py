@@ -120,8 +120,9 @@ class Gateway(ConnectionServer):
         cfg = self.config
         if cfg.lifelong is not None:  # a shift: its tasks are journaled (task_journal.py)
             self.engine.current_run = LifelongRun(self.engine, shift_from(cfg))
-        else:  # a one-shot run's monitor: its compiled kernel loaded before any run or replay
+        else:  # one-shot: the monitor's kernel loaded, the startup heap frozen, before any run
             monitor.warm_up()
+            gc_tuning.freeze_startup()
         try:
             self.resumed = self._resume()
         except BaseException:

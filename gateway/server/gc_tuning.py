@@ -38,6 +38,15 @@ GC_DEFAULT_THRESHOLDS = gc.get_threshold()
 """The thresholds restored when a run is complete."""
 
 
+def freeze_startup() -> None:
+    """Freeze what the process holds as a one-shot gateway starts (its modules, app and
+    compiled kernels: ~150,000 objects that live as long as it does), without a collection
+    (any garbage of the imports is kept until a run is complete): the collection that begins
+    a run then goes over what came after (the plan, the connections) instead of these again,
+    ~0.1 s of the owner task. :func:`restore_defaults` unfreezes them with the rest."""
+    gc.freeze()
+
+
 def tune_for_run() -> None:
     """Collect, freeze what exists, and collect rarely from now on."""
     gc.collect()
