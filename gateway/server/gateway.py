@@ -72,11 +72,6 @@ from protocol import AnyMessage, ErrorCode, OperatorCommand
 log = logging.getLogger("fleetgate.gateway")
 
 
-def _restore_gc_when_done(status: str) -> None:
-    if status == "done":
-        gc_tuning.restore_defaults()
-
-
 class Gateway(ConnectionServer):
     """The fleetgate gateway server; see the module docstring for how to run it."""
 
@@ -89,8 +84,8 @@ class Gateway(ConnectionServer):
             robots_need_cert=tls is not None and tls.client_ca is not None), Metrics())
         self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
         self.engine = Engine(self.config, self.clock, self.metrics)
-        self.engine.before_start.append(gc_tuning.pause_for_run)
-        self.engine.status_listeners.append(_restore_gc_when_done)
+        self.engine.before_start.append(self._pause_collectors)
+        self.engine.status_listeners.append(self._restore_collectors_when_done)
         self._owner: asyncio.Task[None] | None = None
         self._server: HttpServer | None = None
         self._ws: WsEndpoint | None = None
@@ -269,6 +264,19 @@ class Gateway(ConnectionServer):
         self.track(asyncio.get_running_loop().create_task(self.serve_link(link)))
         await asyncio.sleep(0)
         return client
+
+    def _pause_collectors(self) -> None:
+        """No cyclic collection in this process or its workers during a one-shot run
+        (:mod:`~gateway.server.gc_tuning`)."""
+        gc_tuning.pause_for_run()
+        if self.workers is not None:
+            self.workers.pause_collectors(True)
+
+    def _restore_collectors_when_done(self, status: str) -> None:
+        if status == "done":
+            gc_tuning.restore_defaults()
+            if self.workers is not None:
+                self.workers.pause_collectors(False)
 
     async def listen(self, host: str | None = None, port: int | None = None) -> int:
         """Serve HTTP (the ASGI app on uvicorn) and websockets on ``host:port`` (config by

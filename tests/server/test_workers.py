@@ -81,6 +81,9 @@ async def _run_with_a_kill(tmp_path: Path, kill: signal.Signals | None) -> None:
             assert all(isinstance(gs.link, RemoteSession) for gs in gw.engine.robots.values())
             assert {r: gs.version for r, gs in gw.engine.robots.items()} == {
                 r: 2 if r % 2 == 0 else 3 for r in range(8)}
+            while gw.engine.status != "running":
+                await asyncio.sleep(0.01)
+            assert pool.collector_paused  # the workers' collectors too, for the run
             if kill:
                 total = sum(len(p) - 1 for p in problem.plan.paths)
                 while sum(executed.values()) < total // 3:
@@ -94,6 +97,7 @@ async def _run_with_a_kill(tmp_path: Path, kill: signal.Signals | None) -> None:
                         await asyncio.sleep(0.05)
                 assert pool.restarts == 1 and victim not in pool.pids and len(pool.pids) == 2
                 assert pool.hangs == (1 if kill == signal.SIGSTOP else 0)
+            assert not pool.collector_paused  # the run is complete
         finally:
             await fleet.stop()
             if kill:

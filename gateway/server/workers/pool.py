@@ -32,6 +32,7 @@ from gateway.server.wire.auth import Peer
 from gateway.server.workers.channel import Channel, Outbox, batch_of, first_done, start_frame
 from gateway.server.workers.records import (
     CLOSED,
+    COLLECTOR,
     MESSAGE,
     OPENED,
     PING,
@@ -118,6 +119,8 @@ class WorkerPool:
         self._tasks: set[asyncio.Task[None]] = set()
         self._reserved: list[socket.socket] = []
         self._stopping = False
+        self.collector_paused = False
+        """Whether the workers' cyclic collectors are paused (a one-shot run goes on)."""
         self.restarts = 0
         """Workers started again after one died."""
         self.hangs = 0
@@ -168,6 +171,8 @@ class WorkerPool:
             raise
         assert handle.ready.result() == [("ready",)], handle.ready.result()
         self._handles[index] = handle
+        if self.collector_paused:  # a worker started again during a one-shot run
+            handle.outbox.put((COLLECTOR, True))
         task = asyncio.get_running_loop().create_task(self._serve(handle),
                                                       name=f"worker-{index}")
         self._tasks.add(task)
@@ -253,6 +258,14 @@ class WorkerPool:
                 handle.channel.transport.pause_reading()
             else:
                 handle.channel.transport.resume_reading()
+
+    def pause_collectors(self, paused: bool) -> None:
+        """Pause the workers' cyclic collectors for a one-shot run (``paused``), or give them
+        their rare passes back once it is complete (:mod:`~gateway.server.gc_tuning`); a
+        worker started meanwhile is told too."""
+        self.collector_paused = paused
+        for handle in self._handles.values():
+            handle.outbox.put((COLLECTOR, paused))
 
     def flush(self) -> None:
         """Write the owner's commands to each worker now (an :attr:`Engine.after_commit

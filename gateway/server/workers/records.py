@@ -29,7 +29,10 @@ Commands, owner -> worker, applied in order (ignored for a session that ended):
 - ``(ERROR, sid, code, ref, detail)``: an ``error`` reply, counted against the budget there;
 - ``(CLOSE, sid, code, reason)``: flush and close;
 - ``(VERSION, sid, v)``: the protocol version to answer in;
-- ``(PING,)``: answer with a ``PONG``.
+- ``(PING,)``: answer with a ``PONG``;
+- ``(COLLECTOR, paused)``: no cyclic collection in the worker while a one-shot run goes on
+  (``True``), or its rare passes again once it is complete (``False``)
+  (:mod:`~gateway.server.gc_tuning`).
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ Op = tuple[Any, ...]
 """One record: its code first."""
 
 OPENED, REPORT, STATE, MESSAGE, CLOSED, PONG = range(6)
-ACTION, SEND, ERROR, CLOSE, VERSION, PING = range(6)
+ACTION, SEND, ERROR, CLOSE, VERSION, PING, COLLECTOR = range(7)
 
 REPORT_TYPES: dict[type[AnyMessage], str] = {
     Ack: "ack", Started: "started", Finished: "finished", Blocked: "blocked",

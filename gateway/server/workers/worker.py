@@ -32,6 +32,7 @@ from gateway.server.workers.records import (
     ACTION,
     CLOSE,
     CLOSED,
+    COLLECTOR,
     ERROR,
     OPENED,
     PING,
@@ -88,6 +89,9 @@ class Worker(ConnectionServer):
             code = op[0]
             if code == PING:
                 self._outbox.put((PONG, self.counts()))
+                continue
+            if code == COLLECTOR:
+                (gc_tuning.pause_for_run if op[1] else gc_tuning.end_pause)()
                 continue
             session = self._by_id.get(op[1])
             if session is None:
