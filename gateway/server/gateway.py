@@ -84,8 +84,10 @@ class Gateway(ConnectionServer):
             robots_need_cert=tls is not None and tls.client_ca is not None), Metrics())
         self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
         self.engine = Engine(self.config, self.clock, self.metrics)
-        self.engine.before_start.append(self._pause_collectors)
-        self.engine.status_listeners.append(self._restore_collectors_when_done)
+        self._collectors_paused = False
+        if config.lifelong is None:  # a shift keeps rare passes (gc_tuning)
+            self.engine.before_start.append(self._pause_collectors)
+            self.engine.status_listeners.append(self._collectors_follow)
         self._owner: asyncio.Task[None] | None = None
         self._server: HttpServer | None = None
         self._ws: WsEndpoint | None = None
@@ -266,14 +268,23 @@ class Gateway(ConnectionServer):
         return client
 
     def _pause_collectors(self) -> None:
-        """No cyclic collection in this process or its workers during a one-shot run
+        """No cyclic collection in this process or its workers while a one-shot run goes on
         (:mod:`~gateway.server.gc_tuning`)."""
+        if self._collectors_paused:
+            return
+        self._collectors_paused = True
         gc_tuning.pause_for_run()
         if self.workers is not None:
             self.workers.pause_collectors(True)
 
-    def _restore_collectors_when_done(self, status: str) -> None:
-        if status == "done":
+    def _collectors_follow(self, status: str) -> None:
+        """The collectors back once the run is complete, and while an operator pauses it (a
+        pause may last hours: no garbage waits for the run's end meanwhile); paused again
+        when it resumes."""
+        if status == "running":
+            self._pause_collectors()
+        elif status in ("paused", "done") and self._collectors_paused:
+            self._collectors_paused = False
             gc_tuning.restore_defaults()
             if self.workers is not None:
                 self.workers.pause_collectors(False)

@@ -14,7 +14,8 @@ pass and still alive is traversed (the robots' held actions, the connections' re
 coroutines, the id caches: 130,000-280,000 objects, young passes of 110-290 ms at 5,000
 robots, one every 10-20 s, each a backlog that every finish behind it waits out). A one-shot run
 is bounded by its plan, and whatever cycles an operator's requests leave meanwhile are
-collected once it is complete.
+collected once it is complete; an operator's pause, which may last hours, has the collector
+back until the run resumes (the gateway's status listener).
 
 A lifelong gateway is tuned from its start (:func:`tune_for_run`: its shift's task pool takes a
 WMS's tasks before the shift starts, and a shift has no end to wait for), and so is a worker

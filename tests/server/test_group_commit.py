@@ -21,7 +21,7 @@ from gateway.server.clock import VirtualClock
 from gateway.server.engine import GROUP_COMMIT_ITEMS
 from gateway.server.gateway import Gateway
 from gateway.server.task_api.models import MAX_BATCH
-from protocol import Start
+from protocol import Pause, Resume, Start
 from tests.server.conftest import LAB_PATHS, make_config
 from tests.server.robots import TestRobot
 from tests.server.task_client import call
@@ -105,7 +105,8 @@ async def test_a_lifelong_gateway_collects_rarely_before_its_shift_starts() -> N
 @pytest.mark.looptime
 async def test_a_one_shot_run_has_no_cyclic_collection_until_it_is_complete() -> None:
     """Once a one-shot run starts, its objects are frozen and the cyclic collector is off
-    until the run is complete (then the defaults are back): no pass stalls the owner task."""
+    until the run is complete (then the defaults are back): no pass stalls the owner task. An
+    operator's pause gives it back for as long as it lasts."""
     gc_tuning.restore_defaults()
     seen: list[tuple[str, bool, bool]] = []
     try:
@@ -122,10 +123,15 @@ async def test_a_one_shot_run_has_no_cyclic_collection_until_it_is_complete() ->
             assert gc.isenabled()  # loaded, not started: the defaults
             await gw.command(Start(msg_id="s", seq=1))
             assert not gc.isenabled() and gc.get_freeze_count() > 0
+            await asyncio.sleep(0.05)
+            assert (await gw.command(Pause(msg_id="p", seq=2)))[0] is None
+            assert gc.isenabled() and gc.get_threshold() == gc_tuning.GC_DEFAULT_THRESHOLDS
+            assert (await gw.command(Resume(msg_id="r", seq=3)))[0] is None
+            assert not gc.isenabled() and gc.get_freeze_count() > 0
             await asyncio.wait_for(gw.wait_done(), 20)
             for t in tasks:
                 t.cancel()
-        assert ("running", False, True) in seen
+        assert ("running", False, True) in seen and ("paused", True, False) in seen
         assert seen[-1] == ("done", True, False)
         assert gc.get_threshold() == gc_tuning.GC_DEFAULT_THRESHOLDS
     finally:
