@@ -372,7 +372,8 @@ async def run_once(problem: Problem, trace: Path, hostile: Iterator[str | bytes]
     websockets if ``hostile`` (each fuzz connection waits ``pace_s`` of virtual time between
     frames, so that the frames spread over the run). Returns when the run is complete and the
     fuzzer has sent its frames."""
-    config = GatewayConfig(port=0, map=None, policy="none", trace=trace, close_timeout_s=1.0)
+    config = GatewayConfig(port=0, map=None, policy="none", trace=trace, close_timeout_s=1.0,
+                           workers=0)  # virtual time: in this process (workers: test_workers.py)
     async with Gateway(config, clock=VirtualClock()) as gw:
         port = await gw.listen()
         fleet = fleet_for(gw, problem.instance.num_agents, gw.connect, intruder=False)

@@ -61,7 +61,8 @@ async def _run(robots: int, steps: int, seed: int, jitter: float, tmp: Path
                     "owner")
     trace = tmp / "trace.jsonl"
     config = GatewayConfig(port=0, map=None, policy="none", log_level="WARNING",
-                           dispatch_lookahead=1, journal=tmp / "journal.sqlite", trace=trace)
+                           dispatch_lookahead=1, journal=tmp / "journal.sqlite", trace=trace,
+                           workers=0)  # virtual time: the owner alone, in this process
     async with Gateway(config, clock=VirtualClock()) as gw:
         gw.engine.meter_cpu = True
         fleet: SimFleet = fleet_for(gw, robots, gw.connect, seed=seed, intruder=False)

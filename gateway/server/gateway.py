@@ -42,7 +42,7 @@ from gateway.execution.oneshot import monitor
 from gateway.runtime.exits import EXIT_JOURNAL, EXIT_SOFTWARE, fatal
 from gateway.runtime.journal import JournalError, JournalLock
 from gateway.server import gc_tuning
-from gateway.server.clock import Clock, RealClock
+from gateway.server.clock import Clock, RealClock, VirtualClock
 from gateway.server.config import GatewayConfig
 from gateway.server.engine import Engine
 from gateway.server.http_app import Guard, create_app
@@ -83,6 +83,9 @@ class Gateway(ConnectionServer):
             config.tokens, login_ttl_s=config.login_ttl_s,
             robots_need_cert=tls is not None and tls.client_ca is not None), Metrics())
         self.clock: Clock = clock if clock is not None else RealClock(self.config.speed)
+        if config.workers and isinstance(self.clock, VirtualClock):
+            raise ValueError("worker processes run in real time: a gateway in virtual time "
+                             "serves its robots in its own process (workers = 0)")
         self.engine = Engine(self.config, self.clock, self.metrics)
         self._collectors_paused = False
         if config.lifelong is None:  # a shift keeps rare passes (gc_tuning)

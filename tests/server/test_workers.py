@@ -28,6 +28,7 @@ from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from bench.fuzz import FuzzStats, frames, fuzz
+from gateway.server.clock import VirtualClock
 from gateway.server.config import GatewayConfig
 from gateway.server.gateway import Gateway
 from gateway.server.workers.remote import RemoteSession
@@ -336,3 +337,10 @@ def test_a_port_taken_by_another_listener_is_refused_as_without_workers() -> Non
                 assert gw.workers is None or gw.workers.pids == []
 
     asyncio.run(asyncio.wait_for(go(), 60))
+
+
+def test_a_gateway_in_virtual_time_refuses_workers() -> None:
+    """Worker processes cannot share a looptime loop's virtual clock: refused at once with a
+    one-line reason, not a start that times out in no virtual time."""
+    with pytest.raises(ValueError, match=r"^worker processes run in real time"):
+        Gateway(GatewayConfig(port=0, map=None, workers=2), clock=VirtualClock())
