@@ -4,8 +4,14 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ ! -x .venv/bin/fleetgate ]; then
+  # first run: install quietly (pip's and the build's warnings go to the log, not the screen)
+  echo "fleetgate demo: first run, installing into .venv (a minute or two; log: .venv/install.log)" >&2
   python3 -m venv .venv
-  .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e .
+  if ! { .venv/bin/python -m pip install -q --upgrade pip &&
+         .venv/bin/python -m pip install -q -e .; } > .venv/install.log 2>&1; then
+    tail -n 15 .venv/install.log >&2
+    echo "fleetgate demo: the install failed (the whole log: .venv/install.log)" >&2
+    exit 1
+  fi
 fi
 exec .venv/bin/fleetgate demo "$@"
