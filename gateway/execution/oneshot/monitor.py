@@ -132,7 +132,7 @@ class Monitor:
         # now > threshold; such vertices are kept in `_active`
         self._thresholds: list[tuple[float, int, int]] = []
         self._active: set[int] = set()
-        self._queued = bytearray(nv)
+        self._queued = np.zeros(nv, np.uint8)  # the kernel's scratch: queued for evaluation
         self._tc = array("d", [math.nan]) * nv  # every vertex "changes" at first evaluation
         self._graph: _Graph | None = None  # the ADG's arrays, built on first use
         self._hold_np = _NO_HOLDS  # see with_holds
@@ -168,7 +168,7 @@ class Monitor:
         out._next = list(self._next)
         out._thresholds = list(self._thresholds)
         out._active = set(self._active)
-        out._queued = bytearray(len(self._queued))
+        out._queued = np.zeros(len(self._queued), np.uint8)
         out._graph = None if adg is not old else self._graph
         out._pending = []
         changed = [v for v in range(adg.n_vertices)
@@ -237,7 +237,7 @@ class Monitor:
                   g.pred_ptr, g.pred, g.t2_ptr, g.t2, g.robot_of, g.is_first, self._np_state,
                   self._np_remaining, self._np_ts, self._np_tc, self._np_delta,
                   self._np_release, self._np_tx, self._hold_np,
-                  self.now_ms, np.frombuffer(self._queued, np.uint8))
+                  self.now_ms, self._queued)
 
     def _flush(self) -> None:
         """Propagate the deferred starts and finishes (before any estimate is read)."""
