@@ -223,12 +223,12 @@ class WorkerPool:
         for op in ops:
             code = op[0]
             if code == REPORT:
-                reports.append((sessions[op[1]], op[3], op[5], op[4], pose(op[6], op[7], op[8]),
-                                op[2]))
+                _, sid, received, kind, ref, aid, x, y, heading = op
+                reports.append((sessions[sid], kind, aid, ref, pose(x, y, heading), received))
                 continue
             if code == STATE:
-                reports.append((sessions[op[1]], "state", "", "", pose(op[3], op[4], op[5]),
-                                op[2]))
+                _, sid, received, x, y, heading = op
+                reports.append((sessions[sid], "state", "", "", pose(x, y, heading), received))
                 continue
             if reports:
                 put(RobotReports(reports, now_ms))
