@@ -26,6 +26,7 @@ class PerTurn(Generic[T]):
         self._loop = asyncio.get_running_loop()
         self._interval_s = interval_s
         self._released_at = -interval_s  # loop time of the last release
+        self._due: asyncio.Handle | None = None  # the release scheduled for what is queued
 
     def add(self, item: T) -> None:
         """Queue ``item`` for this turn's release (or, with an interval, the next one)."""
@@ -33,7 +34,7 @@ class PerTurn(Generic[T]):
             loop = self._loop
             at = self._released_at + self._interval_s
             if self._interval_s and at > loop.time():
-                self._due: asyncio.Handle = loop.call_at(at, self._flush)
+                self._due = loop.call_at(at, self._flush)
             else:
                 self._due = loop.call_soon(self._flush)
         self._items.append(item)
@@ -41,12 +42,12 @@ class PerTurn(Generic[T]):
     def flush(self) -> None:
         """Release what was added now, not at its turn (the owner task, once it committed
         the journal: one loop turn less a batch)."""
-        if self._items:
+        if self._due is not None:
             self._due.cancel()
             self._flush()
 
     def _flush(self) -> None:
         if self._interval_s:
             self._released_at = self._loop.time()
-        items, self._items = self._items, []
+        items, self._items, self._due = self._items, [], None
         self._release(items)
